@@ -1,0 +1,329 @@
+"""ToyCar: the supplement's sandbox (§5), in pure JAX.
+
+A car drives along a straight road with one traffic light that stays red or
+green for random lengths of time. The car is a point-mass double integrator
+with two actions, throttle and brake, each in [0, 1], applying fixed positive
+and negative accelerations; speed is clipped to [0, max_speed]. The episode
+ends when the car reaches the end of the road (or at the time limit, applied
+by the rollout). Success = reaching the end without crossing the light's stop
+line while it is red.
+
+Observations:
+  * `full`: `[5] float32` = (car position m, speed m/s, light position m,
+    light is green {0, 1}, seconds left in the light's current status): the
+    fully observed state the rule-based expert acts on.
+  * `image` (default): a top-down view that follows the car, `[H, W, 3] uint8`,
+    default 128×128. The supplement's imitators see 3×128×128 (channels-first,
+    PyTorch); we keep JAX's channels-last layout for every image in the
+    project. A dashed centre line scrolls past, so speed is visible in a stack
+    of frames but not in one frame; the light's colour is visible, the time
+    left in its status is not.
+
+Per-episode metrics (`episode_metrics`) follow the driving protocol:
+`success`, `red_light_violations`, `progress`, `avg_speed` and `stuck` (the car
+stood still for `stuck_seconds` while nothing stopped it: the light was green
+or already behind it), BC-OH's "inertia" failure.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from envs.base import Env, State
+
+
+@dataclasses.dataclass(frozen=True)
+class ToyCarConfig:
+    """ToyCar's static settings (hashable; override with `envs.make("toycar", key=value)`).
+
+    Attributes:
+      dt: seconds per control step.
+      road_length: metres from the road's start to the goal line.
+      start_range: the car starts uniformly in this range of positions, metres.
+      start_speed_max: initial speed is uniform in [0, this], m/s.
+      light_range: the light's position is uniform in this range, metres.
+      max_speed: speed limit, m/s.
+      throttle_accel: acceleration at full throttle, m/s².
+      brake_accel: deceleration at full brake, m/s².
+      red_range, green_range: a status lasts uniformly this many seconds.
+      stop_margin: the expert stops this many metres before the stop line.
+      stuck_seconds: standing still this long while free to go counts as stuck.
+      episode_length: control steps per episode (the time limit).
+      image_size: (height, width) of `image` observations.
+      view_behind, view_ahead: metres of road shown behind and ahead of the car.
+    """
+
+    dt: float = 0.1
+    road_length: float = 100.0
+    start_range: tuple[float, float] = (0.0, 5.0)
+    start_speed_max: float = 4.0
+    light_range: tuple[float, float] = (40.0, 70.0)
+    max_speed: float = 10.0
+    throttle_accel: float = 3.0
+    brake_accel: float = 6.0
+    red_range: tuple[float, float] = (2.0, 8.0)
+    green_range: tuple[float, float] = (2.0, 8.0)
+    stop_margin: float = 1.0
+    stuck_seconds: float = 3.0
+    episode_length: int = 300
+    image_size: tuple[int, int] = (128, 128)
+    view_behind: float = 6.0
+    view_ahead: float = 26.0
+
+    def __post_init__(self):
+        checks = {
+            "dt": self.dt > 0,
+            "road_length": self.road_length > 0,
+            "max_speed": self.max_speed > 0,
+            "throttle_accel": self.throttle_accel > 0,
+            "brake_accel": self.brake_accel > 0,
+            "light_range": 0 < self.light_range[0] <= self.light_range[1] < self.road_length,
+            "start_range": 0 <= self.start_range[0] <= self.start_range[1] < self.light_range[0],
+            "red_range": 0 < self.red_range[0] <= self.red_range[1],
+            "green_range": 0 < self.green_range[0] <= self.green_range[1],
+            "episode_length": self.episode_length > 0,
+            "image_size": len(self.image_size) == 2 and min(self.image_size) > 0,
+        }
+        bad = [k for k, ok in checks.items() if not ok]
+        if bad:
+            raise ValueError(f"invalid ToyCar settings: {bad} (see ToyCarConfig's docstring for the valid ranges)")
+
+    @property
+    def stuck_steps(self) -> int:
+        return max(1, round(self.stuck_seconds / self.dt))
+
+
+@struct.dataclass
+class ToyCarSim:
+    """ToyCar's simulator state (all `[] float32` except `key` and `t`)."""
+
+    x: jax.Array  # car position, m
+    v: jax.Array  # speed, m/s
+    light_x: jax.Array  # stop line position, m
+    green: jax.Array  # 1.0 if the light is green
+    remaining: jax.Array  # seconds left in the light's current status
+    t: jax.Array  # [] int32 control steps since reset
+    key: jax.Array  # PRNG key for the light's future durations
+
+
+def _duration(key: jax.Array, green: jax.Array, cfg: ToyCarConfig) -> jax.Array:
+    lo = jnp.where(green > 0, cfg.green_range[0], cfg.red_range[0])
+    hi = jnp.where(green > 0, cfg.green_range[1], cfg.red_range[1])
+    return jax.random.uniform(key, (), minval=lo, maxval=hi)
+
+
+def crossed_on_red(x_prev: jax.Array, x_next: jax.Array, light_x: jax.Array, green_prev: jax.Array) -> jax.Array:
+    """1.0 where a car moving from `x_prev` to `x_next` crossed the stop line on red."""
+    return ((x_prev < light_x) & (x_next >= light_x) & (green_prev <= 0)).astype(jnp.float32)
+
+
+class ToyCar(Env):
+    """The ToyCar environment (see the module docstring)."""
+
+    name = "toycar"
+
+    def __init__(self, obs_mode: str = "image", config: ToyCarConfig | None = None):
+        if obs_mode not in ("full", "image"):
+            raise ValueError(f"unknown obs mode {obs_mode!r} for env 'toycar'; valid: ['full', 'image']")
+        self.obs_mode = obs_mode
+        self.config = config or ToyCarConfig()
+
+    @property
+    def observation_shape(self) -> tuple[int, ...]:
+        return (*self.config.image_size, 3) if self.obs_mode == "image" else (5,)
+
+    @property
+    def action_size(self) -> int:
+        return 2
+
+    @property
+    def action_bounds(self) -> tuple[jax.Array, jax.Array]:
+        return jnp.zeros(2, jnp.float32), jnp.ones(2, jnp.float32)
+
+    @property
+    def dt(self) -> float:
+        return self.config.dt
+
+    @property
+    def episode_length(self) -> int:
+        return self.config.episode_length
+
+    def _observe(self, sim: ToyCarSim) -> jax.Array:
+        return render(sim, self.config) if self.obs_mode == "image" else full_observation(sim)
+
+    def _reset(self, key: jax.Array) -> State:
+        cfg = self.config
+        k_x, k_v, k_l, k_g, k_d, k_r, k_next = jax.random.split(key, 7)
+        green = (jax.random.uniform(k_g) < 0.5).astype(jnp.float32)
+        sim = ToyCarSim(
+            x=jax.random.uniform(k_x, (), minval=cfg.start_range[0], maxval=cfg.start_range[1]),
+            v=jax.random.uniform(k_v, (), minval=0.0, maxval=cfg.start_speed_max),
+            light_x=jax.random.uniform(k_l, (), minval=cfg.light_range[0], maxval=cfg.light_range[1]),
+            green=green,
+            # the episode starts somewhere inside the current status
+            remaining=_duration(k_d, green, cfg) * jax.random.uniform(k_r, (), minval=0.05, maxval=1.0),
+            t=jnp.zeros((), jnp.int32),
+            key=k_next,
+        )
+        zero = jnp.zeros((), jnp.float32)
+        return State(sim, self._observe(sim), zero, zero, {"red_light_violation": zero})
+
+    def _step(self, state: State, action: jax.Array) -> State:
+        cfg = self.config
+        sim = state.pipeline_state
+        throttle, brake = jnp.clip(action, 0.0, 1.0)
+        v = jnp.clip(sim.v + (cfg.throttle_accel * throttle - cfg.brake_accel * brake) * cfg.dt, 0.0, cfg.max_speed)
+        x = sim.x + v * cfg.dt
+        violation = crossed_on_red(sim.x, x, sim.light_x, sim.green)
+        key, k_dur = jax.random.split(sim.key)
+        remaining = sim.remaining - cfg.dt
+        switch = remaining <= 0
+        green = jnp.where(switch, 1.0 - sim.green, sim.green)
+        remaining = jnp.where(switch, remaining + _duration(k_dur, green, cfg), remaining)
+        nxt = ToyCarSim(x=x, v=v, light_x=sim.light_x, green=green, remaining=remaining, t=sim.t + 1, key=key)
+        done = jnp.maximum(state.done, (x >= cfg.road_length).astype(jnp.float32))
+        return State(nxt, self._observe(nxt), jnp.zeros((), jnp.float32), done, {"red_light_violation": violation})
+
+    def render(self, state: State) -> jax.Array:
+        return render(state.pipeline_state, self.config)
+
+    def expert_observation(self, state: State) -> jax.Array:
+        return full_observation(state.pipeline_state)
+
+    def expert(self, full_obs: jax.Array) -> jax.Array:
+        """The rule-based expert on this environment's settings; see `expert_action`."""
+        return expert_action(full_obs, self.config)
+
+
+def full_observation(sim: ToyCarSim) -> jax.Array:
+    """`[5] float32`: position, speed, light position, light is green, time left in its status."""
+    return jnp.stack([sim.x, sim.v, sim.light_x, sim.green, sim.remaining]).astype(jnp.float32)
+
+
+def _time_to_cover(distance: jax.Array, v: jax.Array, cfg: ToyCarConfig) -> jax.Array:
+    """Seconds to drive `distance` from speed `v` at full throttle (speed-limited)."""
+    a, vmax = cfg.throttle_accel, cfg.max_speed
+    t_acc = (vmax - v) / a
+    d_acc = v * t_acc + 0.5 * a * t_acc**2
+    t_short = (-v + jnp.sqrt(v**2 + 2 * a * jnp.maximum(distance, 0.0))) / a
+    t_long = t_acc + (distance - d_acc) / vmax
+    return jnp.where(distance <= d_acc, t_short, t_long)
+
+
+def _stop_distance(v: jax.Array, cfg: ToyCarConfig) -> jax.Array:
+    """A safe upper bound on the distance needed to stop from speed `v` (discrete braking)."""
+    return v**2 / (2 * cfg.brake_accel) + v * cfg.dt
+
+
+def expert_action(full_obs: jax.Array, cfg: ToyCarConfig = ToyCarConfig()) -> jax.Array:
+    """The rule-based expert: `[5] full observation -> [2] (throttle, brake)`.
+
+    Drives at full throttle unless the light ahead forces a stop. It keeps the
+    invariant "either I can still stop before the line, or I will surely pass
+    it while green": if the light is green and full throttle passes the line
+    (with two steps of slack) before the status ends, it goes; otherwise it
+    throttles only while it could still stop after this step, coasts while
+    coasting keeps that true, and brakes when neither does. Deterministic,
+    pure, jit- and vmap-able; actions are always 0 or 1.
+    """
+    x, v, light_x, green, remaining = full_obs
+    before = x < light_x
+    line = light_x - cfg.stop_margin
+    go = (green > 0) & (_time_to_cover(light_x - x + 0.1, v, cfg) + 2 * cfg.dt < remaining)
+    v_throttle = jnp.minimum(v + cfg.throttle_accel * cfg.dt, cfg.max_speed)
+    can_stop_after_throttle = x + v_throttle * cfg.dt + _stop_distance(v_throttle, cfg) <= line
+    can_stop_after_coast = x + v * cfg.dt + _stop_distance(v, cfg) <= line
+    throttle = ~before | go | can_stop_after_throttle
+    brake = ~throttle & ~can_stop_after_coast
+    return jnp.stack([throttle, brake]).astype(jnp.float32)
+
+
+def episode_metrics(
+    initial: ToyCarSim, traj: ToyCarSim, valid: jax.Array, cfg: ToyCarConfig = ToyCarConfig()
+) -> dict[str, jax.Array]:
+    """Driving metrics of one episode from its trajectory.
+
+    Args:
+      initial: the simulator state at reset (fields `[]`).
+      traj: the simulator states after each step, stacked (fields `[T]`).
+      valid: `[T] float32`, 1 for steps inside the episode (a prefix: the steps
+        up to and including the terminal one).
+      cfg: the environment's settings.
+
+    Returns:
+      `success`, `red_light_violations`, `progress`, `avg_speed`, `stuck`, each
+      `[] float32`; vmap over episodes for a batch.
+    """
+    valid = valid.astype(jnp.float32)
+    x, v, green, light_x, x0 = traj.x, traj.v, traj.green, initial.light_x, initial.x
+    x_prev = jnp.concatenate([x0[None], x[:-1]])
+    green_prev = jnp.concatenate([initial.green[None], green[:-1]])  # status while each step ran
+    violations = jnp.sum(crossed_on_red(x_prev, x, light_x, green_prev) * valid)
+    n = jnp.maximum(jnp.sum(valid), 1.0)
+    last = jnp.argmax(jnp.cumsum(valid))  # index of the last valid step
+    x_final = x[last]
+    reached = x_final >= cfg.road_length
+    progress = 1.0 - jnp.maximum(cfg.road_length - x_final, 0.0) / (cfg.road_length - x0)
+    free_to_go = (green > 0) | (x >= light_x)
+    standing = (v < 1e-3) & free_to_go & (valid > 0)
+
+    def run_length(count, s):
+        count = jnp.where(s, count + 1, 0)
+        return count, count
+
+    _, runs = jax.lax.scan(run_length, jnp.zeros((), jnp.int32), standing)
+    return {
+        "success": (reached & (violations == 0)).astype(jnp.float32),
+        "red_light_violations": violations,
+        "progress": jnp.clip(progress, 0.0, 1.0),
+        "avg_speed": (x_final - x0) / (n * cfg.dt),
+        "stuck": (jnp.max(runs) >= cfg.stuck_steps).astype(jnp.float32),
+    }
+
+
+# -- rendering ---------------------------------------------------------------------------
+_GRASS = jnp.array([0.36, 0.55, 0.28])
+_ROAD = jnp.array([0.33, 0.33, 0.35])
+_MARK = jnp.array([0.95, 0.95, 0.95])
+_CAR = jnp.array([0.10, 0.35, 0.85])
+_RED = jnp.array([0.90, 0.10, 0.10])
+_GREEN = jnp.array([0.10, 0.85, 0.20])
+_POLE = jnp.array([0.15, 0.15, 0.15])
+
+
+def render(sim: ToyCarSim, cfg: ToyCarConfig = ToyCarConfig()) -> jax.Array:
+    """Top-down view following the car: `[H, W, 3] uint8`.
+
+    The road runs left to right; the car is drawn `view_behind` metres from the
+    left edge. Shown: grass, asphalt, a dashed centre line (3 m dashes every
+    6 m, so motion is visible between frames), the stop line and a traffic
+    light box beside the road in the light's colour, the chequered finish line,
+    and the car (4 m × 2 m).
+    """
+    h, w = cfg.image_size
+    span = cfg.view_behind + cfg.view_ahead
+    half_height = span * h / w / 2  # metres from the road's centre to the image's top edge
+    wx = sim.x - cfg.view_behind + (jnp.arange(w) + 0.5) / w * span  # [W]
+    wy = half_height - (jnp.arange(h) + 0.5) / h * 2 * half_height  # [H]
+    X, Y = jnp.meshgrid(wx, wy)  # [H, W]
+    road_half = 3.5
+    on_road = jnp.abs(Y) <= road_half
+    img = jnp.where(on_road[..., None], _ROAD, _GRASS)
+    dash = on_road & (jnp.abs(Y) <= 0.25) & ((X % 6.0) < 3.0)
+    img = jnp.where(dash[..., None], _MARK, img)
+    stop_line = on_road & (jnp.abs(X - sim.light_x) <= 0.4)
+    img = jnp.where(stop_line[..., None], _MARK, img)
+    lamp = (jnp.abs(X - sim.light_x) <= 1.5) & (Y >= road_half + 0.8) & (Y <= road_half + 3.8)
+    pole = (jnp.abs(X - sim.light_x) <= 0.4) & (Y > road_half) & (Y < road_half + 0.8)
+    img = jnp.where(pole[..., None], _POLE, img)
+    img = jnp.where(lamp[..., None], jnp.where(sim.green > 0, _GREEN, _RED), img)
+    finish = on_road & (jnp.abs(X - cfg.road_length) <= 1.0)
+    checker = ((jnp.floor(X) + jnp.floor(Y)) % 2) > 0
+    img = jnp.where(finish[..., None], jnp.where(checker[..., None], _MARK, _POLE), img)
+    car = (X >= sim.x - 4.0) & (X <= sim.x) & (jnp.abs(Y + road_half / 2) <= 1.0)
+    img = jnp.where(car[..., None], _CAR, img)
+    return jnp.round(img * 255).astype(jnp.uint8)
