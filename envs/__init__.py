@@ -73,7 +73,8 @@ def make(name: str, obs: str | None = None, **overrides) -> Env:
     _check_name(name)
     obs = default_obs(name) if obs is None else obs
     if obs not in obs_modes(name):
-        raise ValueError(f"unknown obs mode {obs!r} for env {name!r}; valid: {list(obs_modes(name))}")
+        why = " (obs='image' needs the mjx backend)" if obs == "image" and name != "toycar" else ""
+        raise ValueError(f"unknown obs mode {obs!r} for env {name!r}; valid: {list(obs_modes(name))}{why}")
     if name == "toycar":
         valid = {f.name for f in dataclasses.fields(ToyCarConfig)}
         unknown = sorted(set(overrides) - valid)

@@ -165,13 +165,14 @@ class BraxEnv(Env):
         self._pos_idx = None
         if obs_mode == "pos":
             self._pos_idx = jnp.asarray(positional_dims(name, config.backend, config.brax_kwargs))
-        self._renderer = None
+        self._renderer = self._segmenter = self.camera = None
         if config.backend == "mjx":
             h, w = config.image_size
             camera = config.camera or render_lib.camera_for_model(self._env.sys.mj_model, h, w)
             camera = dataclasses.replace(camera, height=h, width=w)
             self.camera = camera
             self._renderer = render_lib.make_renderer(self._env.sys, camera)
+            self._segmenter = render_lib.make_segmenter(self._env.sys, camera)
         elif obs_mode == "image":
             raise ValueError(
                 f"obs='image' needs the mjx backend; Brax's {name!r} runs on {config.backend!r} only"
@@ -189,7 +190,13 @@ class BraxEnv(Env):
             return (*self.config.image_size, 3)
         if self.obs_mode == "pos":
             return (int(self._pos_idx.shape[0]),)
-        return (int(self._env.observation_size),)
+        return (self._full_obs_size,)
+
+    @functools.cached_property
+    def _full_obs_size(self) -> int:
+        # Brax's `observation_size` runs an un-jitted reset (~10 s for MJX) on every
+        # access; tracing one abstractly costs ~1 s, once per environment object.
+        return int(jax.eval_shape(self._env.reset, jax.random.PRNGKey(0)).obs.shape[-1])
 
     @property
     def action_size(self) -> int:
@@ -249,6 +256,12 @@ class BraxEnv(Env):
         if self._renderer is None:
             raise ValueError(f"rendering needs the mjx backend; {self.name!r} runs on {self.config.backend!r}")
         return self._renderer(state.pipeline_state)
+
+    def segmentation(self, state: State) -> jax.Array:
+        """`[H, W] int32` geom id seen at each pixel of `render(state)` (-1: sky)."""
+        if self._segmenter is None:
+            raise ValueError(f"rendering needs the mjx backend; {self.name!r} runs on {self.config.backend!r}")
+        return self._segmenter(state.pipeline_state)
 
     def expert_observation(self, state: State) -> jax.Array:
         """Brax's full observation (positions and velocities), what RL experts are trained on."""

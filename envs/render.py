@@ -143,6 +143,37 @@ def _local_normal(gtype: jax.Array, size: jax.Array, p: jax.Array, ray_dir_local
     return n / jnp.maximum(jnp.linalg.norm(n), eps)
 
 
+def _with_material_row(model):
+    """MJX's `ray` reads `mat_rgba[geom_matid]`, which fails to trace on models with
+    no materials (Brax's pendulums, Reacher, Pusher); one opaque dummy row fixes
+    the gather without changing any result (their `geom_matid` is -1 throughout)."""
+    if np.asarray(model.mat_rgba).shape[0] == 0:
+        model = model.replace(mat_rgba=np.ones((1, 4), np.float32))
+    return model
+
+
+def _cast(model, camera: Camera, dirs: jax.Array, data):
+    """Casts every pixel's ray: returns (origin [3], distance [P], geom id [P] (-1: sky))."""
+    target = data.xpos[camera.track_body]
+    origin = jnp.stack([target[0], target[1] - camera.distance, jnp.asarray(camera.elevation, target.dtype)])
+    dist, gid = jax.vmap(lambda d: mjx.ray(model, data, origin, d))(dirs)
+    return origin, dist, gid
+
+
+def make_segmenter(model, camera: Camera):
+    """Builds `segment(data) -> [H, W] int32`: the geom id seen at each pixel, -1 for sky.
+
+    The same rays as `make_renderer`'s, so masks line up with frames pixel for pixel.
+    """
+    dirs = jnp.asarray(camera.ray_directions())
+    model = _with_material_row(model)
+
+    def segment(data) -> jax.Array:
+        return _cast(model, camera, dirs, data)[2].reshape(camera.height, camera.width)
+
+    return segment
+
+
 def make_renderer(model, camera: Camera):
     """Builds `render(data) -> [H, W, 3] uint8` for an MJX model.
 
@@ -154,6 +185,7 @@ def make_renderer(model, camera: Camera):
       A pure function of `mjx.Data`, traceable under `jit` and `vmap`.
     """
     dirs = jnp.asarray(camera.ray_directions())  # [P, 3]
+    model = _with_material_row(model)
     geom_type = jnp.asarray(np.asarray(model.geom_type))
     geom_size = jnp.asarray(np.asarray(model.geom_size), jnp.float32)
     colors = jnp.asarray(_PALETTE[np.arange(int(model.ngeom)) % len(_PALETTE)])
@@ -163,9 +195,7 @@ def make_renderer(model, camera: Camera):
     sky = jnp.broadcast_to(sky[:, None, :], (camera.height, camera.width, 3)).reshape(-1, 3)
 
     def render(data) -> jax.Array:
-        target = data.xpos[camera.track_body]
-        origin = jnp.stack([target[0], target[1] - camera.distance, jnp.asarray(camera.elevation, target.dtype)])
-        dist, gid = jax.vmap(lambda d: mjx.ray(model, data, origin, d))(dirs)
+        origin, dist, gid = _cast(model, camera, dirs, data)
         hit = gid >= 0
         g = jnp.maximum(gid, 0)
         point = origin + dist[:, None] * dirs  # [P, 3] world hit points

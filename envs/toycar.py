@@ -310,15 +310,17 @@ def render(sim: ToyCarSim, cfg: ToyCarConfig = ToyCarConfig()) -> jax.Array:
     wx = sim.x - cfg.view_behind + (jnp.arange(w) + 0.5) / w * span  # [W]
     wy = half_height - (jnp.arange(h) + 0.5) / h * 2 * half_height  # [H]
     X, Y = jnp.meshgrid(wx, wy)  # [H, W]
+    # thin lines are at least one pixel wide, so they survive small images
+    px_x, px_y = span / w / 2, half_height / h
     road_half = 3.5
     on_road = jnp.abs(Y) <= road_half
     img = jnp.where(on_road[..., None], _ROAD, _GRASS)
-    dash = on_road & (jnp.abs(Y) <= 0.25) & ((X % 6.0) < 3.0)
+    dash = on_road & (jnp.abs(Y) <= max(0.25, px_y)) & ((X % 6.0) < 3.0)
     img = jnp.where(dash[..., None], _MARK, img)
-    stop_line = on_road & (jnp.abs(X - sim.light_x) <= 0.4)
+    stop_line = on_road & (jnp.abs(X - sim.light_x) <= max(0.4, px_x))
     img = jnp.where(stop_line[..., None], _MARK, img)
     lamp = (jnp.abs(X - sim.light_x) <= 1.5) & (Y >= road_half + 0.8) & (Y <= road_half + 3.8)
-    pole = (jnp.abs(X - sim.light_x) <= 0.4) & (Y > road_half) & (Y < road_half + 0.8)
+    pole = (jnp.abs(X - sim.light_x) <= max(0.4, px_x)) & (Y > road_half) & (Y < road_half + 0.8)
     img = jnp.where(pole[..., None], _POLE, img)
     img = jnp.where(lamp[..., None], jnp.where(sim.green > 0, _GREEN, _RED), img)
     finish = on_road & (jnp.abs(X - cfg.road_length) <= 1.0)
