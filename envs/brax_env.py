@@ -76,14 +76,17 @@ def default_config(name: str) -> BraxConfig:
     return BraxConfig(backend=backend)
 
 
-def _constructor_params(cls) -> list[str]:
+@functools.lru_cache(maxsize=None)
+def constructor_params(name: str) -> tuple[str, ...]:
+    """Keyword arguments the Brax environment `name`'s constructor accepts."""
+    cls = brax_envs._envs[name]
     params = []
     for klass in cls.__mro__:
         if "__init__" in vars(klass):
             for p in inspect.signature(klass.__init__).parameters.values():
                 if p.name != "self" and p.kind not in (p.VAR_KEYWORD, p.VAR_POSITIONAL):
                     params.append(p.name)
-    return sorted(set(params) - {"sys", "backend"})
+    return tuple(sorted(set(params) - {"sys", "backend"}))
 
 
 def split_overrides(name: str, overrides: dict) -> BraxConfig:
@@ -95,7 +98,7 @@ def split_overrides(name: str, overrides: dict) -> BraxConfig:
     """
     config = default_config(name)
     ours = {f.name for f in dataclasses.fields(BraxConfig)} - {"brax_kwargs"}
-    brax_params = _constructor_params(brax_envs._envs[name])
+    brax_params = list(constructor_params(name))
     mine, theirs = {}, {}
     for key, value in overrides.items():
         if key in ours:
