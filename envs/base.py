@@ -94,8 +94,9 @@ class Env(abc.ABC):
         healthy = self._is_finite(nxt)
         flags = _flags(1.0 - valid.astype(jnp.float32), 1.0 - healthy.astype(jnp.float32))
         nxt = nxt.replace(metrics={**nxt.metrics, **flags})
+        # the step's own metrics may be NaN when physics failed: keep the previous ones
         frozen = state.replace(
-            reward=jnp.zeros_like(state.reward), done=jnp.ones_like(state.done), metrics=nxt.metrics
+            reward=jnp.zeros_like(state.reward), done=jnp.ones_like(state.done), metrics={**state.metrics, **flags}
         )
         ok = valid & healthy
         return strong_types(jax.tree.map(lambda a, b: jnp.where(ok, a, b), nxt, frozen))

@@ -149,9 +149,19 @@ def test_non_finite_action_ends_the_episode_without_simulating(name):
         good = env.step(s0, jnp.full(env.action_size, 0.5))
         bad = env.step(good, jnp.full(env.action_size, 0.5).at[0].set(jnp.nan))
         inf = env.step(good, jnp.full(env.action_size, jnp.inf))
-        return good, bad, inf
+        # a simulator state that cannot be integrated (every velocity-like field huge)
+        if name == "toycar":
+            poisoned = good.replace(pipeline_state=good.pipeline_state.replace(x=jnp.float32(jnp.nan)))
+        else:
+            poisoned = good.replace(pipeline_state=good.pipeline_state.replace(qvel=good.pipeline_state.qvel + 3e38))
+        blown = env.step(poisoned, jnp.full(env.action_size, 0.5))
+        return good, bad, inf, poisoned, blown
 
-    good, bad, inf = run(jax.random.PRNGKey(2))
+    good, bad, inf, poisoned, blown = run(jax.random.PRNGKey(2))
+    assert float(blown.metrics["nonfinite_state"]) == 1.0 and float(blown.metrics["invalid_action"]) == 0.0
+    assert float(blown.done) == 1.0 and float(blown.reward) == 0.0
+    np.testing.assert_array_equal(np.asarray(blown.obs), np.asarray(poisoned.obs))
+    _assert_finite(blown.metrics)
     assert float(good.metrics["invalid_action"]) == 0 and float(good.done) == 0
     for s in (bad, inf):
         assert float(s.done) == 1.0
