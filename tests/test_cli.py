@@ -5,6 +5,8 @@ import sys
 
 import pytest
 
+import envs
+
 from experiments import bench_envs, sweep
 
 
@@ -34,7 +36,8 @@ def test_sweep_refuses_bad_input_with_exit_code_2(argv, message, capsys):
 
 def test_sweep_accepts_the_default_command_line():
     args = sweep.parse([])
-    assert args.preset == "quick" and "hopper" in args.names and "toycar" in args.names
+    assert args.preset == "quick" and args.names == ["hopper", "halfcheetah", "walker2d", "toycar"]
+    assert sweep.parse(["--env", "all"]).names == list(envs.names())
 
 
 def test_benchmark_section_is_replaced_in_place(tmp_path):
