@@ -81,7 +81,7 @@ def make(name: str, obs: str | None = None, **overrides) -> Env:
         if unknown:
             raise ValueError(f"unknown setting(s) {unknown} for env 'toycar'; valid: {sorted(valid)}")
         if "image_size" in overrides:
-            overrides["image_size"] = brax_env._image_size(overrides["image_size"])
+            overrides["image_size"] = brax_env.parse_image_size(overrides["image_size"])
         return ToyCar(obs, ToyCarConfig(**overrides))
     return brax_env.BraxEnv(name, obs, brax_env.split_overrides(name, overrides))
 

@@ -111,11 +111,12 @@ def split_overrides(name: str, overrides: dict) -> BraxConfig:
                 f"or the Brax constructor's {brax_params}"
             )
     if "image_size" in mine:
-        mine["image_size"] = _image_size(mine["image_size"])
+        mine["image_size"] = parse_image_size(mine["image_size"])
     return dataclasses.replace(config, **mine, brax_kwargs=tuple(sorted(theirs.items())))
 
 
-def _image_size(value) -> tuple[int, int]:
+def parse_image_size(value) -> tuple[int, int]:
+    """`64` or `(64, 48)` -> `(height, width)`; `ValueError` for anything else."""
     size = (value, value) if isinstance(value, int) else tuple(value)
     if len(size) != 2 or not all(isinstance(s, (int, np.integer)) and s > 0 for s in size):
         raise ValueError(f"image_size must be a positive int or (height, width), got {value!r}")
