@@ -256,15 +256,17 @@ class BraxEnv(Env):
         return jnp.all(jnp.isfinite(state.info["brax_obs"]))
 
     # -- views --------------------------------------------------------------------------
-    def render(self, state: State) -> jax.Array:
+    def _require_mjx(self) -> None:
         if self._renderer is None:
             raise ValueError(f"rendering needs the mjx backend; {self.name!r} runs on {self.config.backend!r}")
+
+    def render(self, state: State) -> jax.Array:
+        self._require_mjx()
         return self._renderer(state.pipeline_state)
 
     def segmentation(self, state: State) -> jax.Array:
         """`[H, W] int32` geom id seen at each pixel of `render(state)` (-1: sky)."""
-        if self._segmenter is None:
-            raise ValueError(f"rendering needs the mjx backend; {self.name!r} runs on {self.config.backend!r}")
+        self._require_mjx()
         return self._segmenter(state.pipeline_state)
 
     def expert_observation(self, state: State) -> jax.Array:

@@ -84,6 +84,10 @@ class Camera:
         if self.distance <= 0.0:
             raise ValueError(f"camera distance must be positive, got {self.distance}")
 
+    def origin(self, target: jax.Array) -> jax.Array:
+        """Camera position `[3]` for a tracked body at world position `target` `[3]`."""
+        return jnp.stack([target[0], target[1] - self.distance, jnp.asarray(self.elevation, jnp.result_type(target))])
+
     def ray_directions(self) -> np.ndarray:
         """Unit ray directions in world axes, `[H * W, 3] float32`, row-major."""
         t = math.tan(math.radians(self.fov_deg) / 2)
@@ -154,8 +158,7 @@ def _with_material_row(model):
 
 def _cast(model, camera: Camera, dirs: jax.Array, data):
     """Casts every pixel's ray: returns (origin [3], distance [P], geom id [P] (-1: sky))."""
-    target = data.xpos[camera.track_body]
-    origin = jnp.stack([target[0], target[1] - camera.distance, jnp.asarray(camera.elevation, target.dtype)])
+    origin = camera.origin(data.xpos[camera.track_body])
     dist, gid = jax.vmap(lambda d: mjx.ray(model, data, origin, d))(dirs)
     return origin, dist, gid
 

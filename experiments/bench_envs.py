@@ -69,8 +69,7 @@ def render_fps(name: str, size: int, batch: int, repeats: int) -> dict:
     mujoco.mj_forward(model, data)
     cam = env.camera
     dirs = cam.ray_directions().astype(np.float64)
-    target = data.xpos[cam.track_body]
-    origin = np.array([target[0], target[1] - cam.distance, cam.elevation])
+    origin = np.asarray(cam.origin(data.xpos[cam.track_body]), np.float64)
     geomid = np.zeros(len(dirs), np.int32)
     dist = np.zeros(len(dirs), np.float64)
     frames = 20
