@@ -151,6 +151,18 @@ class Env(abc.ABC):
     def expert_observation(self, state: State) -> jax.Array:
         """The fully observed `[d] float32` vector an expert acts on."""
 
+    def sim_state(self, state: State) -> Any:
+        """The simulator's own state inside `state`: a small pytree of arrays.
+
+        Stored per step in demonstrations; `observe_sim` turns it back into an
+        observation in any mode, so a dataset can be re-observed or re-rendered.
+        """
+        raise NotImplementedError(f"{self.name}: sim_state is not available")
+
+    def observe_sim(self, sim: Any) -> jax.Array:
+        """The observation (in this env's mode) of simulator state `sim` from `sim_state`."""
+        raise NotImplementedError(f"{self.name}: observe_sim is not available")
+
     def check_action(self, action: jax.Array) -> None:
         """Raises `ValueError` at trace time when `action` has the wrong shape."""
         shape = tuple(jnp.shape(action))

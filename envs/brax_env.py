@@ -255,6 +255,26 @@ class BraxEnv(Env):
     def _is_finite(self, state: State) -> jax.Array:
         return jnp.all(jnp.isfinite(state.info["brax_obs"]))
 
+    def sim_state(self, state: State) -> dict[str, jax.Array]:
+        """`{"qpos": [nq], "qvel": [nv]}`: MuJoCo's physical state, all the rest is derived from it."""
+        return {"qpos": state.pipeline_state.q, "qvel": state.pipeline_state.qd}
+
+    def observe_sim(self, sim: dict[str, jax.Array]) -> jax.Array:
+        """Observation of `{"qpos", "qvel"}`, recomputing body poses with `mj_forward`.
+
+        Exact for observations built from `qpos`/`qvel` (HalfCheetah, Walker2d).
+        Brax's stepped states carry body poses from before the last physics
+        substep, so quantities read from them (Hopper's torso height, and the
+        rendered frame) differ from the recorded ones by that substep's motion.
+        """
+        ps = self._env.pipeline_init(sim["qpos"], sim["qvel"])
+        get_obs = self._env._get_obs
+        if len(inspect.signature(get_obs).parameters) == 1:
+            brax_obs = get_obs(ps)
+        else:  # e.g. Humanoid's observation also reads the last action
+            brax_obs = get_obs(ps, jnp.zeros(self.action_size))
+        return self._observe(BraxState(ps, brax_obs, jnp.zeros(()), jnp.zeros(()), {}, {}))
+
     # -- views --------------------------------------------------------------------------
     def _require_mjx(self) -> None:
         if self._renderer is None:

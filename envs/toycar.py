@@ -188,6 +188,12 @@ class ToyCar(Env):
         done = jnp.maximum(state.done, (x >= cfg.road_length).astype(jnp.float32))
         return State(nxt, self._observe(nxt), jnp.zeros((), jnp.float32), done, {"red_light_violation": violation})
 
+    def sim_state(self, state: State) -> ToyCarSim:
+        return state.pipeline_state
+
+    def observe_sim(self, sim: ToyCarSim | dict) -> jax.Array:
+        return self._observe(ToyCarSim(**sim) if isinstance(sim, dict) else sim)
+
     def render(self, state: State) -> jax.Array:
         return render(state.pipeline_state, self.config)
 

@@ -1,0 +1,175 @@
+"""The experts shipped with ape_jax, and the files they live in.
+
+Each MuJoCo expert is a deterministic MLP acting on the **full** Brax
+observation, trained by `python -m experiments.train_expert --env NAME` and
+committed as two files under `envs/experts/NAME/`:
+
+- `policy/` — an orbax checkpoint of the parameters: `obs_mean [D]`,
+  `obs_std [D]`, `kernels` (a list of `[in, out]` float32 matrices) and
+  `biases` (a list of `[out]` vectors);
+- `card.json` — how it was made and how good it is: algorithm, hyperparameters,
+  environment steps, wall time, hardware, the network spec and the return over
+  100 episodes next to a random policy's.
+
+The network is `a = tanh(first action_size outputs of MLP((obs - mean) / std))`
+with ReLU hidden layers, the mode of the SAC policy. It is evaluated here
+from the parameters alone, so loading needs neither Brax's `load_policy` nor
+its network classes:
+
+    policy = envs.experts.load("hopper")   # jit-able: [..., D] -> [..., A]
+    action = jax.jit(policy)(state.info["brax_obs"])
+
+ToyCar's expert is the rule-based one, `envs.toycar.expert_action`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import pathlib
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+ROOT = pathlib.Path(__file__).parent
+CARD = "card.json"
+POLICY = "policy"
+
+
+class ExpertError(RuntimeError):
+    """A missing or unreadable expert; the message names the file and the command that trains it."""
+
+
+def train_command(name: str) -> str:
+    return f"python -m experiments.train_expert --env {name}"
+
+
+def available() -> tuple[str, ...]:
+    """Names of the environments with a shipped expert (a card on disk)."""
+    return tuple(sorted(p.parent.name for p in ROOT.glob(f"*/{CARD}")))
+
+
+def directory(name: str) -> pathlib.Path:
+    return ROOT / name
+
+
+def card(name: str, root: pathlib.Path | None = None) -> dict:
+    """The expert's card (see the module docstring) as a dict.
+
+    Raises:
+      ExpertError: no card, or one that is not valid JSON with a `network` spec.
+    """
+    path = (root or directory(name)) / CARD
+    if not path.is_file():
+        raise ExpertError(f"no expert for {name!r}: {path} does not exist; train one with "
+                          f"`{train_command(name)}`")
+    try:
+        data = json.loads(path.read_text())
+        net = data["network"]
+        sizes = [int(net["obs_size"]), *map(int, net["hidden"]), 2 * int(net["action_size"])]
+    except (ValueError, KeyError, TypeError) as e:
+        raise ExpertError(f"corrupt expert card {path}: {type(e).__name__}: {e}; retrain with "
+                          f"`{train_command(name)}`") from e
+    data["network"]["layer_sizes"] = sizes
+    return data
+
+
+def save(out: pathlib.Path, params: dict, card_data: dict) -> None:
+    """Writes an expert (`params` as in the module docstring) and its card into directory `out`.
+
+    The parameters are written first and the card last, so a directory with a
+    card always holds a complete expert.
+    """
+    import shutil
+
+    import orbax.checkpoint as ocp
+
+    out = pathlib.Path(out).absolute()
+    out.mkdir(parents=True, exist_ok=True)
+    (out / CARD).unlink(missing_ok=True)
+    if (out / POLICY).exists():
+        shutil.rmtree(out / POLICY)
+    tree = jax.tree.map(np.asarray, params)
+    with ocp.StandardCheckpointer() as ckpt:
+        ckpt.save(out / POLICY, tree)
+    tmp = out / (CARD + ".tmp")
+    tmp.write_text(json.dumps(card_data, indent=2, sort_keys=True) + "\n")
+    tmp.replace(out / CARD)
+
+
+def load_params(name: str, root: pathlib.Path | None = None) -> dict:
+    """The expert's parameters, checked against its card's network spec.
+
+    Raises:
+      ExpertError: missing files, an unreadable checkpoint, or shapes or values
+        that disagree with the card (the message names the file).
+    """
+    import orbax.checkpoint as ocp
+
+    root = root or directory(name)
+    sizes = card(name, root)["network"]["layer_sizes"]
+    path = (root / POLICY).absolute()
+    abstract = {
+        "obs_mean": jax.ShapeDtypeStruct((sizes[0],), jnp.float32),
+        "obs_std": jax.ShapeDtypeStruct((sizes[0],), jnp.float32),
+        "kernels": [jax.ShapeDtypeStruct((a, b), jnp.float32) for a, b in zip(sizes[:-1], sizes[1:])],
+        "biases": [jax.ShapeDtypeStruct((b,), jnp.float32) for b in sizes[1:]],
+    }
+    if not path.is_dir():
+        raise ExpertError(f"no expert parameters for {name!r}: {path} does not exist; train them with "
+                          f"`{train_command(name)}`")
+    try:
+        with ocp.StandardCheckpointer() as ckpt:
+            params = ckpt.restore(path, abstract)
+    except Exception as e:  # orbax raises many types for damaged files
+        raise ExpertError(f"corrupt expert checkpoint {path}: {type(e).__name__}: {str(e)[:300]}; "
+                          f"retrain with `{train_command(name)}`") from e
+    got = jax.tree.map(lambda x: tuple(np.shape(x)), params)
+    want = jax.tree.map(lambda x: x.shape, abstract)
+    if got != want:
+        raise ExpertError(f"corrupt expert checkpoint {path}: parameter shapes {got} do not match the "
+                          f"card's network {sizes}; retrain with `{train_command(name)}`")
+    if not all(bool(np.all(np.isfinite(x))) for x in jax.tree.leaves(params)):
+        raise ExpertError(f"corrupt expert checkpoint {path}: non-finite parameters; retrain with "
+                          f"`{train_command(name)}`")
+    return jax.tree.map(jnp.asarray, params)
+
+
+def policy_from_params(params: dict) -> Callable[[jax.Array], jax.Array]:
+    """A deterministic policy `obs [..., D] float -> action [..., A] float32` in [-1, 1]."""
+    n_layers = len(params["kernels"])
+
+    def policy(obs: jax.Array) -> jax.Array:
+        x = (jnp.asarray(obs, jnp.float32) - params["obs_mean"]) / params["obs_std"]
+        for i, (k, b) in enumerate(zip(params["kernels"], params["biases"])):
+            x = x @ k + b
+            if i < n_layers - 1:
+                x = jax.nn.relu(x)
+        return jnp.tanh(x[..., : x.shape[-1] // 2])
+
+    return policy
+
+
+def load(name: str, root: pathlib.Path | None = None) -> Callable[[jax.Array], jax.Array]:
+    """The shipped expert of environment `name` as a jit-able `obs -> action`.
+
+    Args:
+      name: an environment with an expert (`available()`), e.g. `"hopper"`.
+      root: a directory holding `card.json` and `policy/` instead of the
+        shipped one (e.g. a freshly trained expert).
+
+    Returns:
+      `policy(obs)`: `obs [..., D] float32` (the full Brax observation,
+      `env.expert_observation(state)`) to `action [..., A] float32`.
+
+    Raises:
+      ExpertError: a missing or corrupt checkpoint, naming the file and the
+        command that trains it.
+    """
+    return policy_from_params(load_params(name, root))
+
+
+def param_count(params: dict) -> int:
+    return int(sum(math.prod(np.shape(x)) for x in jax.tree.leaves(params)))
