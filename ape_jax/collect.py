@@ -74,6 +74,17 @@ def _noisy_expert(env: envs.Env, expert, noise_frac: float, noise_std: float) ->
     return envs.stateless(act)
 
 
+def make_batch_collector(env: envs.Env, expert: Callable[[jax.Array], jax.Array], batch: int,
+                         noise_frac: float = 0.0, noise_std: float = 0.0) -> Callable[[jax.Array], envs.Trajectory]:
+    """A jitted `key -> Trajectory` of `batch` expert episodes; `extra` holds the clean label and sim state."""
+    policy = _noisy_expert(env, expert, noise_frac, noise_std)
+
+    def record(state):
+        return {"label": expert(env.expert_observation(state)), "sim": _as_dict(env.sim_state(state))}
+
+    return jax.jit(lambda k: envs.rollout(env, policy, None, k, batch, record=record))
+
+
 def collect(env: envs.Env, expert: Callable[[jax.Array], jax.Array], key: jax.Array, num_episodes: int,
             noise_frac: float = 0.0, noise_std: float = 0.0, batch: int = 32,
             progress: Callable[[int], None] | None = None) -> data_lib.Demonstrations:
@@ -100,12 +111,7 @@ def collect(env: envs.Env, expert: Callable[[jax.Array], jax.Array], key: jax.Ar
     if not 0.0 <= noise_frac <= 1.0 or noise_std < 0:
         raise ValueError(f"noise_frac must be in [0, 1] and noise_std >= 0, got {noise_frac} and {noise_std}")
     batch = min(batch, num_episodes)
-    policy = _noisy_expert(env, expert, noise_frac, noise_std)
-
-    def record(state):
-        return {"label": expert(env.expert_observation(state)), "sim": _as_dict(env.sim_state(state))}
-
-    run = jax.jit(lambda k: envs.rollout(env, policy, None, k, batch, record=record))
+    run = make_batch_collector(env, expert, batch, noise_frac, noise_std)
     parts = []
     for i in range(-(-num_episodes // batch)):
         traj = jax.device_get(run(jax.random.fold_in(key, i)))

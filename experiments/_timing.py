@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import platform
+import re
 import statistics
 import time
 from typing import Any, Callable
@@ -55,3 +58,33 @@ def rollout_throughput(env, batch: int, steps: int, repeats: int) -> dict:
     run = jax.jit(lambda k: envs.rollout(env, policy, None, k, batch, steps).returns)
     compile_s, steady_s, returns = time_jitted(run, jax.random.PRNGKey(0), repeats=repeats)
     return {"compile_s": compile_s, "steps_per_s": batch * steps / steady_s, "return_mean": float(returns.mean())}
+
+
+def machine() -> str:
+    """The CPU, core count, and JAX and MuJoCo versions, for benchmark headers."""
+    from importlib.metadata import version
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            names = re.findall(r"model name\s*:\s*(.*)", f.read())
+        cpu = names[0] if names else cpu
+    except OSError:
+        pass
+    return f"{cpu}, {os.cpu_count()} cores, jax {jax.__version__} ({jax.default_backend()}), mujoco {version('mujoco')}"
+
+
+def write_section(path: str, text: str, name: str = "bench_envs") -> None:
+    """Replaces the section of `path` between `<!-- NAME:start -->` and `<!-- NAME:end -->`
+    (or appends it), atomically."""
+    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    block = f"{start}\n{text}{end}\n"
+    old = open(path).read() if os.path.exists(path) else "# Benchmarks\n\n"
+    if start in old and end in old:
+        new = old[: old.index(start)] + block + old[old.index(end) + len(end) + 1 :]
+    else:
+        new = old.rstrip("\n") + "\n\n" + block
+    tmp = path + ".tmp"
+    with open(tmp, "w") as f:
+        f.write(new)
+    os.replace(tmp, path)

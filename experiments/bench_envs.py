@@ -13,9 +13,6 @@ substeps per control step, single-threaded; native ray casting uses
 from __future__ import annotations
 
 import argparse
-import os
-import platform
-import re
 import statistics
 import sys
 import time
@@ -25,9 +22,9 @@ import numpy as np
 
 import envs
 from envs._quiet import mujoco
-from experiments._timing import rollout_throughput, time_jitted
+from experiments._timing import machine, rollout_throughput, time_jitted, write_section
 
-START, END = "<!-- bench_envs:start -->", "<!-- bench_envs:end -->"
+SECTION = "bench_envs"
 
 
 def mjx_steps(name: str, obs: str, batch: int, steps: int, repeats: int, **overrides) -> dict:
@@ -82,17 +79,6 @@ def render_fps(name: str, size: int, batch: int, repeats: int) -> dict:
     return {"compile_s": compile_s, "fps": batch / steady_s, "native_fps": statistics.median(rates)}
 
 
-def machine() -> str:
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            names = re.findall(r"model name\s*:\s*(.*)", f.read())
-        cpu = names[0] if names else cpu
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, jax {jax.__version__} ({jax.default_backend()}), mujoco {mujoco.__version__}"
-
-
 def table(args) -> str:
     lines = [
         "## Environment throughput",
@@ -133,20 +119,6 @@ def table(args) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_section(path: str, text: str) -> None:
-    """Replaces the marked section of `path` (or appends it), atomically."""
-    block = f"{START}\n{text}{END}\n"
-    old = open(path).read() if os.path.exists(path) else "# Benchmarks\n\n"
-    if START in old and END in old:
-        new = old[: old.index(START)] + block + old[old.index(END) + len(END) + 1 :]
-    else:
-        new = old.rstrip("\n") + "\n\n" + block
-    tmp = path + ".tmp"
-    with open(tmp, "w") as f:
-        f.write(new)
-    os.replace(tmp, path)
-
-
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--batch", type=int, default=128, help="environments stepped in parallel (vmap)")
@@ -160,7 +132,7 @@ def main(argv=None) -> int:
     text = table(args)
     print(text)
     if args.write:
-        write_section(args.write, text)
+        write_section(args.write, text, SECTION)
         print(f"wrote the section to {args.write}")
     return 0
 

@@ -20,7 +20,6 @@ import argparse
 import dataclasses
 import json
 import pathlib
-import platform
 import sys
 import time
 
@@ -86,7 +85,6 @@ def main(argv=None) -> int:
     from tqdm import tqdm
 
     import envs
-    from envs import experts
     from envs.experts.sac import make_trainer
 
     cfg = make_config(args)
@@ -143,6 +141,7 @@ def export(args, cfg, env, params, meta) -> int:
 
     from envs import experts
     from experiments._measure import expert_and_random_returns
+    from experiments._timing import machine
 
     out = args.out or experts.directory(args.env)
     print(f"measuring the best policy (evaluation return {meta['best_return']:.1f} at "
@@ -155,7 +154,7 @@ def export(args, cfg, env, params, meta) -> int:
         "hyperparameters": dataclasses.asdict(cfg),
         "env_steps": meta["best_step"], "env_steps_trained": meta["history"][-1]["env_steps"] if meta["history"] else 0,
         "wall_s": round(meta["wall_s"], 1),
-        "hardware": f"{platform.processor() or platform.machine()}, {jax.device_count()} x {jax.devices()[0].device_kind}",
+        "hardware": machine(),
         "network": {"obs_size": int(params["obs_mean"].shape[0]), "action_size": int(env.action_size),
                     "hidden": list(cfg.hidden_layer_sizes), "activation": "relu",
                     "output": "tanh of the first action_size outputs", "normalize_observations": True},
