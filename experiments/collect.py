@@ -40,7 +40,8 @@ def parse(argv=None) -> argparse.Namespace:
     args.obs = args.obs or ("image" if args.env == "toycar" else "pos" if "pos" in modes else envs.default_obs(args.env))
     if args.obs not in modes:
         fail(p, f"--obs {args.obs!r} is not supported by {args.env}; valid: {', '.join(modes)}")
-    args.episodes = args.episodes or collect.default_episodes(args.env)
+    if args.episodes is None:
+        args.episodes = collect.default_episodes(args.env)
     if args.episodes < 1 or args.batch < 1:
         fail(p, "--episodes and --batch must be >= 1")
     if not 0.0 <= args.noise_frac <= 1.0 or args.noise_std < 0:

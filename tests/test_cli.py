@@ -7,7 +7,7 @@ import pytest
 
 import envs
 
-from experiments import bench_envs, sweep
+from experiments import bench_envs, collect, sweep
 
 
 def test_importing_and_making_envs_prints_nothing():
@@ -48,3 +48,31 @@ def test_benchmark_section_is_replaced_in_place(tmp_path):
     text = path.read_text()
     assert text.count("## Environment throughput") == 1 and "new" in text and "old" not in text
     assert text.startswith("# Benchmarks\n\nintro\n")
+
+
+@pytest.mark.parametrize(
+    "argv,message",
+    [
+        (["--env", "hoper"], "unknown env 'hoper'"),
+        (["--env", "toycar", "--obs", "pos"], "not supported by toycar"),
+        (["--noise-frac", "1.5"], "--noise-frac must be in [0, 1]"),
+        (["--episodes", "0"], ">= 1"),
+        (["--obs", "pos", "--image-size", "32"], "applies to --obs image only"),
+        (["--obs", "image", "--image-size", "big"], "--image-size"),
+    ],
+)
+def test_collect_refuses_bad_input_with_exit_code_2(argv, message, capsys):
+    with pytest.raises(SystemExit) as exc:
+        collect.main(argv)
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_collect_writes_a_dataset_then_reuses_it(tmp_path, capsys):
+    argv = ["--env", "toycar", "--obs", "full", "--episodes", "3", "--data-dir", str(tmp_path)]
+    assert collect.main(argv) == 0
+    assert "collected" in capsys.readouterr().out
+    files = sorted(p.suffix for p in tmp_path.iterdir())
+    assert files == [".json", ".npz"]
+    assert collect.main(argv) == 0
+    assert "loaded cached" in capsys.readouterr().out
