@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import pathlib
 import sys
 import time
@@ -81,57 +80,39 @@ def main(argv=None) -> int:
     args = parse(argv)
     import jax
     import jax.numpy as jnp
-    import orbax.checkpoint as ocp
     from tqdm import tqdm
 
     import envs
-    from envs.experts.sac import make_trainer
+    from envs.experts.sac import Checkpoints, make_trainer, run_epoch
 
     cfg = make_config(args)
     env = envs.make(args.env, obs="full", episode_length=cfg.episode_length)
     trainer = make_trainer(env.brax_env, cfg)
-    key = jax.random.PRNGKey(cfg.seed)
-    abstract = jax.eval_shape(lambda k: (lambda s: (s, s.policy))(trainer.init(k)), key)
-    mgr = ocp.CheckpointManager(args.workdir.absolute() / "ckpt", options=ocp.CheckpointManagerOptions(
-        max_to_keep=1, enable_async_checkpointing=False))
-    config_json = json.loads(json.dumps(dataclasses.asdict(cfg)))
+    ckpt = Checkpoints(args.workdir / "ckpt", trainer, cfg)
     if args.fresh:
-        for step in mgr.all_steps():
-            mgr.delete(step)
-    if mgr.latest_step() is not None:
-        restored = mgr.restore(mgr.latest_step(), args=ocp.args.Composite(
-            state=ocp.args.StandardRestore(abstract), meta=ocp.args.JsonRestore()))
-        (state, best), meta = restored["state"], restored["meta"]
-        if meta["config"] != config_json:
-            return fail(None, f"{args.workdir} holds a run with other settings ({meta['config']}); "
-                              "use the same settings, another --workdir, or --fresh")
+        ckpt.clear()
+    try:
+        restored = ckpt.restore()
+    except ValueError as e:
+        return fail(None, f"{e}; use the same settings, another --workdir, or --fresh")
+    if restored is not None:
+        state, best, meta = restored
         print(f"resuming {args.workdir} at {int(state.env_steps):,} env steps "
               f"(best evaluation return so far {meta['best_return']:.1f})")
     else:
         t0 = time.perf_counter()
-        state = trainer.prefill(trainer.init(key))
+        state = trainer.prefill(trainer.init(jax.random.PRNGKey(cfg.seed)))
         best = jax.tree.map(jnp.copy, state.policy)
-        meta = {"config": config_json, "best_return": float("-inf"), "best_step": 0, "history": [],
-                "wall_s": time.perf_counter() - t0}
+        meta = dict(ckpt.new_meta(), wall_s=time.perf_counter() - t0)
     stop_at = args.stop_at if args.stop_at is not None else 1.1 * TARGETS.get(args.env, float("inf"))
-    done = lambda: int(state.env_steps) >= cfg.num_timesteps or meta["best_return"] >= stop_at  # noqa: E731
     with tqdm(total=cfg.num_timesteps, initial=int(state.env_steps), unit="step", unit_scale=True,
               desc=f"SAC {args.env}", dynamic_ncols=True) as bar:
-        while not done():
-            t0 = time.perf_counter()
-            state, metrics = trainer.epoch(state)
-            ret, ret_std = trainer.evaluate(state.policy)
-            meta["wall_s"] += time.perf_counter() - t0
-            step = int(state.env_steps)
-            if ret > meta["best_return"]:  # a copy: the next epoch donates (deletes) state's buffers
-                best, meta["best_return"], meta["best_step"] = jax.tree.map(jnp.copy, state.policy), ret, step
-            meta["history"].append({"env_steps": step, "return": ret, "return_std": ret_std,
-                                    "wall_s": meta["wall_s"], **{k: float(v) for k, v in metrics.items()}})
-            mgr.save(step, args=ocp.args.Composite(state=ocp.args.StandardSave((state, best)),
-                                                   meta=ocp.args.JsonSave(meta)))
-            bar.update(step - bar.n)
-            bar.set_postfix(ret=f"{ret:.0f}", best=f"{meta['best_return']:.0f}")
-    mgr.close()
+        while int(state.env_steps) < cfg.num_timesteps and meta["best_return"] < stop_at:
+            state, best, meta = run_epoch(trainer, state, best, meta)
+            ckpt.save(state, best, meta)
+            bar.update(int(state.env_steps) - bar.n)
+            bar.set_postfix(ret=f"{meta['history'][-1]['return']:.0f}", best=f"{meta['best_return']:.0f}")
+    ckpt.close()
     return export(args, cfg, env, trainer.policy_spec(best), meta)
 
 

@@ -12,7 +12,9 @@ from brax import envs as brax_envs
 import envs
 from envs import experts
 from envs.experts import ExpertError
-from envs.experts.sac import SACConfig, make_trainer
+import dataclasses
+
+from envs.experts.sac import Checkpoints, SACConfig, make_trainer, run_epoch
 from experiments import train_expert
 
 
@@ -92,6 +94,26 @@ def test_missing_or_corrupt_experts_name_the_file_and_the_command(tiny_run, tmp_
             f.write_bytes(f.read_bytes()[: f.stat().st_size // 2])
     with pytest.raises(ExpertError, match=r"corrupt expert checkpoint .*damaged/policy.*train_expert --env reach"):
         experts.load("reach", root=damaged)
+
+
+def test_a_restored_checkpoint_trains_on_exactly_like_the_uninterrupted_run(tmp_path):
+    cfg = SACConfig(num_timesteps=2048, num_envs=8, grad_updates_per_step=4, batch_size=32, min_replay_size=64,
+                    hidden_layer_sizes=(16,), episode_length=10, epoch_steps=256, num_eval_envs=4)
+    trainer = make_trainer(Reach(), cfg)
+    ckpt = Checkpoints(tmp_path / "ckpt", trainer, cfg)
+    state = trainer.prefill(trainer.init(jax.random.PRNGKey(0)))
+    state, best, meta = run_epoch(trainer, state, jax.tree.map(jnp.copy, state.policy), ckpt.new_meta())
+    ckpt.save(state, best, meta)
+    state2, best2, meta2 = Checkpoints(tmp_path / "ckpt", trainer, cfg).restore()
+    assert meta2 == meta and len(meta["history"]) == 1
+    for a, b in zip(jax.tree.leaves((state, best)), jax.tree.leaves((state2, best2))):
+        np.testing.assert_array_equal(a, b)  # replay buffer, optimisers, temperature, key: all of it
+    uninterrupted, _ = trainer.epoch(jax.tree.map(jnp.copy, state))
+    resumed, _ = trainer.epoch(state2)
+    for a, b in zip(jax.tree.leaves(uninterrupted), jax.tree.leaves(resumed)):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="other settings"):
+        Checkpoints(tmp_path / "ckpt", trainer, dataclasses.replace(cfg, learning_rate=1e-3)).restore()
 
 
 # Over 200 steps: a random policy falls within ~20 steps (Hopper, Walker2d) or

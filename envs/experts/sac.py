@@ -15,6 +15,10 @@ state that is a plain pytree, checkpointed whole by `experiments.train_expert`:
     mean, std = trainer.evaluate(state.policy)     # deterministic policy, Brax's Evaluator
     spec = trainer.policy_spec(state.policy)       # what `envs.experts.save` writes
 
+`run_epoch` adds the evaluation and best-policy bookkeeping, and `Checkpoints`
+saves and restores `(state, best, meta)` with orbax; a restored state trains on
+exactly as the uninterrupted one would.
+
 The environment state is not part of `TrainState`: a resumed run resets its
 environments, which costs nothing but the episodes in flight.
 """
@@ -23,6 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import json
 from typing import Any, Callable, NamedTuple
 
 import flax
@@ -237,3 +242,77 @@ def make_trainer(env: brax_envs.Env, cfg: SACConfig) -> Trainer:
         }
 
     return Trainer(init=jax.jit(init), prefill=prefill, epoch=epoch, evaluate=evaluate, policy_spec=policy_spec)
+
+
+def run_epoch(trainer: Trainer, state: TrainState, best: PolicyParams, meta: dict):
+    """One epoch of training, an evaluation, and the bookkeeping of the best policy.
+
+    Returns:
+      `(state, best, meta)`: `meta` gains a `history` entry and, when the
+      evaluation return is the best so far, new `best_return` / `best_step`.
+    """
+    import time
+
+    t0 = time.perf_counter()
+    state, metrics = trainer.epoch(state)
+    ret, ret_std = trainer.evaluate(state.policy)
+    meta = dict(meta, wall_s=meta["wall_s"] + time.perf_counter() - t0)
+    step = int(state.env_steps)
+    if ret > meta["best_return"]:  # a copy: the next epoch donates (deletes) the state's buffers
+        best, meta["best_return"], meta["best_step"] = jax.tree.map(jnp.copy, state.policy), ret, step
+    meta["history"] = [*meta["history"], {"env_steps": step, "return": ret, "return_std": ret_std,
+                                          "wall_s": meta["wall_s"], **{k: float(v) for k, v in metrics.items()}}]
+    return state, best, meta
+
+
+class Checkpoints:
+    """The latest `(state, best policy, meta)` of a run, kept with orbax in `directory`.
+
+    `meta` is JSON (config, best return, history, wall time); a restore refuses
+    a checkpoint whose config differs from the trainer's.
+    """
+
+    def __init__(self, directory, trainer: Trainer, cfg: SACConfig):
+        import pathlib
+
+        import orbax.checkpoint as ocp
+
+        self._ocp = ocp
+        self.directory = pathlib.Path(directory).absolute()
+        self.config = json.loads(json.dumps(dataclasses.asdict(cfg)))
+        self._abstract = jax.eval_shape(lambda k: (lambda s: (s, s.policy))(trainer.init(k)),
+                                        jax.random.PRNGKey(0))
+        self._mgr = ocp.CheckpointManager(self.directory, options=ocp.CheckpointManagerOptions(
+            max_to_keep=1, enable_async_checkpointing=False))
+
+    def new_meta(self) -> dict:
+        return {"config": self.config, "best_return": float("-inf"), "best_step": 0, "history": [], "wall_s": 0.0}
+
+    def clear(self) -> None:
+        for step in self._mgr.all_steps():
+            self._mgr.delete(step)
+
+    def restore(self):
+        """`(state, best, meta)` of the latest checkpoint, or None if there is none.
+
+        Raises:
+          ValueError: the checkpoint was written with another config.
+        """
+        step = self._mgr.latest_step()
+        if step is None:
+            return None
+        ocp = self._ocp
+        restored = self._mgr.restore(step, args=ocp.args.Composite(
+            state=ocp.args.StandardRestore(self._abstract), meta=ocp.args.JsonRestore()))
+        (state, best), meta = restored["state"], restored["meta"]
+        if meta["config"] != self.config:
+            raise ValueError(f"{self.directory} holds a run with other settings ({meta['config']})")
+        return state, best, meta
+
+    def save(self, state: TrainState, best: PolicyParams, meta: dict) -> None:
+        ocp = self._ocp
+        self._mgr.save(int(state.env_steps), args=ocp.args.Composite(
+            state=ocp.args.StandardSave((state, best)), meta=ocp.args.JsonSave(meta)))
+
+    def close(self) -> None:
+        self._mgr.close()
