@@ -88,3 +88,21 @@ def write_section(path: str, text: str, name: str = "bench_envs") -> None:
     with open(tmp, "w") as f:
         f.write(new)
     os.replace(tmp, path)
+
+
+def run_benchmark(parser, argv, counts: tuple[str, ...], table, section: str) -> int:
+    """The shared tail of the `bench_*` entry points.
+
+    Adds `--write`, parses `argv`, refuses (exit 2) counts below 1, prints
+    `table(args)` and, with `--write FILE`, replaces the section `section` of FILE.
+    """
+    parser.add_argument("--write", metavar="BENCHMARKS.md", help="replace the section in this file")
+    args = parser.parse_args(argv)
+    if min(getattr(args, c.lstrip("-").replace("-", "_")) for c in counts) < 1:
+        parser.error(f"{', '.join(counts)} must be >= 1")
+    text = table(args)
+    print(text)
+    if args.write:
+        write_section(args.write, text, section)
+        print(f"wrote the section to {args.write}")
+    return 0

@@ -22,7 +22,7 @@ import numpy as np
 
 import envs
 from envs._quiet import mujoco
-from experiments._timing import machine, rollout_throughput, time_jitted, write_section
+from experiments._timing import machine, rollout_throughput, run_benchmark, time_jitted
 
 SECTION = "bench_envs"
 
@@ -125,16 +125,7 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=int, default=100, help="control steps per timed rollout")
     p.add_argument("--render-batch", type=int, default=32, help="states rendered per timed call")
     p.add_argument("--repeats", type=int, default=5, help="timed runs; the median is reported")
-    p.add_argument("--write", metavar="BENCHMARKS.md", help="replace the section in this file")
-    args = p.parse_args(argv)
-    if min(args.batch, args.steps, args.render_batch, args.repeats) < 1:
-        p.error("--batch, --steps, --render-batch and --repeats must be >= 1")
-    text = table(args)
-    print(text)
-    if args.write:
-        write_section(args.write, text, SECTION)
-        print(f"wrote the section to {args.write}")
-    return 0
+    return run_benchmark(p, argv, ("--batch", "--steps", "--render-batch", "--repeats"), table, SECTION)
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ import numpy as np
 import envs
 from ape_jax import collect
 from envs import experts
-from experiments._timing import machine, time_jitted, write_section
+from experiments._timing import machine, run_benchmark, time_jitted
 
 SECTION = "bench_experts"
 CASES = (("hopper", "pos", {}), ("hopper", "full", {}), ("hopper", "image", {"image_size": 64}),
@@ -86,16 +86,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m experiments.bench_experts", description=__doc__.splitlines()[0])
     p.add_argument("--batch", type=int, default=16, help="episodes collected per jitted call")
     p.add_argument("--repeats", type=int, default=3, help="timed runs; the median is reported")
-    p.add_argument("--write", metavar="BENCHMARKS.md", help="replace the section in this file")
-    args = p.parse_args(argv)
-    if min(args.batch, args.repeats) < 1:
-        p.error("--batch and --repeats must be >= 1")
-    text = table(args)
-    print(text)
-    if args.write:
-        write_section(args.write, text, SECTION)
-        print(f"wrote the section to {args.write}")
-    return 0
+    return run_benchmark(p, argv, ("--batch", "--repeats"), table, SECTION)
 
 
 if __name__ == "__main__":

@@ -7,7 +7,7 @@ import pytest
 
 import envs
 
-from experiments import bench_envs, collect, sweep
+from experiments import _timing, collect, sweep
 
 
 def test_importing_and_making_envs_prints_nothing():
@@ -43,8 +43,8 @@ def test_sweep_accepts_the_default_command_line():
 def test_benchmark_section_is_replaced_in_place(tmp_path):
     path = tmp_path / "BENCHMARKS.md"
     path.write_text("# Benchmarks\n\nintro\n")
-    bench_envs.write_section(str(path), "## Environment throughput\n\nold\n")
-    bench_envs.write_section(str(path), "## Environment throughput\n\nnew\n")
+    _timing.write_section(str(path), "## Environment throughput\n\nold\n")
+    _timing.write_section(str(path), "## Environment throughput\n\nnew\n")
     text = path.read_text()
     assert text.count("## Environment throughput") == 1 and "new" in text and "old" not in text
     assert text.startswith("# Benchmarks\n\nintro\n")
