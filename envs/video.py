@@ -23,6 +23,20 @@ def render_rollout(env: Env, policy: Policy, params: Any, key: jax.Array, num_st
     return np.asarray(run(key).extra[0])
 
 
+def render_sim_states(env: Env, sim: Any, chunk: int = 256) -> np.ndarray:
+    """Renders recorded simulator states (`env.sim_state`, leading dim `[T]`) as `[T, H, W, 3] uint8`.
+
+    `env` must have `obs="image"`; this is how a dataset collected with state
+    observations is looked at, or re-observed as images, after the fact.
+    """
+    if env.obs_mode != "image":
+        raise ValueError(f"render_sim_states needs an image env, got obs={env.obs_mode!r}")
+    render = jax.jit(jax.vmap(env.observe_sim))
+    n = len(jax.tree.leaves(sim)[0])
+    return np.concatenate([np.asarray(render(jax.tree.map(lambda x: x[i:i + chunk], sim)))
+                           for i in range(0, n, chunk)])
+
+
 def save_frames(frames: np.ndarray, path: str, fps: int = 20, scale: int = 1) -> list[str]:
     """Writes `[T, H, W, 3] uint8` frames as a GIF (`path` ends in .gif) or PNGs (a folder).
 

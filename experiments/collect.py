@@ -33,6 +33,9 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--batch", type=int, default=32, help="episodes per jitted call")
     p.add_argument("--data-dir", type=pathlib.Path, default=None, help=f"cache directory (default: {data.cache_dir()})")
     p.add_argument("--force", action="store_true", help="collect again even if the dataset is cached")
+    p.add_argument("--preview", type=pathlib.Path, default=None, metavar="FILE.gif",
+                   help="also write the first episode's first 300 steps as a GIF, rendered from the recorded "
+                        "simulator states")
     args = p.parse_args(argv)
     if args.env not in envs.names():
         fail(p, f"unknown env {args.env!r}; valid: {', '.join(envs.names())}")
@@ -55,6 +58,8 @@ def parse(argv=None) -> argparse.Namespace:
             args.overrides["image_size"] = envs.brax_env.parse_image_size(size[0] if len(size) == 1 else size)
         except ValueError as e:
             fail(p, f"--image-size: {e}")
+    if args.preview is not None and args.preview.suffix != ".gif":
+        fail(p, f"--preview must name a .gif file, got {args.preview}")
     args.data_dir = args.data_dir or data.cache_dir()
     return args
 
@@ -80,7 +85,22 @@ def main(argv=None) -> int:
           f"expert return {meta['episode_return_mean']:.1f} ± {meta['episode_return_std']:.1f}, "
           f"mean episode length {meta['episode_length_mean']:.0f}")
     print(f"dataset: {path}\nmetadata: {path.with_suffix('.json')}")
+    if args.preview is not None:
+        write_preview(args, demos)
     return 0
+
+
+def write_preview(args, demos) -> None:
+    import numpy as np
+
+    import envs
+    from envs import video
+
+    first = demos.take(np.flatnonzero(demos.episode == demos.episode_ids[0])[:300])
+    env = envs.make(args.env, obs="image", **args.overrides)
+    frames = video.render_sim_states(env, first.sim)
+    video.save_frames(frames, str(args.preview), fps=min(50, round(1 / env.dt)), scale=max(1, 128 // frames.shape[1]))
+    print(f"preview: {args.preview} ({len(frames)} frames)")
 
 
 if __name__ == "__main__":

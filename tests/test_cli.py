@@ -59,6 +59,7 @@ def test_benchmark_section_is_replaced_in_place(tmp_path):
         (["--episodes", "0"], ">= 1"),
         (["--obs", "pos", "--image-size", "32"], "applies to --obs image only"),
         (["--obs", "image", "--image-size", "big"], "--image-size"),
+        (["--preview", "out.mp4"], "must name a .gif"),
     ],
 )
 def test_collect_refuses_bad_input_with_exit_code_2(argv, message, capsys):
@@ -74,5 +75,9 @@ def test_collect_writes_a_dataset_then_reuses_it(tmp_path, capsys):
     assert "collected" in capsys.readouterr().out
     files = sorted(p.suffix for p in tmp_path.iterdir())
     assert files == [".json", ".npz"]
-    assert collect.main(argv) == 0
+    assert collect.main([*argv, "--preview", str(tmp_path / "first.gif")]) == 0
     assert "loaded cached" in capsys.readouterr().out
+    from PIL import Image
+
+    with Image.open(tmp_path / "first.gif") as gif:  # the first episode, re-rendered from its sim states
+        assert gif.n_frames > 50 and gif.size == (128, 128)
