@@ -1,0 +1,133 @@
+"""Sample weights from action prediction errors (APE): the paper's step and softmax functions.
+
+Public, pure and jit-able, as `DESIGN.md` defines them:
+
+- `step(ape, thr, w)` — dataset level: the ⌊thr·N⌋ samples with the largest APE
+  get weight `w`, all others 1 (ties broken by index: the lower index ranks higher);
+- `softmax(ape_batch, tau)` — minibatch level: `B · softmax(ape_batch / tau)`, so
+  a batch's weights average to 1;
+- `uniform(ape)` — all ones (BC-OH).
+
+For one compiled program over the whole grid, every configuration is a
+`Weighting` pytree of scalars (`kind`, `thr`, `w`, `tau`) and weights are computed
+in two stages with one calling convention: `dataset_weights(ape, hp)` once
+before training (the step function's ranking over the whole training set), then
+`batch_weights(ape, static, idx, hp)` for each minibatch. Stacking `Weighting`s
+along a leading axis and `vmap`ping over it covers uniform, step and softmax
+configurations alike.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+UNIFORM, STEP, SOFTMAX = 0, 1, 2
+KINDS = {"uniform": UNIFORM, "step": STEP, "softmax": SOFTMAX}
+
+
+def _count(thr: jax.Array, n: int) -> jax.Array:
+    # ⌊thr·N⌋ with a tolerance of a few float32 ulps: thr = 0.7 is stored as
+    # 0.69999999, and ⌊0.69999999·10⌋ would upweight 6 samples instead of 7.
+    return jnp.floor(thr * n + n * 2.0**-21).astype(jnp.int32)
+
+
+def step(ape: jax.Array, thr: jax.Array | float, w: jax.Array | float) -> jax.Array:
+    """Dataset-level step weights.
+
+    Args:
+      ape: per-sample APE over the whole training set, `[N] float32`.
+      thr: fraction of samples upweighted, in (0, 1) (traced or static).
+      w: their weight, >= 1.
+
+    Returns:
+      `[N] float32`: `w` for the ⌊thr·N⌋ largest APE values (ties: lower index
+      first), 1 elsewhere.
+    """
+    ape = jnp.asarray(ape)
+    if ape.ndim != 1:
+        raise ValueError(f"step: ape must be [N], got shape {ape.shape}")
+    n = ape.shape[0]
+    order = jnp.argsort(-ape, stable=True)             # largest first, equal values by index
+    rank = jnp.zeros(n, jnp.int32).at[order].set(jnp.arange(n, dtype=jnp.int32))
+    return jnp.where(rank < _count(jnp.asarray(thr, jnp.float32), n), jnp.asarray(w, jnp.float32), 1.0)
+
+
+def softmax(ape_batch: jax.Array, tau: jax.Array | float) -> jax.Array:
+    """Minibatch-level softmax weights `B · softmax(ape_batch / tau)`.
+
+    Args:
+      ape_batch: APE of the minibatch's samples, `[B] float32`.
+      tau: temperature, > 0.
+
+    Returns:
+      `[B] float32` weights with mean 1.
+    """
+    ape_batch = jnp.asarray(ape_batch, jnp.float32)
+    if ape_batch.ndim != 1:
+        raise ValueError(f"softmax: ape_batch must be [B], got shape {ape_batch.shape}")
+    return ape_batch.shape[0] * jax.nn.softmax(ape_batch / tau)
+
+
+def uniform(ape: jax.Array) -> jax.Array:
+    """All-ones weights of `ape`'s shape (BC-OH)."""
+    return jnp.ones(jnp.shape(ape), jnp.float32)
+
+
+@struct.dataclass
+class Weighting:
+    """One weighting configuration as traced scalars (stack them for a grid).
+
+    `kind` is `UNIFORM`, `STEP` or `SOFTMAX`; the fields a kind does not use are
+    ignored (keep them at harmless values such as 1).
+    """
+
+    kind: jax.Array  # [] int32
+    thr: jax.Array   # [] float32, STEP
+    w: jax.Array     # [] float32, STEP
+    tau: jax.Array   # [] float32, SOFTMAX
+
+    @classmethod
+    def make(cls, kind: str, thr: float = 0.1, w: float = 1.0, tau: float = 1.0) -> "Weighting":
+        """A configuration; raises `ValueError` for an unknown kind or invalid values."""
+        if kind not in KINDS:
+            raise ValueError(f"unknown weighting {kind!r}; valid: {sorted(KINDS)}")
+        validate(kind, thr=thr, w=w, tau=tau)
+        return cls(kind=jnp.int32(KINDS[kind]), thr=jnp.float32(thr), w=jnp.float32(w), tau=jnp.float32(tau))
+
+
+def validate(kind: str, thr: float = 0.1, w: float = 1.0, tau: float = 1.0) -> None:
+    """Refuses invalid hyperparameters with a one-line `ValueError`."""
+    if kind == "step":
+        if not 0.0 < thr < 1.0:
+            raise ValueError(f"step weighting: THR must be in (0, 1), got {thr}")
+        if not w >= 1.0:
+            raise ValueError(f"step weighting: W must be >= 1, got {w}")
+    if kind == "softmax" and not (tau > 0.0 and np.isfinite(tau)):
+        raise ValueError(f"softmax weighting: tau must be > 0, got {tau}")
+
+
+def stack(configs: list[Weighting]) -> Weighting:
+    """The configurations stacked along a leading grid axis `[G]`."""
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *configs)
+
+
+def dataset_weights(ape: jax.Array, hp: Weighting) -> jax.Array:
+    """`[N]` weights fixed before training: the step function's for `STEP`, ones otherwise."""
+    return jnp.where(hp.kind == STEP, step(ape, hp.thr, hp.w), 1.0)
+
+
+def batch_weights(ape: jax.Array, static: jax.Array, idx: jax.Array, hp: Weighting) -> jax.Array:
+    """`[B]` weights of minibatch rows `idx`.
+
+    Args:
+      ape: training-set APE, `[N]`.
+      static: `dataset_weights(ape, hp)`, `[N]`.
+      idx: the minibatch's rows, `[B] int32`.
+      hp: the configuration.
+    """
+    tau = jnp.where(hp.kind == SOFTMAX, hp.tau, 1.0)  # keeps the unused branch finite
+    weights = jnp.where(hp.kind == SOFTMAX, softmax(ape[idx], tau), static[idx])
+    return jax.lax.stop_gradient(weights)

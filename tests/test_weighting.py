@@ -1,0 +1,80 @@
+"""Weighting functions against hand-computed values, and the grid's one calling convention."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from ape_jax import weighting
+from ape_jax.weighting import Weighting
+
+
+def test_step_upweights_the_largest_ape_with_ties_broken_by_index():
+    ape = jnp.array([0.5, 2.0, 0.1, 2.0, 3.0, 0.0, 1.0, 0.2, 0.3, 0.4])
+    # thr 0.3 of 10 -> the 3 largest: 3.0 (index 4), then the tie 2.0 at indices 1 and 3
+    np.testing.assert_array_equal(weighting.step(ape, 0.3, 5.0), [1, 5, 1, 5, 5, 1, 1, 1, 1, 1])
+    # thr 0.2 -> 2 samples: 3.0 and the first of the tied 2.0s
+    np.testing.assert_array_equal(weighting.step(ape, 0.2, 3.0), [1, 3, 1, 1, 3, 1, 1, 1, 1, 1])
+    # floor: 0.15 of 10 is 1.5 -> 1 sample
+    np.testing.assert_array_equal(weighting.step(ape, 0.15, 10.0), [1, 1, 1, 1, 10, 1, 1, 1, 1, 1])
+
+
+def test_step_counts_exactly_floor_thr_n_despite_float32_thresholds():
+    # 0.7 is stored as 0.69999999 in float32; a naive floor would give 6
+    assert int((weighting.step(jnp.arange(10.0), 0.7, 2.0) == 2.0).sum()) == 7
+    assert int((weighting.step(jnp.arange(10.0), jnp.float32(0.7), 2.0) == 2.0).sum()) == 7
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(2, 300), data=st.data())
+def test_step_weights_are_one_or_w_with_exactly_floor_thr_n_upweighted(n, data):
+    k = data.draw(st.integers(1, n - 1))
+    floats = st.floats(0, 10, width=32, allow_subnormal=False)  # XLA on CPU flushes subnormals to 0
+    ape = np.asarray(data.draw(st.lists(floats, min_size=n, max_size=n)), np.float32)
+    w = weighting.step(jnp.asarray(ape), k / n, 5.0)
+    assert set(np.unique(np.asarray(w))) <= {1.0, 5.0}
+    assert int((w == 5.0).sum()) == k
+    assert np.asarray(ape)[np.asarray(w) == 5.0].min() >= np.asarray(ape)[np.asarray(w) == 1.0].max()
+
+
+def test_softmax_matches_hand_computed_values_and_averages_one():
+    ape = jnp.array([0.0, 1.0, 2.0])
+    e = np.exp([0.0, 2.0, 4.0])  # tau 0.5
+    np.testing.assert_allclose(weighting.softmax(ape, 0.5), 3 * e / e.sum(), rtol=1e-6)
+    np.testing.assert_allclose(weighting.softmax(ape, 1e6), [1.0, 1.0, 1.0], rtol=1e-5)  # hot: uniform
+    big = weighting.softmax(jnp.array([0.0, 1000.0, 3.0]), 0.1)  # cold: stays finite
+    assert np.all(np.isfinite(big)) and float(big.mean()) == pytest.approx(1.0)
+
+
+def test_uniform_is_ones():
+    np.testing.assert_array_equal(weighting.uniform(jnp.array([3.0, 0.0])), [1.0, 1.0])
+
+
+def test_one_vmapped_program_covers_uniform_step_and_softmax_configs():
+    ape = jnp.array([0.1, 5.0, 0.2, 0.3, 4.0, 0.0, 0.5, 0.6, 0.7, 0.8])
+    idx = jnp.array([1, 2, 4, 5])
+    grid = weighting.stack([Weighting.make("uniform"), Weighting.make("step", thr=0.2, w=5.0),
+                            Weighting.make("softmax", tau=0.5)])
+
+    def weights(hp):
+        return weighting.batch_weights(ape, weighting.dataset_weights(ape, hp), idx, hp)
+
+    out = jax.jit(jax.vmap(weights))(grid)
+    np.testing.assert_array_equal(out[0], [1, 1, 1, 1])
+    np.testing.assert_array_equal(out[1], [5, 1, 5, 1])  # the two largest APEs, rows 1 and 4
+    np.testing.assert_allclose(out[2], weighting.softmax(ape[idx], 0.5), rtol=1e-6)
+
+
+@pytest.mark.parametrize("kind, kw, message", [
+    ("step", {"thr": 0.0}, "THR must be in \\(0, 1\\)"),
+    ("step", {"thr": 1.0}, "THR must be in \\(0, 1\\)"),
+    ("step", {"thr": 0.1, "w": 0.5}, "W must be >= 1"),
+    ("softmax", {"tau": 0.0}, "tau must be > 0"),
+    ("softmax", {"tau": -1.0}, "tau must be > 0"),
+    ("focal", {}, "unknown weighting 'focal'"),
+])
+def test_invalid_hyperparameters_are_refused(kind, kw, message):
+    with pytest.raises(ValueError, match=message):
+        Weighting.make(kind, **kw)
