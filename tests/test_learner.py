@@ -1,0 +1,128 @@
+"""The weighted-BC learner: fits a tiny dataset; the vmapped grid equals per-configuration runs; no recompiles."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ape_jax import weighting
+from ape_jax.learner import Data, Hparams, LearnerConfig, make_train, stack_hparams
+
+
+def _dataset(n_episodes=6, length=40, obs_dim=4, action_dim=2, seed=0):
+    rng = np.random.default_rng(seed)
+    obs = rng.normal(size=(n_episodes * length, obs_dim)).astype(np.float32)
+    w = rng.normal(size=(obs_dim, action_dim)).astype(np.float32)
+    action = np.tanh(obs @ w)  # a function of the current observation
+    t = np.tile(np.arange(length, dtype=np.int32), n_episodes)
+    ape = rng.exponential(size=len(obs)).astype(np.float32)
+    return Data(obs=jnp.asarray(obs), action=jnp.asarray(action), t=jnp.asarray(t), ape=jnp.asarray(ape))
+
+
+CFG = LearnerConfig(obs_shape=(4,), action_dim=2, history=2, iterations=300, batch_size=32, lr_decay_every=200)
+GRID = [Hparams.make("uniform", lr=1e-3), Hparams.make("step", lr=1e-3, thr=0.2, w=5.0),
+        Hparams.make("softmax", lr=1e-3, tau=0.5)]
+
+
+@pytest.fixture(scope="module")
+def data():
+    return _dataset()
+
+
+def test_the_learner_fits_a_tiny_dataset(data):
+    learner = make_train(CFG)
+    params, metrics = jax.jit(learner.train)(jax.random.PRNGKey(0), GRID[0], data)
+    assert metrics["loss"].shape == (300,)
+    first, last = float(metrics["unweighted_loss"][:10].mean()), float(metrics["unweighted_loss"][-20:].mean())
+    assert last < 0.2 * first, (first, last)
+    full = learner.per_sample_loss(params, data, jnp.arange(len(data.t))).mean()
+    assert float(full) < 0.2 * first
+
+
+def test_the_weighted_loss_uses_the_weighting(data):
+    learner = make_train(CFG)
+    state = learner.init(jax.random.PRNGKey(0), GRID[1], data)
+    np.testing.assert_array_equal(state.static_weights, weighting.step(data.ape, 0.2, 5.0))
+    _, metrics = learner.run(state, GRID[1], data, 5)
+    # upweighted samples make the weighted loss differ from the unweighted one
+    assert not np.allclose(metrics["loss"], metrics["unweighted_loss"])
+    _, uniform = learner.run(learner.init(jax.random.PRNGKey(0), GRID[0], data), GRID[0], data, 5)
+    np.testing.assert_allclose(uniform["loss"], uniform["unweighted_loss"], rtol=1e-6)
+
+
+def test_one_vmapped_grid_run_equals_per_configuration_runs(data):
+    cfg = LearnerConfig(obs_shape=(4,), action_dim=2, iterations=40, batch_size=32)
+    learner = make_train(cfg)
+    keys = jax.random.split(jax.random.PRNGKey(1), 6)
+    grid = stack_hparams(GRID + GRID)  # 3 configs x 2 seeds
+    traces = []
+    run_grid = jax.jit(jax.vmap(lambda k, hp, d: (traces.append(1), learner.train(k, hp, d))[1], (0, 0, None)))
+    params, metrics = run_grid(keys, grid, data)
+    single = jax.jit(learner.train)
+    for i in range(6):
+        p_i, m_i = single(keys[i], jax.tree.map(lambda x: x[i], grid), data)
+        np.testing.assert_allclose(metrics["loss"][i], m_i["loss"], rtol=2e-5, atol=1e-6)
+        for a, b in zip(jax.tree.leaves(params), jax.tree.leaves(p_i)):
+            np.testing.assert_allclose(a[i], b, rtol=2e-4, atol=2e-6)
+    run_grid(jax.random.split(jax.random.PRNGKey(2), 6), grid, data)  # new seeds: no retrace
+    assert len(traces) == 1
+
+
+def test_image_histories_are_stacked_on_channels_and_scaled():
+    cfg = LearnerConfig(obs_shape=(8, 8, 3), action_dim=2, history=2, iterations=3, batch_size=4)
+    learner = make_train(cfg)
+    frames = jnp.arange(2 * 8 * 8 * 3, dtype=jnp.uint8).reshape(2, 8, 8, 3)
+    x = learner.policy_input(frames[None])  # [1, H=2, 8, 8, 3]
+    assert x.shape == (1, 8, 8, 6) and float(x.max()) <= 1.0
+    np.testing.assert_allclose(x[0, ..., 3:], frames[1] / 255.0)
+    data = Data(obs=jnp.zeros((10, 8, 8, 3), jnp.uint8), action=jnp.zeros((10, 2)), t=jnp.arange(10),
+                ape=jnp.ones(10))
+    params, metrics = jax.jit(learner.train)(jax.random.PRNGKey(0), Hparams.make(), data)
+    assert metrics["loss"].shape == (3,) and np.all(np.isfinite(metrics["loss"]))
+
+
+def test_a_dataset_smaller_than_the_batch_is_refused(data):
+    learner = make_train(LearnerConfig(obs_shape=(4,), action_dim=2, batch_size=1000))
+    with pytest.raises(ValueError, match="fewer than the batch size 1000"):
+        learner.init(jax.random.PRNGKey(0), GRID[0], data)
+
+
+def test_invalid_static_settings_are_refused():
+    with pytest.raises(ValueError, match="unknown loss 'huber'"):
+        LearnerConfig(obs_shape=(4,), action_dim=2, loss="huber")
+    with pytest.raises(ValueError, match="history must be >= 1"):
+        LearnerConfig(obs_shape=(4,), action_dim=2, history=0)
+
+
+SHARDED = """
+import jax, jax.numpy as jnp, numpy as np, sys
+sys.path.insert(0, {tests!r})
+from test_learner import _dataset, GRID
+from ape_jax.grid import grid_runner
+from ape_jax.learner import LearnerConfig, make_train, stack_hparams
+assert jax.device_count() == 4, jax.devices()
+learner = make_train(LearnerConfig(obs_shape=(4,), action_dim=2, iterations=30, batch_size=32))
+data = _dataset()
+keys = jax.random.split(jax.random.PRNGKey(1), 6)
+grid = stack_hparams(GRID + GRID)          # 6 runs over 4 devices: padded to 8, trimmed back
+sharded = grid_runner(learner.train)(keys, grid, data)
+single = grid_runner(learner.train, devices=jax.devices()[:1])(keys, grid, data)
+assert sharded[1]["loss"].shape == (6, 30)
+for a, b in zip(jax.tree.leaves(sharded), jax.tree.leaves(single)):
+    np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-6)
+print("devices", len(sharded[0]["params"]["Head_0"]["action"]["kernel"].sharding.device_set))
+"""
+
+
+def test_the_grid_sharded_over_four_cpu_devices_equals_the_unsharded_run():
+    import os
+    import pathlib
+    import subprocess
+    import sys
+
+    env = dict(os.environ, JAX_PLATFORMS="cpu",
+               XLA_FLAGS=os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=4")
+    code = SHARDED.format(tests=str(pathlib.Path(__file__).parent))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, env=env)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "devices 4" in out.stdout
