@@ -1,0 +1,107 @@
+"""Evaluation of trained policies, jit-compiled and vmapped over policies × episodes; the loss analysis.
+
+    run = make_evaluator(env, cfg, obs_mean, obs_std, episodes=10)
+    out = run(params, key)       # params leaves [P, ...] -> {"return": [P, E], "length": [P, E], ...}
+
+Each policy keeps its own history of the last `H` observations, padded at the
+episode start by repeating the first observation, exactly as in training;
+state observations are standardised with the training set's statistics.
+Every policy sees the same `E` episodes (common random numbers), so
+differences between methods are not differences between start states.
+ToyCar adds its driving metrics (`success`, `red_light_violations`,
+`progress`, `avg_speed`, `stuck`).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import jax
+import jax.numpy as jnp
+
+import envs
+from ape_jax import weighting
+from ape_jax.learner import Data, LearnerConfig, make_train
+
+
+def history_policy(cfg: LearnerConfig, obs_mean: jax.Array | None, obs_std: jax.Array | None,
+                   env: envs.Env) -> envs.Policy:
+    """A trained policy as an `envs.Policy` whose carry is the observation history `[H, *obs_shape]`."""
+    model = cfg.model()
+    learner = make_train(cfg)
+    low, high = env.action_bounds
+
+    def observe(state):
+        obs = state.obs
+        if obs_mean is not None:
+            obs = (obs - obs_mean) / obs_std
+        return obs
+
+    def init(params, state):
+        return jnp.repeat(observe(state)[None], cfg.history, axis=0)
+
+    def act(params, carry, state, key):
+        history = jnp.concatenate([carry[1:], observe(state)[None]])
+        action = model.apply(params, learner.policy_input(history[None]))[0]
+        return jnp.clip(action, low, high), history
+
+    return envs.Policy(init=init, act=act)
+
+
+def make_evaluator(env: envs.Env, cfg: LearnerConfig, obs_mean: jax.Array | None, obs_std: jax.Array | None,
+                   episodes: int, steps: int | None = None) -> Callable[[Any, jax.Array], dict]:
+    """A jitted `(params [P, ...], key) -> {"return": [P, E], "length": [P, E], ...}`."""
+    policy = history_policy(cfg, obs_mean, obs_std, env)
+    toycar = env.name == "toycar"
+
+    def one(params, key):
+        record = env.sim_state if toycar else None
+        traj = envs.rollout(env, policy, params, key, episodes, steps, record=record)
+        out = {"return": traj.returns, "length": traj.lengths.astype(jnp.float32)}
+        if toycar:
+            metrics = jax.vmap(_toycar_metrics, in_axes=(0, 0, 0, None))(traj.extra, traj.final.pipeline_state,
+                                                                        traj.valid, env.config)
+            out.update(metrics)
+        return out
+
+    return jax.jit(jax.vmap(one, in_axes=(0, None)))
+
+
+def _toycar_metrics(pre, final, valid, cfg):
+    # the states after each step are the states before the next one, then the final one
+    after = jax.tree.map(lambda p, f: jnp.concatenate([p[1:], f[None]]), pre, final)
+    initial = jax.tree.map(lambda p: p[0], pre)
+    return envs.toycar.episode_metrics(initial, after, valid, cfg)
+
+
+def normalized(returns: jax.Array | float, expert: float, random: float) -> Any:
+    """`100 · (R − R_random) / (R_expert − R_random)`."""
+    return 100.0 * (returns - random) / (expert - random)
+
+
+def loss_analysis(cfg: LearnerConfig, params: Any, data: Data, changepoint_frac: float = 0.1) -> dict:
+    """The paper's Table 3 for a batch of policies on one split.
+
+    Args:
+      params: policies, leaves `[P, ...]`.
+      data: a split with its (normalised) APE.
+      changepoint_frac: the top fraction of APE counted as changepoints.
+
+    Returns:
+      `{"unweighted", "changepoint", "copycat"}`, each `[P] float32`: the mean
+      unweighted per-sample loss on all samples, on the top `changepoint_frac`
+      by APE, and on the rest.
+    """
+    learner = make_train(cfg)
+    changepoint = weighting.step(data.ape, changepoint_frac, 2.0) > 1.0
+    n = data.ape.shape[0]
+
+    def one(p):
+        losses = jnp.concatenate([learner.per_sample_loss(p, data, idx)
+                                  for idx in jnp.array_split(jnp.arange(n), max(1, n // 4096))])
+        cp = changepoint.astype(jnp.float32)
+        return {"unweighted": losses.mean(),
+                "changepoint": jnp.sum(losses * cp) / jnp.maximum(cp.sum(), 1.0),
+                "copycat": jnp.sum(losses * (1 - cp)) / jnp.maximum((1 - cp).sum(), 1.0)}
+
+    return jax.jit(jax.vmap(one))(params)
