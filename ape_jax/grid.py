@@ -34,7 +34,8 @@ def grid_runner(fn: Callable[[jax.Array, Any, Any], Any], devices: Sequence[jax.
     """`fn(key, hparams, data)` mapped over a grid axis, compiled once, sharded over `devices`.
 
     Returns:
-      `run(keys, hparams, data)`: `keys [G, ...]` and every `hparams` leaf
+      `run(keys, hparams, data)`: `keys [G, ...]` (or any pytree with leading
+      `G`, such as a batch of training states) and every `hparams` leaf
       `[G, ...]` are split over the devices; `data` is replicated; outputs have
       leading dim `G`. A second call with the same shapes does not recompile.
     """
@@ -44,8 +45,8 @@ def grid_runner(fn: Callable[[jax.Array, Any, Any], Any], devices: Sequence[jax.
     mapped = jax.jit(jax.vmap(fn, in_axes=(0, 0, None)), in_shardings=(split, split, replicated),
                      out_shardings=split)
 
-    def run(keys: jax.Array, hparams: Any, data: Any) -> Any:
-        g = int(keys.shape[0])
+    def run(keys: Any, hparams: Any, data: Any) -> Any:
+        g = int(jax.tree.leaves(keys)[0].shape[0])
         pad = -g % len(devices)
         out = mapped(_pad(keys, pad), _pad(hparams, pad), data)
         return jax.tree.map(lambda x: x[:g], out)

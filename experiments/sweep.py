@@ -1,63 +1,160 @@
 """The main job: `python -m experiments.sweep`.
 
-The keyframe-weighting sweep (APE, the weighted-BC grid, evaluation) is built
-in issue 4. Until then this entry point accepts the sweep's command line and
-runs the environment layer the sweep stands on: a short batched rollout of
-every environment (a uniform-random policy), printing compile time and
-throughput, so a fresh install can be checked end to end.
+Collects (or reuses) the shipped expert's demonstrations, fits APE, trains
+BC-SO, BC-OH and the paper's step and softmax weighting grids × seeds as
+compiled programs, evaluates every policy, and writes `results.json` (the
+schema in `DESIGN.md`), `results.csv` and the trained parameters (orbax) into
+`--out`. No arguments: hopper, `pos` observations, the `quick` preset.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
+import dataclasses
+import json
+import os
+import pathlib
 import sys
 
-from tqdm import tqdm
+from experiments._cli import fail
 
-import envs
-from experiments._timing import rollout_throughput
-
-PRESETS = ("quick", "default", "paper")
+DEFAULT_METHODS = ("bc-so", "bc-oh", "ours-step", "ours-softmax")
 
 
 def parse(argv=None) -> argparse.Namespace:
+    import envs
+    from ape_jax import data
+    from ape_jax.sweep import METHODS, PRESETS
+
     p = argparse.ArgumentParser(prog="python -m experiments.sweep", description=__doc__.splitlines()[0])
-    p.add_argument("--env", default=",".join((*envs.MUJOCO_TASKS, "toycar")),
-                   help="an environment name, a comma list, or 'all' for every registered one "
-                        "(default: the paper's three tasks and toycar; 'all' takes ~10 min on 2 cores, "
-                        "Brax's pusher alone runs ~20 steps/s on CPU)")
-    p.add_argument("--obs", default=None, help="observation mode (default: pos where supported, else the env's default)")
-    p.add_argument("--preset", default="quick", choices=PRESETS)
-    p.add_argument("--episodes", type=int, default=16, help="episodes per rollout (vmapped)")
-    p.add_argument("--steps", type=int, default=100, help="steps per episode (scanned)")
+    p.add_argument("--env", default="hopper", help="hopper, halfcheetah, walker2d or toycar (default: hopper)")
+    p.add_argument("--obs", default=None, help="observation mode (default: pos; image for toycar)")
+    p.add_argument("--preset", default="quick", choices=sorted(PRESETS),
+                   help="quick: <= 5 min on a 2-core CPU; default: the CPU numbers we report; paper: for GPUs")
+    p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
+                   help=f"comma list of {', '.join(METHODS)} (default: all)")
+    p.add_argument("--seeds", type=int, default=None, help="seeds per configuration (default: the preset's)")
+    p.add_argument("--iterations", type=int, default=None, help="training iterations (default: the preset's)")
+    p.add_argument("--eval-episodes", type=int, default=None, help="evaluation episodes (default: the preset's)")
+    p.add_argument("--out", type=pathlib.Path, default=None, help="output directory (default: runs/sweep/ENV-OBS-PRESET)")
+    p.add_argument("--resume", action="store_true",
+                   help="if --out already holds a finished sweep with the same settings, report it instead of rerunning")
+    p.add_argument("--data-dir", type=pathlib.Path, default=None, help=f"demonstration cache (default: {data.cache_dir()})")
     args = p.parse_args(argv)
-    names = list(envs.names()) if args.env == "all" else [n.strip() for n in args.env.split(",") if n.strip()]
-    unknown = [n for n in names if n not in envs.names()]
-    if unknown or not names:
-        p.error(f"unknown env {unknown or args.env!r}; valid: {', '.join(envs.names())} or 'all'")
-    if args.obs is not None:
-        bad = [n for n in names if args.obs not in envs.obs_modes(n)]
-        if bad:
-            p.error(f"--obs {args.obs!r} is not supported by {', '.join(bad)}")
-    if args.episodes < 1 or args.steps < 1:
-        p.error("--episodes and --steps must be >= 1")
-    args.names = names
+    valid_envs = [*envs.MUJOCO_TASKS, "toycar"]
+    if args.env not in valid_envs:
+        fail(p, f"unknown env {args.env!r} for the sweep; valid: {', '.join(valid_envs)} (envs with an expert)")
+    args.obs = args.obs or ("image" if args.env == "toycar" else "pos")
+    if args.obs not in envs.obs_modes(args.env):
+        fail(p, f"--obs {args.obs!r} is not supported by {args.env}; valid: {', '.join(envs.obs_modes(args.env))}")
+    args.methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    unknown = [m for m in args.methods if m not in METHODS]
+    if unknown or not args.methods:
+        fail(p, f"unknown method(s) {unknown or args.methods!r}; valid: {', '.join(METHODS)}")
+    if len(set(args.methods)) != len(args.methods):
+        fail(p, "--methods lists a method twice")
+    for name in ("seeds", "iterations", "eval_episodes"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
+            fail(p, f"--{name.replace('_', '-')} must be >= 1")
+    overrides = {k: v for k, v in (("seeds", args.seeds), ("iterations", args.iterations),
+                                   ("eval_episodes", args.eval_episodes)) if v is not None}
+    if args.env == "toycar":
+        from ape_jax.collect import default_episodes
+
+        overrides["episodes"] = default_episodes("toycar")
+    args.preset_cfg = dataclasses.replace(PRESETS[args.preset], **overrides)
+    args.out = args.out or pathlib.Path("runs/sweep") / f"{args.env}-{args.obs}-{args.preset}"
+    args.data_dir = args.data_dir or data.cache_dir()
     return args
+
+
+def write_json_atomic(path: pathlib.Path, obj) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(obj, indent=2, allow_nan=False) + "\n")
+    os.replace(tmp, path)
+
+
+def write_outputs(out: pathlib.Path, results: dict, params: dict) -> None:
+    import jax
+    import numpy as np
+    import orbax.checkpoint as ocp
+
+    out.mkdir(parents=True, exist_ok=True)
+    with ocp.StandardCheckpointer() as ckpt:
+        for name, block in params.items():
+            target = (out / "params" / name).absolute()
+            if target.exists():
+                import shutil
+
+                shutil.rmtree(target)
+            tree = {k: v for k, v in block.items() if k != "runs" and v is not None}
+            ckpt.save(target, jax.tree.map(np.asarray, tree))
+            write_json_atomic(out / "params" / f"{name}.json", block["runs"])
+    tmp = out / "results.csv.tmp"
+    with open(tmp, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["method", "hparams", "n_seeds", "return_mean", "return_std", "normalized_mean", "normalized_std"])
+        for row in results["summary"]:
+            w.writerow([row["method"], json.dumps(row["hparams"], sort_keys=True), row["n_seeds"], row["return_mean"],
+                        row["return_std"], row["normalized_mean"], row["normalized_std"]])
+    os.replace(tmp, out / "results.csv")
+    write_json_atomic(out / "results.json", results)  # last: its presence means the sweep finished
+
+
+def table(results: dict) -> str:
+    rows = [r for r in results["summary"] if r["n_seeds"]]
+    best = max(rows, key=lambda r: r["normalized_mean"], default=None)
+    lines = [f"{'':2}{'method':<14}{'hparams':<22}{'seeds':>5}  {'return (mean ± std over seeds)':>32}  {'normalized':>11}"]
+    for r in results["summary"]:
+        hp = ", ".join(f"{k}={v:g}" for k, v in r["hparams"].items()) or "-"
+        if not r["n_seeds"]:
+            lines.append(f"{'':2}{r['method']:<14}{hp:<22}{0:>5}  {'failed':>32}")
+            continue
+        mark = "* " if r is best else "  "
+        ret = f"{r['return_mean']:,.1f} ± {r['return_std']:,.1f}"
+        lines.append(f"{mark}{r['method']:<14}{hp:<22}{r['n_seeds']:>5}  {ret:>32}  {r['normalized_mean']:>10.1f}%")
+    e = results["expert"]
+    if e["return_mean"] is not None:
+        lines.append(f"expert {e['return_mean']:,.1f} ± {e['return_std']:,.1f}, random policy "
+                     f"{e['random_return_mean']:,.1f}; normalized = 100 (R - R_random) / (R_expert - R_random); "
+                     "* = best configuration")
+    failed = [r for r in results["runs"] if r["status"] != "ok"]
+    for r in failed:
+        lines.append(f"failed: {r['method']} {r['hparams']} seed {r['seed']}: {r['error']}")
+    return "\n".join(lines)
 
 
 def main(argv=None) -> int:
     args = parse(argv)
-    print("The keyframe-weighting sweep is not built yet (issue 4); running a short rollout of "
-          f"{len(args.names)} environment(s): {args.episodes} episodes x {args.steps} steps, random actions.")
-    rows = []
-    for name in tqdm(args.names, desc="environments", unit="env"):
-        obs = args.obs or ("pos" if "pos" in envs.obs_modes(name) else envs.default_obs(name))
-        r = rollout_throughput(envs.make(name, obs=obs), args.episodes, args.steps, repeats=3)
-        rows.append((name, obs, r))
-        tqdm.write(f"{name:>26} ({obs:>5}): compile {r['compile_s']:5.1f} s, {r['steps_per_s']:>10,.0f} env steps/s")
-    print(f"\n{'env':>26}  obs    compile s   env steps/s   mean return (random policy)")
-    for name, obs, r in rows:
-        print(f"{name:>26}  {obs:<5} {r['compile_s']:9.1f} {r['steps_per_s']:13,.0f}   {r['return_mean']:10.2f}")
+    from tqdm import tqdm
+
+    from ape_jax.sweep import run_sweep
+    from envs.experts import ExpertError
+
+    results_path = args.out / "results.json"
+    if args.resume and results_path.exists():
+        old = json.loads(results_path.read_text())
+        if old.get("config", {}).get("iterations") == args.preset_cfg.iterations and \
+                old.get("env") == args.env and old.get("obs") == args.obs and \
+                old["config"].get("methods") == list(args.methods) and old["config"].get("seeds") == args.preset_cfg.seeds:
+            print(f"{results_path} already holds this sweep (--resume); not rerunning.\n")
+            print(table(old))
+            return 0
+    p = args.preset_cfg
+    print(f"sweep: {args.env} ({args.obs}), preset {args.preset}: {p.iterations:,} iterations, {p.seeds} seed(s), "
+          f"{p.eval_episodes} evaluation episodes, methods {', '.join(args.methods)}")
+    try:
+        results, params = run_sweep(args.env, args.obs, args.preset, p, args.methods, args.data_dir,
+                                    bar=lambda **kw: tqdm(dynamic_ncols=True, **kw), log=tqdm.write)
+    except (ExpertError, ValueError) as e:
+        return fail(None, str(e))
+    write_outputs(args.out, results, params)
+    t = results["timing"]
+    print()
+    print(table(results))
+    print(f"\ntime: {t['total_s']:.0f} s in all (compile ~{t['compile_s']:.0f} s, train {t['train_s']:.0f} s, "
+          f"evaluate {t['eval_s']:.0f} s)\nwrote {results_path}, {args.out / 'results.csv'} and {args.out / 'params'}/")
     return 0
 
 
