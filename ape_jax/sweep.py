@@ -50,7 +50,7 @@ class Preset:
     lr: float = 2e-4
     lr_decay_every: int | None = None  # default: a third of the iterations (the paper: 100k of 300k)
     history: int = 2
-    eval_steps: int = 1000
+    eval_steps: int | None = None  # default: the environment's episode length (1000 for MuJoCo)
     chunk: int = 500              # iterations per compiled chunk (progress granularity)
     ape_normalization: str = "mean"
     val_frac: float = 0.2
@@ -182,7 +182,7 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
     t_start = time.perf_counter()
     timing = {"compile_s": 0.0, "train_s": 0.0, "eval_s": 0.0}
     runs = grid_runs(methods, preset.seeds)
-    env = envs.make(env_name, obs=obs, episode_length=preset.eval_steps)
+    env = envs.make(env_name, obs=obs, **({} if preset.eval_steps is None else {"episode_length": preset.eval_steps}))
     card = experts.card(env_name) if env_name != "toycar" else None
 
     settings = collect.settings(env_name, obs, preset.episodes, seed=0)

@@ -1,0 +1,60 @@
+"""The main job end to end on a shrunken preset (ToyCar: no MJX compile), and its refusals."""
+
+import json
+
+import pytest
+
+from ape_jax.sweep import SOFTMAX_GRID, STEP_GRID
+from experiments import sweep
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sweep")
+    argv = ["--env", "toycar", "--obs", "full", "--iterations", "30", "--eval-episodes", "2", "--seeds", "2",
+            "--out", str(out / "run"), "--data-dir", str(out / "data")]
+    assert sweep.main(argv) == 0
+    return out / "run", argv
+
+
+def test_sweep_writes_results_matching_the_schema_with_every_configuration_and_seed(finished):
+    out, _ = finished
+    r = json.loads((out / "results.json").read_text())
+    assert r["schema"] == 1 and (r["env"], r["obs"], r["preset"]) == ("toycar", "full", "quick")
+    assert set(r) >= {"config", "expert", "runs", "summary", "timing", "system"}
+    expected = {("bc-so", ()), ("bc-oh", ())} | {("ours-step", (("thr", t), ("w", w))) for t, w in STEP_GRID} | \
+               {("ours-softmax", (("tau", tau),)) for tau in SOFTMAX_GRID}
+    seen = {}
+    for run in r["runs"]:
+        key = (run["method"], tuple(sorted(run["hparams"].items())))
+        seen.setdefault(key, set()).add(run["seed"])
+        assert run["status"] == "ok" and run["error"] is None
+        assert run["eval"]["episodes"] == 2 and {"success", "progress", "stuck", "normalized"} <= set(run["eval"])
+        for split in ("train", "val"):
+            assert set(run["losses"][split]) == {"unweighted", "changepoint", "copycat"}
+    assert set(seen) == expected and all(s == {0, 1} for s in seen.values())
+    assert len(r["summary"]) == len(expected) and all(row["n_seeds"] == 2 for row in r["summary"])
+    assert r["config"]["iterations"] == 30 and r["config"]["ape_normalization"] == "mean"
+    assert r["timing"]["total_s"] > 0 and r["system"]["backend"] == "cpu"
+    assert (out / "results.csv").read_text().count("\n") == len(expected) + 1
+    assert (out / "params" / "h2").is_dir() and (out / "params" / "h1").is_dir()
+
+
+def test_resume_reports_a_finished_sweep_without_rerunning(finished, capsys):
+    out, argv = finished
+    assert sweep.main([*argv, "--resume"]) == 0
+    assert "not rerunning" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--env", "ant"], "unknown env 'ant' for the sweep"),
+    (["--methods", "bc-oh,dagger2"], "unknown method(s) ['dagger2']"),
+    (["--methods", "bc-oh,bc-oh"], "lists a method twice"),
+    (["--seeds", "0"], "--seeds must be >= 1"),
+    (["--preset", "huge"], "invalid choice"),
+    (["--env", "toycar", "--obs", "pos"], "not supported by toycar"),
+])
+def test_sweep_refuses_bad_input_before_compiling(argv, message, capsys):
+    with pytest.raises(SystemExit) as exc:
+        sweep.parse(argv)
+    assert exc.value.code == 2 and message in capsys.readouterr().err
