@@ -1,0 +1,234 @@
+"""Training and evaluation speed: the vmapped grid vs one-after-another JAX vs plain PyTorch; FLOP/s; evaluation.
+
+    python -m experiments.bench_train                        # print the tables
+    python -m experiments.bench_train --write BENCHMARKS.md  # also replace its section
+
+Everything runs in one process, one after another, on the same data (the
+hopper `pos` demonstrations shapes: input 2 × 5, action 3, batch 128):
+
+1. model-updates/s of the grid (BC-OH + 6 step + 6 softmax configurations)
+   as one `jit(vmap(scan))`; of the same 13 configurations trained one after
+   another, each a jitted scan; and of a plain PyTorch loop of the same network,
+   loss and optimiser, one configuration after another (the original code's
+   way; needs `pip install torch==2.13.0`, the CPU build);
+2. the grid step's achieved FLOP/s (analytic count: 6 · batch · MACs per
+   update) against the machine's float32 matmul peak measured here;
+3. evaluation env steps/s (jitted, vmapped over policies × episodes, the
+   policy included) against native MuJoCo stepping the same model with the same
+   network (PyTorch, one step at a time) in a Python loop;
+4. end-to-end wall time of the sweeps whose `results.json` are given.
+
+Medians of `--repeats` timed runs after a separate compiling call.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import json
+import pathlib
+import statistics
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ape_jax.learner import Data, LearnerConfig, make_train, stack_hparams
+from ape_jax.sweep import SOFTMAX_GRID, STEP_GRID, Hparams, Run, hparams_of
+from experiments._timing import machine, run_benchmark, time_jitted
+
+SECTION = "bench_train"
+OBS, ACT, H, BATCH = 5, 3, 2, 128
+
+
+def _data(n=20_000, seed=0) -> Data:
+    rng = np.random.default_rng(seed)
+    return Data(obs=jnp.asarray(rng.normal(size=(n, OBS)), jnp.float32),
+                action=jnp.asarray(np.tanh(rng.normal(size=(n, ACT))), jnp.float32),
+                t=jnp.asarray(np.tile(np.arange(1000), n // 1000), jnp.int32),
+                ape=jnp.asarray(rng.exponential(size=n), jnp.float32))
+
+
+def _grid() -> list[Hparams]:
+    runs = [Run("bc-oh", {}, 0)] + [Run("ours-step", {"thr": t, "w": w}, 0) for t, w in STEP_GRID] + \
+           [Run("ours-softmax", {"tau": tau}, 0) for tau in SOFTMAX_GRID]
+    return [hparams_of(r, 2e-4) for r in runs]
+
+
+def macs_per_sample(cfg: LearnerConfig) -> int:
+    params = cfg.model().init(jax.random.PRNGKey(0), jnp.zeros((1, cfg.history * cfg.obs_shape[0])))
+    return int(sum(np.prod(k.shape) for k in jax.tree.leaves(params) if k.ndim == 2))
+
+
+def jax_throughput(iters: int, repeats: int) -> dict:
+    cfg = LearnerConfig(obs_shape=(OBS,), action_dim=ACT, history=H, iterations=iters, batch_size=BATCH)
+    learner = make_train(cfg)
+    data, grid = _data(), _grid()
+    g = len(grid)
+    keys = jax.random.split(jax.random.PRNGKey(0), g)
+    hps = stack_hparams(grid)
+    states = jax.jit(jax.vmap(learner.init, (0, 0, None)))(keys, hps, data)
+    run_grid = jax.jit(jax.vmap(lambda s, hp, d: learner.run(s, hp, d, iters)[0].params, (0, 0, None)))
+    compile_g, steady_g, _ = time_jitted(run_grid, states, hps, data, repeats=repeats)
+    run_one = jax.jit(lambda s, hp, d: learner.run(s, hp, d, iters)[0].params)
+    singles = [jax.tree.map(lambda x: x[i], (states, hps)) for i in range(g)]
+    jax.block_until_ready(run_one(*singles[0], data))  # compile once: every config has the same shapes
+    seq = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for s, hp in singles:
+            jax.block_until_ready(run_one(s, hp, data))
+        seq.append(time.perf_counter() - t0)
+    return {"models": g, "grid_updates_s": g * iters / steady_g, "grid_compile_s": compile_g,
+            "seq_updates_s": g * iters / statistics.median(seq), "macs": macs_per_sample(cfg)}
+
+
+def torch_throughput(iters: int, repeats: int, configs: int) -> float | None:
+    try:
+        import torch
+    except ImportError:
+        return None
+    torch.set_num_threads(os.cpu_count() or 1)
+    data = _data()
+    obs = torch.tensor(np.asarray(data.obs))
+    act = torch.tensor(np.asarray(data.action))
+
+    def net():
+        lrelu = torch.nn.LeakyReLU(0.2)
+        return torch.nn.Sequential(torch.nn.Linear(H * OBS, 300), lrelu, torch.nn.Linear(300, 300), lrelu,
+                                   torch.nn.Linear(300, 300), lrelu, torch.nn.Linear(300, 100),
+                                   torch.nn.Linear(100, 300), lrelu, torch.nn.Linear(300, ACT))
+
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(configs):
+            model = net()
+            opt = torch.optim.Adam(model.parameters(), lr=2e-4)
+            for _ in range(iters):
+                idx = torch.randint(0, len(obs) - 1, (BATCH,))
+                x = torch.cat([obs[idx], obs[idx + 1]], dim=1)
+                w = torch.ones(BATCH)
+                loss = (w * ((model(x) - act[idx + 1]) ** 2).sum(-1)).mean()
+                opt.zero_grad()
+                loss.backward()
+                opt.step()
+        times.append(time.perf_counter() - t0)
+    return configs * iters / statistics.median(times)
+
+
+def matmul_peak(repeats: int) -> dict[int, float]:
+    out = {}
+    for n in (256, 512, 1024, 2048):
+        a = jax.random.normal(jax.random.PRNGKey(0), (n, n), jnp.float32)
+        _, steady, _ = time_jitted(jax.jit(lambda x: x @ x), a, repeats=repeats)
+        out[n] = 2 * n**3 / steady
+    return out
+
+
+def eval_throughput(policies: int, episodes: int, repeats: int) -> dict:
+    import envs
+    from ape_jax import evaluate
+
+    env = envs.make("hopper", obs="pos")
+    cfg = LearnerConfig(obs_shape=(OBS,), action_dim=ACT, history=H, iterations=1, batch_size=BATCH)
+    params = jax.vmap(lambda k: cfg.model().init(k, jnp.zeros((1, H * OBS))))(
+        jax.random.split(jax.random.PRNGKey(0), policies))
+    run = evaluate.make_evaluator(env, cfg, jnp.zeros(OBS), jnp.ones(OBS), episodes, steps=200)
+    compile_s, steady, _ = time_jitted(run, params, jax.random.PRNGKey(1), repeats=repeats)
+    return {"compile_s": compile_s, "steps_s": policies * episodes * 200 / steady,
+            "native_steps_s": _native_eval(env, steps=1000, repeats=repeats)}
+
+
+def _native_eval(env, steps: int, repeats: int) -> float | None:
+    try:
+        import torch
+    except ImportError:
+        return None
+    from envs._quiet import mujoco
+
+    model = env.brax_env.sys.mj_model
+    data = mujoco.MjData(model)
+    n_frames = env.brax_env._n_frames
+    lrelu = torch.nn.LeakyReLU(0.2)
+    net = torch.nn.Sequential(torch.nn.Linear(H * OBS, 300), lrelu, torch.nn.Linear(300, 300), lrelu,
+                              torch.nn.Linear(300, 300), lrelu, torch.nn.Linear(300, 100),
+                              torch.nn.Linear(100, 300), lrelu, torch.nn.Linear(300, ACT))
+    rates = []
+    for _ in range(repeats):
+        mujoco.mj_resetData(model, data)
+        prev = data.qpos[1:].copy()
+        t0 = time.perf_counter()
+        with torch.no_grad():
+            for _ in range(steps):
+                obs = data.qpos[1:].copy()
+                x = torch.tensor(np.concatenate([prev, obs]), dtype=torch.float32)[None]
+                data.ctrl[:] = np.clip(net(x)[0].numpy(), -1, 1)
+                for _ in range(n_frames):
+                    mujoco.mj_step(model, data)
+                prev = obs
+        rates.append(steps / (time.perf_counter() - t0))
+    return statistics.median(rates)
+
+
+def table(args) -> str:
+    t = jax_throughput(args.iters, args.repeats)
+    torch_rate = torch_throughput(args.torch_iters, args.repeats, t["models"])
+    peak = matmul_peak(args.repeats)
+    flops = 6 * BATCH * t["macs"] * t["grid_updates_s"]
+    ev = eval_throughput(args.policies, args.episodes, args.repeats)
+    cmd = (f"python -m experiments.bench_train --iters {args.iters} --torch-iters {args.torch_iters} "
+           f"--repeats {args.repeats}")
+    lines = [
+        "## Training and evaluation speed", "", f"Command: `{cmd}`  ", f"Machine: {machine()}  ",
+        f"Medians of {args.repeats} runs after a compiling call; all figures from one run of the script. "
+        f"Network: the state policy ({t['macs']:,} weights in dense layers), batch {BATCH}, input {H}×{OBS}, "
+        f"Adam; {t['models']} configurations (BC-OH, 6 step, 6 softmax).", "",
+        "| training | model-updates/s | vs PyTorch |", "|---|---:|---:|",
+        f"| JAX, the grid as one `jit(vmap(scan))` | {t['grid_updates_s']:,.0f} | "
+        + (f"{t['grid_updates_s'] / torch_rate:.1f}× |" if torch_rate else "– |"),
+        f"| JAX, one configuration after another (jitted scan each) | {t['seq_updates_s']:,.0f} | "
+        + (f"{t['seq_updates_s'] / torch_rate:.1f}× |" if torch_rate else "– |"),
+        f"| PyTorch {'(' + str(args.torch_iters) + ' updates per config)' if torch_rate else 'not installed'}, "
+        f"one configuration after another | {torch_rate or 0:,.0f} | 1.0× |", "",
+        f"Grid compile: {t['grid_compile_s']:.1f} s. Grid vs one-after-another JAX: "
+        f"{t['grid_updates_s'] / t['seq_updates_s']:.2f}×.", "",
+        "| float32 matmul n×n | GFLOP/s |", "|---|---:|",
+        *[f"| {n} | {v / 1e9:,.1f} |" for n, v in peak.items()], "",
+        f"Grid training step: {flops / 1e9:,.1f} GFLOP/s achieved (6 · batch · weights per update) = "
+        f"**{100 * flops / peak[max(peak)]:.0f}%** of the largest-matrix peak "
+        f"({100 * flops / max(peak.values()):.0f}% of the best measured).", "",
+        "| evaluation (hopper, pos) | env steps/s, policy included |", "|---|---:|",
+        f"| JAX: {args.policies} policies × {args.episodes} episodes, vmapped, 200-step scan | {ev['steps_s']:,.0f} "
+        f"(compile {ev['compile_s']:.1f} s) |",
+        "| native MuJoCo + PyTorch policy, Python loop, one env | "
+        + (f"{ev['native_steps_s']:,.0f} |" if ev["native_steps_s"] else "torch not installed |"),
+    ]
+    if args.results:
+        lines += ["", "| sweep (results.json) | total s | compile s | train s | evaluate s |", "|---|---:|---:|---:|---:|"]
+        for path in args.results:
+            r = json.loads(pathlib.Path(path).read_text())
+            tm = r["timing"]
+            lines.append(f"| `python -m experiments.sweep --env {r['env']} --obs {r['obs']} --preset {r['preset']}` | "
+                         f"{tm['total_s']:,.0f} | {tm['compile_s']:,.0f} | {tm['train_s']:,.0f} | {tm['eval_s']:,.0f} |")
+    for line in lines[6:]:
+        print(line, file=sys.stderr)
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="python -m experiments.bench_train", description=__doc__.splitlines()[0])
+    p.add_argument("--iters", type=int, default=500, help="updates per model in a timed JAX run")
+    p.add_argument("--torch-iters", type=int, default=200, help="updates per configuration in a timed PyTorch run")
+    p.add_argument("--policies", type=int, default=13, help="policies evaluated at once")
+    p.add_argument("--episodes", type=int, default=8, help="episodes per policy")
+    p.add_argument("--repeats", type=int, default=3, help="timed runs; the median is reported")
+    p.add_argument("--results", nargs="*", default=[], help="results.json files whose end-to-end timing to report")
+    return run_benchmark(p, argv, ("--iters", "--torch-iters", "--policies", "--episodes", "--repeats"), table,
+                         SECTION)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
