@@ -280,9 +280,16 @@ def _run_record(run: Run, j: int, out: dict, losses: dict, metrics: dict, card: 
     record["eval"] = ev
     record["losses"] = {split: {k: float(v[j]) for k, v in losses[split].items()} for split in losses}
     record["train_loss_final"] = float(np.mean(loss_curve[-100:]))
-    if record["status"] == "failed":
-        record["eval"] = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in ev.items()}
-    return record
+    return _finite_or_none(record)
+
+
+def _finite_or_none(tree):
+    """The record with every non-finite float replaced by None (JSON has no NaN)."""
+    if isinstance(tree, dict):
+        return {k: _finite_or_none(v) for k, v in tree.items()}
+    if isinstance(tree, float) and not math.isfinite(tree):
+        return None
+    return tree
 
 
 def summarize(runs: list[dict]) -> list[dict]:

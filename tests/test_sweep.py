@@ -58,3 +58,25 @@ def test_sweep_refuses_bad_input_before_compiling(argv, message, capsys):
     with pytest.raises(SystemExit) as exc:
         sweep.parse(argv)
     assert exc.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_a_diverging_configuration_is_recorded_as_failed_and_the_others_finish(tmp_path, monkeypatch):
+    from ape_jax import sweep as sweep_lib
+
+    real = sweep_lib.hparams_of
+
+    def diverging(run, lr):  # one configuration with an absurd learning rate
+        return real(run, 1e30 if run.method == "ours-step" and run.hparams == {"thr": 0.1, "w": 3.0} else lr)
+
+    monkeypatch.setattr(sweep_lib, "hparams_of", diverging)
+    out = tmp_path / "run"
+    argv = ["--env", "toycar", "--obs", "full", "--iterations", "30", "--eval-episodes", "1",
+            "--methods", "bc-oh,ours-step", "--out", str(out), "--data-dir", str(tmp_path / "data")]
+    assert sweep.main(argv) == 0
+    r = json.loads((out / "results.json").read_text())
+    failed = [run for run in r["runs"] if run["status"] == "failed"]
+    assert [(f["method"], f["hparams"]) for f in failed] == [("ours-step", {"thr": 0.1, "w": 3.0})]
+    assert "non-finite" in failed[0]["error"]
+    assert sum(run["status"] == "ok" for run in r["runs"]) == 6
+    row = next(s for s in r["summary"] if s["hparams"] == {"thr": 0.1, "w": 3.0})
+    assert row["n_seeds"] == 0 and row["return_mean"] is None
