@@ -64,7 +64,7 @@ class Preset:
 
 PRESETS = {
     "quick": Preset(iterations=3_000, seeds=1, eval_episodes=5, ape_steps=1_000, chunk=500),
-    "default": Preset(iterations=40_000, seeds=3, eval_episodes=20, ape_steps=5_000, chunk=2_000),
+    "default": Preset(iterations=30_000, seeds=3, eval_episodes=20, ape_steps=5_000, chunk=2_000),
     "paper": Preset(iterations=300_000, seeds=5, eval_episodes=100, ape_steps=20_000, chunk=10_000),
 }
 

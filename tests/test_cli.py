@@ -5,7 +5,6 @@ import sys
 
 import pytest
 
-
 from experiments import _timing, collect
 
 
