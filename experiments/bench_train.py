@@ -211,7 +211,10 @@ def table(args) -> str:
         for path in args.results:
             r = json.loads(pathlib.Path(path).read_text())
             tm = r["timing"]
-            lines.append(f"| `python -m experiments.sweep --env {r['env']} --obs {r['obs']} --preset {r['preset']}` | "
+            c = r["config"]
+            cmd = (f"python -m experiments.sweep --env {r['env']} --obs {r['obs']} --preset {r['preset']} "
+                   f"--iterations {c['iterations']} --seeds {c['seeds']} --eval-episodes {c['eval_episodes']}")
+            lines.append(f"| `{cmd}` | "
                          f"{tm['total_s']:,.0f} | {tm['compile_s']:,.0f} | {tm['train_s']:,.0f} | {tm['eval_s']:,.0f} |")
     for line in lines[6:]:
         print(line, file=sys.stderr)
