@@ -15,6 +15,7 @@ import dataclasses
 import json
 import os
 import pathlib
+import shutil
 import sys
 
 from experiments._cli import fail
@@ -85,8 +86,6 @@ def write_outputs(out: pathlib.Path, results: dict, params: dict) -> None:
         for name, block in params.items():
             target = (out / "params" / name).absolute()
             if target.exists():
-                import shutil
-
                 shutil.rmtree(target)
             tree = {k: v for k, v in block.items() if k != "runs" and v is not None}
             ckpt.save(target, jax.tree.map(np.asarray, tree))
