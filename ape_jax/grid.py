@@ -23,7 +23,8 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 AXIS = "grid"
 
 
-def _pad(tree: Any, pad: int) -> Any:
+def pad_grid(tree: Any, pad: int) -> Any:
+    """`tree` with its leading (grid) axis extended by `pad` copies of the last entry."""
     if pad == 0:
         return tree
     return jax.tree.map(lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]), tree)
@@ -48,7 +49,7 @@ def grid_runner(fn: Callable[[jax.Array, Any, Any], Any], devices: Sequence[jax.
     def run(keys: Any, hparams: Any, data: Any) -> Any:
         g = int(jax.tree.leaves(keys)[0].shape[0])
         pad = -g % len(devices)
-        out = mapped(_pad(keys, pad), _pad(hparams, pad), data)
+        out = mapped(pad_grid(keys, pad), pad_grid(hparams, pad), data)
         return jax.tree.map(lambda x: x[:g], out)
 
     run.devices = devices  # type: ignore[attr-defined]

@@ -29,7 +29,7 @@ import numpy as np
 from ape_jax import ape as ape_lib
 from ape_jax import collect, evaluate
 from ape_jax.data import Demonstrations
-from ape_jax.grid import grid_runner
+from ape_jax.grid import grid_runner, pad_grid
 from ape_jax.learner import Data, Hparams, LearnerConfig, make_train, stack_hparams
 
 METHODS = ("bc-so", "bc-oh", "ours-step", "ours-softmax")
@@ -135,17 +135,15 @@ def train_program(cfg: LearnerConfig, runs: list[Run], preset: Preset, data: Dat
     keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(r.seed), i) for i, r in enumerate(runs)])
     hps = stack_hparams([hparams_of(r, preset.lr) for r in runs])
     init = grid_runner(learner.init)
-    n_dev = len(init.devices)
-    pad = -len(runs) % n_dev
-    keys_p = jnp.concatenate([keys, jnp.repeat(keys[-1:], pad, 0)])
-    hps_p = jax.tree.map(lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], pad, 0)]), hps)
-    state = init(keys_p, hps_p, data)
-    chunks, done, metrics = [], 0, []
+    pad = -len(runs) % len(init.devices)  # padded once, so the chunk runners never pad or trim
+    hps = pad_grid(hps, pad)
+    state = init(pad_grid(keys, pad), hps, data)
+    runners, done, metrics = {}, 0, []
     while done < cfg.iterations:
         n = min(preset.chunk, cfg.iterations - done)
-        if n not in dict(chunks):
-            chunks.append((n, grid_runner(lambda s, hp, d, n=n: learner.run(s, hp, d, n))))
-        state, m = dict(chunks)[n](state, hps_p, data)
+        if n not in runners:
+            runners[n] = grid_runner(lambda s, hp, d, n=n: learner.run(s, hp, d, n))
+        state, m = runners[n](state, hps, data)
         metrics.append(jax.device_get(m))
         done += n
         progress(n)
