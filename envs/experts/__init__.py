@@ -25,7 +25,6 @@ ToyCar's expert is the rule-based one, `envs.toycar.expert_action`.
 from __future__ import annotations
 
 import json
-import math
 import pathlib
 from typing import Callable
 
@@ -170,6 +169,3 @@ def load(name: str, root: pathlib.Path | None = None) -> Callable[[jax.Array], j
     """
     return policy_from_params(load_params(name, root))
 
-
-def param_count(params: dict) -> int:
-    return int(sum(math.prod(np.shape(x)) for x in jax.tree.leaves(params)))
