@@ -14,6 +14,18 @@ Per minibatch (uniform sampling with replacement) the loss is
 `ape_jax.weighting` (stop-gradient). The policy sees the last `H` observations,
 padded at episode starts by repeating the first one. Adam with learning rate
 `lr · 0.1^⌊step / lr_decay_every⌋`.
+
+HistoryDropout (Bansal et al., 2018) is a traced knob of the same learner:
+with `Hparams.history_dropout = p > 0` each *past* observation of a training
+history (not the current one) is replaced by zeros with probability p,
+independently per sample and frame (for standardised states zero is the
+training mean; for images a black frame); evaluation sees the full history.
+
+Every learner of the project (this one and the baselines' in
+`ape_jax.baselines`) is a `Learner`: `init`, `run` in chunks, and for methods
+that train in rounds (boosting, DAgger) `next_round` between rounds of
+`round_iterations`; `policy_params(state)` gives parameters of `cfg.model()`,
+so evaluation and the loss analysis treat every method alike.
 """
 
 from __future__ import annotations
@@ -69,24 +81,35 @@ class Hparams:
     """Traced knobs of one configuration (stack them along a leading axis for a grid)."""
 
     weighting: Weighting
-    lr: jax.Array  # [] float32
+    lr: jax.Array               # [] float32
+    history_dropout: jax.Array  # [] float32, probability of zeroing each past observation
 
     @classmethod
-    def make(cls, kind: str = "uniform", lr: float = 2e-4, **weighting_kw) -> "Hparams":
-        return cls(Weighting.make(kind, **weighting_kw), jnp.float32(lr))
+    def make(cls, kind: str = "uniform", lr: float = 2e-4, history_dropout: float = 0.0,
+             **weighting_kw) -> "Hparams":
+        if not 0.0 <= history_dropout < 1.0:
+            raise ValueError(f"history dropout must be in [0, 1), got {history_dropout}")
+        if not lr > 0.0:
+            raise ValueError(f"learning rate must be > 0, got {lr}")
+        return cls(Weighting.make(kind, **weighting_kw), jnp.float32(lr), jnp.float32(history_dropout))
 
 
 @struct.dataclass
 class Data:
     """A training split on device; observations already standardised (states) or uint8 (images).
 
-    obs `[N, *obs_shape]`, action `[N, A] float32`, t `[N] int32`, ape `[N] float32`.
+    obs `[N, *obs_shape]`, action `[N, A] float32`, t `[N] int32`, ape `[N] float32`;
+    `scores` `[S, N] float32` is the table the weightings read (`None`: just the APE).
     """
 
     obs: jax.Array
     action: jax.Array
     t: jax.Array
     ape: jax.Array
+    scores: jax.Array | None = None
+
+    def score_table(self) -> jax.Array:
+        return self.ape[None] if self.scores is None else self.scores
 
 
 @struct.dataclass
@@ -99,15 +122,43 @@ class TrainState:
 
 
 class Learner(NamedTuple):
-    init: Callable[[jax.Array, Hparams, Data], TrainState]
-    run: Callable[[TrainState, Hparams, Data, int], tuple[TrainState, dict]]
-    train: Callable[[jax.Array, Hparams, Data], tuple[Any, dict]]
+    """The pure functions of one learner (see the module docstring); `state` and `hp` are the learner's own."""
+
+    init: Callable[[jax.Array, Any, Data], Any]
+    run: Callable[[Any, Any, Data, int], tuple[Any, dict]]  # n iterations; metrics [n] incl. "loss"
+    train: Callable[[jax.Array, Any, Data], tuple[Any, dict]]  # everything; -> (policy params, metrics)
     policy_input: Callable[[jax.Array], jax.Array]
-    per_sample_loss: Callable[[Any, Data, jax.Array], jax.Array]
+    per_sample_loss: Callable[[Any, Data, jax.Array], jax.Array]  # (policy params, data, idx) -> [B]
+    policy_params: Callable[[Any], Any] = lambda state: state.params
+    rounds: int = 1
+    round_iterations: int = 0  # iterations per round; total = rounds * round_iterations
+    next_round: Callable[[Any, Any, Data], Any] | None = None  # between rounds
+
+
+def train_in_rounds(learner: Learner, key: jax.Array, hp: Any, data: Data) -> tuple[Any, dict]:
+    """`init`, then each round's `run` with `next_round` between rounds: a `Learner.train` for round-based methods."""
+    state, metrics = learner.init(key, hp, data), []
+    for r in range(learner.rounds):
+        if r:
+            state = learner.next_round(state, hp, data)
+        state, m = learner.run(state, hp, data, learner.round_iterations)
+        metrics.append(m)
+    return learner.policy_params(state), jax.tree.map(lambda *xs: jnp.concatenate(xs), *metrics)
 
 
 def stack_hparams(configs: list[Hparams]) -> Hparams:
     return jax.tree.map(lambda *xs: jnp.stack(xs), *configs)
+
+
+def drop_history(key: jax.Array, history: jax.Array, p: jax.Array | float) -> jax.Array:
+    """HistoryDropout: each past observation of `history [B, H, ...]` zeroed with probability `p`.
+
+    The current (last) observation is always kept; draws are independent per
+    sample and frame. `p = 0` returns `history` unchanged.
+    """
+    keep = jax.random.uniform(key, history.shape[:2]) >= p
+    keep = keep.at[:, -1].set(True)
+    return jnp.where(keep.reshape(keep.shape + (1,) * (history.ndim - 2)), history, jnp.zeros((), history.dtype))
 
 
 def make_train(cfg: LearnerConfig) -> Learner:
@@ -122,11 +173,14 @@ def make_train(cfg: LearnerConfig) -> Learner:
         x = jnp.moveaxis(history_obs, -4, -2)  # [..., h, w, H, 3]
         return x.reshape(x.shape[:-2] + (-1,)).astype(jnp.float32) / 255.0
 
-    def batch(data: Data, idx: jax.Array) -> jax.Array:
-        return policy_input(data.obs[history_index(data.t, idx, cfg.history)])
+    def batch(data: Data, idx: jax.Array, dropout_key: jax.Array | None = None, dropout=0.0) -> jax.Array:
+        obs = data.obs[history_index(data.t, idx, cfg.history)]  # [B, H, *obs_shape]
+        if dropout_key is not None:
+            obs = drop_history(dropout_key, obs, dropout)
+        return policy_input(obs)
 
-    def per_sample_loss(params, data: Data, idx: jax.Array) -> jax.Array:
-        err = model.apply(params, batch(data, idx)) - data.action[idx]
+    def per_sample_loss(params, data: Data, idx: jax.Array, dropout_key=None, dropout=0.0) -> jax.Array:
+        err = model.apply(params, batch(data, idx, dropout_key, dropout)) - data.action[idx]
         return jnp.sum(err**2 if cfg.loss == "l2" else jnp.abs(err), axis=-1)
 
     def init(key: jax.Array, hp: Hparams, data: Data) -> TrainState:
@@ -137,15 +191,16 @@ def make_train(cfg: LearnerConfig) -> Learner:
         dummy = policy_input(jnp.zeros((1, cfg.history, *cfg.obs_shape), data.obs.dtype))
         params = model.init(key_init, dummy)
         return TrainState(params=params, opt_state=adam.init(params), step=jnp.zeros((), jnp.int32),
-                          key=key_run, static_weights=weighting.dataset_weights(data.ape, hp.weighting))
+                          key=key_run, static_weights=weighting.dataset_weights(data.score_table(), hp.weighting))
 
     def update(state: TrainState, hp: Hparams, data: Data):
-        idx = jax.random.randint(jax.random.fold_in(state.key, state.step), (cfg.batch_size,), 0,
-                                 data.obs.shape[0])
-        w = weighting.batch_weights(data.ape, state.static_weights, idx, hp.weighting)
+        key_step = jax.random.fold_in(state.key, state.step)
+        idx = jax.random.randint(key_step, (cfg.batch_size,), 0, data.obs.shape[0])
+        key_drop = jax.random.fold_in(key_step, 1)
+        w = weighting.batch_weights(data.score_table(), state.static_weights, idx, hp.weighting)
 
         def loss_fn(params):
-            ell = per_sample_loss(params, data, idx)
+            ell = per_sample_loss(params, data, idx, key_drop, hp.history_dropout)
             return jnp.mean(w * ell), jnp.mean(ell)
 
         (weighted, unweighted), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params)
@@ -162,4 +217,5 @@ def make_train(cfg: LearnerConfig) -> Learner:
         state, metrics = run(init(key, hp, data), hp, data, cfg.iterations)
         return state.params, metrics
 
-    return Learner(init=init, run=run, train=train, policy_input=policy_input, per_sample_loss=per_sample_loss)
+    return Learner(init=init, run=run, train=train, policy_input=policy_input, per_sample_loss=per_sample_loss,
+                   round_iterations=cfg.iterations)

@@ -6,6 +6,10 @@
 - `ImagePolicy` — for images: a small conv encoder (CPU-sized) to the same
   100-unit embedding and head. Input: the last `H` frames stacked on channels,
   `[..., height, width, 3 * H]`, already scaled to [0, 1].
+
+Both take `return_embedding=True` to return `(action, embedding)`, the
+embedding being the Head's 100-unit `embedding` layer (for FCA's adversary);
+the parameters are the same either way.
 """
 
 from __future__ import annotations
@@ -28,9 +32,10 @@ class Head(nn.Module):
     hidden: int = 300
 
     @nn.compact
-    def __call__(self, features: jax.Array) -> jax.Array:
+    def __call__(self, features: jax.Array, return_embedding: bool = False) -> jax.Array | tuple[jax.Array, jax.Array]:
         z = nn.Dense(self.embed, name="embedding")(features)
-        return nn.Dense(self.action_dim, name="action")(_lrelu(nn.Dense(self.hidden, name="head")(z)))
+        action = nn.Dense(self.action_dim, name="action")(_lrelu(nn.Dense(self.hidden, name="head")(z)))
+        return (action, z) if return_embedding else action
 
 
 class StatePolicy(nn.Module):
@@ -40,11 +45,11 @@ class StatePolicy(nn.Module):
     hidden: Sequence[int] = (300, 300, 300)
 
     @nn.compact
-    def __call__(self, obs: jax.Array) -> jax.Array:
+    def __call__(self, obs: jax.Array, return_embedding: bool = False) -> jax.Array | tuple[jax.Array, jax.Array]:
         x = obs
         for i, width in enumerate(self.hidden):
             x = _lrelu(nn.Dense(width, name=f"encoder_{i}")(x))
-        return Head(self.action_dim)(x)
+        return Head(self.action_dim)(x, return_embedding)
 
 
 class ImagePolicy(nn.Module):
@@ -54,8 +59,8 @@ class ImagePolicy(nn.Module):
     channels: Sequence[int] = (32, 64, 64)
 
     @nn.compact
-    def __call__(self, frames: jax.Array) -> jax.Array:
+    def __call__(self, frames: jax.Array, return_embedding: bool = False) -> jax.Array | tuple[jax.Array, jax.Array]:
         x = frames
         for i, c in enumerate(self.channels):
             x = _lrelu(nn.Conv(c, (5, 5) if i == 0 else (3, 3), strides=2, name=f"conv_{i}")(x))
-        return Head(self.action_dim)(x.reshape(x.shape[:-3] + (-1,)))
+        return Head(self.action_dim)(x.reshape(x.shape[:-3] + (-1,)), return_embedding)

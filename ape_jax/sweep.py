@@ -7,9 +7,11 @@ observation mode:
    split 80/20 by episode, standardise state observations with training
    statistics;
 2. **fit APE** on the training split (`ape_jax.ape`), normalise by the training mean;
-3. **train** BC-OH and the step and softmax grids as one program (vmapped,
-   sharded over devices, in chunks so a progress bar moves), and BC-SO
-   (history 1, a different input width) as a second;
+3. **train** BC-OH, the step and softmax grids and the weighting baselines
+   (BOCPD, ActFreq, k-means, HistoryDropout) as one program (vmapped, sharded
+   over devices, in chunks so a progress bar moves); BC-SO (history 1, a
+   different input width) as a second; boosting, FCA and DAgger as programs
+   of their own (`ape_jax.baselines`), each vmapped over seeds;
 4. **evaluate** every policy on the same episodes (`ape_jax.evaluate`), and run
    the loss analysis on both splits;
 5. assemble `results.json` as `DESIGN.md` fixes it.
@@ -30,11 +32,18 @@ from ape_jax import ape as ape_lib
 from ape_jax import collect, evaluate
 from ape_jax.data import Demonstrations
 from ape_jax.grid import grid_runner, pad_grid
-from ape_jax.learner import Data, Hparams, LearnerConfig, make_train, stack_hparams
+from ape_jax.learner import Data, Hparams, Learner, LearnerConfig, make_train
 
-METHODS = ("bc-so", "bc-oh", "ours-step", "ours-softmax")
+METHODS = ("bc-so", "bc-oh", "ours-step", "ours-softmax",
+           "bcpd", "actfreq", "kmeans", "boosting", "history-dropout", "fca", "dagger")
+ONLINE = ("dagger",)  # the only method that queries the expert during training
 STEP_GRID = tuple((thr, w) for thr in (0.1, 0.2) for w in (3.0, 5.0, 10.0))
 SOFTMAX_GRID = (0.1, 0.2, 0.5, 1.0, 5.0, 10.0)
+# Rows of the score table the weightings read (`ape_jax.weighting`): APE first.
+SCORES = ("ape", "bcpd", "actfreq", "kmeans")
+# Methods trained by the weighted learner, as one vmapped program (BC-SO is a
+# second, with history 1); boosting, FCA and DAgger are programs of their own.
+WEIGHTED = ("bc-oh", "ours-step", "ours-softmax", "bcpd", "actfreq", "kmeans", "history-dropout")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,30 +87,69 @@ class Run:
     seed: int
 
 
-def grid_runs(methods: tuple[str, ...], seeds: int) -> list[Run]:
-    """Every (method, hparams, seed) of the sweep, in a fixed order: BC-SO, BC-OH, step grid, softmax grid."""
+def baseline_hparams(method: str, env_name: str, n_train: int | None = None) -> list[dict]:
+    """The settings a baseline runs with (its reading of the paper is in its module's docstring)."""
+    from ape_jax.baselines import boosting, dagger, fca
+
+    return {
+        "bcpd": [{"thr": 0.1, "w": 5.0}],   # the step function at the paper's setting for ours
+        "actfreq": [{}],
+        "kmeans": [{}],
+        "boosting": [{"rounds": boosting.ROUNDS}],
+        "history-dropout": [{"p": 0.5}],
+        "fca": [{"alpha": fca.ALPHA[env_name]}],
+        "dagger": [{"rounds": dagger.ROUNDS, "budget": n_train or 0}],
+    }[method]
+
+
+def grid_runs(methods: tuple[str, ...], seeds: int, env_name: str = "hopper", n_train: int | None = None
+              ) -> list[Run]:
+    """Every (method, hparams, seed) of the sweep, in a fixed order: BC-SO, BC-OH, step grid, softmax grid, baselines.
+
+    `n_train` (the training split's size) sets DAgger's query budget.
+    """
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise ValueError(f"unknown method(s) {unknown}; valid: {list(METHODS)}")
     out = []
     for seed in range(seeds):
-        if "bc-so" in methods:
-            out.append(Run("bc-so", {}, seed))
-        if "bc-oh" in methods:
-            out.append(Run("bc-oh", {}, seed))
-        if "ours-step" in methods:
-            out += [Run("ours-step", {"thr": thr, "w": w}, seed) for thr, w in STEP_GRID]
-        if "ours-softmax" in methods:
-            out += [Run("ours-softmax", {"tau": tau}, seed) for tau in SOFTMAX_GRID]
+        for method in METHODS:
+            if method not in methods:
+                continue
+            if method in ("bc-so", "bc-oh"):
+                out.append(Run(method, {}, seed))
+            elif method == "ours-step":
+                out += [Run(method, {"thr": thr, "w": w}, seed) for thr, w in STEP_GRID]
+            elif method == "ours-softmax":
+                out += [Run(method, {"tau": tau}, seed) for tau in SOFTMAX_GRID]
+            else:
+                out += [Run(method, hp, seed) for hp in baseline_hparams(method, env_name, n_train)]
     return out
 
 
-def hparams_of(run: Run, lr: float) -> Hparams:
+def hparams_of(run: Run, lr: float):
+    """The traced hyperparameters of one run (an `Hparams`, or FCA's `FcaHparams`)."""
+    hp = run.hparams
     if run.method == "ours-step":
-        return Hparams.make("step", lr=lr, thr=run.hparams["thr"], w=run.hparams["w"])
+        return Hparams.make("step", lr=lr, thr=hp["thr"], w=hp["w"])
     if run.method == "ours-softmax":
-        return Hparams.make("softmax", lr=lr, tau=run.hparams["tau"])
+        return Hparams.make("softmax", lr=lr, tau=hp["tau"])
+    if run.method == "bcpd":
+        return Hparams.make("step", lr=lr, thr=hp["thr"], w=hp["w"], source=SCORES.index("bcpd"))
+    if run.method in ("actfreq", "kmeans"):
+        return Hparams.make("given", lr=lr, source=SCORES.index(run.method))
+    if run.method == "history-dropout":
+        return Hparams.make("uniform", lr=lr, history_dropout=hp["p"])
+    if run.method == "fca":
+        from ape_jax.baselines.fca import FcaHparams
+
+        return FcaHparams.make(alpha=hp["alpha"], lr=lr)
     return Hparams.make("uniform", lr=lr)
+
+
+def program_of(method: str) -> str:
+    """The compiled program a method trains in: `"grid"` (the weighted learner), `"bc-so"`, or its own."""
+    return "grid" if method in WEIGHTED else method
 
 
 def prepare(demos: Demonstrations, preset: Preset, seed: int = 0):
@@ -117,38 +165,82 @@ def prepare(demos: Demonstrations, preset: Preset, seed: int = 0):
     return train, val, mean.astype(np.float32), std.astype(np.float32)
 
 
-def _data(split: Demonstrations, ape: jax.Array, mean, std) -> Data:
+def _data(split: Demonstrations, ape: jax.Array, mean, std, scores: jax.Array | None = None) -> Data:
     obs = jnp.asarray(split.obs)
     if mean is not None:
         obs = (obs - mean) / std
-    return Data(obs=obs, action=jnp.asarray(split.action), t=jnp.asarray(split.t), ape=jnp.asarray(ape))
+    return Data(obs=obs, action=jnp.asarray(split.action), t=jnp.asarray(split.t), ape=jnp.asarray(ape),
+                scores=scores)
 
 
-def train_program(cfg: LearnerConfig, runs: list[Run], preset: Preset, data: Data,
+def score_table(methods: tuple[str, ...], train: Demonstrations, ape: jax.Array, seed: int = 0) -> jax.Array:
+    """`[len(SCORES), N]`: the APE and, for the weighting baselines in `methods`, their scores (ones otherwise)."""
+    from ape_jax.baselines import actfreq, bcpd, kmeans
+
+    action, t = jnp.asarray(train.action), jnp.asarray(train.t)
+    ones = jnp.ones_like(ape)
+    rows = {
+        "ape": lambda: ape,
+        "bcpd": lambda: bcpd.changepoint_prob(action, t),
+        "actfreq": lambda: jnp.asarray(actfreq.weights(action)),
+        "kmeans": lambda: kmeans.weights(jax.random.PRNGKey(seed), action),
+    }
+    return jnp.stack([jnp.asarray(rows[name](), jnp.float32) if name == "ape" or name in methods else ones
+                      for name in SCORES])
+
+
+def make_learner(program: str, cfg: LearnerConfig, env, obs_mean, obs_std, n_train: int) -> Learner:
+    """The `Learner` of one program (see `program_of`)."""
+    if program in ("grid", "bc-so"):
+        return make_train(cfg)
+    if program == "boosting":
+        from ape_jax.baselines import boosting
+
+        return boosting.make_boosting(cfg)
+    if program == "fca":
+        from ape_jax.baselines import fca
+
+        return fca.make_fca(cfg)
+    if program == "dagger":
+        from ape_jax.baselines import dagger
+
+        expert, _ = collect.expert_for(env)
+        return dagger.make_dagger(cfg, env, expert, obs_mean, obs_std, budget=n_train)
+    raise ValueError(f"unknown program {program!r}")
+
+
+def train_program(learner: Learner, runs: list[Run], preset: Preset, data: Data,
                   progress: Callable[[int], None]) -> tuple[Any, dict]:
-    """Trains `runs` (all with the same history) as one vmapped, sharded program, in chunks.
+    """Trains `runs` (all of one program) vmapped and sharded over devices, in chunks of iterations.
+
+    Round-based learners (boosting, DAgger) get `next_round` between rounds.
 
     Returns:
-      (params, metrics): leaves `[len(runs), ...]`; metrics `[len(runs), iterations]`.
+      (params, metrics): the policies' parameters, leaves `[len(runs), ...]`;
+      metrics `[len(runs), rounds * round_iterations]`.
     """
-    learner = make_train(cfg)
     keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(r.seed), i) for i, r in enumerate(runs)])
-    hps = stack_hparams([hparams_of(r, preset.lr) for r in runs])
+    hps = jax.tree.map(lambda *xs: jnp.stack(xs), *[hparams_of(r, preset.lr) for r in runs])
     init = grid_runner(learner.init)
     pad = -len(runs) % len(init.devices)  # padded once, so the chunk runners never pad or trim
     hps = pad_grid(hps, pad)
     state = init(pad_grid(keys, pad), hps, data)
-    runners, done, metrics = {}, 0, []
-    while done < cfg.iterations:
-        n = min(preset.chunk, cfg.iterations - done)
-        if n not in runners:
-            runners[n] = grid_runner(lambda s, hp, d, n=n: learner.run(s, hp, d, n))
-        state, m = runners[n](state, hps, data)
-        metrics.append(jax.device_get(m))
-        done += n
-        progress(n)
+    runners, metrics = {}, []
+    for r in range(learner.rounds):
+        if r:
+            runners.setdefault("next_round", grid_runner(learner.next_round))
+            state = runners["next_round"](state, hps, data)
+        done = 0
+        while done < learner.round_iterations:
+            n = min(preset.chunk, learner.round_iterations - done)
+            if n not in runners:
+                runners[n] = grid_runner(lambda s, hp, d, n=n: learner.run(s, hp, d, n))
+            state, m = runners[n](state, hps, data)
+            metrics.append(jax.device_get(m))
+            done += n
+            progress(n)
     metrics = jax.tree.map(lambda *xs: np.concatenate(xs, axis=1)[: len(runs)], *metrics)
-    return jax.tree.map(lambda x: x[: len(runs)], state.params), metrics
+    return jax.tree.map(lambda x: x[: len(runs)], learner.policy_params(state)), metrics
 
 
 class _NoBar:
@@ -179,7 +271,6 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
 
     t_start = time.perf_counter()
     timing = {"compile_s": 0.0, "train_s": 0.0, "eval_s": 0.0}
-    runs = grid_runs(methods, preset.seeds)
     env = envs.make(env_name, obs=obs, **({} if preset.eval_steps is None else {"episode_length": preset.eval_steps}))
     card = experts.card(env_name) if env_name != "toycar" else None
 
@@ -192,6 +283,7 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
     log(f"demonstrations: {len(demos):,} transitions in {demos.num_episodes} episodes "
         f"({'cached' if cached else 'collected'}: {data_path})")
     train, val, mean, std = prepare(demos, preset)
+    runs = grid_runs(methods, preset.seeds, env_name, n_train=len(train))
 
     with bar(desc="fit APE", total=preset.ape_steps, unit="step") as b:
         fit = jax.jit(lambda k, a, t: ape_lib.fit(k, a, t, steps=preset.ape_steps))
@@ -200,16 +292,20 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
         ape_val = ape_lib.errors(ape_params, jnp.asarray(val.action), jnp.asarray(val.t))
         b.update(preset.ape_steps)
     ape_train, ape_val, ape_scale = ape_lib.normalize(ape_train, ape_val, preset.ape_normalization)
-    train_data, val_data = _data(train, ape_train, mean, std), _data(val, ape_val, mean, std)
+    scores = score_table(methods, train, ape_train)
+    train_data, val_data = _data(train, ape_train, mean, std, scores), _data(val, ape_val, mean, std)
 
     loss = "l1" if env_name == "toycar" else "l2"
-    programs = [(h, [r for r in runs if (r.method == "bc-so") == (h == 1)]) for h in (preset.history, 1)]
-    programs = [(h, rs) for h, rs in programs if rs]
-    results_runs, params_out = [None] * len(runs), {}
-    with bar(desc="train", total=preset.iterations * len(programs), unit="it") as b:
-        trained = []
-        for history, prog_runs in programs:
-            cfg = preset.learner_config(env.observation_shape, env.action_size, history, loss)
+    programs = []  # (name, cfg, runs, learner) in a fixed order
+    for name in dict.fromkeys(program_of(m) for m in METHODS if m in methods):
+        history = 1 if name == "bc-so" else preset.history
+        cfg = preset.learner_config(env.observation_shape, env.action_size, history, loss)
+        programs.append((name, cfg, [r for r in runs if program_of(r.method) == name],
+                         make_learner(name, cfg, env, mean, std, len(train))))
+    total = sum(learn.rounds * learn.round_iterations for *_, learn in programs)
+    trained = []
+    with bar(desc="train", total=total, unit="it") as b:
+        for name, cfg, prog_runs, learner in programs:
             stamps = []
 
             def tick(n, stamps=stamps):
@@ -217,7 +313,7 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
                 b.update(n)
 
             t0 = time.perf_counter()
-            params, metrics = train_program(cfg, prog_runs, preset, train_data, tick)
+            params, metrics = train_program(learner, prog_runs, preset, train_data, tick)
             jax.block_until_ready(params)
             chunk_times = np.diff([t0, *stamps])
             steady = float(np.median(chunk_times[1:])) if len(chunk_times) > 1 else 0.0
@@ -225,20 +321,29 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
             timing["train_s"] += float(sum(chunk_times)) - max(0.0, float(chunk_times[0]) - steady)
             trained.append((cfg, prog_runs, params, metrics))
 
+    # Policies with the same history have the same network: one evaluation program per history.
     key_eval = jax.random.PRNGKey(12345)  # the same episodes for every policy
-    with bar(desc="evaluate", total=sum(len(r) for _, r in programs) * preset.eval_episodes, unit="episode") as b:
-        for cfg, prog_runs, params, metrics in trained:
+    results_runs, params_out = [None] * len(runs), {}
+    with bar(desc="evaluate", total=len(runs) * preset.eval_episodes, unit="episode") as b:
+        for history in dict.fromkeys(cfg.history for cfg, *_ in trained):
+            group = [t for t in trained if t[0].history == history]
+            cfg = group[0][0]
+            group_runs = [r for _, rs, _, _ in group for r in rs]
+            params = jax.tree.map(lambda *xs: jnp.concatenate(xs), *[p for _, _, p, _ in group])
             t0 = time.perf_counter()
             evaluator = evaluate.make_evaluator(env, cfg, mean, std, preset.eval_episodes)
             out = jax.device_get(evaluator(params, key_eval))
             timing["eval_s"] += time.perf_counter() - t0
-            b.update(len(prog_runs) * preset.eval_episodes)
+            b.update(len(group_runs) * preset.eval_episodes)
             losses = {split: jax.device_get(evaluate.loss_analysis(cfg, params, d))
                       for split, d in (("train", train_data), ("val", val_data))}
-            for j, r in enumerate(prog_runs):
-                results_runs[runs.index(r)] = _run_record(r, j, out, losses, metrics, card, preset)
-            params_out[f"h{cfg.history}"] = {"runs": [dataclasses.asdict(r) for r in prog_runs],
-                                             "params": params, "obs_mean": mean, "obs_std": std}
+            j = 0
+            for _, prog_runs, _, metrics in group:
+                for i, r in enumerate(prog_runs):
+                    results_runs[runs.index(r)] = _run_record(r, j, out, losses, metrics["loss"][i], card)
+                    j += 1
+            params_out[f"h{history}"] = {"runs": [dataclasses.asdict(r) for r in group_runs],
+                                         "params": params, "obs_mean": mean, "obs_std": std}
 
     timing["total_s"] = time.perf_counter() - t_start
     results = {
@@ -258,10 +363,12 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
     return results, params_out
 
 
-def _run_record(run: Run, j: int, out: dict, losses: dict, metrics: dict, card: dict | None, preset: Preset):
+def _run_record(run: Run, j: int, out: dict, losses: dict, loss_curve: np.ndarray, card: dict | None):
+    """Run `run`'s record; `j` is its row in the evaluation outputs `out` and `losses`."""
     returns = np.asarray(out["return"][j], np.float64)
-    record = {"method": run.method, "hparams": run.hparams, "seed": run.seed, "status": "ok", "error": None}
-    loss_curve = np.asarray(metrics["loss"][j])
+    record = {"method": run.method, "hparams": run.hparams, "seed": run.seed, "status": "ok", "error": None,
+              "online": run.method in ONLINE}
+    loss_curve = np.asarray(loss_curve)
     bad = np.flatnonzero(~np.isfinite(loss_curve))
     if len(bad):
         record.update(status="failed", error=f"training loss became non-finite at iteration {int(bad[0])}")

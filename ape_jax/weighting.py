@@ -9,12 +9,17 @@ Public, pure and jit-able, as `DESIGN.md` defines them:
 - `uniform(ape)` — all ones (BC-OH).
 
 For one compiled program over the whole grid, every configuration is a
-`Weighting` pytree of scalars (`kind`, `thr`, `w`, `tau`) and weights are computed
-in two stages with one calling convention: `dataset_weights(ape, hp)` once
-before training (the step function's ranking over the whole training set), then
-`batch_weights(ape, static, idx, hp)` for each minibatch. Stacking `Weighting`s
-along a leading axis and `vmap`ping over it covers uniform, step and softmax
-configurations alike.
+`Weighting` pytree of scalars (`kind`, `thr`, `w`, `tau`, `source`) and weights
+are computed in two stages with one calling convention: `dataset_weights(scores,
+hp)` once before training (the step function's ranking over the whole training
+set), then `batch_weights(scores, static, idx, hp)` for each minibatch.
+Stacking `Weighting`s along a leading axis and `vmap`ping over it covers
+uniform, step and softmax configurations alike.
+
+`scores` is a table `[S, N]` of per-sample scores and `source` picks its row:
+row 0 is the APE; the weighting baselines add theirs (BOCPD's changepoint
+probability ranked by the same step function, or ActFreq's and k-means' weights
+used as they are with the `given` kind), so they join the same program.
 """
 
 from __future__ import annotations
@@ -24,8 +29,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-UNIFORM, STEP, SOFTMAX = 0, 1, 2
-KINDS = {"uniform": UNIFORM, "step": STEP, "softmax": SOFTMAX}
+UNIFORM, STEP, SOFTMAX, GIVEN = 0, 1, 2, 3
+KINDS = {"uniform": UNIFORM, "step": STEP, "softmax": SOFTMAX, "given": GIVEN}
 
 
 def _count(thr: jax.Array, n: int) -> jax.Array:
@@ -80,22 +85,28 @@ def uniform(ape: jax.Array) -> jax.Array:
 class Weighting:
     """One weighting configuration as traced scalars (stack them for a grid).
 
-    `kind` is `UNIFORM`, `STEP` or `SOFTMAX`; the fields a kind does not use are
-    ignored (keep them at harmless values such as 1).
+    `kind` is `UNIFORM`, `STEP`, `SOFTMAX` or `GIVEN` (the score row is the
+    weight); the fields a kind does not use are ignored (keep them at harmless
+    values such as 1). `source` is the row of the score table the kind reads
+    (0: APE).
     """
 
-    kind: jax.Array  # [] int32
-    thr: jax.Array   # [] float32, STEP
-    w: jax.Array     # [] float32, STEP
-    tau: jax.Array   # [] float32, SOFTMAX
+    kind: jax.Array    # [] int32
+    thr: jax.Array     # [] float32, STEP
+    w: jax.Array       # [] float32, STEP
+    tau: jax.Array     # [] float32, SOFTMAX
+    source: jax.Array  # [] int32, the score row
 
     @classmethod
-    def make(cls, kind: str, thr: float = 0.1, w: float = 1.0, tau: float = 1.0) -> "Weighting":
+    def make(cls, kind: str, thr: float = 0.1, w: float = 1.0, tau: float = 1.0, source: int = 0) -> "Weighting":
         """A configuration; raises `ValueError` for an unknown kind or invalid values."""
         if kind not in KINDS:
             raise ValueError(f"unknown weighting {kind!r}; valid: {sorted(KINDS)}")
         validate(kind, thr=thr, w=w, tau=tau)
-        return cls(kind=jnp.int32(KINDS[kind]), thr=jnp.float32(thr), w=jnp.float32(w), tau=jnp.float32(tau))
+        if source < 0:
+            raise ValueError(f"weighting source must be a row index >= 0, got {source}")
+        return cls(kind=jnp.int32(KINDS[kind]), thr=jnp.float32(thr), w=jnp.float32(w), tau=jnp.float32(tau),
+                   source=jnp.int32(source))
 
 
 def validate(kind: str, thr: float = 0.1, w: float = 1.0, tau: float = 1.0) -> None:
@@ -114,20 +125,35 @@ def stack(configs: list[Weighting]) -> Weighting:
     return jax.tree.map(lambda *xs: jnp.stack(xs), *configs)
 
 
-def dataset_weights(ape: jax.Array, hp: Weighting) -> jax.Array:
-    """`[N]` weights fixed before training: the step function's for `STEP`, ones otherwise."""
-    return jnp.where(hp.kind == STEP, step(ape, hp.thr, hp.w), 1.0)
+def _table(scores: jax.Array) -> jax.Array:
+    scores = jnp.asarray(scores, jnp.float32)
+    return scores[None] if scores.ndim == 1 else scores
 
 
-def batch_weights(ape: jax.Array, static: jax.Array, idx: jax.Array, hp: Weighting) -> jax.Array:
+def dataset_weights(scores: jax.Array, hp: Weighting) -> jax.Array:
+    """`[N]` weights fixed before training.
+
+    Args:
+      scores: the score table `[S, N]` (or just the APE, `[N]`).
+      hp: the configuration.
+
+    Returns:
+      The step function's weights of score row `hp.source` for `STEP`, the row
+      itself for `GIVEN`, ones otherwise.
+    """
+    row = _table(scores)[hp.source]
+    return jnp.where(hp.kind == STEP, step(row, hp.thr, hp.w), jnp.where(hp.kind == GIVEN, row, 1.0))
+
+
+def batch_weights(scores: jax.Array, static: jax.Array, idx: jax.Array, hp: Weighting) -> jax.Array:
     """`[B]` weights of minibatch rows `idx`.
 
     Args:
-      ape: training-set APE, `[N]`.
-      static: `dataset_weights(ape, hp)`, `[N]`.
+      scores: the score table `[S, N]` (or just the APE, `[N]`).
+      static: `dataset_weights(scores, hp)`, `[N]`.
       idx: the minibatch's rows, `[B] int32`.
       hp: the configuration.
     """
     tau = jnp.where(hp.kind == SOFTMAX, hp.tau, 1.0)  # keeps the unused branch finite
-    weights = jnp.where(hp.kind == SOFTMAX, softmax(ape[idx], tau), static[idx])
+    weights = jnp.where(hp.kind == SOFTMAX, softmax(_table(scores)[hp.source, idx], tau), static[idx])
     return jax.lax.stop_gradient(weights)

@@ -1,8 +1,8 @@
 """The main job: `python -m experiments.sweep`.
 
 Collects (or reuses) the shipped expert's demonstrations, fits APE, trains
-BC-SO, BC-OH and the paper's step and softmax weighting grids × seeds as
-compiled programs, evaluates every policy, and writes `results.json` (the
+BC-SO, BC-OH, the paper's step and softmax weighting grids and any baselines
+asked for (`--methods`) × seeds as compiled programs, evaluates every policy, and writes `results.json` (the
 schema in `DESIGN.md`), `results.csv` and the trained parameters (orbax) into
 `--out`. No arguments: hopper, `pos` observations, the `quick` preset.
 """
@@ -34,7 +34,8 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--preset", default="quick", choices=sorted(PRESETS),
                    help="quick: <= 5 min on a 2-core CPU; default: the CPU numbers we report; paper: for GPUs")
     p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
-                   help=f"comma list of {', '.join(METHODS)} (default: all)")
+                   help=f"comma list of {', '.join(METHODS)}, or 'all', or 'baselines' "
+                        f"(default: {','.join(DEFAULT_METHODS)})")
     p.add_argument("--seeds", type=int, default=None, help="seeds per configuration (default: the preset's)")
     p.add_argument("--iterations", type=int, default=None, help="training iterations (default: the preset's)")
     p.add_argument("--eval-episodes", type=int, default=None, help="evaluation episodes (default: the preset's)")
@@ -49,7 +50,9 @@ def parse(argv=None) -> argparse.Namespace:
     args.obs = args.obs or ("image" if args.env == "toycar" else "pos")
     if args.obs not in envs.obs_modes(args.env):
         fail(p, f"--obs {args.obs!r} is not supported by {args.env}; valid: {', '.join(envs.obs_modes(args.env))}")
+    shortcuts = {"all": METHODS, "baselines": tuple(m for m in METHODS if m not in DEFAULT_METHODS)}
     args.methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    args.methods = tuple(m for name in args.methods for m in shortcuts.get(name, (name,)))
     unknown = [m for m in args.methods if m not in METHODS]
     if unknown or not args.methods:
         fail(p, f"unknown method(s) {unknown or args.methods!r}; valid: {', '.join(METHODS)}")
@@ -102,17 +105,21 @@ def write_outputs(out: pathlib.Path, results: dict, params: dict) -> None:
 
 
 def table(results: dict) -> str:
+    from ape_jax.sweep import ONLINE
+
     rows = [r for r in results["summary"] if r["n_seeds"]]
     best = max(rows, key=lambda r: r["normalized_mean"], default=None)
-    lines = [f"{'':2}{'method':<14}{'hparams':<22}{'seeds':>5}  {'return (mean ± std over seeds)':>32}  {'normalized':>11}"]
+    lines = [f"{'':2}{'method':<17}{'hparams':<30}{'seeds':>5}  {'return (mean ± std over seeds)':>32}  {'normalized':>11}"]
     for r in results["summary"]:
         hp = ", ".join(f"{k}={v:g}" for k, v in r["hparams"].items()) or "-"
         if not r["n_seeds"]:
-            lines.append(f"{'':2}{r['method']:<14}{hp:<22}{0:>5}  {'failed':>32}")
+            lines.append(f"{'':2}{r['method']:<17}{hp:<30}{0:>5}  {'failed':>32}")
             continue
         mark = "* " if r is best else "  "
+        if r["method"] in ONLINE:
+            hp = f"{hp} (online)"
         ret = f"{r['return_mean']:,.1f} ± {r['return_std']:,.1f}"
-        lines.append(f"{mark}{r['method']:<14}{hp:<22}{r['n_seeds']:>5}  {ret:>32}  {r['normalized_mean']:>10.1f}%")
+        lines.append(f"{mark}{r['method']:<17}{hp:<30}{r['n_seeds']:>5}  {ret:>32}  {r['normalized_mean']:>10.1f}%")
     e = results["expert"]
     if e["return_mean"] is not None:
         lines.append(f"expert {e['return_mean']:,.1f} ± {e['return_std']:,.1f}, random policy "

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ape_jax import weighting
-from ape_jax.learner import Data, Hparams, LearnerConfig, make_train, stack_hparams
+from ape_jax.learner import Data, Hparams, LearnerConfig, drop_history, make_train, stack_hparams
 
 
 def _dataset(n_episodes=6, length=40, obs_dim=4, action_dim=2, seed=0):
@@ -48,6 +48,32 @@ def test_the_weighted_loss_uses_the_weighting(data):
     assert not np.allclose(metrics["loss"], metrics["unweighted_loss"])
     _, uniform = learner.run(learner.init(jax.random.PRNGKey(0), GRID[0], data), GRID[0], data, 5)
     np.testing.assert_allclose(uniform["loss"], uniform["unweighted_loss"], rtol=1e-6)
+
+
+def test_history_dropout_zeros_only_past_frames_at_the_configured_rate():
+    history = jnp.ones((20_000, 3, 2))  # [B, H, D]
+    out = np.asarray(drop_history(jax.random.PRNGKey(0), history, 0.3))
+    np.testing.assert_array_equal(out[:, -1], 1.0)             # the current frame is never dropped
+    frame_zero = (out[:, :-1] == 0).all(-1)
+    assert ((out[:, :-1] == 0).any(-1) == frame_zero).all()     # whole frames, never parts
+    assert abs(frame_zero.mean() - 0.3) < 0.01                 # the configured rate
+    assert abs(frame_zero[:, 0].mean() - frame_zero[:, 1].mean()) < 0.02
+    np.testing.assert_array_equal(drop_history(jax.random.PRNGKey(0), history, 0.0), history)
+
+
+def test_history_dropout_hides_the_past_from_the_learner():
+    # the label is the *previous* observation: learnable from the history, not with it dropped
+    rng = np.random.default_rng(0)
+    obs = rng.normal(size=(400, 1)).astype(np.float32)
+    t = np.tile(np.arange(40, dtype=np.int32), 10)
+    prev = np.where(t[:, None] > 0, np.roll(obs, 1, axis=0), obs)
+    data = Data(obs=jnp.asarray(obs), action=jnp.asarray(prev), t=jnp.asarray(t), ape=jnp.ones(400))
+    cfg = LearnerConfig(obs_shape=(1,), action_dim=1, iterations=400, batch_size=64)
+    learner = jax.jit(make_train(cfg).train)
+    _, full = learner(jax.random.PRNGKey(0), Hparams.make(lr=1e-3), data)
+    _, dropped = learner(jax.random.PRNGKey(0), Hparams.make(lr=1e-3, history_dropout=0.9), data)
+    assert float(full["loss"][-50:].mean()) < 0.1
+    assert float(dropped["loss"][-50:].mean()) > 3 * float(full["loss"][-50:].mean())
 
 
 def test_one_vmapped_grid_run_equals_per_configuration_runs(data):

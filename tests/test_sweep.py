@@ -40,6 +40,24 @@ def test_sweep_writes_results_matching_the_schema_with_every_configuration_and_s
     assert (out / "params" / "h2").is_dir() and (out / "params" / "h1").is_dir()
 
 
+def test_every_baseline_runs_from_the_sweep_under_its_design_name(tmp_path):
+    from ape_jax.sweep import METHODS
+
+    out = tmp_path / "run"
+    argv = ["--env", "toycar", "--obs", "full", "--iterations", "24", "--eval-episodes", "2", "--seeds", "1",
+            "--methods", "baselines", "--out", str(out), "--data-dir", str(tmp_path / "data")]
+    assert sweep.main(argv) == 0
+    r = json.loads((out / "results.json").read_text())
+    baselines = [m for m in METHODS if m not in sweep.DEFAULT_METHODS]
+    assert [run["method"] for run in r["runs"]] == baselines
+    assert all(run["status"] == "ok" and run["eval"]["episodes"] == 2 for run in r["runs"]), r["runs"]
+    hp = {run["method"]: run["hparams"] for run in r["runs"]}
+    assert hp["fca"] == {"alpha": 0.2} and hp["bcpd"] == {"thr": 0.1, "w": 5.0} and hp["history-dropout"] == {"p": 0.5}
+    assert hp["dagger"]["budget"] == r["config"]["data"]["train_transitions"]
+    assert [run["method"] for run in r["runs"] if run["online"]] == ["dagger"]
+    assert (out / "params" / "h2").is_dir()
+
+
 def test_resume_reports_a_finished_sweep_without_rerunning(finished, capsys):
     out, argv = finished
     assert sweep.main([*argv, "--resume"]) == 0

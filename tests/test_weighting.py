@@ -67,6 +67,27 @@ def test_one_vmapped_program_covers_uniform_step_and_softmax_configs():
     np.testing.assert_allclose(out[2], weighting.softmax(ape[idx], 0.5), rtol=1e-6)
 
 
+def test_score_rows_feed_step_and_given_weightings_in_the_same_program():
+    ape = jnp.array([0.1, 5.0, 0.2, 0.3, 4.0, 0.0, 0.5, 0.6, 0.7, 0.8])
+    other = jnp.arange(10.0)[::-1]          # a second score: largest at row 0
+    given = jnp.linspace(0.5, 1.5, 10)      # weights used as they are
+    scores = jnp.stack([ape, other, given])
+    idx = jnp.array([0, 1, 4, 9])
+    grid = weighting.stack([Weighting.make("step", thr=0.2, w=5.0, source=0),
+                            Weighting.make("step", thr=0.2, w=3.0, source=1),
+                            Weighting.make("given", source=2),
+                            Weighting.make("softmax", tau=0.5, source=1)])
+
+    def weights(hp):
+        return weighting.batch_weights(scores, weighting.dataset_weights(scores, hp), idx, hp)
+
+    out = jax.jit(jax.vmap(weights))(grid)
+    np.testing.assert_array_equal(out[0], [1, 5, 5, 1])   # APE's top two: rows 1 and 4
+    np.testing.assert_array_equal(out[1], [3, 3, 1, 1])   # the other score's top two: rows 0 and 1
+    np.testing.assert_allclose(out[2], given[idx])
+    np.testing.assert_allclose(out[3], weighting.softmax(other[idx], 0.5), rtol=1e-6)
+
+
 @pytest.mark.parametrize("kind, kw, message", [
     ("step", {"thr": 0.0}, "THR must be in \\(0, 1\\)"),
     ("step", {"thr": 1.0}, "THR must be in \\(0, 1\\)"),
