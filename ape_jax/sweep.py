@@ -431,4 +431,21 @@ def _system() -> dict:
     except (OSError, subprocess.SubprocessError):
         commit = None
     return {"jax": jax.__version__, "backend": jax.default_backend(), "devices": jax.device_count(),
-            "commit": commit}
+            "commit": commit, "machine": machine()}
+
+
+def machine() -> str:
+    """The CPU model and core count (and the accelerator, if any), for the report's provenance lines."""
+    import os
+    import platform
+    import re
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            names = re.findall(r"model name\s*:\s*(.*)", f.read())
+        cpu = names[0].strip() if names else cpu
+    except OSError:
+        pass
+    accel = "" if jax.default_backend() == "cpu" else f", {jax.devices()[0].device_kind}"
+    return f"{cpu}, {os.cpu_count()} cores{accel}"

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import os
-import platform
-import re
 import statistics
 import time
 from typing import Any, Callable
@@ -64,14 +62,9 @@ def machine() -> str:
     """The CPU, core count, and JAX and MuJoCo versions, for benchmark headers."""
     from importlib.metadata import version
 
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            names = re.findall(r"model name\s*:\s*(.*)", f.read())
-        cpu = names[0] if names else cpu
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, jax {jax.__version__} ({jax.default_backend()}), mujoco {version('mujoco')}"
+    from ape_jax.sweep import machine as cpu
+
+    return f"{cpu()}, jax {jax.__version__} ({jax.default_backend()}), mujoco {version('mujoco')}"
 
 
 def write_section(path: str, text: str, name: str = "bench_envs") -> None:
