@@ -4,6 +4,11 @@ Rolls the shipped expert out under jit and writes the dataset (`.npz` plus
 `.json` metadata, see `ape_jax.data`) into the cache directory, named by a hash
 of the settings; a second run with the same settings loads it instead. The
 sweep uses the same cache.
+
+`--format minari` also exports the dataset as a Minari dataset (see
+`ape_jax.minari_io`) with id `<npz name>-v0` under the Minari datasets root
+`--out DIR` (default: `minari/` in the cache directory), for tools that read
+Minari: `MINARI_DATASETS_PATH=DIR` then `minari.load_dataset(id)`.
 """
 
 from __future__ import annotations
@@ -32,7 +37,11 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--image-size", default=None, help="image side or HxW for --obs image (default: the env's)")
     p.add_argument("--batch", type=int, default=32, help="episodes per jitted call")
     p.add_argument("--data-dir", type=pathlib.Path, default=None, help=f"cache directory (default: {data.cache_dir()})")
-    p.add_argument("--force", action="store_true", help="collect again even if the dataset is cached")
+    p.add_argument("--force", action="store_true", help="collect (and export) again even if the dataset is cached")
+    p.add_argument("--format", choices=("npz", "minari"), default="npz",
+                   help="npz (default): the cached .npz + .json only; minari: also export a Minari dataset")
+    p.add_argument("--out", type=pathlib.Path, default=None, metavar="DIR",
+                   help="with --format minari: the Minari datasets root to export into (default: DATA_DIR/minari)")
     p.add_argument("--preview", type=pathlib.Path, default=None, metavar="FILE.gif",
                    help="also write the first episode's first 300 steps as a GIF, rendered from the recorded "
                         "simulator states")
@@ -61,6 +70,11 @@ def parse(argv=None) -> argparse.Namespace:
     if args.preview is not None and args.preview.suffix != ".gif":
         fail(p, f"--preview must name a .gif file, got {args.preview}")
     args.data_dir = args.data_dir or data.cache_dir()
+    if args.out is not None and args.format != "minari":
+        fail(p, "--out applies to --format minari only")
+    args.out = args.out or args.data_dir / "minari"
+    if args.format == "minari" and args.out.exists() and not args.out.is_dir():
+        fail(p, f"--out {args.out} is a file; it must be a directory (the Minari datasets root)")
     return args
 
 
@@ -85,9 +99,29 @@ def main(argv=None) -> int:
           f"expert return {meta['episode_return_mean']:.1f} ± {meta['episode_return_std']:.1f}, "
           f"mean episode length {meta['episode_length_mean']:.0f}")
     print(f"dataset: {path}\nmetadata: {path.with_suffix('.json')}")
+    if args.format == "minari":
+        export_minari(args, demos, meta, path)
     if args.preview is not None:
         write_preview(args, demos)
     return 0
+
+
+def export_minari(args, demos, meta, path) -> None:
+    import envs
+    from ape_jax import minari_io
+
+    dataset_id = f"{path.stem}-v0"
+    target = args.out / dataset_id
+    if target.exists() and not args.force:
+        print(f"minari dataset: {target} (exported before)")
+        return
+    env = envs.make(args.env, obs=args.obs, **args.overrides)
+    try:
+        target = minari_io.to_minari(demos, meta, dataset_id, args.out, action_bounds=env.action_bounds,
+                                     overwrite=True)
+    except OSError as e:
+        fail(None, f"--out {args.out}: cannot write the Minari dataset ({e.strerror or e})")
+    print(f"minari dataset: {target} (id {dataset_id!r}; MINARI_DATASETS_PATH={args.out} to load it by id)")
 
 
 def write_preview(args, demos) -> None:
