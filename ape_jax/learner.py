@@ -58,6 +58,7 @@ class LearnerConfig:
     batch_size: int = 128
     lr_decay_every: int = 100_000
     loss: str = "l2"
+    unroll: bool = False         # unroll `run`'s scan: XLA:CPU runs convolutions in loop bodies ~50x slower
 
     def __post_init__(self):
         if self.loss not in LOSSES:
@@ -211,7 +212,7 @@ def make_train(cfg: LearnerConfig) -> Learner:
         return state, {"loss": weighted, "unweighted_loss": unweighted}
 
     def run(state: TrainState, hp: Hparams, data: Data, n: int):
-        return jax.lax.scan(lambda s, _: update(s, hp, data), state, None, length=n)
+        return jax.lax.scan(lambda s, _: update(s, hp, data), state, None, length=n, unroll=cfg.unroll)
 
     def train(key: jax.Array, hp: Hparams, data: Data):
         state, metrics = run(init(key, hp, data), hp, data, cfg.iterations)

@@ -44,6 +44,10 @@ SCORES = ("ape", "bcpd", "actfreq", "kmeans")
 # Methods trained by the weighted learner, as one vmapped program (BC-SO is a
 # second, with history 1); boosting, FCA and DAgger are programs of their own.
 WEIGHTED = ("bc-oh", "ours-step", "ours-softmax", "bcpd", "actfreq", "kmeans", "history-dropout")
+# Image policies on CPU: XLA:CPU runs convolution gradients inside a loop ~50x slower than
+# outside one, and vmapped (grouped) ones ~3x slower per model, so there every
+# configuration trains one after another through one compiled, fully unrolled chunk.
+CPU_IMAGE_CHUNK = 10
 
 
 @dataclasses.dataclass(frozen=True)
@@ -64,11 +68,11 @@ class Preset:
     ape_normalization: str = "mean"
     val_frac: float = 0.2
 
-    def learner_config(self, obs_shape, action_dim, history, loss) -> LearnerConfig:
+    def learner_config(self, obs_shape, action_dim, history, loss, unroll: bool = False) -> LearnerConfig:
         return LearnerConfig(obs_shape=tuple(obs_shape), action_dim=action_dim, history=history,
                              iterations=self.iterations, batch_size=self.batch_size,
                              lr_decay_every=self.lr_decay_every or max(1, math.ceil(self.iterations / 3)),
-                             loss=loss)
+                             loss=loss, unroll=unroll)
 
 
 PRESETS = {
@@ -210,10 +214,13 @@ def make_learner(program: str, cfg: LearnerConfig, env, obs_mean, obs_std, n_tra
 
 
 def train_program(learner: Learner, runs: list[Run], preset: Preset, data: Data,
-                  progress: Callable[[int], None]) -> tuple[Any, dict]:
+                  progress: Callable[[int], None], chunk: int | None = None, vectorize: bool = True
+                  ) -> tuple[Any, dict]:
     """Trains `runs` (all of one program) vmapped and sharded over devices, in chunks of iterations.
 
     Round-based learners (boosting, DAgger) get `next_round` between rounds.
+    `chunk` overrides the preset's iterations per compiled call; `vectorize=False`
+    trains the runs one after another instead of vmapped (`grid.grid_runner`).
 
     Returns:
       (params, metrics): the policies' parameters, leaves `[len(runs), ...]`;
@@ -221,20 +228,21 @@ def train_program(learner: Learner, runs: list[Run], preset: Preset, data: Data,
     """
     keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(r.seed), i) for i, r in enumerate(runs)])
     hps = jax.tree.map(lambda *xs: jnp.stack(xs), *[hparams_of(r, preset.lr) for r in runs])
-    init = grid_runner(learner.init)
+    chunk = chunk or preset.chunk
+    init = grid_runner(learner.init, vectorize=vectorize)
     pad = -len(runs) % len(init.devices)  # padded once, so the chunk runners never pad or trim
     hps = pad_grid(hps, pad)
     state = init(pad_grid(keys, pad), hps, data)
     runners, metrics = {}, []
     for r in range(learner.rounds):
         if r:
-            runners.setdefault("next_round", grid_runner(learner.next_round))
+            runners.setdefault("next_round", grid_runner(learner.next_round, vectorize=vectorize))
             state = runners["next_round"](state, hps, data)
         done = 0
         while done < learner.round_iterations:
-            n = min(preset.chunk, learner.round_iterations - done)
+            n = min(chunk, learner.round_iterations - done)
             if n not in runners:
-                runners[n] = grid_runner(lambda s, hp, d, n=n: learner.run(s, hp, d, n))
+                runners[n] = grid_runner(lambda s, hp, d, n=n: learner.run(s, hp, d, n), vectorize=vectorize)
             state, m = runners[n](state, hps, data)
             metrics.append(jax.device_get(m))
             done += n
@@ -296,10 +304,14 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
     train_data, val_data = _data(train, ape_train, mean, std, scores), _data(val, ape_val, mean, std)
 
     loss = "l1" if env_name == "toycar" else "l2"
+    sequential = len(env.observation_shape) == 3 and jax.default_backend() == "cpu"
+    if sequential:
+        log(f"image policies on CPU: configurations train one after another, {CPU_IMAGE_CHUNK} unrolled "
+            "iterations per call (XLA:CPU is slow at convolution gradients in loops and under vmap)")
     programs = []  # (name, cfg, runs, learner) in a fixed order
     for name in dict.fromkeys(program_of(m) for m in METHODS if m in methods):
         history = 1 if name == "bc-so" else preset.history
-        cfg = preset.learner_config(env.observation_shape, env.action_size, history, loss)
+        cfg = preset.learner_config(env.observation_shape, env.action_size, history, loss, unroll=sequential)
         programs.append((name, cfg, [r for r in runs if program_of(r.method) == name],
                          make_learner(name, cfg, env, mean, std, len(train))))
     total = sum(learn.rounds * learn.round_iterations for *_, learn in programs)
@@ -313,7 +325,8 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
                 b.update(n)
 
             t0 = time.perf_counter()
-            params, metrics = train_program(learner, prog_runs, preset, train_data, tick)
+            params, metrics = train_program(learner, prog_runs, preset, train_data, tick,
+                                            chunk=CPU_IMAGE_CHUNK if sequential else None, vectorize=not sequential)
             jax.block_until_ready(params)
             chunk_times = np.diff([t0, *stamps])
             steady = float(np.median(chunk_times[1:])) if len(chunk_times) > 1 else 0.0

@@ -152,3 +152,24 @@ def test_the_grid_sharded_over_four_cpu_devices_equals_the_unsharded_run():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, env=env)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "devices 4" in out.stdout
+
+
+def test_the_sequential_grid_runner_equals_the_vmapped_one_and_compiles_once():
+    from ape_jax.grid import grid_runner
+
+    # image policies on CPU train configuration by configuration, unrolled: same numbers as vmap
+    data = Data(obs=jnp.asarray(np.random.default_rng(0).integers(0, 255, (64, 8, 8, 3)), jnp.uint8),
+                action=jnp.asarray(np.random.default_rng(1).normal(size=(64, 2)), jnp.float32),
+                t=jnp.tile(jnp.arange(16, dtype=jnp.int32), 4), ape=jnp.asarray(np.random.default_rng(2).random(64)))
+    cfg = LearnerConfig(obs_shape=(8, 8, 3), action_dim=2, iterations=4, batch_size=16, unroll=True)
+    learner = make_train(cfg)
+    keys = jax.random.split(jax.random.PRNGKey(3), 3)
+    grid = stack_hparams(GRID)
+    traces = []
+    sequential = grid_runner(lambda k, hp, d: (traces.append(1), learner.train(k, hp, d))[1], vectorize=False)
+    seq_params, seq_metrics = sequential(keys, grid, data)
+    vm_params, vm_metrics = grid_runner(learner.train)(keys, grid, data)
+    assert len(traces) == 1 and seq_metrics["loss"].shape == (3, 4)
+    np.testing.assert_allclose(seq_metrics["loss"], vm_metrics["loss"], rtol=1e-4, atol=1e-6)
+    for a, b in zip(jax.tree.leaves(seq_params), jax.tree.leaves(vm_params)):
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=3e-5)  # convolutions sum in another order

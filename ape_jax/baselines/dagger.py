@@ -254,7 +254,7 @@ def make_dagger(cfg: LearnerConfig, env: envs.Env, expert: Callable[[jax.Array],
         return state, {"loss": loss, "unweighted_loss": loss}
 
     def run(state: DaggerState, hp: Hparams, data: Data, n: int):
-        return jax.lax.scan(lambda s, _: update(s, hp), state, None, length=n)
+        return jax.lax.scan(lambda s, _: update(s, hp), state, None, length=n, unroll=cfg.unroll)
 
     def next_round(state: DaggerState, hp: Hparams, data: Data) -> DaggerState:
         r = state.round + 1

@@ -194,7 +194,7 @@ def make_fca(cfg: LearnerConfig) -> Learner:
         return state, {"loss": loss, "unweighted_loss": bc, "adversary_loss": d_loss}
 
     def run(state: FcaState, hp: FcaHparams, data: Data, n: int):
-        return jax.lax.scan(lambda s, _: update(s, hp, data), state, None, length=n)
+        return jax.lax.scan(lambda s, _: update(s, hp, data), state, None, length=n, unroll=cfg.unroll)
 
     def train(key: jax.Array, hp: FcaHparams, data: Data):
         state, metrics = run(init(key, hp, data), hp, data, cfg.iterations)
