@@ -278,6 +278,7 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
     from envs import experts
 
     t_start = time.perf_counter()
+    system = _system()  # at the start: the code that runs, not what is checked out when it ends
     timing = {"compile_s": 0.0, "train_s": 0.0, "eval_s": 0.0}
     env = envs.make(env_name, obs=obs, **({} if preset.eval_steps is None else {"episode_length": preset.eval_steps}))
     card = experts.card(env_name) if env_name != "toycar" else None
@@ -371,7 +372,7 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
         "runs": results_runs,
         "summary": summarize(results_runs),
         "timing": timing,
-        "system": _system(),
+        "system": system,
     }
     return results, params_out
 
@@ -436,15 +437,19 @@ def _expert_record(card: dict | None) -> dict:
 
 
 def _system() -> dict:
+    """Versions, devices, machine, and the git commit of the code (`dirty`: tracked files modified)."""
     import subprocess
 
+    def git(*args):
+        return subprocess.run(["git", *args], capture_output=True, text=True, timeout=10,
+                              cwd=__file__.rsplit("/", 2)[0]).stdout.strip()
+
     try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                                cwd=__file__.rsplit("/", 2)[0], timeout=10).stdout.strip() or None
+        commit, dirty = git("rev-parse", "--short", "HEAD") or None, bool(git("status", "--porcelain", "-uno"))
     except (OSError, subprocess.SubprocessError):
-        commit = None
+        commit, dirty = None, None
     return {"jax": jax.__version__, "backend": jax.default_backend(), "devices": jax.device_count(),
-            "commit": commit, "machine": machine()}
+            "commit": commit, "dirty": dirty, "machine": machine()}
 
 
 def machine() -> str:

@@ -218,8 +218,9 @@ def provenance(r: dict) -> str:
             cmd += f" {flag} {cfg[key]}"
     s, t = r["system"], r.get("timing", {})
     machine = s.get("machine") or "machine not recorded in the file"
+    commit = f"`{s.get('commit')}`" + (" with uncommitted changes" if s.get("dirty") else "")
     return (f"`{cmd}` — {cfg['iterations']:,} iterations, {cfg['seeds']} seeds, {cfg['eval_episodes']} evaluation "
-            f"episodes; commit `{s.get('commit')}`, jax {s.get('jax')} ({s.get('backend')}, {s.get('devices')} "
+            f"episodes; commit {commit}, jax {s.get('jax')} ({s.get('backend')}, {s.get('devices')} "
             f"device(s)), {machine}; {t.get('total_s', 0):,.0f} s in all")
 
 
