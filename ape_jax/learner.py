@@ -162,6 +162,18 @@ def drop_history(key: jax.Array, history: jax.Array, p: jax.Array | float) -> ja
     return jnp.where(keep.reshape(keep.shape + (1,) * (history.ndim - 2)), history, jnp.zeros((), history.dtype))
 
 
+def learning_rate(cfg: LearnerConfig, lr: jax.Array, step: jax.Array) -> jax.Array:
+    """The schedule every learner uses: `lr · 0.1^⌊step / cfg.lr_decay_every⌋` (traced `lr` and `step`)."""
+    return lr * 0.1 ** (step // cfg.lr_decay_every).astype(jnp.float32)
+
+
+def adam_step(adam: optax.GradientTransformation, params: Any, grads: Any, opt_state: Any, lr: jax.Array
+              ) -> tuple[Any, Any]:
+    """One step of a `scale_by_adam` transform with the learning rate applied by hand (so it can be traced)."""
+    updates, opt_state = adam.update(grads, opt_state)
+    return jax.tree.map(lambda p, u: p - lr * u, params, updates), opt_state
+
+
 def make_train(cfg: LearnerConfig) -> Learner:
     """The pure functions of one learner setup (see the module docstring)."""
     model = cfg.model()
@@ -205,9 +217,8 @@ def make_train(cfg: LearnerConfig) -> Learner:
             return jnp.mean(w * ell), jnp.mean(ell)
 
         (weighted, unweighted), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params)
-        updates, opt_state = adam.update(grads, state.opt_state)
-        lr = hp.lr * 0.1 ** (state.step // cfg.lr_decay_every).astype(jnp.float32)
-        params = jax.tree.map(lambda p, u: p - lr * u, state.params, updates)
+        params, opt_state = adam_step(adam, state.params, grads, state.opt_state,
+                                      learning_rate(cfg, hp.lr, state.step))
         state = state.replace(params=params, opt_state=opt_state, step=state.step + 1)
         return state, {"loss": weighted, "unweighted_loss": unweighted}
 

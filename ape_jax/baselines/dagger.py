@@ -80,7 +80,8 @@ from flax import struct
 
 import envs
 from ape_jax.evaluate import history_policy
-from ape_jax.learner import Data, Hparams, Learner, LearnerConfig, make_train, train_in_rounds
+from ape_jax.learner import (Data, Hparams, Learner, LearnerConfig, adam_step, learning_rate, make_train,
+                             train_in_rounds)
 
 ROUNDS = 4
 NUM_ENVS = 16
@@ -247,9 +248,8 @@ def make_dagger(cfg: LearnerConfig, env: envs.Env, expert: Callable[[jax.Array],
             return jnp.mean(base.per_sample_loss(params, data, idx))
 
         loss, grads = jax.value_and_grad(loss_fn)(state.params)
-        updates, opt_state = adam.update(grads, state.opt_state)
-        lr = hp.lr * 0.1 ** (state.step // cfg.lr_decay_every).astype(jnp.float32)
-        params = jax.tree.map(lambda p, u: p - lr * u, state.params, updates)
+        params, opt_state = adam_step(adam, state.params, grads, state.opt_state,
+                                      learning_rate(cfg, hp.lr, state.step))
         state = state.replace(params=params, opt_state=opt_state, step=state.step + 1)
         return state, {"loss": loss, "unweighted_loss": loss}
 

@@ -82,7 +82,7 @@ import optax
 from flax import struct
 
 from ape_jax.data import history_index
-from ape_jax.learner import Data, Learner, LearnerConfig, make_train
+from ape_jax.learner import Data, Learner, LearnerConfig, adam_step, learning_rate, make_train
 
 ALPHA = {"hopper": 0.1, "halfcheetah": 0.5, "walker2d": 0.5, "toycar": 0.2}
 ADVERSARY_HIDDEN = (300, 300)
@@ -165,15 +165,14 @@ def make_fca(cfg: LearnerConfig) -> Learner:
         x = base.policy_input(data.obs[history_index(data.t, idx, cfg.history)])
         action = data.action[idx]
         previous = data.action[history_index(data.t, idx, 1, offset=1)[:, 0]]
-        lr = hp.lr * 0.1 ** (state.step // cfg.lr_decay_every).astype(jnp.float32)
+        lr = learning_rate(cfg, hp.lr, state.step)
 
         def adversary_loss(adv_params, embedding):
             err = adversary.apply(adv_params, embedding, action) - previous
             return jnp.mean(jnp.sum(err**2, axis=-1))
 
         def step(params, grads, opt_state):
-            updates, opt_state = adam.update(grads, opt_state)
-            return jax.tree.map(lambda p, u: p - lr * u, params, updates), opt_state
+            return adam_step(adam, params, grads, opt_state, lr)
 
         # D's step, on the embedding of the current E (no gradient into E).
         _, embedding = model.apply(state.policy, x, return_embedding=True)
