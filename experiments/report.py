@@ -237,7 +237,8 @@ def report(files: list[dict]) -> str:
                 "Next to the supplement's Table 5 (its own experts, whose returns it does not give): mean "
                 "returns, and in brackets each method's ratio to BC-OH of the same source.", "",
                 paper_table(merged)]
-    for (env, obs), m in merged.items():
+    order = {e: i for i, e in enumerate((*MUJOCO, "toycar"))}
+    for (env, obs), m in sorted(merged.items(), key=lambda kv: (order.get(kv[0][0], len(order)), kv[0])):
         out += [f"### {TITLES.get(env, env)}, `{obs}` observations: every configuration", ""]
         out += [f"- {provenance(r)}" for r in m["sources"]]
         out += ["", grid_table(m), "Loss analysis (the paper's Table 3; mean over seeds of the per-sample "
