@@ -8,8 +8,8 @@ given) with `NamedSharding`; data is replicated.
 
 `vectorize=False` instead compiles `fn` for one configuration and runs the
 configurations one after another, reusing that one executable: on CPU the
-vmapped gradients of convolutions (grouped convolutions) train ~3× slower per
-model than one model at a time (`BENCHMARKS.md`), so the sweep uses it for image
+vmapped gradients of convolutions (grouped convolutions) train several times
+slower per model than one model at a time, so the sweep uses it for image
 policies on CPU. The grid is padded to a
 multiple of the device count by repeating its last entry, and the padding is
 dropped from the outputs. The same code runs on one CPU, several GPUs, or
