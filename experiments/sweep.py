@@ -84,7 +84,9 @@ def write_outputs(out: pathlib.Path, results: dict, params: dict) -> None:
     import numpy as np
     import orbax.checkpoint as ocp
 
-    out.mkdir(parents=True, exist_ok=True)
+    # orbax saves asynchronously (to a temporary name, renamed when done), so `params/` may not exist
+    # yet when the JSON beside the first checkpoint is written: create it first.
+    (out / "params").mkdir(parents=True, exist_ok=True)
     with ocp.StandardCheckpointer() as ckpt:
         for name, block in params.items():
             target = (out / "params" / name).absolute()
