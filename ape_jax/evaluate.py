@@ -21,7 +21,7 @@ import jax.numpy as jnp
 
 import envs
 from ape_jax import weighting
-from ape_jax.learner import Data, LearnerConfig, make_train
+from ape_jax.learner import Data, LearnerConfig, dataset_losses, make_train
 
 
 def history_policy(cfg: LearnerConfig, obs_mean: jax.Array | None, obs_std: jax.Array | None,
@@ -94,11 +94,9 @@ def loss_analysis(cfg: LearnerConfig, params: Any, data: Data, changepoint_frac:
     """
     learner = make_train(cfg)
     changepoint = weighting.step(data.ape, changepoint_frac, 2.0) > 1.0
-    n = data.ape.shape[0]
 
     def one(p):
-        losses = jnp.concatenate([learner.per_sample_loss(p, data, idx)
-                                  for idx in jnp.array_split(jnp.arange(n), max(1, n // 4096))])
+        losses = dataset_losses(learner, p, data)
         cp = changepoint.astype(jnp.float32)
         return {"unweighted": losses.mean(),
                 "changepoint": jnp.sum(losses * cp) / jnp.maximum(cp.sum(), 1.0),

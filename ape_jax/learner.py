@@ -162,6 +162,13 @@ def drop_history(key: jax.Array, history: jax.Array, p: jax.Array | float) -> ja
     return jnp.where(keep.reshape(keep.shape + (1,) * (history.ndim - 2)), history, jnp.zeros((), history.dtype))
 
 
+def dataset_losses(learner: Learner, params: Any, data: Data, chunk: int = 4096) -> jax.Array:
+    """`[N]` unweighted loss of every sample of `data` under policy `params`, computed in chunks of rows."""
+    n = data.obs.shape[0]
+    return jnp.concatenate([learner.per_sample_loss(params, data, idx)
+                            for idx in jnp.array_split(jnp.arange(n), max(1, n // chunk))])
+
+
 def learning_rate(cfg: LearnerConfig, lr: jax.Array, step: jax.Array) -> jax.Array:
     """The schedule every learner uses: `lr · 0.1^⌊step / cfg.lr_decay_every⌋` (traced `lr` and `step`)."""
     return lr * 0.1 ** (step // cfg.lr_decay_every).astype(jnp.float32)

@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ape_jax.baselines import boosting
-from ape_jax.learner import Data, Hparams, LearnerConfig
+from ape_jax.learner import Data, Hparams, LearnerConfig, dataset_losses
 
 
 def test_reweight_is_adaboost_r2_and_upweights_the_largest_losses():
@@ -42,7 +42,7 @@ def test_rounds_in_one_program_upweight_the_samples_with_the_largest_loss():
     hp = Hparams.make(lr=1e-3)
     state = learner.init(jax.random.PRNGKey(0), hp, data)
     state, _ = learner.run(state, hp, data, cfg.iterations)
-    losses = boosting.per_sample_losses(learner, learner.policy_params(state), data)
+    losses = dataset_losses(learner, learner.policy_params(state), data)
     nxt = learner.next_round(state, hp, data)
     w = np.asarray(nxt.train.static_weights)
     assert int(nxt.round) == 1 and int(nxt.train.step) == 0

@@ -22,13 +22,13 @@ by round with `next_round` between (`ape_jax.sweep`, for progress bars).
 
 from __future__ import annotations
 
-from typing import Any
 
 import jax
 import jax.numpy as jnp
 from flax import struct
 
-from ape_jax.learner import Data, Hparams, Learner, LearnerConfig, TrainState, make_train, train_in_rounds
+from ape_jax.learner import (Data, Hparams, Learner, LearnerConfig, TrainState, dataset_losses, make_train,
+                             train_in_rounds)
 
 ROUNDS = 3
 
@@ -49,13 +49,6 @@ def reweight(weights: jax.Array, losses: jax.Array) -> jax.Array:
     beta = jnp.clip(avg / (1.0 - avg), 1e-6, 1.0)  # AdaBoost.R2 stops at L̄ ≥ 0.5; here: no change then
     new = weights * beta ** (1.0 - norm)
     return new / new.mean()
-
-
-def per_sample_losses(learner: Learner, params: Any, data: Data, chunk: int = 4096) -> jax.Array:
-    """`[N]` unweighted loss of every sample of `data` under `params`, in chunks of rows."""
-    n = data.obs.shape[0]
-    return jnp.concatenate([learner.per_sample_loss(params, data, idx)
-                            for idx in jnp.array_split(jnp.arange(n), max(1, n // chunk))])
 
 
 @struct.dataclass
@@ -82,7 +75,7 @@ def make_boosting(cfg: LearnerConfig, rounds: int = ROUNDS) -> Learner:
         return state.replace(train=train), metrics
 
     def next_round(state: BoostState, hp: Hparams, data: Data) -> BoostState:
-        losses = per_sample_losses(base, state.train.params, data)
+        losses = dataset_losses(base, state.train.params, data)
         weights = reweight(state.train.static_weights, losses)
         fresh = base.init(jax.random.fold_in(state.train.key, state.round + 1), hp, data)
         return BoostState(train=fresh.replace(static_weights=weights), round=state.round + 1)
