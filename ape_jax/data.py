@@ -151,13 +151,22 @@ def _sha256(path: pathlib.Path) -> str:
     return h.hexdigest()
 
 
-def _write_atomic(path: pathlib.Path, write) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as f:
-        write(f)
-        f.flush()
-        os.fsync(f.fileno())
-    tmp.replace(path)
+def write_atomic(path: pathlib.Path, write) -> None:
+    """`write(f)` into a temporary file of this process, then renamed to `path`.
+
+    Readers never see a partial file, and two processes writing the same file
+    (two sweeps collecting one dataset at once) do not mix their bytes.
+    """
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        with open(tmp, "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
 
 
 def meta_path(path: pathlib.Path) -> pathlib.Path:
@@ -175,7 +184,7 @@ def save(path: str | os.PathLike, demos: Demonstrations, meta: dict | None = Non
         raise ValueError(f"dataset files end in .npz, got {path}")
     path.parent.mkdir(parents=True, exist_ok=True)
     meta_path(path).unlink(missing_ok=True)  # the old metadata must not vouch for new arrays
-    _write_atomic(path, lambda f: np.savez_compressed(f, **_flat(demos)))
+    write_atomic(path, lambda f: np.savez_compressed(f, **_flat(demos)))
     obs = np.asarray(demos.obs)
     full = {
         **(meta or {}),
@@ -188,7 +197,7 @@ def save(path: str | os.PathLike, demos: Demonstrations, meta: dict | None = Non
         "sim_keys": sorted(demos.sim),
         "sha256": _sha256(path),
     }
-    _write_atomic(meta_path(path), lambda f: f.write((json.dumps(full, indent=2, sort_keys=True) + "\n").encode()))
+    write_atomic(meta_path(path), lambda f: f.write((json.dumps(full, indent=2, sort_keys=True) + "\n").encode()))
     return full
 
 
@@ -213,6 +222,7 @@ def load(path: str | os.PathLike) -> tuple[Demonstrations, dict]:
             raise ValueError("not a JSON object")
     except ValueError as e:
         raise DataError(f"{mpath}: unreadable metadata: {e}") from e
+    _check_meta(meta, mpath)
     if "sha256" in meta and _sha256(path) != meta["sha256"]:
         raise DataError(f"{path}: contents differ from when it was written (SHA-256 mismatch); "
                         "the file is truncated or corrupt")
@@ -223,6 +233,27 @@ def load(path: str | os.PathLike) -> tuple[Demonstrations, dict]:
         raise DataError(f"{path}: truncated or unreadable ({type(e).__name__}: {e})") from e
     demos = from_arrays(arrays, where=str(path), meta=meta)
     return demos, meta
+
+
+def _check_meta(meta: dict, where: pathlib.Path) -> None:
+    """Refuses metadata fields that `load` relies on but that have the wrong type."""
+    def is_int(v):
+        return isinstance(v, int) and not isinstance(v, bool)
+
+    wrong = [(k, want) for k, want, ok in (
+        ("sha256", "a hex string", lambda v: isinstance(v, str)),
+        ("obs", "a string", lambda v: isinstance(v, str)),
+        ("obs_shape", "a list of ints", lambda v: isinstance(v, list) and all(is_int(d) and d >= 1 for d in v)),
+        ("action_size", "an int >= 1", lambda v: is_int(v) and v >= 1),
+    ) if k in meta and not ok(meta[k])]
+    if wrong:
+        k, want = wrong[0]
+        raise DataError(f"{where}: metadata field '{k}' must be {want}, got {meta[k]!r}")
+
+
+def _is_real(dtype: np.dtype) -> bool:
+    """Bool, integer or floating (not complex, string or object)."""
+    return dtype == np.bool_ or np.issubdtype(dtype, np.integer) or np.issubdtype(dtype, np.floating)
 
 
 def from_arrays(arrays: dict[str, np.ndarray], where: str = "<arrays>", meta: dict | None = None) -> Demonstrations:
@@ -239,20 +270,28 @@ def from_arrays(arrays: dict[str, np.ndarray], where: str = "<arrays>", meta: di
     if n == 0:
         raise DataError(f"{where}: no transitions")
     action = arrays["action"]
-    if action.ndim != 2 or not np.issubdtype(action.dtype, np.floating):
-        raise DataError(f"{where}: 'action' must be a [N, A] float array, got {action.dtype}{list(action.shape)}")
+    if action.ndim != 2 or action.shape[1] < 1 or not np.issubdtype(action.dtype, np.floating):
+        raise DataError(f"{where}: 'action' must be a [N, A] float array with A >= 1, got "
+                        f"{action.dtype}{list(action.shape)}")
     executed = arrays.get("executed", action)
-    if executed.shape != action.shape:
-        raise DataError(f"{where}: 'executed' has shape {list(executed.shape)}, 'action' {list(action.shape)}")
+    if executed.shape != action.shape or not np.issubdtype(executed.dtype, np.floating):
+        raise DataError(f"{where}: 'executed' must be a float array shaped like 'action' {list(action.shape)}, "
+                        f"got {executed.dtype}{list(executed.shape)}")
     for k in ("episode", "t", "done", "reward"):
         if arrays[k].ndim != 1:
             raise DataError(f"{where}: '{k}' must be [N], got shape {list(arrays[k].shape)}")
     for k in ("episode", "t"):
         if not np.issubdtype(arrays[k].dtype, np.integer):
             raise DataError(f"{where}: '{k}' must be integers, got {arrays[k].dtype}")
+    for k in ("done", "reward", *(k for k in arrays if k.startswith("sim/"))):
+        if not _is_real(arrays[k].dtype):
+            raise DataError(f"{where}: '{k}' must be numbers (bool, int or float), got {arrays[k].dtype}")
     obs = arrays["obs"]
     if obs.dtype != np.uint8 and not np.issubdtype(obs.dtype, np.floating):
         raise DataError(f"{where}: 'obs' must be uint8 (images) or float, got {obs.dtype}")
+    if obs.ndim < 2:
+        raise DataError(f"{where}: 'obs' must be [N, *obs_shape] (a vector or image per row), got shape "
+                        f"{list(obs.shape)}")
     if "obs_shape" in meta and list(obs.shape[1:]) != list(meta["obs_shape"]):
         raise DataError(f"{where}: 'obs' rows have shape {list(obs.shape[1:])}, the metadata says {meta['obs_shape']}")
     if meta.get("obs") == "image" and obs.dtype != np.uint8:

@@ -234,7 +234,23 @@ def resolve(path_or_id: str | os.PathLike, root: str | os.PathLike | None = None
 
 
 def _one_line(e: BaseException) -> str:
-    return f"{type(e).__name__}: {' '.join(str(e).split())}"
+    text = " ".join(str(e).split())
+    return f"{type(e).__name__}: {text}" if text else type(e).__name__
+
+
+def _check_metadata(data_dir: pathlib.Path, where: str) -> None:
+    # Minari reads metadata.json with bare asserts and key lookups; name what is wrong instead.
+    try:
+        meta = json.loads((data_dir / _METADATA).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise DataError(f"{where}: not a readable Minari dataset ({_one_line(e)} in {_METADATA})") from None
+    if not isinstance(meta, dict):
+        raise DataError(f"{where}: not a Minari dataset ({_METADATA} holds a {type(meta).__name__}, not an object)")
+    missing = [k for k in ("data_format", "total_episodes") if k not in meta]
+    if "env_spec" not in meta:  # without the spaces Minari makes the environment to read them from
+        missing += [k for k in ("observation_space", "action_space") if k not in meta]
+    if missing:
+        raise DataError(f"{where}: not a Minari dataset ({_METADATA} lacks {', '.join(missing)})")
 
 
 def from_minari(path_or_id: str | os.PathLike, root: str | os.PathLike | None = None) -> Demonstrations:
@@ -257,11 +273,13 @@ def from_minari(path_or_id: str | os.PathLike, root: str | os.PathLike | None = 
 
     data_dir = resolve(path_or_id, root)
     where = str(data_dir.parent if data_dir.name == "data" else data_dir)
+    _check_metadata(data_dir, where)
     try:
         import minari
 
         dataset = minari.MinariDataset(data_dir)
-    except (ValueError, KeyError, TypeError, AssertionError, OSError, ImportError) as e:
+    except (ValueError, KeyError, TypeError, AttributeError, AssertionError, OSError, ImportError,
+            gym.error.Error) as e:
         raise DataError(f"{where}: not a readable Minari dataset ({_one_line(e)})") from e
     obs_space, action_space = dataset.observation_space, dataset.action_space
     if not isinstance(obs_space, gym.spaces.Box):
@@ -296,7 +314,7 @@ def from_minari(path_or_id: str | os.PathLike, root: str | os.PathLike | None = 
         arrays = {k: np.concatenate(v) for k, v in columns.items()}
     except DataError:
         raise
-    except (ValueError, KeyError, TypeError, IndexError, AssertionError, OSError) as e:
+    except (ValueError, KeyError, TypeError, IndexError, AttributeError, AssertionError, OSError) as e:
         raise DataError(f"{where}: unreadable Minari episodes ({_one_line(e)})") from e
     if arrays["obs"].dtype != np.uint8:
         arrays["obs"] = arrays["obs"].astype(np.float32)
@@ -313,3 +331,18 @@ def _labels(actions: np.ndarray, space, where: str) -> np.ndarray:
     if np.any((index < 0) | (index >= space.n)):
         raise DataError(f"{where}: actions outside the action space {space}")
     return np.eye(int(space.n), dtype=np.float32)[index]
+
+
+def load_dataset(spec: str | os.PathLike, fmt: str = "auto") -> tuple[Demonstrations, str]:
+    """`(demos, where)` of a dataset named on a command line: the project's `NAME.npz`, or a Minari directory or id.
+
+    `fmt`: `"npz"`, `"minari"`, or `"auto"` (names ending in .npz or .json are
+    the project's format, anything else Minari). Raises `DataError` (one line).
+    """
+    if fmt == "auto":
+        fmt = "npz" if str(spec).endswith((".npz", ".json")) else "minari"
+    if fmt == "npz":
+        path = pathlib.Path(spec).with_suffix(".npz")
+        return data_lib.load(path)[0], str(path)
+    path = resolve(spec)
+    return from_minari(path), str(path.parent if path.name == "data" else path)

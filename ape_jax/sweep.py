@@ -29,8 +29,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ape_jax import ape as ape_lib
-from ape_jax import collect, evaluate
+from ape_jax import collect, evaluate, minari_io
 from ape_jax.data import Demonstrations
+from ape_jax.checkpoint import ProgramCheckpoint, SweepCheckpoint
 from ape_jax.grid import grid_runner, pad_grid
 from ape_jax.learner import Data, Hparams, Learner, LearnerConfig, make_train
 
@@ -48,6 +49,7 @@ WEIGHTED = ("bc-oh", "ours-step", "ours-softmax", "bcpd", "actfreq", "kmeans", "
 # outside one, and vmapped (grouped) ones ~3x slower per model, so there every
 # configuration trains one after another through one compiled, fully unrolled chunk.
 CPU_IMAGE_CHUNK = 10
+EVAL_SEED = 12345  # every policy is evaluated on the same episodes
 
 
 @dataclasses.dataclass(frozen=True)
@@ -156,6 +158,33 @@ def program_of(method: str) -> str:
     return "grid" if method in WEIGHTED else method
 
 
+def data_settings(env_name: str, obs: str, preset: Preset, dataset: str | None = None) -> dict:
+    """What names a sweep's demonstrations: the collection settings, or the dataset file's path and size."""
+    import pathlib
+
+    if dataset is None:
+        return collect.settings(env_name, obs, preset.episodes, seed=0)
+    path = pathlib.Path(dataset)
+    files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else []
+    return {"dataset": str(path.absolute()), "bytes": sum(p.stat().st_size for p in files)}
+
+
+def fingerprint(env_name: str, obs: str, preset_name: str, preset: Preset, methods: tuple[str, ...],
+                data: dict) -> dict:
+    """Everything that determines a sweep's results (`checkpoint.SweepCheckpoint` compares these)."""
+    return {"env": env_name, "obs": obs, "preset": preset_name, "settings": dataclasses.asdict(preset),
+            "methods": list(methods), "data": data}
+
+
+def results_fingerprint(results: dict) -> dict:
+    """The `fingerprint` of the sweep that wrote `results` (a `results.json`)."""
+    fields = [f.name for f in dataclasses.fields(Preset)]
+    config = results.get("config", {})
+    return {"env": results.get("env"), "obs": results.get("obs"), "preset": results.get("preset"),
+            "settings": {k: config.get(k) for k in fields}, "methods": config.get("methods"),
+            "data": config.get("data", {}).get("settings")}
+
+
 def prepare(demos: Demonstrations, preset: Preset, seed: int = 0):
     """Split by episode, standardise state observations; returns (train, val, obs_mean, obs_std)."""
     train, val = demos.split(preset.val_frac, seed=seed)
@@ -214,13 +243,16 @@ def make_learner(program: str, cfg: LearnerConfig, env, obs_mean, obs_std, n_tra
 
 
 def train_program(learner: Learner, runs: list[Run], preset: Preset, data: Data,
-                  progress: Callable[[int], None], chunk: int | None = None, vectorize: bool = True
-                  ) -> tuple[Any, dict]:
+                  progress: Callable[[int], None], chunk: int | None = None, vectorize: bool = True,
+                  checkpoint: ProgramCheckpoint | None = None) -> tuple[Any, dict]:
     """Trains `runs` (all of one program) vmapped and sharded over devices, in chunks of iterations.
 
     Round-based learners (boosting, DAgger) get `next_round` between rounds.
     `chunk` overrides the preset's iterations per compiled call; `vectorize=False`
     trains the runs one after another instead of vmapped (`grid.grid_runner`).
+    With a `checkpoint`, training continues from its latest save and saves
+    the state and curves after every chunk that passes a multiple of its
+    interval, and at the end.
 
     Returns:
       (params, metrics): the policies' parameters, leaves `[len(runs), ...]`;
@@ -233,12 +265,22 @@ def train_program(learner: Learner, runs: list[Run], preset: Preset, data: Data,
     pad = -len(runs) % len(init.devices)  # padded once, so the chunk runners never pad or trim
     hps = pad_grid(hps, pad)
     state = init(pad_grid(keys, pad), hps, data)
-    runners, metrics = {}, []
+    start, metrics = 0, []
+    saved = checkpoint.restore(state) if checkpoint is not None else None
+    if saved is not None:
+        start, state, curves = saved
+        metrics.append(curves)
+        progress(start)
+    total = learner.rounds * learner.round_iterations
+    runners = {}
     for r in range(learner.rounds):
-        if r:
+        first = r * learner.round_iterations  # this round's first iteration, counted over all rounds
+        if start >= first + learner.round_iterations:
+            continue  # finished before the checkpoint
+        if r and start <= first:
             runners.setdefault("next_round", grid_runner(learner.next_round, vectorize=vectorize))
             state = runners["next_round"](state, hps, data)
-        done = 0
+        done = max(0, start - first)
         while done < learner.round_iterations:
             n = min(chunk, learner.round_iterations - done)
             if n not in runners:
@@ -246,9 +288,17 @@ def train_program(learner: Learner, runs: list[Run], preset: Preset, data: Data,
             state, m = runners[n](state, hps, data)
             metrics.append(jax.device_get(m))
             done += n
+            if checkpoint is not None and (checkpoint.due(first + done) or first + done == total):
+                metrics = [_concat(metrics)]
+                checkpoint.save(first + done, state, metrics[0])
             progress(n)
-    metrics = jax.tree.map(lambda *xs: np.concatenate(xs, axis=1)[: len(runs)], *metrics)
+    metrics = jax.tree.map(lambda x: x[: len(runs)], _concat(metrics))
     return jax.tree.map(lambda x: x[: len(runs)], learner.policy_params(state)), metrics
+
+
+def _concat(metrics: list[dict]) -> dict:
+    """Per-chunk metrics `[G, n]` joined along the iteration axis."""
+    return jax.tree.map(lambda *xs: np.concatenate(xs, axis=1), *metrics)
 
 
 class _NoBar:
@@ -266,10 +316,19 @@ class _NoBar:
 
 
 def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods: tuple[str, ...],
-              data_dir, bar: Callable = _NoBar, log: Callable[[str], None] = print) -> tuple[dict, dict]:
+              data_dir, bar: Callable = _NoBar, log: Callable[[str], None] = print,
+              checkpoint: SweepCheckpoint | None = None, dataset: str | None = None,
+              curves: Callable[[str, list[Run], dict], None] | None = None) -> tuple[dict, dict]:
     """Runs the whole sweep; returns `(results, params)` (results as `DESIGN.md`'s `results.json`).
 
     Args:
+      checkpoint: an opened `SweepCheckpoint`: every finished phase and the
+        training states are saved there, and what it already holds is reused.
+      dataset: train from this dataset (`load_dataset`) instead of the
+        shipped expert's demonstrations; its observations and actions must
+        fit `env_name`, which evaluates the policies.
+      curves: `curves(program, runs, metrics)` after each program trains, with
+        its per-iteration metrics `[len(runs), iterations]` (e.g. `logs.write_curves`).
       bar: `bar(desc=..., total=..., unit=...)`, a context manager with
         `update(n)` (e.g. `tqdm.tqdm`); one per phase.
       log: receives one-line progress messages.
@@ -283,24 +342,37 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
     env = envs.make(env_name, obs=obs, **({} if preset.eval_steps is None else {"episode_length": preset.eval_steps}))
     card = experts.card(env_name) if env_name != "toycar" else None
 
-    settings = collect.settings(env_name, obs, preset.episodes, seed=0)
-    with bar(desc="collect", total=preset.episodes, unit="episode") as b:
-        demos, data_meta, data_path, cached = collect.collect_cached(
-            settings, data_dir, progress=lambda n: b.update(n - b.n))
-        if cached:
-            b.update(preset.episodes - b.n)
-    log(f"demonstrations: {len(demos):,} transitions in {demos.num_episodes} episodes "
-        f"({'cached' if cached else 'collected'}: {data_path})")
+    settings = data_settings(env_name, obs, preset, dataset)
+    if dataset is None:
+        with bar(desc="collect", total=preset.episodes, unit="episode") as b:
+            demos, _, data_path, cached = collect.collect_cached(
+                settings, data_dir, progress=lambda n: b.update(n - b.n))
+            if cached:
+                b.update(preset.episodes - b.n)
+        source = "cached" if cached else "collected"
+    else:
+        demos, data_path = minari_io.load_dataset(dataset)
+        _check_fits(demos, env, env_name, data_path)
+        source = "from"
+    log(f"demonstrations: {len(demos):,} transitions in {demos.num_episodes} episodes ({source}: {data_path})")
     train, val, mean, std = prepare(demos, preset)
     runs = grid_runs(methods, preset.seeds, env_name, n_train=len(train))
 
+    saved = checkpoint.load_arrays("ape") if checkpoint is not None else None
     with bar(desc="fit APE", total=preset.ape_steps, unit="step") as b:
-        fit = jax.jit(lambda k, a, t: ape_lib.fit(k, a, t, steps=preset.ape_steps))
-        ape_params, ape_losses = fit(jax.random.PRNGKey(0), jnp.asarray(train.action), jnp.asarray(train.t))
-        ape_train = ape_lib.errors(ape_params, jnp.asarray(train.action), jnp.asarray(train.t))
-        ape_val = ape_lib.errors(ape_params, jnp.asarray(val.action), jnp.asarray(val.t))
+        if saved is None:
+            fit = jax.jit(lambda k, a, t: ape_lib.fit(k, a, t, steps=preset.ape_steps))
+            ape_params, ape_losses = fit(jax.random.PRNGKey(0), jnp.asarray(train.action), jnp.asarray(train.t))
+            ape_train = ape_lib.errors(ape_params, jnp.asarray(train.action), jnp.asarray(train.t))
+            ape_val = ape_lib.errors(ape_params, jnp.asarray(val.action), jnp.asarray(val.t))
+            ape_train, ape_val, ape_scale = ape_lib.normalize(ape_train, ape_val, preset.ape_normalization)
+            saved = {"train": ape_train, "val": ape_val, "scale": ape_scale,
+                     "final_fit_mse": np.mean(np.asarray(ape_losses)[-50:])}
+            if checkpoint is not None:
+                checkpoint.save_arrays("ape", saved)
         b.update(preset.ape_steps)
-    ape_train, ape_val, ape_scale = ape_lib.normalize(ape_train, ape_val, preset.ape_normalization)
+    ape_train, ape_val = jnp.asarray(saved["train"]), jnp.asarray(saved["val"])
+    ape_scale, ape_fit_mse = float(saved["scale"]), float(saved["final_fit_mse"])
     scores = score_table(methods, train, ape_train)
     train_data, val_data = _data(train, ape_train, mean, std, scores), _data(val, ape_val, mean, std)
 
@@ -327,16 +399,18 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
 
             t0 = time.perf_counter()
             params, metrics = train_program(learner, prog_runs, preset, train_data, tick,
-                                            chunk=CPU_IMAGE_CHUNK if sequential else None, vectorize=not sequential)
+                                            chunk=CPU_IMAGE_CHUNK if sequential else None, vectorize=not sequential,
+                                            checkpoint=None if checkpoint is None else checkpoint.program(name))
             jax.block_until_ready(params)
             chunk_times = np.diff([t0, *stamps])
             steady = float(np.median(chunk_times[1:])) if len(chunk_times) > 1 else 0.0
             timing["compile_s"] += max(0.0, float(chunk_times[0]) - steady)
             timing["train_s"] += float(sum(chunk_times)) - max(0.0, float(chunk_times[0]) - steady)
             trained.append((cfg, prog_runs, params, metrics))
+            if curves is not None:
+                curves(name, prog_runs, metrics)
 
     # Policies with the same history have the same network: one evaluation program per history.
-    key_eval = jax.random.PRNGKey(12345)  # the same episodes for every policy
     results_runs, params_out = [None] * len(runs), {}
     with bar(desc="evaluate", total=len(runs) * preset.eval_episodes, unit="episode") as b:
         for history in dict.fromkeys(cfg.history for cfg, *_ in trained):
@@ -344,13 +418,9 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
             cfg = group[0][0]
             group_runs = [r for _, rs, _, _ in group for r in rs]
             params = jax.tree.map(lambda *xs: jnp.concatenate(xs), *[p for _, _, p, _ in group])
-            t0 = time.perf_counter()
-            evaluator = evaluate.make_evaluator(env, cfg, mean, std, preset.eval_episodes)
-            out = jax.device_get(evaluator(params, key_eval))
-            timing["eval_s"] += time.perf_counter() - t0
+            out, losses = _evaluate_group(env, cfg, mean, std, preset, params, train_data, val_data, timing,
+                                          checkpoint, f"eval-h{history}")
             b.update(len(group_runs) * preset.eval_episodes)
-            losses = {split: jax.device_get(evaluate.loss_analysis(cfg, params, d))
-                      for split, d in (("train", train_data), ("val", val_data))}
             j = 0
             for _, prog_runs, _, metrics in group:
                 for i, r in enumerate(prog_runs):
@@ -360,11 +430,12 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
                                          "params": params, "obs_mean": mean, "obs_std": std}
 
     timing["total_s"] = time.perf_counter() - t_start
+    timing["resumed"] = bool(checkpoint is not None and checkpoint.resumed)
     results = {
         "schema": 1, "env": env_name, "obs": obs, "preset": preset_name,
         "config": {**dataclasses.asdict(preset), "methods": list(methods), "loss": loss,
                    "ape": {"normalization": preset.ape_normalization, "scale": ape_scale,
-                           "final_fit_mse": float(np.mean(np.asarray(ape_losses)[-50:]))},
+                           "final_fit_mse": ape_fit_mse},
                    "ape_normalization": preset.ape_normalization,
                    "data": {"path": str(data_path), "train_transitions": len(train),
                             "val_transitions": len(val), "settings": settings}},
@@ -375,6 +446,39 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
         "system": system,
     }
     return results, params_out
+
+
+def _check_fits(demos: Demonstrations, env, env_name: str, where: str) -> None:
+    """Refuses (ValueError, one line) demonstrations whose observations or actions the environment cannot take."""
+    obs_shape, action_dim = tuple(np.shape(demos.obs)[1:]), int(np.shape(demos.action)[1])
+    if obs_shape != tuple(env.observation_shape) or action_dim != env.action_size:
+        raise ValueError(f"{where}: observations {list(obs_shape)} and {action_dim}-d actions do not fit "
+                         f"{env_name!r}, which has observations {list(env.observation_shape)} and "
+                         f"{env.action_size}-d actions; pick the matching --env/--obs")
+    if len(env.observation_shape) == 3 and np.asarray(demos.obs).dtype != np.uint8:
+        raise ValueError(f"{where}: image observations must be uint8, got {np.asarray(demos.obs).dtype}")
+
+
+def _evaluate_group(env, cfg: LearnerConfig, mean, std, preset: Preset, params, train_data: Data, val_data: Data,
+                    timing: dict, checkpoint: SweepCheckpoint | None, name: str) -> tuple[dict, dict]:
+    """Evaluation outputs and the loss analysis of a group of policies (reused from `checkpoint` if saved there)."""
+    saved = checkpoint.load_arrays(name) if checkpoint is not None else None
+    if saved is None:
+        t0 = time.perf_counter()
+        evaluator = evaluate.make_evaluator(env, cfg, mean, std, preset.eval_episodes)
+        out = jax.device_get(evaluator(params, jax.random.PRNGKey(EVAL_SEED)))
+        timing["eval_s"] += time.perf_counter() - t0
+        losses = {split: jax.device_get(evaluate.loss_analysis(cfg, params, d))
+                  for split, d in (("train", train_data), ("val", val_data))}
+        saved = {**{f"eval/{k}": v for k, v in out.items()},
+                 **{f"{split}/{k}": v for split, ls in losses.items() for k, v in ls.items()}}
+        if checkpoint is not None:
+            checkpoint.save_arrays(name, saved)
+    parts: dict[str, dict] = {"eval": {}, "train": {}, "val": {}}
+    for k, v in saved.items():
+        part, key = k.split("/", 1)
+        parts[part][key] = v
+    return parts["eval"], {"train": parts["train"], "val": parts["val"]}
 
 
 def _run_record(run: Run, j: int, out: dict, losses: dict, loss_curve: np.ndarray, card: dict | None):

@@ -114,10 +114,10 @@ def validate(kind: str, thr: float = 0.1, w: float = 1.0, tau: float = 1.0) -> N
     if kind == "step":
         if not 0.0 < thr < 1.0:
             raise ValueError(f"step weighting: THR must be in (0, 1), got {thr}")
-        if not w >= 1.0:
-            raise ValueError(f"step weighting: W must be >= 1, got {w}")
+        if not (w >= 1.0 and np.isfinite(w)):
+            raise ValueError(f"step weighting: W must be >= 1 and finite, got {w}")
     if kind == "softmax" and not (tau > 0.0 and np.isfinite(tau)):
-        raise ValueError(f"softmax weighting: tau must be > 0, got {tau}")
+        raise ValueError(f"softmax weighting: tau must be > 0 and finite, got {tau}")
 
 
 def stack(configs: list[Weighting]) -> Weighting:

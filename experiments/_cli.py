@@ -1,15 +1,65 @@
-"""Command-line helpers shared by the entry points."""
+"""Command-line helpers shared by the entry points.
+
+Every entry point refuses bad input the same way: one line on stderr,
+`PROG: error: WHAT`, and exit status 2 (argparse's convention), never a
+traceback. `Parser` makes argparse's own refusals (unknown flag, invalid
+choice, not a number) one line too; `fail` is for the checks the entry points
+make themselves; `unwritable` and `unwritable_file` tell, before anything
+expensive runs, why an output could not be written.
+"""
 
 from __future__ import annotations
 
 import argparse
+import errno
+import os
+import pathlib
 import sys
+import tempfile
 from typing import NoReturn
 
 
+class Parser(argparse.ArgumentParser):
+    """An `ArgumentParser` whose errors are one line (no usage block), exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        fail(self, message)
+
+
 def fail(parser: argparse.ArgumentParser | None, message: str) -> NoReturn:
-    """Reports bad input and exits with status 2 (argparse's convention), without a traceback."""
-    if parser is not None:
-        parser.error(message)
-    print(f"error: {message}", file=sys.stderr)
+    """Reports bad input on one line of stderr and exits with status 2, without a traceback."""
+    prog = f"{parser.prog}: " if parser is not None else ""
+    print(f"{prog}error: {' '.join(str(message).split())}", file=sys.stderr)
     raise SystemExit(2)
+
+
+def unwritable(directory: str | os.PathLike) -> str | None:
+    """Why files could not be created in `directory` (made if missing), or None if they can.
+
+    Checks the nearest existing ancestor: it must be a directory in which a
+    file can be created (probed with an anonymous temporary file, so read-only
+    file systems are caught even when running as root). Nothing is left behind.
+    """
+    path = pathlib.Path(directory).absolute()
+    existing = path
+    while not existing.exists():
+        if existing.parent == existing:
+            break
+        existing = existing.parent
+    if not existing.is_dir():
+        return f"{existing} is not a directory"
+    try:
+        with tempfile.TemporaryFile(dir=existing):
+            pass
+    except OSError as e:
+        known = e.errno in (errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOSPC, errno.EDQUOT)
+        return f"{existing} is not writable" + (f" ({e.strerror})" if known else "")
+    return None
+
+
+def unwritable_file(path: str | os.PathLike) -> str | None:
+    """Why file `path` could not be written (replaced if it exists), or None if it can."""
+    path = pathlib.Path(path)
+    if path.is_dir():
+        return f"{path} is a directory"
+    return unwritable(path.parent)

@@ -83,16 +83,33 @@ def write_section(path: str, text: str, name: str = "bench_envs") -> None:
     os.replace(tmp, path)
 
 
-def run_benchmark(parser, argv, counts: tuple[str, ...], table, section: str) -> int:
+def run_benchmark(parser, argv, counts: tuple[str, ...], table, section: str,
+                  check: Callable[[Any], str | None] | None = None) -> int:
     """The shared tail of the `bench_*` entry points.
 
-    Adds `--write`, parses `argv`, refuses (exit 2) counts below 1, prints
+    Adds `--write`, parses `argv`, refuses (exit 2, before anything is timed)
+    counts below 1, a `--write` file that cannot be written and whatever
+    `check(args)` names (it returns the message, or None), prints
     `table(args)` and, with `--write FILE`, replaces the section `section` of FILE.
     """
+    from experiments._cli import unwritable_file
+
     parser.add_argument("--write", metavar="BENCHMARKS.md", help="replace the section in this file")
     args = parser.parse_args(argv)
     if min(getattr(args, c.lstrip("-").replace("-", "_")) for c in counts) < 1:
         parser.error(f"{', '.join(counts)} must be >= 1")
+    if args.write:
+        why = unwritable_file(args.write)
+        if why is None and os.path.exists(args.write):
+            try:
+                open(args.write).read()
+            except (OSError, UnicodeDecodeError) as e:
+                why = f"it cannot be read as text ({e})"
+        if why:
+            parser.error(f"--write {args.write}: cannot write there: {why}")
+    why = check(args) if check is not None else None
+    if why:
+        parser.error(why)
     text = table(args)
     print(text)
     if args.write:

@@ -12,7 +12,6 @@ substeps per control step, single-threaded; native ray casting uses
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import sys
 import time
@@ -22,6 +21,7 @@ import numpy as np
 
 import envs
 from envs._quiet import mujoco
+from experiments._cli import Parser
 from experiments._timing import machine, rollout_throughput, run_benchmark, time_jitted
 
 SECTION = "bench_envs"
@@ -120,7 +120,7 @@ def table(args) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = Parser(prog="python -m experiments.bench_envs", description=__doc__.splitlines()[0])
     p.add_argument("--batch", type=int, default=128, help="environments stepped in parallel (vmap)")
     p.add_argument("--steps", type=int, default=100, help="control steps per timed rollout")
     p.add_argument("--render-batch", type=int, default=32, help="states rendered per timed call")

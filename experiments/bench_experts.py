@@ -12,7 +12,6 @@ after a separate compiling call, counting only the steps inside episodes.
 
 from __future__ import annotations
 
-import argparse
 import sys
 
 import jax
@@ -21,6 +20,7 @@ import numpy as np
 import envs
 from ape_jax import collect
 from envs import experts
+from experiments._cli import Parser
 from experiments._timing import machine, run_benchmark, time_jitted
 
 SECTION = "bench_experts"
@@ -87,7 +87,7 @@ def table(args) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m experiments.bench_experts", description=__doc__.splitlines()[0])
+    p = Parser(prog="python -m experiments.bench_experts", description=__doc__.splitlines()[0])
     p.add_argument("--batch", type=int, default=16, help="episodes collected per jitted call")
     p.add_argument("--repeats", type=int, default=3, help="timed runs; the median is reported")
     return run_benchmark(p, argv, ("--batch", "--repeats"), table, SECTION)

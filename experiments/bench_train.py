@@ -23,7 +23,6 @@ Medians of `--repeats` timed runs after a separate compiling call.
 
 from __future__ import annotations
 
-import argparse
 import os
 import json
 import pathlib
@@ -37,6 +36,7 @@ import numpy as np
 
 from ape_jax.learner import Data, LearnerConfig, make_train, stack_hparams
 from ape_jax.sweep import SOFTMAX_GRID, STEP_GRID, Hparams, Run, hparams_of
+from experiments._cli import Parser
 from experiments._timing import machine, run_benchmark, time_jitted
 
 SECTION = "bench_train"
@@ -222,7 +222,7 @@ def table(args) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m experiments.bench_train", description=__doc__.splitlines()[0])
+    p = Parser(prog="python -m experiments.bench_train", description=__doc__.splitlines()[0])
     p.add_argument("--iters", type=int, default=500, help="updates per model in a timed JAX run")
     p.add_argument("--torch-iters", type=int, default=200, help="updates per configuration in a timed PyTorch run")
     p.add_argument("--policies", type=int, default=13, help="policies evaluated at once")
@@ -230,7 +230,24 @@ def main(argv=None) -> int:
     p.add_argument("--repeats", type=int, default=3, help="timed runs; the median is reported")
     p.add_argument("--results", nargs="*", default=[], help="results.json files whose end-to-end timing to report")
     return run_benchmark(p, argv, ("--iters", "--torch-iters", "--policies", "--episodes", "--repeats"), table,
-                         SECTION)
+                         SECTION, check=_check_results)
+
+
+def _check_results(args) -> str | None:
+    """Why a `--results` file cannot be reported (they are read at the end, so checked first), or None."""
+    timing, config = ("total_s", "compile_s", "train_s", "eval_s"), ("iterations", "seeds", "eval_episodes")
+    for path in args.results:
+        try:
+            r = json.loads(pathlib.Path(path).read_text())
+        except (OSError, UnicodeDecodeError, ValueError) as e:
+            return f"--results {path}: cannot read it as JSON ({e})"
+        ok = (isinstance(r, dict) and all(k in r for k in ("env", "obs", "preset"))
+              and isinstance(r.get("timing"), dict) and all(k in r["timing"] for k in timing)
+              and isinstance(r.get("config"), dict) and all(k in r["config"] for k in config))
+        if not ok:
+            return (f"--results {path}: not a sweep results file (needs env, obs, preset, config with "
+                    f"{', '.join(config)} and timing with {', '.join(timing)})")
+    return None
 
 
 if __name__ == "__main__":

@@ -9,22 +9,28 @@ sweep uses the same cache.
 `ape_jax.minari_io`) with id `<npz name>-v0` under the Minari datasets root
 `--out DIR` (default: `minari/` in the cache directory), for tools that read
 Minari: `MINARI_DATASETS_PATH=DIR` then `minari.load_dataset(id)`.
+
+Bad input is refused with one line on stderr and exit status 2 before anything
+is compiled: unknown env or observation mode, out-of-range counts or noise,
+a `--data-dir`, `--out` or `--preview` that cannot be written, or a cached
+dataset that is corrupt (it is left in place; `--force` collects it anew).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import pathlib
 import sys
 
-from experiments._cli import fail
+from experiments._cli import Parser, fail, unwritable, unwritable_file
 
 
 def parse(argv=None) -> argparse.Namespace:
     import envs
     from ape_jax import collect, data
 
-    p = argparse.ArgumentParser(prog="python -m experiments.collect", description=__doc__.splitlines()[0])
+    p = Parser(prog="python -m experiments.collect", description=__doc__.splitlines()[0])
     p.add_argument("--env", default="hopper", help="hopper, halfcheetah, walker2d, toycar, ... (default: hopper)")
     p.add_argument("--obs", default=None, help="full, pos or image (default: pos, or image for toycar)")
     p.add_argument("--episodes", type=int, default=None,
@@ -54,10 +60,13 @@ def parse(argv=None) -> argparse.Namespace:
         fail(p, f"--obs {args.obs!r} is not supported by {args.env}; valid: {', '.join(modes)}")
     if args.episodes is None:
         args.episodes = collect.default_episodes(args.env)
-    if args.episodes < 1 or args.batch < 1:
-        fail(p, "--episodes and --batch must be >= 1")
-    if not 0.0 <= args.noise_frac <= 1.0 or args.noise_std < 0:
-        fail(p, "--noise-frac must be in [0, 1] and --noise-std >= 0")
+    for flag, value in (("--episodes", args.episodes), ("--batch", args.batch)):
+        if value < 1:
+            fail(p, f"{flag} must be >= 1, got {value}")
+    if not 0.0 <= args.noise_frac <= 1.0:
+        fail(p, f"--noise-frac must be in [0, 1], got {args.noise_frac}")
+    if not 0.0 <= args.noise_std < math.inf:
+        fail(p, f"--noise-std must be a finite number >= 0, got {args.noise_std}")
     args.overrides = {}
     if args.image_size is not None:
         if args.obs != "image":
@@ -67,14 +76,24 @@ def parse(argv=None) -> argparse.Namespace:
             args.overrides["image_size"] = envs.brax_env.parse_image_size(size[0] if len(size) == 1 else size)
         except ValueError as e:
             fail(p, f"--image-size: {e}")
-    if args.preview is not None and args.preview.suffix != ".gif":
-        fail(p, f"--preview must name a .gif file, got {args.preview}")
+    if args.preview is not None:
+        if args.preview.suffix != ".gif":
+            fail(p, f"--preview must name a .gif file, got {args.preview}")
+        why = unwritable_file(args.preview)
+        if why:
+            fail(p, f"--preview {args.preview}: cannot write there: {why}")
     args.data_dir = args.data_dir or data.cache_dir()
+    if args.data_dir.exists() and not args.data_dir.is_dir():
+        fail(p, f"--data-dir {args.data_dir} is a file; it must be a directory")
     if args.out is not None and args.format != "minari":
         fail(p, "--out applies to --format minari only")
     args.out = args.out or args.data_dir / "minari"
-    if args.format == "minari" and args.out.exists() and not args.out.is_dir():
-        fail(p, f"--out {args.out} is a file; it must be a directory (the Minari datasets root)")
+    if args.format == "minari":
+        if args.out.exists() and not args.out.is_dir():
+            fail(p, f"--out {args.out} is a file; it must be a directory (the Minari datasets root)")
+        why = unwritable(args.out)
+        if why:
+            fail(p, f"--out {args.out}: cannot write there: {why}")
     return args
 
 
@@ -82,7 +101,7 @@ def main(argv=None) -> int:
     args = parse(argv)
     from tqdm import tqdm
 
-    from ape_jax import collect
+    from ape_jax import collect, data
     from envs.experts import ExpertError
 
     try:
@@ -90,9 +109,19 @@ def main(argv=None) -> int:
                                args.batch, **args.overrides)
     except ExpertError as e:
         return fail(None, str(e))
-    with tqdm(total=args.episodes, unit="episode", desc=f"collect {args.env}/{args.obs}") as bar:
-        demos, meta, path, cached = collect.collect_cached(
-            cfg, args.data_dir, force=args.force, progress=lambda n: bar.update(n - bar.n))
+    path = data.cache_path(args.data_dir, cfg)
+    if args.force or not path.exists():  # the dataset will be written: refuse now rather than after collecting
+        why = unwritable(args.data_dir)
+        if why:
+            return fail(None, f"--data-dir {args.data_dir}: cannot write the dataset there: {why}")
+    try:
+        with tqdm(total=args.episodes, unit="episode", desc=f"collect {args.env}/{args.obs}", delay=0.5) as bar:
+            demos, meta, path, cached = collect.collect_cached(
+                cfg, args.data_dir, force=args.force, progress=lambda n: bar.update(n - bar.n))
+    except data.DataError as e:
+        return fail(None, f"{e}; the cached dataset is left as it is: run again with --force to collect it anew")
+    except OSError as e:
+        return fail(None, f"--data-dir {args.data_dir}: cannot write the dataset ({e.strerror or e})")
     train, val = demos.split()
     print(f"{'loaded cached' if cached else 'collected'} {len(demos):,} transitions in {demos.num_episodes} "
           f"episodes ({len(train):,} train / {len(val):,} validation after the 20% split by episode); "

@@ -14,16 +14,20 @@ and prints, or with `--out` writes into the file's `report` section:
   seeds, commit, machine).
 
 No number in these tables is typed by hand; regenerate them after every sweep.
+
+A results file that cannot be read, is not JSON, or lacks a field the tables
+use (or has it with the wrong type), and an `--out` that cannot be written, are
+refused with one line on stderr and exit status 2; `--out` is then left as it was.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
+import math
 import pathlib
 import sys
 
-from experiments._cli import fail
+from experiments._cli import Parser, fail, unwritable_file
 
 # The supplement's Table 5 (MuJoCo-State; its own experts, 300k iterations): mean returns.
 PAPER_TABLE5 = {
@@ -56,8 +60,69 @@ def load(path: pathlib.Path) -> dict:
         raise ReportError(f"{path}: not a sweep results file (missing {', '.join(missing)})")
     if results["schema"] != 1:
         raise ReportError(f"{path}: results schema {results['schema']!r}, this report reads schema 1")
+    check(results, path)
     results["_path"] = str(path)
     return results
+
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _count(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and v >= 0
+
+
+def _hparams(v) -> bool:
+    return isinstance(v, dict) and all(_number(x) for x in v.values())
+
+
+def _optional(test):
+    return lambda v: v is None or test(v)
+
+
+def _row(where: str, row, fields: dict) -> None:
+    if not isinstance(row, dict):
+        raise ReportError(f"{where} must be an object, got {type(row).__name__}")
+    for key, (test, want) in fields.items():
+        if key not in row:
+            raise ReportError(f"{where} has no field '{key}'")
+        if not test(row[key]):
+            raise ReportError(f"{where} field '{key}' must be {want}, got {row[key]!r:.80}")
+
+
+_TEXT = (lambda v: isinstance(v, str), "a string")
+_SUMMARY = {"method": _TEXT, "hparams": (_hparams, "an object of numbers"),
+            "n_seeds": (_count, "an int >= 0"),
+            "return_mean": (_optional(_number), "a number or null"), "return_std": (_optional(_number), "a number or null")}
+_RUN = {"method": _TEXT, "hparams": (_hparams, "an object of numbers"), "status": _TEXT}
+_LOSSES = {s: (lambda v: isinstance(v, dict) and all(
+    _number(v.get(k)) for k in ("unweighted", "changepoint", "copycat")), "an object with numbers unweighted, "
+    "changepoint and copycat") for s in ("train", "val")}
+
+
+def check(results: dict, path) -> None:
+    """Refuses (`ReportError`, one line) a results file lacking a field the tables use, or with a wrong type."""
+    _row(f"{path}:", results, {"env": _TEXT, "obs": _TEXT, "preset": _TEXT,
+                              "config": (lambda v: isinstance(v, dict), "an object"),
+                              "expert": (lambda v: isinstance(v, dict), "an object"),
+                              "runs": (lambda v: isinstance(v, list), "a list"),
+                              "summary": (lambda v: isinstance(v, list), "a list"),
+                              "system": (lambda v: isinstance(v, dict), "an object")})
+    _row(f"{path}: config", results["config"], {k: (_count, "an int >= 0")
+                                                 for k in ("iterations", "seeds", "eval_episodes")})
+    _row(f"{path}: expert", results["expert"], {k: (_optional(_number), "a number or null")
+                                                 for k in ("return_mean", "return_std", "random_return_mean")})
+    for i, row in enumerate(results["summary"]):
+        _row(f"{path}: summary[{i}]", row, _SUMMARY)
+        if row["n_seeds"] and not all(_number(row[k]) and math.isfinite(row[k]) for k in ("return_mean", "return_std")):
+            raise ReportError(f"{path}: summary[{i}] has {row['n_seeds']} seeds but return "
+                              f"{row['return_mean']!r} ± {row['return_std']!r}; expected finite numbers")
+    for i, run in enumerate(results["runs"]):
+        _row(f"{path}: runs[{i}]", run, _RUN)
+        if run["status"] == "ok":
+            _row(f"{path}: runs[{i}]", run, {"losses": (lambda v: isinstance(v, dict), "an object")})
+            _row(f"{path}: runs[{i}] losses", run["losses"], _LOSSES)
 
 
 def merge(files: list[dict]) -> dict[tuple[str, str], dict]:
@@ -141,9 +206,11 @@ def state_table(merged: dict) -> str:
             cells.append(cell)
         lines.append(f"| {generic} | " + " | ".join(cells) + " |")
     experts = [merged[(e, "pos")]["expert"] for e in envs]
-    lines.append("| expert (ours) | " + " | ".join(f"{x['return_mean']:,.0f} ± {x['return_std']:,.0f}"
+    lines.append("| expert (ours) | " + " | ".join("—" if x["return_mean"] is None else
+                                                   f"{x['return_mean']:,.0f} ± {x['return_std'] or 0:,.0f}"
                                                    for x in experts) + " |")
-    lines.append("| random policy | " + " | ".join(f"{x['random_return_mean']:,.0f}" for x in experts) + " |")
+    lines.append("| random policy | " + " | ".join("—" if x["random_return_mean"] is None else
+                                                   f"{x['random_return_mean']:,.0f}" for x in experts) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -247,11 +314,20 @@ def report(files: list[dict]) -> str:
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m experiments.report", description=__doc__.splitlines()[0])
+    p = Parser(prog="python -m experiments.report", description=__doc__.splitlines()[0])
     p.add_argument("results", nargs="+", type=pathlib.Path, help="results.json files of experiments.sweep")
     p.add_argument("--out", type=pathlib.Path, default=None,
                    help="write into this file's `report` section (BENCHMARKS.md) instead of printing")
     args = p.parse_args(argv)
+    if args.out is not None:
+        why = unwritable_file(args.out)
+        if why is None and args.out.exists():
+            try:
+                args.out.read_text()
+            except (OSError, UnicodeDecodeError) as e:
+                why = f"it cannot be read as text ({e})"
+        if why:
+            fail(p, f"--out {args.out}: cannot write the report there: {why}")
     try:
         text = report([load(path) for path in args.results])
     except ReportError as e:
@@ -263,7 +339,7 @@ def main(argv=None) -> int:
 
     try:
         write_section(str(args.out), text, "report")
-    except OSError as e:
+    except (OSError, UnicodeDecodeError) as e:
         return fail(None, f"cannot write {args.out}: {e}")
     print(f"wrote the report section of {args.out} from {len(args.results)} results file(s)")
     return 0

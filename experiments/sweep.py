@@ -5,6 +5,14 @@ BC-SO, BC-OH, the paper's step and softmax weighting grids and any baselines
 asked for (`--methods`) × seeds as compiled programs, evaluates every policy, and writes `results.json` (the
 schema in `DESIGN.md`), `results.csv` and the trained parameters (orbax) into
 `--out`. No arguments: hopper, `pos` observations, the `quick` preset.
+
+Interrupted sweeps resume: the training states (every configuration × seed)
+are checkpointed in `OUT/checkpoints/` every `--checkpoint-every` iterations
+and after each phase, and a rerun with the same `--out` and settings continues
+where it stopped, bit-identically on the same machine (`ape_jax.checkpoint`).
+Rerunning a finished sweep reports it; `--fresh` discards what `--out` holds.
+Per-iteration training curves go to `OUT/curves/*.csv` and TensorBoard event
+files to `OUT/tensorboard/` (`ape_jax.logs`).
 """
 
 from __future__ import annotations
@@ -12,13 +20,13 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import io
 import json
-import os
 import pathlib
 import shutil
 import sys
 
-from experiments._cli import fail
+from experiments._cli import Parser, fail, unwritable
 
 DEFAULT_METHODS = ("bc-so", "bc-oh", "ours-step", "ours-softmax")
 
@@ -28,7 +36,7 @@ def parse(argv=None) -> argparse.Namespace:
     from ape_jax import data
     from ape_jax.sweep import METHODS, PRESETS
 
-    p = argparse.ArgumentParser(prog="python -m experiments.sweep", description=__doc__.splitlines()[0])
+    p = Parser(prog="python -m experiments.sweep", description=__doc__.splitlines()[0])
     p.add_argument("--env", default="hopper", help="hopper, halfcheetah, walker2d or toycar (default: hopper)")
     p.add_argument("--obs", default=None, help="observation mode (default: pos; image for toycar)")
     p.add_argument("--preset", default="quick", choices=sorted(PRESETS),
@@ -41,9 +49,21 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--eval-episodes", type=int, default=None, help="evaluation episodes (default: the preset's)")
     p.add_argument("--out", type=pathlib.Path, default=None, help="output directory (default: runs/sweep/ENV-OBS-PRESET)")
     p.add_argument("--resume", action="store_true",
-                   help="if --out already holds a finished sweep with the same settings, report it instead of rerunning")
+                   help="continue the sweep in --out where it stopped, or report it if finished (also what a "
+                        "rerun with the same --out and settings does without this flag)")
+    p.add_argument("--fresh", action="store_true",
+                   help="delete the results and checkpoints --out holds and start over")
+    p.add_argument("--checkpoint-every", type=int, default=None,
+                   help="save the training state every N iterations (default: after every chunk of the preset's, "
+                        "e.g. 2,000 iterations for default)")
+    p.add_argument("--dataset", default=None,
+                   help="train from this dataset instead of the shipped expert's demonstrations: the project's "
+                        "NAME.npz, or a Minari dataset directory or id; it must fit --env/--obs")
+    p.add_argument("--quiet", action="store_true", help="no progress bars (for CI logs); messages and the table only")
     p.add_argument("--data-dir", type=pathlib.Path, default=None, help=f"demonstration cache (default: {data.cache_dir()})")
     args = p.parse_args(argv)
+    if args.resume and args.fresh:
+        fail(p, "--resume and --fresh contradict each other")
     valid_envs = [*envs.MUJOCO_TASKS, "toycar"]
     if args.env not in valid_envs:
         fail(p, f"unknown env {args.env!r} for the sweep; valid: {', '.join(valid_envs)} (envs with an expert)")
@@ -58,7 +78,7 @@ def parse(argv=None) -> argparse.Namespace:
         fail(p, f"unknown method(s) {unknown or args.methods!r}; valid: {', '.join(METHODS)}")
     if len(set(args.methods)) != len(args.methods):
         fail(p, "--methods lists a method twice")
-    for name in ("seeds", "iterations", "eval_episodes"):
+    for name in ("seeds", "iterations", "eval_episodes", "checkpoint_every"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             fail(p, f"--{name.replace('_', '-')} must be >= 1")
     overrides = {k: v for k, v in (("seeds", args.seeds), ("iterations", args.iterations),
@@ -69,20 +89,28 @@ def parse(argv=None) -> argparse.Namespace:
         overrides["episodes"] = default_episodes("toycar")
     args.preset_cfg = dataclasses.replace(PRESETS[args.preset], **overrides)
     args.out = args.out or pathlib.Path("runs/sweep") / f"{args.env}-{args.obs}-{args.preset}"
+    problem = "exists and is not a directory" if args.out.exists() and not args.out.is_dir() else unwritable(args.out)
+    if problem:
+        fail(p, f"--out {args.out}: {problem}")
+    if args.checkpoint_every:  # saves fall between chunks: a shorter interval makes the chunks shorter
+        args.preset_cfg = dataclasses.replace(args.preset_cfg, chunk=min(args.preset_cfg.chunk, args.checkpoint_every))
+    args.checkpoint_every = args.checkpoint_every or args.preset_cfg.chunk
     args.data_dir = args.data_dir or data.cache_dir()
     return args
 
 
 def write_json_atomic(path: pathlib.Path, obj) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(obj, indent=2, allow_nan=False) + "\n")
-    os.replace(tmp, path)
+    from ape_jax.data import write_atomic
+
+    write_atomic(path, lambda f: f.write((json.dumps(obj, indent=2, allow_nan=False) + "\n").encode()))
 
 
 def write_outputs(out: pathlib.Path, results: dict, params: dict) -> None:
     import jax
     import numpy as np
     import orbax.checkpoint as ocp
+
+    from ape_jax.data import write_atomic
 
     # orbax saves asynchronously (to a temporary name, renamed when done), so `params/` may not exist
     # yet when the JSON beside the first checkpoint is written: create it first.
@@ -95,14 +123,13 @@ def write_outputs(out: pathlib.Path, results: dict, params: dict) -> None:
             tree = {k: v for k, v in block.items() if k != "runs" and v is not None}
             ckpt.save(target, jax.tree.map(np.asarray, tree))
             write_json_atomic(out / "params" / f"{name}.json", block["runs"])
-    tmp = out / "results.csv.tmp"
-    with open(tmp, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["method", "hparams", "n_seeds", "return_mean", "return_std", "normalized_mean", "normalized_std"])
-        for row in results["summary"]:
-            w.writerow([row["method"], json.dumps(row["hparams"], sort_keys=True), row["n_seeds"], row["return_mean"],
-                        row["return_std"], row["normalized_mean"], row["normalized_std"]])
-    os.replace(tmp, out / "results.csv")
+    rows = io.StringIO()
+    w = csv.writer(rows)
+    w.writerow(["method", "hparams", "n_seeds", "return_mean", "return_std", "normalized_mean", "normalized_std"])
+    for row in results["summary"]:
+        w.writerow([row["method"], json.dumps(row["hparams"], sort_keys=True), row["n_seeds"], row["return_mean"],
+                    row["return_std"], row["normalized_mean"], row["normalized_std"]])
+    write_atomic(out / "results.csv", lambda f: f.write(rows.getvalue().encode()))
     write_json_atomic(out / "results.json", results)  # last: its presence means the sweep finished
 
 
@@ -133,36 +160,71 @@ def table(results: dict) -> str:
     return "\n".join(lines)
 
 
+OUTPUTS = ("results.json", "results.csv", "params", "curves", "tensorboard", "checkpoints")
+
+
 def main(argv=None) -> int:
     args = parse(argv)
     from tqdm import tqdm
 
-    from ape_jax.sweep import run_sweep
+    from ape_jax import logs
+    from ape_jax.checkpoint import CheckpointError, SweepCheckpoint, differences
+    from ape_jax.data import DataError
+    from ape_jax.sweep import data_settings, fingerprint, results_fingerprint, run_sweep
     from envs.experts import ExpertError
 
-    results_path = args.out / "results.json"
-    if args.resume and results_path.exists():
-        old = json.loads(results_path.read_text())
-        if old.get("config", {}).get("iterations") == args.preset_cfg.iterations and \
-                old.get("env") == args.env and old.get("obs") == args.obs and \
-                old["config"].get("methods") == list(args.methods) and old["config"].get("seeds") == args.preset_cfg.seeds:
-            print(f"{results_path} already holds this sweep (--resume); not rerunning.\n")
-            print(table(old))
-            return 0
     p = args.preset_cfg
-    print(f"sweep: {args.env} ({args.obs}), preset {args.preset}: {p.iterations:,} iterations, {p.seeds} seed(s), "
-          f"{p.eval_episodes} evaluation episodes, methods {', '.join(args.methods)}")
     try:
-        results, params = run_sweep(args.env, args.obs, args.preset, p, args.methods, args.data_dir,
-                                    bar=lambda **kw: tqdm(dynamic_ncols=True, **kw), log=tqdm.write)
+        fp = fingerprint(args.env, args.obs, args.preset, p, args.methods,
+                         data_settings(args.env, args.obs, p, args.dataset))
     except (ExpertError, ValueError) as e:
         return fail(None, str(e))
+    results_path = args.out / "results.json"
+    if args.fresh:
+        for name in OUTPUTS:
+            path = args.out / name
+            shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
+    elif results_path.exists():
+        try:
+            old = json.loads(results_path.read_text())
+            diff = differences(results_fingerprint(old), fp)
+        except (OSError, ValueError, AttributeError) as e:
+            return fail(None, f"{results_path} is unreadable ({e}); move it away, or pass --fresh to replace it")
+        if diff:
+            return fail(None, f"{args.out} holds a finished sweep with other settings, differing in "
+                              f"{'; '.join(diff[:4])}; use another --out, or pass --fresh to replace it")
+        print(f"{results_path} already holds this sweep; not rerunning (--fresh to train it again).\n")
+        print(table(old))
+        return 0
+    created = not args.out.exists()
+    checkpoint = SweepCheckpoint(args.out / "checkpoints", fp, args.checkpoint_every)
+    try:
+        if checkpoint.open():
+            print(f"resuming from {checkpoint.directory}")
+    except CheckpointError as e:
+        return fail(None, str(e))
+
+    print(f"sweep: {args.env} ({args.obs}), preset {args.preset}: {p.iterations:,} iterations, {p.seeds} seed(s), "
+          f"{p.eval_episodes} evaluation episodes, methods {', '.join(args.methods)}")
+    bar = (lambda **kw: tqdm(disable=True, **kw)) if args.quiet else (lambda **kw: tqdm(dynamic_ncols=True, **kw))
+    try:
+        results, params = run_sweep(args.env, args.obs, args.preset, p, args.methods, args.data_dir,
+                                    bar=bar, log=tqdm.write, checkpoint=checkpoint, dataset=args.dataset,
+                                    curves=lambda *a: logs.write_curves(args.out, *a))
+    except (ExpertError, CheckpointError, DataError, ValueError) as e:
+        checkpoint.discard_if_empty()  # a refusal leaves --out as it found it
+        if created and args.out.is_dir() and not any(args.out.iterdir()):
+            args.out.rmdir()
+        return fail(None, str(e))
     write_outputs(args.out, results, params)
+    checkpoint.clear()  # the outputs hold everything now
     t = results["timing"]
     print()
     print(table(results))
-    print(f"\ntime: {t['total_s']:.0f} s in all (compile ~{t['compile_s']:.0f} s, train {t['train_s']:.0f} s, "
-          f"evaluate {t['eval_s']:.0f} s)\nwrote {results_path}, {args.out / 'results.csv'} and {args.out / 'params'}/")
+    print(f"\ntime: {t['total_s']:.0f} s in all{' (resumed)' if t['resumed'] else ''} (compile ~{t['compile_s']:.0f} s, "
+          f"train {t['train_s']:.0f} s, evaluate {t['eval_s']:.0f} s)\n"
+          f"wrote {results_path}, {args.out / 'results.csv'}, {args.out / 'params'}/, training curves in "
+          f"{args.out / 'curves'}/ and {args.out / 'tensorboard'}/")
     return 0
 
 

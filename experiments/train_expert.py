@@ -12,17 +12,23 @@ card to `envs/experts/<env>/` (see `envs.experts`).
 
 The per-task hyperparameters below are the ones the shipped experts were
 trained with; their cards repeat them.
+
+Bad input is refused with one line on stderr and exit status 2 before anything
+is compiled: an unknown env, counts below 1, a NaN `--stop-at`, a `--workdir`
+or `--out` that cannot be written, or a checkpoint in `--workdir` that is
+corrupt or was written with other settings (it is left in place).
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import pathlib
 import sys
 import time
 
-from experiments._cli import fail
+from experiments._cli import Parser, fail, unwritable
 
 TARGETS = {"hopper": 2500.0, "walker2d": 3000.0, "halfcheetah": 4000.0}  # issue 3, 1000-step episodes
 
@@ -41,7 +47,7 @@ CONFIGS = {
 def parse(argv=None) -> argparse.Namespace:
     import envs
 
-    p = argparse.ArgumentParser(prog="python -m experiments.train_expert", description=__doc__.splitlines()[0])
+    p = Parser(prog="python -m experiments.train_expert", description=__doc__.splitlines()[0])
     p.add_argument("--env", required=True, help="a Brax environment (hopper, walker2d, halfcheetah, ...)")
     p.add_argument("--steps", type=int, default=None, help="environment steps in all (default: per task)")
     p.add_argument("--stop-at", type=float, default=None,
@@ -58,9 +64,23 @@ def parse(argv=None) -> argparse.Namespace:
         fail(p, "toycar's expert is rule-based (envs.toycar.expert_action); nothing to train")
     if args.env not in envs.names():
         fail(p, f"unknown env {args.env!r}; valid: {', '.join(n for n in envs.names() if n != 'toycar')}")
-    if args.steps is not None and args.steps < 1 or args.eval_episodes < 1:
-        fail(p, "--steps and --eval-episodes must be >= 1")
+    if args.steps is not None and args.steps < 1:
+        fail(p, f"--steps must be >= 1, got {args.steps}")
+    if args.eval_episodes < 1:
+        fail(p, f"--eval-episodes must be >= 1, got {args.eval_episodes}")
+    if args.stop_at is not None and math.isnan(args.stop_at):
+        fail(p, "--stop-at must be a number (inf: never stop early), got nan")
     args.workdir = args.workdir or pathlib.Path("runs/experts") / args.env
+    if args.out is None:
+        from envs import experts
+
+        args.out = experts.directory(args.env)
+    for flag, path in (("--workdir", args.workdir), ("--out", args.out)):
+        if path.exists() and not path.is_dir():
+            fail(p, f"{flag} {path} is a file; it must be a directory")
+        why = unwritable(path)
+        if why:
+            fail(p, f"{flag} {path}: cannot write there: {why}")
     return args
 
 
@@ -94,7 +114,8 @@ def main(argv=None) -> int:
     try:
         restored = ckpt.restore()
     except ValueError as e:
-        return fail(None, f"{e}; use the same settings, another --workdir, or --fresh")
+        return fail(None, f"--workdir {args.workdir}: {e}; use the same settings, another --workdir, or --fresh "
+                    "(which discards it)")
     if restored is not None:
         state, best, meta = restored
         print(f"resuming {args.workdir} at {int(state.env_steps):,} env steps "
@@ -124,7 +145,7 @@ def export(args, cfg, env, params, meta) -> int:
     from experiments._measure import expert_and_random_returns
     from experiments._timing import machine
 
-    out = args.out or experts.directory(args.env)
+    out = args.out
     print(f"measuring the best policy (evaluation return {meta['best_return']:.1f} at "
           f"{meta['best_step']:,} steps) over {args.eval_episodes} episodes ...")
     policy = experts.policy_from_params(params)

@@ -17,28 +17,32 @@ its mean ("mean" normalisation). The output holds, per sample, in dataset order:
 - `meta`: a JSON string (dataset, settings, APE scale, versions).
 
 Read it with `np.load(path)`; `json.loads(str(f["meta"]))` for the metadata.
+
+Bad input is refused with one line on stderr and exit status 2 before the fit
+starts: settings out of range, an `--out` that cannot be written, a dataset
+that is missing, truncated, or has wrong keys, shapes, dtypes or non-finite
+values. A refused run leaves an existing `--out` as it was.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
+import math
 import pathlib
 import sys
-import tempfile
 import time
 
-from experiments._cli import fail
+from experiments._cli import Parser, fail, unwritable_file
 
 FORMATS = ("auto", "npz", "minari")
 
 
 def parse(argv=None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="python -m experiments.weights", description=__doc__.splitlines()[0])
+    p = Parser(prog="python -m experiments.weights", description=__doc__.splitlines()[0])
     p.add_argument("--dataset", required=True, help="NAME.npz (the project's format), or a Minari dataset "
                    "directory or id")
-    p.add_argument("--out", required=True, type=pathlib.Path, help="the .npz file to write")
+    p.add_argument("--out", required=True, type=pathlib.Path, help="the .npz file to write (its directory is made if missing)")
     p.add_argument("--format", choices=FORMATS, default="auto",
                    help="auto (default): .npz files are the project's format, anything else Minari")
     p.add_argument("--ape-steps", type=int, default=5000, help="Adam steps fitting the APE model (default: 5000)")
@@ -49,33 +53,20 @@ def parse(argv=None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if not 0.0 < args.thr < 1.0:
         fail(p, f"--thr must be in (0, 1), got {args.thr}")
-    if not args.w >= 1.0:
-        fail(p, f"--w must be >= 1, got {args.w}")
-    if not (args.tau > 0.0 and args.tau < float("inf")):
-        fail(p, f"--tau must be > 0, got {args.tau}")
+    if not 1.0 <= args.w < math.inf:
+        fail(p, f"--w must be a finite number >= 1, got {args.w}")
+    if not 0.0 < args.tau < math.inf:
+        fail(p, f"--tau must be a finite number > 0, got {args.tau}")
     if args.ape_steps < 1:
         fail(p, f"--ape-steps must be >= 1, got {args.ape_steps}")
-    out = args.out
-    if out.suffix != ".npz":
-        fail(p, f"--out must name a .npz file, got {out}")
-    if out.is_dir():
-        fail(p, f"--out {out} is a directory")
-    if not out.parent.is_dir() or not os.access(out.parent, os.W_OK):
-        fail(p, f"--out {out}: {out.parent} is not a writable directory")
+    if args.out.suffix != ".npz":
+        fail(p, f"--out must name a .npz file, got {args.out}")
+    why = unwritable_file(args.out)
+    if why:
+        fail(p, f"--out {args.out}: cannot write there: {why}")
     if args.format == "auto":
         args.format = "npz" if args.dataset.endswith((".npz", ".json")) else "minari"
     return args
-
-
-def load(args):
-    """`(demos, path)`; raises `DataError`."""
-    from ape_jax import data, minari_io
-
-    if args.format == "npz":
-        path = pathlib.Path(args.dataset).with_suffix(".npz")
-        return data.load(path)[0], str(path)
-    path = minari_io.resolve(args.dataset)
-    return minari_io.from_minari(path), str(path.parent if path.name == "data" else path)
 
 
 def fit_ape(demos, steps: int, seed: int):
@@ -111,11 +102,11 @@ def main(argv=None) -> int:
     import jax
     import numpy as np
 
-    from ape_jax import ape, weighting
+    from ape_jax import ape, data, minari_io, weighting
     from ape_jax.data import DataError
 
     try:
-        demos, where = load(args)
+        demos, where = minari_io.load_dataset(args.dataset, args.format)
     except DataError as e:
         return fail(None, str(e))
     n, lengths = len(demos), np.bincount(np.unique(demos.episode, return_inverse=True)[1])
@@ -143,7 +134,8 @@ def main(argv=None) -> int:
               "softmax_weights": soft_w, "episode": np.asarray(demos.episode, np.int32),
               "t": np.asarray(demos.t, np.int32), "meta": np.array(json.dumps(meta, sort_keys=True))}
     try:
-        write_atomic(args.out, arrays)
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        data.write_atomic(args.out, lambda f: np.savez(f, **arrays))
     except OSError as e:
         return fail(None, f"--out {args.out}: cannot write ({e.strerror or e})")
     p50, p90, p99 = np.percentile(ape_norm, [50, 90, 99])
@@ -153,22 +145,6 @@ def main(argv=None) -> int:
           f"softmax (tau {args.tau:g}, whole dataset): weights {soft_w.min():.3g} .. {soft_w.max():.3g}\n"
           f"weights: {args.out}")
     return 0
-
-
-def write_atomic(path: pathlib.Path, arrays: dict) -> None:
-    """`np.savez` into a temporary file beside `path`, renamed into place."""
-    import numpy as np
-
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        pathlib.Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 if __name__ == "__main__":

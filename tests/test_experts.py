@@ -116,6 +116,29 @@ def test_a_restored_checkpoint_trains_on_exactly_like_the_uninterrupted_run(tmp_
         Checkpoints(tmp_path / "ckpt", trainer, dataclasses.replace(cfg, learning_rate=1e-3)).restore()
 
 
+def _truncate_arrays(step):
+    for f in (step / "state").rglob("*"):
+        if f.is_file() and f.parent.name == "d":
+            f.write_bytes(f.read_bytes()[: f.stat().st_size // 2])
+
+
+@pytest.mark.parametrize("damage", [_truncate_arrays, lambda step: shutil.rmtree(step / "meta")])
+def test_a_damaged_checkpoint_is_refused_in_one_line_and_left_in_place(tmp_path, damage):
+    cfg = SACConfig(num_timesteps=256, num_envs=4, batch_size=8, min_replay_size=8, hidden_layer_sizes=(8,),
+                    episode_length=4, epoch_steps=64, num_eval_envs=2)
+    trainer = make_trainer(Reach(), cfg)
+    ckpt = Checkpoints(tmp_path / "ckpt", trainer, cfg)
+    state = trainer.init(jax.random.PRNGKey(0))  # no training: a checkpoint of the initial state will do
+    ckpt.save(state, state.policy, ckpt.new_meta())
+    ckpt.close()
+    damage(tmp_path / "ckpt" / "0")
+    files = {f: f.read_bytes() for f in tmp_path.rglob("*") if f.is_file()}
+    with pytest.raises(ValueError, match=r"ckpt/0: corrupt or incomplete checkpoint \(") as err:
+        Checkpoints(tmp_path / "ckpt", trainer, cfg).restore()
+    assert "\n" not in str(err.value)
+    assert {f: f.read_bytes() for f in tmp_path.rglob("*") if f.is_file()} == files
+
+
 # Over 200 steps: a random policy falls within ~20 steps (Hopper, Walker2d) or
 # drifts (HalfCheetah, returns near 0); a trained expert keeps collecting
 # healthy and forward reward. Bounds are a third of the card's 1000-step return,

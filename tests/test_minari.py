@@ -1,5 +1,7 @@
 """Minari datasets: exact round trip with `Demonstrations`, others' datasets, refusals, the collect export."""
 
+import json
+
 import gymnasium as gym
 import minari
 import numpy as np
@@ -145,6 +147,15 @@ def _non_finite(root):
     return minari_io.to_minari(demos, {}, "nan-v0", root=root)
 
 
+def _edit_metadata(edit):
+    def make(root):
+        path = minari_io.to_minari(hand_demos(), {}, "bad-v0", root=root)
+        meta = path / "data" / "metadata.json"
+        meta.write_text(json.dumps(edit(json.loads(meta.read_text()))))
+        return path
+    return make
+
+
 def _a_file(root):
     (root / "x.npz").write_bytes(b"")
     return root / "x.npz"
@@ -158,6 +169,11 @@ def _a_file(root):
     (_truncated_hdf5, "unreadable Minari episodes"),
     (_non_finite, "'obs' has non-finite values in 1 rows \\(first: 11\\)"),
     (_dict_observation_dataset, "only Box observation spaces are supported, this dataset has Dict observations"),
+    (_edit_metadata(lambda m: [m]), "not a Minari dataset \\(metadata.json holds a list, not an object\\)"),
+    (_edit_metadata(lambda m: {k: v for k, v in m.items() if k not in ("action_space", "data_format")}),
+     "not a Minari dataset \\(metadata.json lacks data_format, action_space\\)"),
+    (_edit_metadata(lambda m: {**m, "data_format": "parquet9"}), "not a readable Minari dataset \\(KeyError: 'parquet9'"),
+    (_edit_metadata(lambda m: {**m, "total_episodes": 99}), "unreadable Minari episodes \\(KeyError"),
 ])
 def test_from_minari_refuses_bad_datasets_with_one_line_naming_the_path(tmp_path, make, message):
     path = make(tmp_path)

@@ -100,6 +100,12 @@ def test_summary_is_printed_and_an_existing_output_is_replaced(datasets, tmp_pat
     assert np.load(out)["ape"].shape == (225,) and sorted(p.name for p in tmp_path.iterdir()) == ["w.npz"]
 
 
+def test_the_directory_of_out_is_made_if_missing(datasets, tmp_path):
+    out = tmp_path / "new" / "dir" / "w.npz"
+    assert weights.main(["--dataset", str(datasets[1]), "--out", str(out), "--ape-steps", "20"]) == 0
+    assert np.load(out)["ape"].shape == (225,)
+
+
 def _one_step_episodes(root):
     demos = keyframe_demos(lengths=(1,) * 30)
     data_lib.save(root / "short.npz", demos)
@@ -132,9 +138,9 @@ def _directory(root):
 @pytest.mark.parametrize("args, message", [
     (["--thr", "0"], "--thr must be in (0, 1), got 0.0"),
     (["--thr", "1.5"], "--thr must be in (0, 1)"),
-    (["--w", "0.5"], "--w must be >= 1, got 0.5"),
-    (["--tau", "0"], "--tau must be > 0"),
-    (["--tau", "-1"], "--tau must be > 0"),
+    (["--w", "0.5"], "--w must be a finite number >= 1, got 0.5"),
+    (["--tau", "0"], "--tau must be a finite number > 0"),
+    (["--tau", "-1"], "--tau must be a finite number > 0"),
     (["--ape-steps", "0"], "--ape-steps must be >= 1"),
     (["--format", "parquet"], "invalid choice: 'parquet'"),
 ])
@@ -143,7 +149,8 @@ def test_refuses_bad_settings_with_exit_code_2(datasets, tmp_path, args, message
     with pytest.raises(SystemExit) as exc:
         weights.main(argv)
     assert exc.value.code == 2
-    assert message in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert message in err and len(err.splitlines()) == 1
 
 
 @pytest.mark.parametrize("dataset, out, message", [
@@ -153,8 +160,7 @@ def test_refuses_bad_settings_with_exit_code_2(datasets, tmp_path, args, message
     (_truncated, None, "SHA-256 mismatch"),
     (_one_step_episodes, None, "every episode has fewer than 2 steps"),
     (_tiny, None, "too small: with 9 samples, ⌊thr·N⌋ = 0 would be upweighted"),
-    (None, lambda root: root / "nowhere" / "w.npz", "is not a writable directory"),
-    (None, _file_parent, "is not a writable directory"),
+    (None, _file_parent, "file is not a directory"),
     (None, _directory, "is a directory"),
     (None, lambda root: root / "w.txt", "--out must name a .npz file"),
 ])

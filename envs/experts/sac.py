@@ -300,15 +300,22 @@ class Checkpoints:
         """`(state, best, meta)` of the latest checkpoint, or None if there is none.
 
         Raises:
-          ValueError: the checkpoint was written with another config.
+          ValueError: the checkpoint was written with another config, or is
+            corrupt or incomplete (one line; the files are left as they are).
         """
         step = self._mgr.latest_step()
         if step is None:
             return None
         ocp = self._ocp
-        restored = self._mgr.restore(step, args=ocp.args.Composite(
-            state=ocp.args.StandardRestore(self._abstract), meta=ocp.args.JsonRestore()))
-        (state, best), meta = restored["state"], restored["meta"]
+        try:
+            restored = self._mgr.restore(step, args=ocp.args.Composite(
+                state=ocp.args.StandardRestore(self._abstract), meta=ocp.args.JsonRestore()))
+            (state, best), meta = restored["state"], restored["meta"]
+        except Exception as e:  # orbax and tensorstore raise many kinds; all mean "cannot be read"
+            why = " ".join(f"{type(e).__name__}: {e}".split())
+            raise ValueError(f"{self.directory / str(step)}: corrupt or incomplete checkpoint ({why[:300]})") from e
+        if not isinstance(meta, dict) or not isinstance(meta.get("config"), dict):
+            raise ValueError(f"{self.directory / str(step)}: corrupt checkpoint (its meta has no config)")
         if meta["config"] != self.config:
             raise ValueError(f"{self.directory} holds a run with other settings ({meta['config']})")
         return state, best, meta

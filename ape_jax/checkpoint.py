@@ -1,0 +1,169 @@
+"""A sweep's checkpoints: resume after any interruption, bit-exact.
+
+Everything lives in `OUT/checkpoints/`:
+
+- `sweep.json`: the sweep's *fingerprint* (environment, observations, every
+  preset setting, methods, data). A directory whose fingerprint differs, or
+  that has none, is refused with a `CheckpointError`, never overwritten.
+- `ape.npz`, `eval-h<H>.npz`: the outputs of finished phases (the APE fit; each
+  evaluation group), written to a temporary name and renamed.
+- `train-<program>/<step>/`: the training state of one compiled program (every
+  configuration × seed, vmapped) and its loss curves so far, saved with orbax's
+  `CheckpointManager` every `every` iterations and when the program finishes.
+  orbax writes each step to a temporary directory and renames it when complete,
+  so a kill mid-save leaves the previous step intact.
+
+Training runs in fixed chunks and the state holds every random key, so
+continuing from a saved state runs the same compiled chunks on the same inputs
+as an uninterrupted run: on one machine the results are bit-identical.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import shutil
+from typing import Any
+
+import numpy as np
+
+from ape_jax.data import write_atomic
+
+FINGERPRINT = "sweep.json"
+
+
+class CheckpointError(ValueError):
+    """A checkpoint directory that cannot be resumed: foreign, of another sweep, or unreadable."""
+
+
+def _differences(old: Any, new: Any, prefix: str = "") -> list[str]:
+    if isinstance(old, dict) and isinstance(new, dict):
+        out = []
+        for k in sorted(set(old) | set(new), key=str):
+            out += _differences(old.get(k), new.get(k), f"{prefix}{k}.")
+        return out
+    return [] if old == new else [f"{prefix.rstrip('.')} ({old!r} there, {new!r} now)"]
+
+
+def differences(old: dict, new: dict) -> list[str]:
+    """The settings in which two fingerprints differ, as readable strings."""
+    return _differences(json.loads(json.dumps(old)), json.loads(json.dumps(new)))
+
+
+class SweepCheckpoint:
+    """The checkpoints of one sweep in `directory` (see the module docstring).
+
+    Args:
+      directory: `OUT/checkpoints`.
+      fingerprint: JSON-able settings that identify the sweep.
+      every: save training states every this many iterations (rounded up to
+        whole chunks) and at the end of each program.
+    """
+
+    def __init__(self, directory: os.PathLike, fingerprint: dict, every: int):
+        if every < 1:
+            raise ValueError(f"checkpoint interval must be >= 1 iteration, got {every}")
+        self.directory = pathlib.Path(directory)
+        self.fingerprint = json.loads(json.dumps(fingerprint))
+        self.every = every
+        self.resumed = False  # set by `open`
+
+    def open(self) -> bool:
+        """Validates an existing directory or creates a new one; True (and `resumed`) when there is something to resume."""
+        path = self.directory / FINGERPRINT
+        if self.directory.exists():
+            try:
+                old = json.loads(path.read_text())
+                if not isinstance(old, dict):
+                    raise ValueError("not a JSON object")
+            except (OSError, ValueError) as e:
+                raise CheckpointError(
+                    f"{self.directory} is not a checkpoint of this project's sweep ({path.name}: "
+                    f"{e.strerror if isinstance(e, OSError) else e}); move it away, or pass --fresh to delete it"
+                ) from e
+            diff = differences(old, self.fingerprint)
+            if diff:
+                raise CheckpointError(f"{self.directory} holds a checkpoint of a different sweep, differing in "
+                                      f"{'; '.join(diff[:4])}{' …' if len(diff) > 4 else ''}; use another --out, "
+                                      "or pass --fresh to delete it")
+            self.resumed = any(p.name != FINGERPRINT for p in self.directory.iterdir())
+            return self.resumed
+        self.directory.mkdir(parents=True)
+        write_atomic(path, lambda f: f.write((json.dumps(self.fingerprint, indent=2) + "\n").encode()))
+        return False
+
+    def discard_if_empty(self) -> None:
+        """Deletes the directory if it holds nothing but the fingerprint (a sweep refused before any work)."""
+        if self.directory.is_dir() and all(p.name == FINGERPRINT for p in self.directory.iterdir()):
+            self.clear()
+
+    def clear(self) -> None:
+        """Deletes the checkpoints (after the sweep's outputs are written)."""
+        shutil.rmtree(self.directory, ignore_errors=True)
+
+    # Phase outputs: flat dicts of numpy arrays.
+    def save_arrays(self, name: str, arrays: dict[str, Any]) -> None:
+        write_atomic(self.directory / f"{name}.npz",
+                     lambda f: np.savez(f, **{k: np.asarray(v) for k, v in arrays.items()}))
+
+    def load_arrays(self, name: str) -> dict[str, np.ndarray] | None:
+        """The arrays saved under `name`, or None if that phase has not finished."""
+        path = self.directory / f"{name}.npz"
+        if not path.exists():
+            return None
+        try:
+            with np.load(path, allow_pickle=False) as f:
+                return {k: f[k] for k in f.files}
+        except Exception as e:  # noqa: BLE001 - any failure to read is a corrupt file
+            raise CheckpointError(f"{path} is unreadable ({type(e).__name__}: {e}); delete it to redo that "
+                                  "phase, or pass --fresh to start over") from e
+
+    def program(self, name: str) -> "ProgramCheckpoint":
+        return ProgramCheckpoint(self.directory / f"train-{name}", self.every)
+
+
+class ProgramCheckpoint:
+    """The training state and loss curves of one compiled program, by iteration (orbax `CheckpointManager`)."""
+
+    def __init__(self, directory: pathlib.Path, every: int):
+        self.directory, self.every = directory, every
+        self._last_saved = 0
+
+    def _manager(self):
+        import orbax.checkpoint as ocp
+
+        options = ocp.CheckpointManagerOptions(max_to_keep=1, enable_async_checkpointing=False, create=True)
+        return ocp.CheckpointManager(self.directory.absolute(), options=options)
+
+    def restore(self, target: Any) -> tuple[int, Any, dict] | None:
+        """`(iteration, state, curves)` of the latest save, state laid out like `target`; None if none."""
+        import orbax.checkpoint as ocp
+
+        if not self.directory.exists():
+            return None
+        try:
+            with self._manager() as manager:
+                step = manager.latest_step()
+                if step is None:
+                    return None
+                out = manager.restore(step, args=ocp.args.Composite(state=ocp.args.StandardRestore(target),
+                                                                    curves=ocp.args.StandardRestore()))
+        except Exception as e:  # noqa: BLE001 - orbax raises many types for damaged files
+            raise CheckpointError(f"{self.directory} is unreadable or not this sweep's training state "
+                                  f"({type(e).__name__}: {str(e).splitlines()[0][:200]}); delete it to retrain "
+                                  "that program, or pass --fresh to start over") from e
+        self._last_saved = step
+        return step, out["state"], {k: np.asarray(v) for k, v in out["curves"].items()}
+
+    def due(self, iteration: int) -> bool:
+        """Whether a save is due after `iteration` (a multiple of `every` has been passed since the last)."""
+        return iteration // self.every > self._last_saved // self.every
+
+    def save(self, iteration: int, state: Any, curves: dict[str, np.ndarray]) -> None:
+        import orbax.checkpoint as ocp
+
+        with self._manager() as manager:
+            manager.save(iteration, args=ocp.args.Composite(state=ocp.args.StandardSave(state),
+                                                            curves=ocp.args.StandardSave(curves)), force=True)
+        self._last_saved = iteration

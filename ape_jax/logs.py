@@ -1,0 +1,225 @@
+"""Per-iteration training curves of one program, as CSV and as TensorBoard event files.
+
+A program (`ape_jax.sweep`) trains a group of runs together and returns, per
+metric, a `[len(runs), iterations]` float32 array. `write_curves` writes it twice:
+
+    write_curves(out, "grid", runs, {"loss": loss, "unweighted_loss": unweighted})
+    # out/curves/grid.csv                       every iteration of every run
+    # out/tensorboard/<run label>/events.out.tfevents.*   at most 1000 points per curve
+
+**CSV** (`out/curves/<program>.csv`), long format, one row per run and
+iteration, runs in the order given and iterations ascending; a header row, then
+
+    run,method,hparams,seed,iteration,<metric>,...
+    ours-step_thr=0.1_w=5_seed0,ours-step,"{""thr"":0.1,""w"":5.0}",0,1,0.532917857,0.498013943
+
+- `run`: the run's label (`run_label`), also its TensorBoard directory;
+- `hparams`: the hyperparameters as compact JSON with sorted keys (quoted as CSV requires);
+- `iteration`: 1 for the first training step, up to `iterations`;
+- one column per metric, in the dict's order, as `%.9g`: enough digits that
+  reading the text back as float32 gives the stored value exactly. Non-finite
+  values are written `nan`, `inf`, `-inf`, which `float()` and
+  `pandas.read_csv` read back as such.
+
+The file is written under a temporary name in the same directory and renamed
+into place, so a reader sees the old file or the whole new one.
+
+**TensorBoard** (`out/tensorboard/<label>/`, one directory per run so
+TensorBoard overlays them), written with `tensorboardX`: one scalar per metric,
+tagged `train/<metric>`. Writing every iteration would cost ~42 µs per scalar
+(a minute for one program), so each curve is downsampled to at most
+`tb_points` points: the iterations are cut into consecutive windows of
+`ceil(iterations / tb_points)` (the last may be shorter), and each window's mean
+(taken in float64, stored as float32) is logged at the window's last iteration
+as the step. With `iterations <= tb_points` every iteration is logged as it is.
+A window holding a non-finite value is logged anyway, as its NaN or ±inf mean,
+so where a run diverged stays visible; the CSV has the exact iterations.
+
+Each run's directory is written to a hidden temporary directory beside it and
+renamed into place, replacing the directory of an earlier write with the same
+label (a resumed sweep) whole, so no stale event files are left behind.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import pathlib
+import re
+import shutil
+import tempfile
+from typing import Any, Sequence
+
+import numpy as np
+
+_UNSAFE = re.compile(r"[^A-Za-z0-9._=-]")
+_METRIC_NAME = re.compile(r"[A-Za-z0-9_.-]+")
+_FIXED_COLUMNS = ("run", "method", "hparams", "seed", "iteration")
+_ROWS_PER_CHUNK = 8192  # bounds the size of one formatted block (the paper preset has 300k iterations)
+
+
+def run_label(run: Any) -> str:
+    """A run's name, safe as a directory name: `"<method>[_k=v...]_seed<seed>"`.
+
+    Hyperparameters come in sorted key order; whole floats lose their `.0`
+    (`w=5`), other floats keep their shortest exact form (`thr=0.1`,
+    `lr=1e-05`). Any character outside `[A-Za-z0-9._=-]` becomes `-` (a `+`
+    is dropped), so two different runs can in principle share a label;
+    `write_curves` refuses that.
+
+    Args:
+      run: an `ape_jax.sweep.Run` (anything with `method`, `hparams`, `seed`).
+
+    Returns:
+      e.g. `"ours-step_thr=0.1_w=5_seed0"`, `"bc-oh_seed2"`.
+    """
+    parts = [str(run.method)] + [f"{k}={_label_value(v)}" for k, v in sorted(run.hparams.items())]
+    parts.append(f"seed{run.seed}")
+    return _UNSAFE.sub("-", "_".join(parts).replace("+", ""))
+
+
+def write_curves(out_dir: pathlib.Path, program: str, runs: Sequence[Any], metrics: dict[str, np.ndarray],
+                 tb_points: int = 1000) -> None:
+    """Writes one program's training curves: `curves/<program>.csv` and `tensorboard/<label>/` per run.
+
+    Formats, file names and the TensorBoard downsampling are in the module docstring.
+
+    Args:
+      out_dir: the sweep's output directory; `curves/` and `tensorboard/` are created in it.
+      program: the program's name (`"grid"`, `"bc-so"`, ...), the CSV's file name.
+      runs: the program's runs, `ape_jax.sweep.Run`, in the order of the metrics' rows.
+      metrics: name -> `[len(runs), iterations] float32`, one value per training iteration;
+        may hold NaN/inf. Names must match `[A-Za-z0-9_.-]+`.
+      tb_points: the most points written per TensorBoard curve (>= 1).
+
+    Raises:
+      ValueError: no metrics, shapes that disagree with each other or with `runs`, no
+        iterations, a bad metric or program name, two runs with one label, `tb_points < 1`.
+    """
+    labels = _check(program, runs, metrics, tb_points)
+    out_dir = pathlib.Path(out_dir)
+    _write_csv(out_dir / "curves" / f"{program}.csv", runs, labels, metrics)
+    tb_root = out_dir / "tensorboard"
+    tb_root.mkdir(parents=True, exist_ok=True)
+    for i, label in enumerate(labels):
+        _write_tensorboard(tb_root, label, {name: values[i] for name, values in metrics.items()}, tb_points)
+
+
+def _label_value(v: Any) -> str:
+    if isinstance(v, (bool, np.bool_)):
+        return str(bool(v))
+    if isinstance(v, (float, np.floating)):
+        v = float(v)
+        return str(int(v)) if v.is_integer() and abs(v) < 1e15 else repr(v)
+    return str(v)
+
+
+def _check(program: str, runs: Sequence[Any], metrics: dict[str, np.ndarray], tb_points: int) -> list[str]:
+    if not metrics:
+        raise ValueError("no metrics to write")
+    if _UNSAFE.search(program) or program in ("", ".", ".."):
+        raise ValueError(f"program name {program!r} is not a safe file name (use [A-Za-z0-9._=-])")
+    shapes = {name: np.shape(values) for name, values in metrics.items()}
+    (shape, *others) = set(shapes.values())
+    if others or len(shape) != 2 or shape[0] != len(runs):
+        raise ValueError(f"metrics must all be [len(runs)={len(runs)}, iterations]; got {shapes}")
+    if shape[1] == 0:
+        raise ValueError(f"metrics hold no iterations: {shapes}")
+    bad = [name for name in metrics if not _METRIC_NAME.fullmatch(name) or name in _FIXED_COLUMNS]
+    if bad:
+        raise ValueError(f"metric names {bad} must match [A-Za-z0-9_.-]+ and not be one of {_FIXED_COLUMNS}")
+    if tb_points < 1:
+        raise ValueError(f"tb_points must be >= 1, got {tb_points}")
+    labels = [run_label(run) for run in runs]
+    duplicates = sorted({label for label in labels if labels.count(label) > 1})
+    if duplicates:
+        raise ValueError(f"runs share the labels {duplicates}; each run of a program needs its own")
+    return labels
+
+
+def _json_default(v: Any) -> Any:
+    if isinstance(v, np.generic):
+        return v.item()
+    raise TypeError(f"hyperparameter {v!r} of type {type(v).__name__} is not JSON serialisable")
+
+
+def _csv_fields(fields: list[Any]) -> str:
+    """One CSV line (no line end), quoted as the csv module does."""
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="").writerow(fields)
+    return buf.getvalue()
+
+
+def _write_csv(path: pathlib.Path, runs: Sequence[Any], labels: list[str], metrics: dict[str, np.ndarray]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    n_iterations = next(iter(metrics.values())).shape[1]
+    iteration = np.arange(1, n_iterations + 1, dtype=np.float64)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with open(fd, "w", encoding="utf-8", newline="") as f:
+            f.write(_csv_fields([*_FIXED_COLUMNS, *metrics]) + "\n")
+            for i, (run, label) in enumerate(zip(runs, labels)):
+                hparams = json.dumps(run.hparams, sort_keys=True, separators=(",", ":"), default=_json_default)
+                prefix = _csv_fields([label, run.method, hparams, int(run.seed)]).replace("%", "%%")
+                row = prefix + ",%d" + ",%.9g" * len(metrics) + "\n"
+                # [iterations, 1 + metrics] float64 holds every float32 and iteration count exactly;
+                # one `%` over a whole chunk of rows formats in C rather than row by row in Python.
+                block = np.column_stack([iteration] + [np.asarray(v[i], np.float64) for v in metrics.values()])
+                for start in range(0, n_iterations, _ROWS_PER_CHUNK):
+                    chunk = block[start:start + _ROWS_PER_CHUNK]
+                    f.write((row * len(chunk)) % tuple(chunk.ravel().tolist()))
+        os.replace(tmp, path)
+    except BaseException:
+        os.unlink(tmp)
+        raise
+
+
+def _window_means(values: np.ndarray, tb_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """`[T]` -> (steps `[P] int`, means `[P] float64`), P = ceil(T / ceil(T / tb_points)) <= tb_points."""
+    n = len(values)
+    width = math.ceil(n / tb_points)
+    starts = np.arange(0, n, width)
+    ends = np.minimum(starts + width, n)
+    means = np.add.reduceat(np.asarray(values, np.float64), starts) / (ends - starts)
+    return ends, means  # a window's last iteration, counting from 1, is its end index
+
+
+def _write_tensorboard(tb_root: pathlib.Path, label: str, curves: dict[str, np.ndarray], tb_points: int) -> None:
+    # Imported here: tensorboardX imports torch when it is installed (~2 s), which
+    # importers of this module that never write curves should not pay.
+    from tensorboardX import SummaryWriter
+
+    staging = pathlib.Path(tempfile.mkdtemp(prefix=f".{label}.", suffix=".tmp", dir=tb_root))
+    try:
+        writer = SummaryWriter(logdir=str(staging), flush_secs=3600)
+        try:
+            for name, values in curves.items():
+                steps, means = _window_means(values, tb_points)
+                for step, mean in zip(steps.tolist(), means.tolist()):
+                    writer.add_scalar(f"train/{name}", mean, step)
+        finally:
+            writer.close()
+        _swap_into_place(staging, tb_root / label)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+
+
+def _swap_into_place(staging: pathlib.Path, target: pathlib.Path) -> None:
+    """Renames `staging` to `target`, replacing an existing `target` directory whole."""
+    if not target.exists():
+        os.replace(staging, target)
+        return
+    # A directory cannot be renamed over a non-empty one: move the old one aside first.
+    aside = pathlib.Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=target.parent))
+    os.replace(target, aside / target.name)
+    try:
+        os.replace(staging, target)
+    except BaseException:
+        os.replace(aside / target.name, target)
+        raise
+    finally:
+        shutil.rmtree(aside, ignore_errors=True)

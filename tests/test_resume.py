@@ -1,0 +1,210 @@
+"""Kill-and-resume and determinism of the sweep, and its refusal of checkpoints it cannot resume.
+
+A shrunken ToyCar sweep (state observations: no MJX or convolution compiles)
+runs uninterrupted in this process; the same sweep is killed with SIGKILL in a
+subprocess at a chosen point, resumed, and must give bit-identical results.
+"""
+
+import fcntl
+import json
+import os
+import pathlib
+import shutil
+import signal
+import subprocess
+import sys
+
+import pytest
+
+from experiments import sweep
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+ARGS = ["--env", "toycar", "--obs", "full", "--iterations", "60", "--checkpoint-every", "20", "--eval-episodes", "2",
+        "--seeds", "1", "--methods", "bc-oh,ours-step", "--quiet"]
+
+# Runs the sweep's command line and SIGKILLs itself right after the KILL_AT-th save of kind KILL_KIND:
+# "train" (a training state, orbax) or "phase" (a finished phase's outputs: the APE fit, an evaluation group).
+KILLER = """
+import os, signal, sys
+from ape_jax import checkpoint
+kind, at, count = os.environ["KILL_KIND"], int(os.environ["KILL_AT"]), [0]
+cls, name = (checkpoint.ProgramCheckpoint, "save") if kind == "train" else (checkpoint.SweepCheckpoint, "save_arrays")
+real = getattr(cls, name)
+def save(self, *args, **kwargs):
+    real(self, *args, **kwargs)
+    count[0] += 1
+    if count[0] == at:
+        os.kill(os.getpid(), signal.SIGKILL)
+setattr(cls, name, save)
+from experiments import sweep
+sys.exit(sweep.main(sys.argv[1:]))
+"""
+
+
+def numbers(results: dict) -> dict:
+    """Everything in results.json but timing and system (which say when and where it ran)."""
+    return {k: v for k, v in results.items() if k not in ("timing", "system")}
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory):
+    """A directory shared by every pytest-xdist worker of this session (one reference sweep, one dataset)."""
+    root = tmp_path_factory.getbasetemp()
+    root = root.parent if os.environ.get("PYTEST_XDIST_WORKER") else root
+    (root / "resume").mkdir(exist_ok=True)
+    return root / "resume"
+
+
+@pytest.fixture(scope="module")
+def reference(workdir):
+    """The uninterrupted sweep's results, run once per session by whichever worker asks first (which also
+    collects the dataset every test here shares, before any other test can)."""
+    out = workdir / "reference"
+    with open(workdir / "reference.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (out / "results.json").exists():
+            assert sweep.main([*ARGS, "--out", str(out), "--data-dir", str(workdir / "data")]) == 0
+    return json.loads((out / "results.json").read_text())
+
+
+def killed_run(workdir, name, kind, at) -> pathlib.Path:
+    out = workdir / name
+    env = {**os.environ, "KILL_KIND": kind, "KILL_AT": str(at), "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run([sys.executable, "-c", KILLER, *ARGS, "--out", str(out), "--data-dir", str(workdir / "data")],
+                          env=env, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr[-2000:]
+    assert not (out / "results.json").exists()
+    return out
+
+
+def resume(workdir, out, capsys) -> dict:
+    assert sweep.main([*ARGS, "--out", str(out), "--data-dir", str(workdir / "data")]) == 0
+    captured = capsys.readouterr()
+    assert "resuming from" in captured.out and "it/s" not in captured.err  # --quiet: no progress bars
+    assert not (out / "checkpoints").exists()  # cleared once the outputs are written
+    return json.loads((out / "results.json").read_text())
+
+
+def test_a_sweep_killed_mid_training_and_resumed_equals_an_uninterrupted_one_bit_for_bit(workdir, reference, capsys):
+    out = killed_run(workdir, "killed-training", "train", 2)
+    steps = sorted(int(p.name) for p in (out / "checkpoints" / "train-grid").iterdir() if p.name.isdigit())
+    assert steps == [40]  # killed where we meant to: BC-OH and the step grid at 40 of 60 iterations
+    resumed = resume(workdir, out, capsys)
+    assert resumed["timing"]["resumed"] and not reference["timing"]["resumed"]
+    assert numbers(resumed) == numbers(reference)
+    curves = (out / "curves" / "grid.csv").read_text().splitlines()
+    assert len(curves) == 1 + 7 * 60  # every iteration of BC-OH and the six step configurations, once
+    assert len(list((out / "tensorboard").iterdir())) == 7
+
+
+def test_the_same_sweep_in_another_process_gives_bit_identical_numbers(workdir, reference, capsys):
+    """Determinism: a second process computes everything (killed after its last phase, before writing the
+    outputs); resuming only writes what it computed, and that equals the reference run's numbers."""
+    out = killed_run(workdir, "killed-at-the-end", "phase", 2)  # phases: the APE fit, the evaluation
+    assert (out / "checkpoints" / "eval-h2.npz").exists()
+    again = resume(workdir, out, capsys)
+    assert again["timing"]["train_s"] == again["timing"]["eval_s"] == 0.0  # nothing recomputed here
+    assert numbers(again) == numbers(reference)
+    assert len({r["train_loss_final"] for r in again["runs"]}) == len(again["runs"])  # not trivially equal
+
+
+def refused(argv, capsys) -> str:
+    with pytest.raises(SystemExit) as exc:
+        sweep.main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1, err
+    return err
+
+
+def snapshot(path: pathlib.Path) -> dict:
+    return {p.relative_to(path): p.read_bytes() for p in sorted(path.rglob("*")) if p.is_file()}
+
+
+def test_checkpoints_it_cannot_resume_are_refused_and_left_alone(workdir, reference, capsys):
+    out = killed_run(workdir, "killed-early", "train", 1)  # APE fitted, the grid at 20 of 60 iterations
+    before = snapshot(out)
+    data = ["--data-dir", str(workdir / "data")]
+    other = [*ARGS[:ARGS.index("--seeds")], "--seeds", "2", *ARGS[ARGS.index("--seeds") + 2:]]
+    assert "holds a checkpoint of a different sweep, differing in settings.seeds (1 there, 2 now)" in \
+        refused([*other, "--out", str(out), *data], capsys)
+    assert snapshot(out) == before
+
+    foreign = workdir / "foreign"
+    (foreign / "checkpoints").mkdir(parents=True)
+    (foreign / "checkpoints" / "notes.txt").write_text("someone else's")
+    assert "is not a checkpoint of this project's sweep" in refused([*ARGS, "--out", str(foreign), *data], capsys)
+    assert (foreign / "checkpoints" / "notes.txt").read_text() == "someone else's"
+
+    corrupt = workdir / "corrupt-phase"
+    shutil.copytree(out, corrupt)
+    (corrupt / "checkpoints" / "ape.npz").write_bytes(b"PK\x03\x04 truncated")
+    assert "ape.npz is unreadable" in refused([*ARGS, "--out", str(corrupt), *data], capsys)
+
+    damaged = workdir / "damaged-state"
+    shutil.copytree(out, damaged)
+    step = damaged / "checkpoints" / "train-grid" / "20"
+    for f in (p for p in (step / "state").rglob("*") if p.is_file() and p.stat().st_size > 0):
+        f.write_bytes(b"\0" * 16)
+    before = snapshot(damaged)
+    assert "train-grid is unreadable or not this sweep's training state" in \
+        refused([*ARGS, "--out", str(damaged), *data], capsys)
+    assert snapshot(damaged) == before
+
+
+def test_a_finished_sweep_is_reported_or_refused_never_overwritten(workdir, reference, capsys):
+    out = workdir / "reference"
+    data = ["--data-dir", str(workdir / "data")]
+    assert sweep.main([*ARGS, "--out", str(out), *data]) == 0
+    assert "already holds this sweep; not rerunning" in capsys.readouterr().out
+    other = [*ARGS[:ARGS.index("--iterations")], "--iterations", "40", *ARGS[ARGS.index("--iterations") + 2:]]
+    before = snapshot(out)
+    assert "holds a finished sweep with other settings, differing in settings.iterations (60 there, 40 now)" in \
+        refused([*other, "--out", str(out), *data], capsys)
+    assert snapshot(out) == before
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--resume", "--fresh"], "--resume and --fresh contradict each other"),
+    (["--checkpoint-every", "0"], "--checkpoint-every must be >= 1"),
+])
+def test_contradictory_or_out_of_range_resume_options_are_refused(argv, message, capsys):
+    with pytest.raises(SystemExit) as exc:
+        sweep.parse(argv)
+    assert exc.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_an_output_directory_that_cannot_be_written_is_refused_before_any_work(tmp_path, capsys):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a directory")
+    with pytest.raises(SystemExit) as exc:
+        sweep.parse(["--out", str(blocker / "run")])
+    assert exc.value.code == 2 and "a-file is not a directory" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        sweep.parse(["--out", str(blocker)])
+    assert exc.value.code == 2 and "exists and is not a directory" in capsys.readouterr().err
+    assert blocker.read_text() == "not a directory"
+
+
+def test_a_sweep_from_the_minari_export_of_its_demonstrations_gives_the_same_numbers(workdir, reference, tmp_path):
+    """`--dataset` on a Minari dataset: the same episodes as the collected ones, so the same results, bit for bit."""
+    from ape_jax import data, minari_io
+
+    collected = pathlib.Path(reference["config"]["data"]["path"])
+    demos, meta = data.load(collected)
+    path = minari_io.to_minari(demos, meta, "toycar-full-v0", root=tmp_path / "minari")
+    out = tmp_path / "from-minari"
+    assert sweep.main([*ARGS, "--dataset", str(path), "--out", str(out)]) == 0
+    results = json.loads((out / "results.json").read_text())
+    assert results["config"]["data"]["settings"]["dataset"] == str(path.absolute())
+    assert results["config"].pop("data")["train_transitions"] == reference["config"]["data"]["train_transitions"]
+    assert numbers(results) == numbers({**reference, "config": {k: v for k, v in reference["config"].items()
+                                                                 if k != "data"}})
+
+
+def test_a_dataset_that_does_not_fit_the_environment_is_refused(workdir, reference, capsys):
+    collected = reference["config"]["data"]["path"]
+    image = [*ARGS[:ARGS.index("--obs")], "--obs", "image", *ARGS[ARGS.index("--obs") + 2:]]
+    err = refused([*image, "--dataset", collected, "--out", str(workdir / "misfit")], capsys)
+    assert "do not fit 'toycar'" in err and "pick the matching --env/--obs" in err
+    assert not (workdir / "misfit").exists()  # nothing left behind
