@@ -24,6 +24,7 @@ import json
 import os
 import pathlib
 import shutil
+import time
 from typing import Any
 
 import numpy as np
@@ -68,6 +69,7 @@ class SweepCheckpoint:
         self.fingerprint = json.loads(json.dumps(fingerprint))
         self.every = every
         self.resumed = False  # set by `open`
+        self.save_s = 0.0     # seconds spent saving, phase outputs and training states
 
     def open(self) -> bool:
         """Validates an existing directory or creates a new one; True (and `resumed`) when there is something to resume."""
@@ -104,8 +106,10 @@ class SweepCheckpoint:
 
     # Phase outputs: flat dicts of numpy arrays.
     def save_arrays(self, name: str, arrays: dict[str, Any]) -> None:
+        t0 = time.perf_counter()
         write_atomic(self.directory / f"{name}.npz",
                      lambda f: np.savez(f, **{k: np.asarray(v) for k, v in arrays.items()}))
+        self.save_s += time.perf_counter() - t0
 
     def load_arrays(self, name: str) -> dict[str, np.ndarray] | None:
         """The arrays saved under `name`, or None if that phase has not finished."""
@@ -120,14 +124,14 @@ class SweepCheckpoint:
                                   "phase, or pass --fresh to start over") from e
 
     def program(self, name: str) -> "ProgramCheckpoint":
-        return ProgramCheckpoint(self.directory / f"train-{name}", self.every)
+        return ProgramCheckpoint(self.directory / f"train-{name}", self.every, self)
 
 
 class ProgramCheckpoint:
     """The training state and loss curves of one compiled program, by iteration (orbax `CheckpointManager`)."""
 
-    def __init__(self, directory: pathlib.Path, every: int):
-        self.directory, self.every = directory, every
+    def __init__(self, directory: pathlib.Path, every: int, owner: SweepCheckpoint | None = None):
+        self.directory, self.every, self.owner = directory, every, owner
         self._last_saved = 0
 
     def _manager(self):
@@ -163,7 +167,10 @@ class ProgramCheckpoint:
     def save(self, iteration: int, state: Any, curves: dict[str, np.ndarray]) -> None:
         import orbax.checkpoint as ocp
 
+        t0 = time.perf_counter()
         with self._manager() as manager:
             manager.save(iteration, args=ocp.args.Composite(state=ocp.args.StandardSave(state),
                                                             curves=ocp.args.StandardSave(curves)), force=True)
         self._last_saved = iteration
+        if self.owner is not None:
+            self.owner.save_s += time.perf_counter() - t0

@@ -431,6 +431,7 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
 
     timing["total_s"] = time.perf_counter() - t_start
     timing["resumed"] = bool(checkpoint is not None and checkpoint.resumed)
+    timing["checkpoint_s"] = checkpoint.save_s if checkpoint is not None else 0.0  # included in the phases' times
     results = {
         "schema": 1, "env": env_name, "obs": obs, "preset": preset_name,
         "config": {**dataclasses.asdict(preset), "methods": list(methods), "loss": loss,
