@@ -10,6 +10,17 @@ Every policy sees the same `E` episodes (common random numbers), so
 differences between methods are not differences between start states.
 ToyCar adds its driving metrics (`success`, `red_light_violations`,
 `progress`, `avg_speed`, `stuck`).
+
+Copycat diagnostics (given the expert, and ψ of `ape_jax.ape`), per episode,
+over the steps before it ends:
+
+- `imitation_error`: `mean_t Σ_d (a_t − a*(s_t))²`, the policy's action against
+  the expert's action on the states *the policy* visits (the expert sees the
+  full state);
+- `rollout_ape`: the mean APE of the policy's own action sequence, ψ predicting
+  each of its actions from its previous 9, divided by the training set's mean
+  APE: the expert's demonstrations score about 1, and a policy that copies its
+  previous action is more predictable than the expert, so scores lower.
 """
 
 from __future__ import annotations
@@ -20,6 +31,7 @@ import jax
 import jax.numpy as jnp
 
 import envs
+from ape_jax import ape as ape_lib
 from ape_jax import weighting
 from ape_jax.learner import Data, LearnerConfig, dataset_losses, make_train
 
@@ -49,19 +61,42 @@ def history_policy(cfg: LearnerConfig, obs_mean: jax.Array | None, obs_std: jax.
 
 
 def make_evaluator(env: envs.Env, cfg: LearnerConfig, obs_mean: jax.Array | None, obs_std: jax.Array | None,
-                   episodes: int, steps: int | None = None) -> Callable[[Any, jax.Array], dict]:
-    """A jitted `(params [P, ...], key) -> {"return": [P, E], "length": [P, E], ...}`."""
+                   episodes: int, steps: int | None = None, expert: Callable[[jax.Array], jax.Array] | None = None,
+                   ape_params: Any = None, ape_scale: float = 1.0) -> Callable[[Any, jax.Array], dict]:
+    """A jitted `(params [P, ...], key) -> {"return": [P, E], "length": [P, E], ...}`.
+
+    `expert` (`full observation -> action`) adds `imitation_error`, and
+    `ape_params` (ψ) with `ape_scale` (the training mean APE) `rollout_ape`
+    (see the module docstring).
+    """
     policy = history_policy(cfg, obs_mean, obs_std, env)
     toycar = env.name == "toycar"
 
+    def record(state):
+        out = {}
+        if toycar:
+            out["sim"] = env.sim_state(state)
+        if expert is not None:
+            out["expert_action"] = jnp.asarray(expert(env.expert_observation(state)), jnp.float32)
+        return out
+
+    def per_episode(values, valid):  # [E, T] -> [E], the mean over each episode's steps
+        return jnp.sum(values * valid, axis=1) / jnp.maximum(jnp.sum(valid, axis=1), 1.0)
+
     def one(params, key):
-        record = env.sim_state if toycar else None
         traj = envs.rollout(env, policy, params, key, episodes, steps, record=record)
         out = {"return": traj.returns, "length": traj.lengths.astype(jnp.float32)}
         if toycar:
-            metrics = jax.vmap(_toycar_metrics, in_axes=(0, 0, 0, None))(traj.extra, traj.final.pipeline_state,
+            metrics = jax.vmap(_toycar_metrics, in_axes=(0, 0, 0, None))(traj.extra["sim"], traj.final.pipeline_state,
                                                                         traj.valid, env.config)
             out.update(metrics)
+        if expert is not None:
+            err = jnp.sum((traj.action - traj.extra["expert_action"]) ** 2, axis=-1)
+            out["imitation_error"] = per_episode(err, traj.valid)
+        if ape_params is not None:
+            t = jnp.arange(traj.action.shape[1])
+            ape = jax.vmap(lambda a: ape_lib.errors(ape_params, a, t))(traj.action) / ape_scale
+            out["rollout_ape"] = per_episode(ape, traj.valid)
         return out
 
     return jax.jit(jax.vmap(one, in_axes=(0, None)))

@@ -12,8 +12,9 @@ observation mode:
    over devices, in chunks so a progress bar moves); BC-SO (history 1, a
    different input width) as a second; boosting, FCA and DAgger as programs
    of their own (`ape_jax.baselines`), each vmapped over seeds;
-4. **evaluate** every policy on the same episodes (`ape_jax.evaluate`), and run
-   the loss analysis on both splits;
+4. **evaluate** every policy on the same episodes (`ape_jax.evaluate`), with the
+   copycat diagnostics (imitation error on its own states, APE of its own
+   actions), and run the loss analysis on both splits;
 5. assemble `results.json` as `DESIGN.md` fixes it.
 """
 
@@ -24,6 +25,7 @@ import math
 import time
 from typing import Any, Callable
 
+import flax.serialization
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -367,12 +369,14 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
             ape_val = ape_lib.errors(ape_params, jnp.asarray(val.action), jnp.asarray(val.t))
             ape_train, ape_val, ape_scale = ape_lib.normalize(ape_train, ape_val, preset.ape_normalization)
             saved = {"train": ape_train, "val": ape_val, "scale": ape_scale,
-                     "final_fit_mse": np.mean(np.asarray(ape_losses)[-50:])}
+                     "final_fit_mse": np.mean(np.asarray(ape_losses)[-50:]),
+                     "psi": np.frombuffer(flax.serialization.to_bytes(ape_params), np.uint8)}
             if checkpoint is not None:
                 checkpoint.save_arrays("ape", saved)
         b.update(preset.ape_steps)
     ape_train, ape_val = jnp.asarray(saved["train"]), jnp.asarray(saved["val"])
     ape_scale, ape_fit_mse = float(saved["scale"]), float(saved["final_fit_mse"])
+    ape_params = flax.serialization.msgpack_restore(saved["psi"].tobytes())  # ψ, for the copycat diagnostics
     scores = score_table(methods, train, ape_train)
     train_data, val_data = _data(train, ape_train, mean, std, scores), _data(val, ape_val, mean, std)
 
@@ -419,7 +423,7 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
             group_runs = [r for _, rs, _, _ in group for r in rs]
             params = jax.tree.map(lambda *xs: jnp.concatenate(xs), *[p for _, _, p, _ in group])
             out, losses = _evaluate_group(env, cfg, mean, std, preset, params, train_data, val_data, timing,
-                                          checkpoint, f"eval-h{history}")
+                                          checkpoint, f"eval-h{history}", (ape_params, ape_scale))
             b.update(len(group_runs) * preset.eval_episodes)
             j = 0
             for _, prog_runs, _, metrics in group:
@@ -436,7 +440,9 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
         "schema": 1, "env": env_name, "obs": obs, "preset": preset_name,
         "config": {**dataclasses.asdict(preset), "methods": list(methods), "loss": loss,
                    "ape": {"normalization": preset.ape_normalization, "scale": ape_scale,
-                           "final_fit_mse": ape_fit_mse},
+                           "final_fit_mse": ape_fit_mse,
+                           # the expert's reference for the policies' rollout_ape (the training split's is 1)
+                           "val_mean": float(jnp.mean(ape_val))},
                    "ape_normalization": preset.ape_normalization,
                    "data": {"path": str(data_path), "train_transitions": len(train),
                             "val_transitions": len(val), "settings": settings}},
@@ -461,12 +467,18 @@ def _check_fits(demos: Demonstrations, env, env_name: str, where: str) -> None:
 
 
 def _evaluate_group(env, cfg: LearnerConfig, mean, std, preset: Preset, params, train_data: Data, val_data: Data,
-                    timing: dict, checkpoint: SweepCheckpoint | None, name: str) -> tuple[dict, dict]:
-    """Evaluation outputs and the loss analysis of a group of policies (reused from `checkpoint` if saved there)."""
+                    timing: dict, checkpoint: SweepCheckpoint | None, name: str, ape: tuple[Any, float]
+                    ) -> tuple[dict, dict]:
+    """Evaluation outputs, copycat diagnostics and the loss analysis of a group of policies.
+
+    Reused from `checkpoint` if saved there. `ape`: (ψ, its normalisation scale).
+    """
     saved = checkpoint.load_arrays(name) if checkpoint is not None else None
     if saved is None:
         t0 = time.perf_counter()
-        evaluator = evaluate.make_evaluator(env, cfg, mean, std, preset.eval_episodes)
+        expert, _ = collect.expert_for(env)
+        evaluator = evaluate.make_evaluator(env, cfg, mean, std, preset.eval_episodes, expert=expert,
+                                            ape_params=ape[0], ape_scale=ape[1])
         out = jax.device_get(evaluator(params, jax.random.PRNGKey(EVAL_SEED)))
         timing["eval_s"] += time.perf_counter() - t0
         losses = {split: jax.device_get(evaluate.loss_analysis(cfg, params, d))
@@ -496,7 +508,7 @@ def _run_record(run: Run, j: int, out: dict, losses: dict, loss_curve: np.ndarra
     ev = {"episodes": int(len(returns)), "return_mean": float(returns.mean()), "return_std": float(returns.std())}
     if card is not None:
         ev["normalized"] = float(evaluate.normalized(returns.mean(), card["return_mean"], card["random_return_mean"]))
-    for k in ("success", "red_light_violations", "progress", "avg_speed", "stuck"):
+    for k in ("success", "red_light_violations", "progress", "avg_speed", "stuck", "imitation_error", "rollout_ape"):
         if k in out:
             ev[k] = float(np.mean(out[k][j]))
     if "success" in ev:

@@ -62,3 +62,29 @@ def test_loss_analysis_splits_changepoint_and_copycat_samples():
     np.testing.assert_allclose(out["unweighted"], [sq.mean()], rtol=1e-6)
     np.testing.assert_allclose(out["changepoint"], [81.0], rtol=1e-6)   # top 10%: the sample with APE 9
     np.testing.assert_allclose(out["copycat"], [sq[:9].mean()], rtol=1e-6)
+
+
+def test_copycat_diagnostics_equal_a_step_by_step_reference():
+    """imitation_error: the policy's action vs the expert's on the policy's own states; rollout_ape: ψ on its actions."""
+    from ape_jax import ape as ape_lib
+
+    env = envs.make("toycar", obs="full", episode_length=30)
+    params = _params(2)
+    psi = ape_lib.ActionPredictor(2).init(jax.random.PRNGKey(3), jnp.zeros((1, ape_lib.K * 2)))
+    run = evaluate.make_evaluator(env, CFG, jnp.zeros(5), jnp.ones(5), episodes=3, expert=env.expert,
+                                  ape_params=psi, ape_scale=2.0)
+    out = run(params, jax.random.PRNGKey(0))
+    assert out["imitation_error"].shape == out["rollout_ape"].shape == (2, 3)
+
+    policy = evaluate.history_policy(CFG, jnp.zeros(5), jnp.ones(5), env)
+    for p in range(2):
+        one = jax.tree.map(lambda x: x[p], params)
+        traj = envs.rollout(env, policy, one, jax.random.PRNGKey(0), 3,
+                            record=lambda s: env.expert(env.expert_observation(s)))
+        for e in range(3):
+            n = int(traj.lengths[e])
+            a, a_star = np.asarray(traj.action[e, :n]), np.asarray(traj.extra[e, :n])
+            np.testing.assert_allclose(out["imitation_error"][p, e], np.sum((a - a_star) ** 2, -1).mean(), rtol=1e-5)
+            ape = np.asarray(ape_lib.errors(psi, traj.action[e], jnp.arange(traj.action.shape[1])))[:n]
+            np.testing.assert_allclose(out["rollout_ape"][p, e], ape.mean() / 2.0, rtol=1e-5)
+    assert np.all(out["imitation_error"] > 0)  # untrained policies do not act like the expert

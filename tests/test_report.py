@@ -35,6 +35,10 @@ def _write(tmp_path, name, obj):
     return path
 
 
+def _loaded(tmp_path, obj, name="r.json"):
+    return report.load(_write(tmp_path, name, obj))
+
+
 def test_the_report_merges_files_per_environment_and_builds_every_table(tmp_path):
     main = _write(tmp_path, "main.json", _results())
     base = _write(tmp_path, "base.json", _results(methods=(("fca", {"alpha": 0.1}, 1100.0),
@@ -87,3 +91,131 @@ def test_the_same_configuration_in_two_files_is_refused(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         report.main([str(a), str(b)])
     assert exc.value.code == 2 and "is also in another results file" in capsys.readouterr().err
+
+
+# -- Ours − BC-OH: bootstrap over seeds --------------------------------------------------------------------------
+
+def test_the_bootstrap_ci_excludes_zero_for_a_clear_difference_and_contains_it_for_overlapping_seeds():
+    ours, bcoh = [1000.0, 1012.0, 990.0], [500.0, 515.0, 480.0]
+    ci = report.bootstrap_difference(ours, bcoh)
+    assert ci.diff == pytest.approx(1000.6667 - 498.3333, abs=1e-3) and (ci.n_a, ci.n_b) == (3, 3)
+    assert 0 < ci.low <= ci.diff <= ci.high and report.verdict(ci) == "Ours better"
+    assert report.verdict(report.bootstrap_difference(bcoh, ours)) == "BC-OH better"
+    overlap = report.bootstrap_difference([100.0, 300.0, 200.0], [150.0, 260.0, 90.0])
+    assert overlap.low < 0 < overlap.high
+    assert report.verdict(overlap) == "not significant (CI contains 0)"
+    # the CI is a fixed function of its inputs (fixed RNG seed), and one seed per arm gives no verdict
+    assert report.bootstrap_difference([100.0, 300.0, 200.0], [150.0, 260.0, 90.0]) == overlap
+    assert report.verdict(report.bootstrap_difference([5.0], [1.0])).startswith("no verdict")
+
+
+def test_the_report_tabulates_the_bootstrap_per_environment(tmp_path):
+    methods = (("bc-oh", {}, 1000.0), ("ours-step", {"thr": 0.1, "w": 5.0}, 1500.0),
+               ("ours-step", {"thr": 0.2, "w": 3.0}, 1005.0), ("ours-softmax", {"tau": 5.0}, 800.0))
+    text = report.report([_loaded(tmp_path, _results(methods=methods))])
+    # seeds are ret ± 10: each arm's resampled mean is one of ret − 10, ret, ret + 10
+    assert "| Hopper | Ours, step THR 10% W 5 (the paper's) | 2 / 2 | +500 | [+480, +520] | Ours better |" in text
+    assert ("| Hopper | Ours, best step (thr 0.1, w 5; selected after the fact) | 2 / 2 | +500 | [+480, +520] | "
+            "Ours better |") in text
+    assert ("| Hopper | Ours, best softmax (tau 5; selected after the fact) | 2 / 2 | -200 | [-220, -180] | "
+            "BC-OH better |") in text
+    assert "with 2 seeds per arm each arm has only 3 distinct resamples" in text
+    close = report.report([_loaded(tmp_path, _results(methods=(("bc-oh", {}, 1000.0),
+                                                               ("ours-step", {"thr": 0.1, "w": 5.0}, 1005.0))))])
+    assert "| +5 | [-15, +25] | not significant (CI contains 0) |" in close
+
+
+# -- the grid search: the paper's choices -------------------------------------------------------------------------
+
+def test_the_paper_choice_sentences_name_the_numbers(tmp_path):
+    text = report.report([_loaded(tmp_path, _results())])    # step THR 10% W 5: 75%; best THR 20% W 3: 80%
+    assert ("- Step, the paper's THR 10% W 5: 75.0 ± 0.5% vs the best, THR 20% W 3, 80.0 ± 0.5%: 5.0 points "
+            "lower, more than one std over seeds (0.5) below the best: not near it.") in text
+    assert "- Softmax, the paper's τ 0.2: not run." in text   # the fixture has τ 5 only
+    methods = (("bc-oh", {}, 1000.0), ("ours-step", {"thr": 0.1, "w": 5.0}, 1500.0),
+               ("ours-step", {"thr": 0.2, "w": 3.0}, 1505.0),
+               ("ours-softmax", {"tau": 0.2}, 100.0), ("ours-softmax", {"tau": 10.0}, 1400.0))
+    r = _results(env="walker2d", methods=methods)
+    r["config"]["ape"] = {"normalization": "mean", "scale": 0.025}
+    text = report.report([_loaded(tmp_path, r)])
+    assert ("- Step, the paper's THR 10% W 5: 75.0 ± 0.5% vs the best, THR 20% W 3, 75.2 ± 0.5%: 0.2 points "
+            "lower, within one std over seeds (0.5) of the best.") in text
+    # the paper's τ acts on raw APE: τ 0.2 / 0.025 = 8 here, nearest grid value τ 10
+    assert ("- Softmax, the paper's τ 0.2: 5.0 ± 0.5% vs the best, τ 10, 70.0 ± 0.5%: 65.0 points lower, more "
+            "than one std over seeds (0.5) below the best: not near it. But our τ acts on the APE divided by its "
+            "training-set mean (0.0250)") in text
+    assert "so its τ 0.2 is about τ 8.0 here" in text and "nearest grid value, τ 10: 70.0 ± 0.5%, the best" in text
+
+
+# -- figures ------------------------------------------------------------------------------------------------------
+
+def _check_png(path):
+    from PIL import Image
+
+    data = path.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n" and 10_000 < len(data) < 150_000, (path, len(data))
+    with Image.open(path) as image:
+        image.verify()
+    with Image.open(path) as image:
+        width, height = image.size
+    assert 500 <= width <= 2500 and 250 <= height <= 1500, (path, image.size)
+
+
+def test_the_cli_draws_figures_next_to_out_and_links_them_relatively(tmp_path, capsys):
+    main = _write(tmp_path, "main.json", _results())
+    base = _write(tmp_path, "base.json", _results(methods=(("fca", {"alpha": 0.1}, 1100.0),
+                                                           ("kmeans", {}, 1900.0)), preset_methods=["fca", "kmeans"]))
+    walker = _write(tmp_path, "walker.json", _results(env="walker2d"))
+    out = tmp_path / "docs" / "BENCHMARKS.md"
+    out.parent.mkdir()
+    assert report.main([str(main), str(base), str(walker), "--out", str(out)]) == 0
+    figures = out.parent / "figures"
+    assert sorted(p.name for p in figures.iterdir()) == ["grid-hopper.png", "grid-walker2d.png", "returns.png"]
+    for png in figures.iterdir():
+        _check_png(png)
+    text = out.read_text()
+    assert "![Return per method and environment](figures/returns.png)" in text
+    assert "![Hopper grid search](figures/grid-hopper.png)" in text and "](figures/grid-walker2d.png)" in text
+    assert "wrote " + str(figures / "returns.png") in capsys.readouterr().out
+    # deterministic: a second run gives the same markdown and the same PNG bytes
+    first, png = text, (figures / "grid-hopper.png").read_bytes()
+    assert report.main([str(main), str(base), str(walker), "--out", str(out)]) == 0
+    assert out.read_text() == first and (figures / "grid-hopper.png").read_bytes() == png
+    # --figures elsewhere: links relative to --out's folder
+    assert report.main([str(main), "--out", str(out), "--figures", str(tmp_path / "figs")]) == 0
+    assert "![Hopper grid search](../figs/grid-hopper.png)" in out.read_text()
+    _check_png(tmp_path / "figs" / "returns.png")
+
+
+def test_printing_draws_figures_only_with_figures_dir(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    main = _write(tmp_path, "main.json", _results())
+    assert report.main([str(main)]) == 0
+    printed = capsys.readouterr()
+    assert "Figures not drawn" in printed.out and "![" not in printed.out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["main.json"]
+    assert report.main([str(main), "--figures", "plots"]) == 0
+    printed = capsys.readouterr()
+    assert "](plots/grid-hopper.png)" in printed.out and "Figures not drawn" not in printed.out
+    assert "wrote plots/returns.png" in printed.err                   # stdout carries only the markdown
+    _check_png(tmp_path / "plots" / "grid-hopper.png")
+
+
+def test_a_figures_dir_that_cannot_be_written_is_refused_and_out_is_untouched(tmp_path, capsys):
+    main = _write(tmp_path, "main.json", _results())
+    (tmp_path / "file").write_text("")
+    out = tmp_path / "BENCHMARKS.md"
+    out.write_text("# Benchmarks\n")
+    with pytest.raises(SystemExit) as exc:
+        report.main([str(main), "--out", str(out), "--figures", str(tmp_path / "file")])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and f"--figures {tmp_path / 'file'}: cannot write the figures" in err
+    assert out.read_text() == "# Benchmarks\n" and not (tmp_path / "figures").exists()
+
+
+def test_an_ok_run_without_its_evaluation_is_refused(tmp_path, capsys):
+    r = _results()
+    r["runs"][0].pop("eval")
+    with pytest.raises(SystemExit) as exc:
+        report.main([str(_write(tmp_path, "r.json", r))])
+    assert exc.value.code == 2 and "runs[0] has no field 'eval'" in capsys.readouterr().err
