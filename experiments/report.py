@@ -1,4 +1,4 @@
-"""Tables for `BENCHMARKS.md` from sweep results: `python -m experiments.report RESULTS... [--out BENCHMARKS.md]`.
+"""Tables and figures for BENCHMARKS.md: `python -m experiments.report RESULTS... [--out BENCHMARKS.md] [--figures DIR]`.
 
 Reads `results.json` files written by `experiments.sweep` (several per
 environment are merged, e.g. the main grid and a `--methods baselines` run),
@@ -11,23 +11,39 @@ and prints, or with `--out` writes into the file's `report` section:
   returns, so fractions of *its* expert cannot be computed);
 - per environment, the full grid (every configuration), the loss analysis
   (the paper's Table 3) and where each number came from (command, preset,
-  seeds, commit, machine).
+  seeds, commit, machine);
+- Ours − BC-OH per environment with a 95% bootstrap confidence interval over
+  seeds (the paper's step setting, and the best step and softmax settings,
+  which are selected after the fact and so optimistic), with a verdict;
+- figures (PNG): per environment the grid search as heatmaps (step THR × W,
+  softmax τ) with a sentence on whether the paper's choices are near the best,
+  and one figure of every method's return per environment (`returns.png`).
+
+Figures go to `--figures DIR`, by default the folder `figures/` next to `--out`
+(`BENCHMARKS.md` → `figures/grid-hopper.png`), and are linked with paths
+relative to `--out`; printed to stdout without `--figures`, the report draws
+none and says so. PNGs are written atomically, before the report section.
 
 No number in these tables is typed by hand; regenerate them after every sweep.
 
 A results file that cannot be read, is not JSON, or lacks a field the tables
 use (or has it with the wrong type), and an `--out` that cannot be written, are
-refused with one line on stderr and exit status 2; `--out` is then left as it was.
+refused with one line on stderr and exit status 2; `--out` is then left as it was
+(so is `--figures`: a folder that cannot be written is refused before anything is drawn).
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 import pathlib
 import sys
+from typing import NamedTuple, Sequence
 
-from experiments._cli import Parser, fail, unwritable_file
+import numpy as np
+
+from experiments._cli import Parser, fail, unwritable, unwritable_file
 
 # The supplement's Table 5 (MuJoCo-State; its own experts, 300k iterations): mean returns.
 PAPER_TABLE5 = {
@@ -39,6 +55,8 @@ PAPER_TABLE5 = {
 MUJOCO = ("hopper", "halfcheetah", "walker2d")
 TITLES = {"hopper": "Hopper", "halfcheetah": "HalfCheetah", "walker2d": "Walker2d", "toycar": "ToyCar"}
 PAPER_STEP = {"thr": 0.1, "w": 5.0}  # the setting the paper reports for its step weighting
+PAPER_TAU = {"hopper": 0.2, "walker2d": 0.2, "halfcheetah": 0.1}  # the paper's softmax τ per environment
+BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED = 10_000, 0
 LABELS = {"bc-so": "BC-SO", "bc-oh": "BC-OH", "bcpd": "BCPD", "actfreq": "ActFreq", "kmeans": "k-means",
           "boosting": "Boosting", "history-dropout": "HistoryDropout", "fca": "FCA", "dagger": "DAgger (online)"}
 REQUIRED = ("schema", "env", "obs", "preset", "config", "expert", "runs", "summary", "system")
@@ -96,6 +114,8 @@ _SUMMARY = {"method": _TEXT, "hparams": (_hparams, "an object of numbers"),
             "n_seeds": (_count, "an int >= 0"),
             "return_mean": (_optional(_number), "a number or null"), "return_std": (_optional(_number), "a number or null")}
 _RUN = {"method": _TEXT, "hparams": (_hparams, "an object of numbers"), "status": _TEXT}
+_EVAL = {"return_mean": (lambda v: _number(v) and math.isfinite(v), "a finite number"),
+         "normalized": (_optional(_number), "a number or null")}
 _LOSSES = {s: (lambda v: isinstance(v, dict) and all(
     _number(v.get(k)) for k in ("unweighted", "changepoint", "copycat")), "an object with numbers unweighted, "
     "changepoint and copycat") for s in ("train", "val")}
@@ -121,8 +141,10 @@ def check(results: dict, path) -> None:
     for i, run in enumerate(results["runs"]):
         _row(f"{path}: runs[{i}]", run, _RUN)
         if run["status"] == "ok":
-            _row(f"{path}: runs[{i}]", run, {"losses": (lambda v: isinstance(v, dict), "an object")})
+            _row(f"{path}: runs[{i}]", run, {"losses": (lambda v: isinstance(v, dict), "an object"),
+                                             "eval": (lambda v: isinstance(v, dict), "an object")})
             _row(f"{path}: runs[{i}] losses", run["losses"], _LOSSES)
+            _row(f"{path}: runs[{i}] eval", {"normalized": None, **run["eval"]}, _EVAL)
 
 
 def merge(files: list[dict]) -> dict[tuple[str, str], dict]:
@@ -270,6 +292,263 @@ def loss_table(m: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+# -- Ours − BC-OH: bootstrap over seeds ---------------------------------------------------------------------------
+
+class Interval(NamedTuple):
+    """A difference of means `a − b` with its bootstrap confidence interval `[low, high]`."""
+
+    diff: float
+    low: float
+    high: float
+    n_a: int
+    n_b: int
+
+
+def bootstrap_difference(a: Sequence[float], b: Sequence[float], resamples: int = BOOTSTRAP_RESAMPLES,
+                         level: float = 0.95, seed: int = BOOTSTRAP_SEED) -> Interval:
+    """Percentile bootstrap interval of `mean(a) − mean(b)`, resampling each arm's seeds independently.
+
+    Args:
+      a, b: per-seed values of the two arms (e.g. each seed's mean return), `[n_a]` and `[n_b]`, n ≥ 1.
+      resamples: bootstrap replicates.
+      level: coverage of the interval (0.95: the 2.5th to 97.5th percentile of the replicates).
+      seed: the numpy RNG seed; the same inputs always give the same interval.
+
+    Returns:
+      `Interval(diff, low, high, n_a, n_b)`, `diff` the observed difference of means.
+    """
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    if a.ndim != 1 or b.ndim != 1 or not a.size or not b.size:
+        raise ValueError(f"bootstrap_difference needs two non-empty 1-d arms, got shapes {a.shape} and {b.shape}")
+    rng = np.random.default_rng(seed)
+    means_a = a[rng.integers(0, a.size, size=(resamples, a.size))].mean(1)
+    means_b = b[rng.integers(0, b.size, size=(resamples, b.size))].mean(1)
+    tail = 100 * (1 - level) / 2
+    low, high = np.percentile(means_a - means_b, [tail, 100 - tail])
+    return Interval(float(a.mean() - b.mean()), float(low), float(high), int(a.size), int(b.size))
+
+
+def verdict(ci: Interval, a: str = "Ours", b: str = "BC-OH") -> str:
+    """Plain words: `a` better / `b` better when the interval excludes 0, else not significant."""
+    if min(ci.n_a, ci.n_b) < 2:
+        return "no verdict (needs ≥ 2 seeds per arm)"
+    if ci.low > 0:
+        return f"{a} better"
+    if ci.high < 0:
+        return f"{b} better"
+    return "not significant (CI contains 0)"
+
+
+def _seeds(m: dict, row: dict | None, key: str = "return_mean") -> list[float]:
+    """Per-seed evaluation values (`eval[key]`) of the configuration of summary row `row`, in seed order."""
+    if row is None:
+        return []
+    runs = [r for r in m["runs"] if r["method"] == row["method"] and r["hparams"] == row["hparams"]
+            and r["status"] == "ok" and r["eval"].get(key) is not None]
+    return [r["eval"][key] for r in sorted(runs, key=lambda r: r.get("seed", 0))]
+
+
+def comparisons(m: dict) -> list[tuple[str, dict | None]]:
+    """Ours' configurations compared with BC-OH: the paper's step setting, then the best step and softmax."""
+    step = _rows(m, "ours-step")
+    best_step, best_soft = _best(step), _best(_rows(m, "ours-softmax"))
+    def after(row: dict | None) -> str:
+        return "" if row is None else f" ({_hp(row)[2:-1]}; selected after the fact)"
+
+    return [("Ours, step THR 10% W 5 (the paper's)", next((r for r in step if r["hparams"] == PAPER_STEP), None)),
+            (f"Ours, best step{after(best_step)}", best_step), (f"Ours, best softmax{after(best_soft)}", best_soft)]
+
+
+def bootstrap_rows(merged: dict) -> list[tuple[str, str, Interval]]:
+    """Per environment and configuration of Ours (`comparisons`): Ours − BC-OH in mean return with its CI."""
+    out = []
+    for (env, obs), m in _ordered(merged):
+        bcoh = _seeds(m, _best(_rows(m, "bc-oh")))
+        for label, row in comparisons(m) if bcoh else []:
+            ours = _seeds(m, row)
+            if ours:
+                out.append((_env_title(env, obs), label, bootstrap_difference(ours, bcoh)))
+    return out
+
+
+def bootstrap_table(rows: list[tuple[str, str, Interval]]) -> str:
+    """The rows of `bootstrap_rows` as a table: difference of means, 95% CI, verdict."""
+    lines = ["| environment | Ours | seeds (Ours / BC-OH) | Ours − BC-OH, return | 95% CI | verdict |",
+             "|---|---|---:|---:|---:|---|"]
+    lines += [f"| {env} | {label} | {ci.n_a} / {ci.n_b} | {ci.diff:+,.0f} | [{ci.low:+,.0f}, {ci.high:+,.0f}] | "
+              f"{verdict(ci)} |" for env, label, ci in rows]
+    return "\n".join(lines) + "\n"
+
+
+# -- grid search: heatmaps and the paper's choices ----------------------------------------------------------------
+
+def _metric(m: dict) -> tuple[str, str]:
+    """Which summary numbers the figures show: `(prefix, unit)`; % of expert where every row has it."""
+    if all(r.get("normalized_mean") is not None for r in m["summary"] if r["n_seeds"]):
+        return "normalized", "% of expert"
+    return "return", "return"
+
+
+def _value(row: dict, prefix: str) -> tuple[float, float]:
+    mean, std = row[f"{prefix}_mean"], row.get(f"{prefix}_std")
+    return float(mean), float(std if std is not None else math.nan)
+
+
+def _pct(thr: float) -> str:
+    return f"{100 * thr:g}%"
+
+
+def _fmt(mean: float, std: float, prefix: str) -> str:
+    return f"{mean:.1f} ± {std:.1f}%" if prefix == "normalized" else f"{mean:,.0f} ± {std:,.0f}"
+
+
+def _ape_scale(m: dict) -> float | None:
+    """The training-set mean APE our softmax τ divided by (`ape_normalization: "mean"`), or None."""
+    for r in m["sources"]:
+        ape = r["config"].get("ape")
+        if (any(row["method"] == "ours-softmax" for row in r["summary"]) and isinstance(ape, dict)
+                and ape.get("normalization") == "mean" and _number(ape.get("scale")) and ape["scale"] > 0):
+            return float(ape["scale"])
+    return None
+
+
+def paper_choices(m: dict) -> list[str]:
+    """One sentence per weighting: is the paper's setting within one std over seeds of the grid's best?
+
+    "Within one std" means the gap to the best is at most the larger of the two configurations' std over seeds.
+    Where our APE was divided by its training-set mean, the softmax sentence also names the grid value
+    nearest to the paper's τ carried over to that scale (the paper's τ acts on the raw APE).
+    """
+    prefix, _ = _metric(m)
+    pts = " points" if prefix == "normalized" else ""
+    tau = PAPER_TAU.get(m["env"])
+
+    def near(chosen: dict, best: dict, rows: list[dict], kind: str, name) -> str:
+        (cm, cs), (bm, bs) = _value(chosen, prefix), _value(best, prefix)
+        if chosen is best:
+            return f"{_fmt(cm, cs, prefix)}, the best of the {len(rows)} {kind} settings"
+        gap, noise = bm - cm, max(cs, bs)
+        where = (f"within one std over seeds ({noise:.1f}) of the best" if gap <= noise else
+                 f"more than one std over seeds ({noise:.1f}) below the best: not near it")
+        return (f"{_fmt(cm, cs, prefix)} vs the best, {name(best['hparams'])}, {_fmt(bm, bs, prefix)}: "
+                f"{gap:.1f}{pts} lower, {where}")
+
+    out = []
+    for kind, method, paper, name in (
+            ("step", "ours-step", PAPER_STEP, lambda hp: f"THR {_pct(hp['thr'])} W {hp['w']:g}"),
+            ("softmax", "ours-softmax", None if tau is None else {"tau": tau}, lambda hp: f"τ {hp['tau']:g}")):
+        rows = _rows(m, method)
+        if not rows or paper is None:
+            continue
+        best = max(rows, key=lambda r: _value(r, prefix)[0])
+        chosen = next((r for r in rows if r["hparams"] == paper), None)
+        text = f"{kind.capitalize()}, the paper's {name(paper)}: " + (
+            "not run" if chosen is None else near(chosen, best, rows, kind, name)) + "."
+        scale = _ape_scale(m) if kind == "softmax" else None
+        taus = [r for r in rows if r["hparams"].get("tau", 0) > 0]
+        if scale is not None and taus:
+            equivalent = tau / scale
+            closest = min(taus, key=lambda r: abs(math.log(r["hparams"]["tau"] / equivalent)))
+            text += (f" But our τ acts on the APE divided by its training-set mean ({scale:.4f}) and the paper's on "
+                     f"the raw APE, so its τ {tau:g} is about τ {equivalent:.1f} here (roughly: the paper's APE "
+                     f"scale is not ours); the nearest grid value, τ {closest['hparams']['tau']:g}: "
+                     f"{near(closest, best, rows, kind, name)}.")
+        out.append(text)
+    return out
+
+
+def grid_figure(m: dict):
+    """The grid search of one environment as heatmaps (step THR × W, softmax τ), or None if neither was run."""
+    from ape_jax import figures
+
+    prefix, unit = _metric(m)
+    panels = []
+    step = {(r["hparams"]["thr"], r["hparams"]["w"]): r for r in _rows(m, "ours-step")
+            if set(r["hparams"]) == {"thr", "w"}}
+    if step:
+        thrs, ws = sorted({k[0] for k in step}), sorted({k[1] for k in step})
+        panels.append(_grid_panel("step weighting", "THR (top fraction of APE)", "W (weight)",
+                                  [_pct(t) for t in thrs], [f"{w:g}" for w in ws],
+                                  [[step.get((t, w)) for w in ws] for t in thrs], prefix,
+                                  next(((i, j) for i, t in enumerate(thrs) for j, w in enumerate(ws)
+                                        if {"thr": t, "w": w} == PAPER_STEP), None)))
+    soft = {r["hparams"]["tau"]: r for r in _rows(m, "ours-softmax") if set(r["hparams"]) == {"tau"}}
+    if soft:
+        taus = sorted(soft)
+        tau = PAPER_TAU.get(m["env"])
+        panels.append(_grid_panel("softmax weighting", "", "τ (temperature)", [""], [f"{t:g}" for t in taus],
+                                  [[soft[t] for t in taus]], prefix,
+                                  (0, taus.index(tau)) if tau in taus else None))
+    if not panels:
+        return None
+    bcoh = _best(_rows(m, "bc-oh"))
+    seeds = max(r["n_seeds"] for r in (*step.values(), *soft.values()))
+    ref, center = "", None
+    if bcoh is not None:
+        center, std = _value(bcoh, prefix)
+        ref = f"; BC-OH {center:.1f} ± {std:.1f}"
+    title = (f"{_env_title(m['env'], m['obs'])}: grid search, {unit} (mean ± std over {seeds} seeds){ref}")
+    return figures.heatmap(title, panels, center, unit)
+
+
+def _grid_panel(title, row_label, col_label, rows, cols, cells, prefix, marked):
+    from ape_jax import figures
+
+    mean = np.array([[_value(c, prefix)[0] if c else np.nan for c in line] for line in cells])
+    std = np.array([[_value(c, prefix)[1] if c else np.nan for c in line] for line in cells])
+    best = np.unravel_index(np.nanargmax(mean), mean.shape)
+    return figures.Grid(title, row_label, col_label, rows, cols, mean, std, (int(best[0]), int(best[1])), marked)
+
+
+# -- return per method ----------------------------------------------------------------------------------------------
+
+BAR_BASELINES = ("fca", "dagger", "bcpd", "actfreq", "kmeans", "boosting", "history-dropout")
+
+
+def returns_figure(merged: dict):
+    """Every method's return per environment (bars: mean, error bars: std over seeds, dots: seeds), or None."""
+    from ape_jax import figures
+
+    envs = _ordered(merged)
+    baselines = [b for b in BAR_BASELINES if any(_rows(m, b) for _, m in envs)]
+    labels = ["BC-SO", "BC-OH", "Ours, step THR 10% W 5", "Ours, best softmax",
+              *(LABELS[b].replace(" (online)", "") for b in baselines)]
+    panels = []
+    for (env, obs), m in envs:
+        prefix, unit = _metric(m)
+        step = next((r for r in _rows(m, "ours-step") if r["hparams"] == PAPER_STEP), None)
+        soft = _best(_rows(m, "ours-softmax"))
+        rows = [_best(_rows(m, "bc-so")), _best(_rows(m, "bc-oh")), step, soft,
+                *(_best(_rows(m, b)) for b in baselines)]
+        if not any(rows):
+            continue
+        key = "normalized" if prefix == "normalized" else "return_mean"
+        notes = ["" for _ in rows]
+        if soft is not None:
+            notes[3] = f"τ {soft['hparams']['tau']:g}"
+        panels.append(figures.Bars(
+            _env_title(env, obs), unit, [None if r is None else _value(r, prefix)[0] for r in rows],
+            [None if r is None else _value(r, prefix)[1] for r in rows], [_seeds(m, r, key) for r in rows], notes,
+            100.0 if prefix == "normalized" else None, "expert"))
+    if not panels:
+        return None
+    return figures.bars(labels, panels, "Return per method: bars = mean over seeds, error bars = std, dots = seeds; "
+                                        "best softmax selected after the fact")
+
+
+def _ordered(merged: dict) -> list[tuple[tuple[str, str], dict]]:
+    order = {e: i for i, e in enumerate((*MUJOCO, "toycar"))}
+    return sorted(merged.items(), key=lambda kv: (order.get(kv[0][0], len(order)), kv[0]))
+
+
+def _env_title(env: str, obs: str) -> str:
+    return TITLES.get(env, env) + ("" if obs == "pos" and env in MUJOCO else f" ({obs})")
+
+
+def _grid_name(env: str, obs: str) -> str:
+    return f"grid-{env}.png" if obs == "pos" else f"grid-{env}-{obs}.png"
+
+
 def provenance(r: dict) -> str:
     """The command and setting one results file came from."""
     cfg = r["config"]
@@ -291,8 +570,30 @@ def provenance(r: dict) -> str:
             f"device(s)), {machine}; {t.get('total_s', 0):,.0f} s in all")
 
 
-def report(files: list[dict]) -> str:
+def build(files: list[dict], figure_dir: pathlib.Path | None = None,
+          base: pathlib.Path | None = None) -> tuple[str, dict[pathlib.Path, object]]:
+    """The report's markdown and its figures, nothing written.
+
+    Args:
+      files: loaded results files (`load`).
+      figure_dir: where the figures will be written; None draws none (the text says so).
+      base: the folder the markdown's links are relative to (the `--out` file's); default the working folder.
+
+    Returns:
+      `(text, figures)`: the markdown, and `{path: matplotlib Figure}` to write with `ape_jax.figures.save_png`.
+    """
     merged = merge(files)
+    drawn: dict[pathlib.Path, object] = {}
+    base = pathlib.Path.cwd() if base is None else pathlib.Path(base)
+
+    def figure(name: str, alt: str, draw) -> list[str]:
+        fig = draw() if figure_dir is not None else None
+        if fig is None:
+            return []
+        path = pathlib.Path(figure_dir) / name
+        drawn[path] = fig
+        return [f"![{alt}]({pathlib.Path(os.path.relpath(path.absolute(), base.absolute())).as_posix()})", ""]
+
     out = []
     if any((e, "pos") in merged for e in MUJOCO):
         out += ["### MuJoCo-State (velocities removed)", "",
@@ -304,13 +605,47 @@ def report(files: list[dict]) -> str:
                 "Next to the supplement's Table 5 (its own experts, whose returns it does not give): mean "
                 "returns, and in brackets each method's ratio to BC-OH of the same source.", "",
                 paper_table(merged)]
-    order = {e: i for i, e in enumerate((*MUJOCO, "toycar"))}
-    for (env, obs), m in sorted(merged.items(), key=lambda kv: (order.get(kv[0][0], len(order)), kv[0])):
+    if figure_dir is None:
+        out += ["_Figures not drawn: the report was printed without `--figures DIR` (with `--out` they go to "
+                "`figures/` next to it)._", ""]
+    boot = bootstrap_rows(merged)
+    returns = figure("returns.png", "Return per method and environment", lambda: returns_figure(merged))
+    if boot or returns:
+        out += ["### Ours vs BC-OH over seeds", ""] + returns
+    if boot:
+        seeds = min(min(ci.n_a, ci.n_b) for _, _, ci in boot)
+        out += ["Ours − BC-OH in mean return over seeds, with a 95% percentile bootstrap confidence interval "
+                f"(each arm's seeds resampled with replacement, independently, {BOOTSTRAP_RESAMPLES:,} times; "
+                f"numpy seed {BOOTSTRAP_SEED}). The best-step and best-softmax rows were selected after the fact "
+                "on these same evaluation returns, so their differences are optimistic.", "", bootstrap_table(boot),
+                f"Caveat: with {seeds} seed{'s' * (seeds != 1)} per arm each arm has only "
+                f"{math.comb(2 * seeds - 1, seeds)} distinct resamples, so the interval is coarse, and at so few "
+                "seeds the percentile bootstrap is too narrow (it under-covers): read \"better\" as a hint, and "
+                "\"not significant\" as \"these seeds cannot tell\", not as evidence of no effect.", ""]
+    for (env, obs), m in _ordered(merged):
         out += [f"### {TITLES.get(env, env)}, `{obs}` observations: every configuration", ""]
         out += [f"- {provenance(r)}" for r in m["sources"]]
-        out += ["", grid_table(m), "Loss analysis (the paper's Table 3; mean over seeds of the per-sample "
+        out += ["", grid_table(m)]
+        out += figure(_grid_name(env, obs), f"{_env_title(env, obs)} grid search", lambda: grid_figure(m))
+        choices = paper_choices(m)
+        if choices:
+            unit = "% of expert" if _metric(m)[0] == "normalized" else "return"
+            out += [f"Are the paper's settings near the best of our grid? (In {unit}; \"within one std\": "
+                    "the gap to the best is at most the larger of the two settings' std over seeds.)", ""]
+            out += [f"- {c}" for c in choices] + [""]
+        out += ["Loss analysis (the paper's Table 3; mean over seeds of the per-sample "
                 "loss; changepoints = top 10% APE of each split):", "", loss_table(m)]
-    return "\n".join(out)
+    return "\n".join(out), drawn
+
+
+def report(files: list[dict], figure_dir: pathlib.Path | None = None, base: pathlib.Path | None = None) -> str:
+    """`build`, then writes its figures (atomically); returns the markdown."""
+    from ape_jax.figures import save_png
+
+    text, drawn = build(files, figure_dir, base)
+    for path, fig in drawn.items():
+        save_png(fig, path)
+    return text
 
 
 def main(argv=None) -> int:
@@ -318,6 +653,8 @@ def main(argv=None) -> int:
     p.add_argument("results", nargs="+", type=pathlib.Path, help="results.json files of experiments.sweep")
     p.add_argument("--out", type=pathlib.Path, default=None,
                    help="write into this file's `report` section (BENCHMARKS.md) instead of printing")
+    p.add_argument("--figures", type=pathlib.Path, default=None, metavar="DIR",
+                   help="write the figures (PNG) here; default: `figures/` next to --out, none when printing")
     args = p.parse_args(argv)
     if args.out is not None:
         why = unwritable_file(args.out)
@@ -328,10 +665,25 @@ def main(argv=None) -> int:
                 why = f"it cannot be read as text ({e})"
         if why:
             fail(p, f"--out {args.out}: cannot write the report there: {why}")
+    figure_dir = args.figures if args.figures is not None else (
+        None if args.out is None else args.out.parent / "figures")
+    if figure_dir is not None and (why := unwritable(figure_dir)):
+        flag = f"--figures {args.figures}" if args.figures is not None else f"--out {args.out}"
+        fail(p, f"{flag}: cannot write the figures to {figure_dir}: {why}")
     try:
-        text = report([load(path) for path in args.results])
+        text, drawn = build([load(path) for path in args.results], figure_dir,
+                            None if args.out is None else args.out.parent)
     except ReportError as e:
         return fail(None, str(e))
+    from ape_jax.figures import save_png
+
+    log = sys.stdout if args.out is not None else sys.stderr   # stdout carries the markdown when printing
+    for path, fig in drawn.items():
+        try:
+            size = save_png(fig, path)
+        except OSError as e:
+            return fail(None, f"cannot write {path}: {e}")
+        print(f"wrote {path} ({size / 1024:.0f} KB)", file=log)
     if args.out is None:
         print(text)
         return 0
