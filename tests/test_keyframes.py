@@ -20,10 +20,10 @@ def synthetic_episode(steps=400, seed=0):
 
 
 def test_keyframe_mask_is_the_step_weightings_top_fraction():
-    ape = np.r_[np.arange(30, dtype=np.float32), 29.0]  # a tie at the top: the lower index wins
+    ape = np.r_[np.arange(30, dtype=np.float32), 27.0]  # a tie at the cut: the lower index wins
     mask, threshold = keyframes.keyframe_mask(ape, 0.1)
-    assert mask.sum() == 3 and list(np.flatnonzero(mask)) == [28, 29, 30]
-    assert threshold == 28.0
+    assert mask.sum() == 3 and list(np.flatnonzero(mask)) == [27, 28, 29]
+    assert threshold == 27.0
     assert keyframes.keyframe_mask(np.ones(5, np.float32), 0.1)[1] == float("inf")  # ⌊0.5⌋ = 0 keyframes
 
 
@@ -42,14 +42,23 @@ def test_pick_frames_finds_the_planted_changes_spread_apart():
     assert wide_key.all() and 1 <= len(wide) < 4 and np.all(np.diff(wide) >= 150)
 
 
-def test_draw_writes_a_png_a_person_can_open(tmp_path):
+def test_zoom_window_stays_inside_the_episode():
+    assert keyframes.zoom_window(1000, 309, 150) == (234, 384)
+    assert keyframes.zoom_window(1000, 10, 150) == (0, 150)
+    assert keyframes.zoom_window(1000, 995, 150) == (850, 1000)
+    assert keyframes.zoom_window(100, 50, 150) == (0, 100)
+
+
+@pytest.mark.parametrize("window", [None, (150, 290)])
+def test_draw_writes_a_png_a_person_can_open(tmp_path, window):
     actions, ape = synthetic_episode()
     mask, threshold = keyframes.keyframe_mask(ape, 0.05)
     steps, is_key = keyframes.pick_frames(ape, mask, count=4, min_gap=20)
     frames = np.zeros((len(steps), 32, 32, 3), np.uint8)
     frames[:, 8:24, 8:24] = np.array([200, 60, 40], np.uint8)
     fig = keyframes.draw(ape, actions, threshold, frames, steps, keyframe=mask, title="synthetic, episode 0",
-                         note="a note", action_names=["x", "y", "z"], frame_is_key=is_key)
+                         note="a note", action_names=["x", "y", "z"], frame_is_key=is_key, window=window)
+    assert len(fig.axes) == len(steps) + (3 if window else 2)  # a close-up adds the zoomed APE row
     out = tmp_path / "sub" / "kf.png"
     size = keyframes.save_png(fig, out)
     assert size == out.stat().st_size and 10_000 < size < 400_000
@@ -75,6 +84,8 @@ def test_draw_writes_a_png_a_person_can_open(tmp_path):
         (["--thr", "1.5"], "--thr must be in (0, 1)"),
         (["--out", "picture.jpg"], "must name a .png"),
         (["--frames", "two"], "invalid int value"),
+        (["--zoom", "-1"], "--zoom must be >= 0"),
+        (["--frames", "12"], "must be <= 12"),
     ],
 )
 def test_bad_input_is_refused_on_one_line_with_exit_code_2(argv, message, capsys):
