@@ -1,33 +1,20 @@
 """Draws one expert episode's keyframes as a picture: `python -m experiments.keyframes --env hopper`.
 
-The picture (PNG) shows, for one episode of the shipped expert's cached
-demonstrations (the ones the sweep uses: `pos` observations for MuJoCo,
-`full` for ToyCar, the default number of episodes, seed 0):
-
-- top: the action prediction error along time, divided by its mean over the
-  dataset, with the keyframes marked in red and the keyframe threshold dashed;
-- middle: the expert's actions, keyframes shaded, so one sees that keyframes
-  are where the actions change. A long episode (MuJoCo's 1000 steps) gets a
-  close-up instead: the APE and the actions over `--zoom` steps around its
-  highest-APE keyframe, marked grey on the top row;
-- bottom: frames rendered from the recorded simulator states (not
-  re-simulated) at the `--frames` highest-APE keyframes, spread out in time,
-  and at one ordinary (low-APE) step for contrast, each labelled with its
-  step and APE.
+For one episode of the shipped expert's cached demonstrations (those the sweep
+uses: `pos` observations for MuJoCo, `full` for ToyCar, the default number of
+episodes, seed 0): APE along time with its keyframes, the expert's actions (a
+`--zoom` close-up for a long episode), and frames rendered from the recorded
+simulator states at the `--frames` highest-APE keyframes and `--ordinary`
+low-APE steps (`ape_jax.keyframes.select`, drawn by `ape_jax.figures.keyframes`).
 
 APE is fitted on **all** the demonstrations (the sweep fits on its training
-split only, so its numbers differ slightly; see `experiments.weights`), and
-the keyframes are the top `--thr` (default 10%, the paper's THR) of APE over
-the whole dataset, the samples `ape_jax.weighting.step` upweights. The same
-threshold then marks the keyframes of the chosen episode, so an episode can
-hold more or fewer than 10% of them.
+split only; see `experiments.weights`); the keyframes are the top `--thr`
+(default 10%, the paper's THR) of APE over the whole dataset, the samples
+`ape_jax.weighting.step` upweights, so one episode can hold more or fewer.
 
 Bad input (unknown env, an episode out of range, non-positive counts, an
 `--out` that is not a writable `.png`) is refused with one line on stderr and
 exit status 2 before anything is compiled.
-
-`draw` builds the figure from plain arrays and `pick_frames` chooses the
-steps to show; both are pure and need no simulator.
 """
 
 from __future__ import annotations
@@ -42,7 +29,6 @@ import numpy as np
 from experiments._cli import Parser, fail, unwritable, unwritable_file
 
 ENVS = ("hopper", "halfcheetah", "walker2d", "toycar")
-KEY_COLOR, ORDINARY_COLOR = "#d62728", "#1f77b4"
 
 
 def demo_obs(env_name: str) -> str:
@@ -102,235 +88,6 @@ def parse(argv=None) -> argparse.Namespace:
     return args
 
 
-# -- pure parts ---------------------------------------------------------------------------------
-
-def keyframe_mask(ape: np.ndarray, thr: float) -> tuple[np.ndarray, float]:
-    """The top `thr` of `ape` as `ape_jax.weighting.step` picks them (⌊thr·N⌋ largest, ties by index).
-
-    Args:
-      ape: `[N]` APE over the whole dataset.
-      thr: fraction in (0, 1).
-
-    Returns:
-      (mask, threshold): `[N] bool`, and the smallest APE among the keyframes
-      (+inf when ⌊thr·N⌋ = 0).
-    """
-    from ape_jax import weighting
-
-    ape = np.asarray(ape, np.float32)
-    mask = np.asarray(weighting.step(ape, thr, 2.0)) > 1.0
-    return mask, float(ape[mask].min()) if mask.any() else float("inf")
-
-
-def pick_frames(ape: np.ndarray, keyframe: np.ndarray, count: int, min_gap: int, ordinary: int = 1,
-                skip_start: int = 9) -> tuple[np.ndarray, np.ndarray]:
-    """The steps of one episode worth rendering: its highest-APE keyframes, spread out, and ordinary steps.
-
-    Keyframes are taken greedily by decreasing APE, each at least `min_gap`
-    steps from those already taken; then up to `ordinary` non-keyframe steps of
-    lowest APE, equally spread, skipping the first `skip_start` steps (where
-    APE is near zero only because the missing past actions are padded).
-
-    Args:
-      ape: `[T]` APE of the episode's steps.
-      keyframe: `[T] bool`, which of them are keyframes.
-      count: keyframes wanted (fewer come back when not enough are far enough apart).
-      min_gap: fewest steps between two picked steps, >= 1.
-      ordinary: ordinary steps wanted.
-      skip_start: ordinary steps are not taken before this step.
-
-    Returns:
-      (steps, is_key): `[k] int` steps in time order and `[k] bool`.
-    """
-    ape, keyframe = np.asarray(ape), np.asarray(keyframe, bool)
-    if ape.shape != keyframe.shape or ape.ndim != 1:
-        raise ValueError(f"pick_frames: ape and keyframe must both be [T], got {ape.shape} and {keyframe.shape}")
-    picked: list[int] = []
-    is_key: list[bool] = []
-
-    def take(candidates, want, key):
-        taken = 0
-        for i in candidates:
-            if taken == want:
-                break
-            if all(abs(int(i) - j) >= min_gap for j in picked):
-                picked.append(int(i))
-                is_key.append(key)
-                taken += 1
-
-    by_ape = np.argsort(-ape, kind="stable")
-    take(by_ape[keyframe[by_ape]], count, True)
-    calm = np.argsort(ape, kind="stable")
-    take(calm[~keyframe[calm] & (calm >= skip_start)], ordinary, False)
-    order = np.argsort(picked, kind="stable")
-    return np.asarray(picked, int)[order], np.asarray(is_key, bool)[order]
-
-
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """`[start, stop)` of each run of True in `mask`."""
-    edges = np.diff(np.r_[0, mask.astype(np.int8), 0])
-    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
-
-
-def zoom_window(steps: int, center: int, width: int) -> tuple[int, int]:
-    """`[start, stop)` of `width` steps (at most `steps`) centred on `center`, inside `[0, steps)`."""
-    width = max(1, min(width, steps))
-    start = min(max(center - width // 2, 0), steps - width)
-    return start, start + width
-
-
-def draw(ape: np.ndarray, actions: np.ndarray, threshold: float, frames: np.ndarray, frame_t: np.ndarray, *,
-         keyframe: np.ndarray | None = None, title: str = "", note: str = "",
-         action_names: list[str] | None = None, frame_is_key: np.ndarray | None = None,
-         window: tuple[int, int] | None = None):
-    """The keyframe picture of one episode, as a `matplotlib.figure.Figure` (no pyplot state).
-
-    Rows: APE along the whole episode; the APE and the actions over `window`
-    (the whole episode when `window` is None or covers it; otherwise a zoom,
-    shaded grey in the first row); the frames, lettered as on the time axes.
-
-    Args:
-      ape: `[T]` APE of the episode's steps, normalised (1 = the dataset mean).
-      actions: `[T, A]` the expert's actions.
-      threshold: the keyframe threshold on `ape` (a dashed line).
-      frames: `[k, H, W, 3] uint8` rendered frames, `k >= 0`.
-      frame_t: `[k] int` the steps they show.
-      keyframe: `[T] bool` which steps are keyframes (default: `ape >= threshold`).
-      title: the figure's title; `note` a smaller line below it.
-      action_names: `A` legend labels (default: `a0, a1, ...`).
-      frame_is_key: `[k] bool` whether each frame is a keyframe (default: from `keyframe`).
-      window: `(start, stop)` steps to show the actions over.
-
-    Returns:
-      The figure; save it with `save_png`.
-    """
-    from matplotlib.figure import Figure
-
-    ape = np.asarray(ape, float)
-    actions = np.asarray(actions, float)
-    frames, frame_t = np.asarray(frames), np.asarray(frame_t, int)
-    steps = ape.shape[0]
-    if ape.ndim != 1 or actions.ndim != 2 or actions.shape[0] != steps:
-        raise ValueError(f"draw: ape must be [T] and actions [T, A], got {ape.shape} and {actions.shape}")
-    if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8 or frame_t.shape != frames.shape[:1]:
-        raise ValueError(f"draw: frames must be [k, H, W, 3] uint8 with frame_t [k], got {frames.shape} "
-                         f"{frames.dtype} and {frame_t.shape}")
-    keyframe = ape >= threshold if keyframe is None else np.asarray(keyframe, bool)
-    frame_is_key = keyframe[frame_t] if frame_is_key is None else np.asarray(frame_is_key, bool)
-    names = action_names or [f"a{i}" for i in range(actions.shape[1])]
-    start, stop = (0, steps) if window is None else (max(0, window[0]), min(steps, window[1]))
-    zoomed = (start, stop) != (0, steps)
-    letters = [chr(ord("A") + i) if i < 26 else str(i) for i in range(len(frame_t))]
-    log_ape = _spans_decades(ape)
-
-    heights = [2.4, 1.1, 1.6, 2.7] if zoomed else [2.4, 1.6, 2.7]
-    fig = Figure(figsize=(12, 9.6 if zoomed else 8.4), layout="constrained")
-    rows = fig.add_gridspec(len(heights), 1, height_ratios=heights if len(frames) else [*heights[:-1], 0.01])
-    ax_ape = fig.add_subplot(rows[0])
-    _plot_ape(ax_ape, ape, keyframe, threshold, 0, steps, log_ape, legend=True)
-    if zoomed:
-        ax_ape.axvspan(start - 0.5, stop - 0.5, color="0.5", alpha=0.15, lw=0)
-        ax_ape.set_xlabel(f"step t in the episode (grey band: steps {start}-{stop - 1}, shown close up below)",
-                          labelpad=1)
-        ax_zoom = fig.add_subplot(rows[1])
-        _plot_ape(ax_zoom, ape, keyframe, threshold, start, stop, log_ape, legend=False)
-        ax_zoom.tick_params(labelbottom=False)
-    ax_act = fig.add_subplot(rows[2 if zoomed else 1], sharex=ax_zoom if zoomed else ax_ape)
-    if not zoomed:
-        ax_ape.tick_params(labelbottom=False)
-    t = np.arange(start, stop)
-    for run_start, run_stop in _runs(keyframe[start:stop]):
-        ax_act.axvspan(start + run_start - 0.5, start + run_stop - 0.5, color=KEY_COLOR, alpha=0.18, lw=0)
-    for i in range(actions.shape[1]):
-        ax_act.plot(t, actions[start:stop, i], lw=1.0, label=names[i], marker="." if stop - start <= 300 else None, ms=2.5)
-    ax_act.set_ylabel("expert action")
-    ax_act.set_xlabel("step t in the episode")
-    ax_act.set_xlim(start - 0.5, stop - 0.5)
-    ax_act.legend(loc="upper left", fontsize=8, ncol=len(names), framealpha=0.9)
-
-    time_axes = [ax_ape, ax_zoom, ax_act] if zoomed else [ax_ape, ax_act]
-    for letter, ft, key in zip(letters, frame_t, frame_is_key):
-        color = KEY_COLOR if key else ORDINARY_COLOR
-        for ax in time_axes:
-            if ax is ax_ape or start <= ft < stop:
-                ax.axvline(ft, color=color, lw=1, ls=":", alpha=0.9)
-        for ax in time_axes[:-1]:
-            if ax is ax_ape or start <= ft < stop:
-                ax.annotate(letter, (ft, 1.0), xycoords=("data", "axes fraction"), xytext=(0, 2),
-                            textcoords="offset points", ha="center", va="bottom", fontsize=10,
-                            fontweight="bold", color=color)
-
-    if len(frames):
-        cells = rows[-1].subgridspec(1, max(len(frames), 4))
-        for i, (frame, letter, ft, key) in enumerate(zip(frames, letters, frame_t, frame_is_key)):
-            ax = fig.add_subplot(cells[i])
-            ax.imshow(frame, interpolation="nearest")
-            ax.set_xticks([])
-            ax.set_yticks([])
-            color = KEY_COLOR if key else ORDINARY_COLOR
-            for spine in ax.spines.values():
-                spine.set_color(color)
-                spine.set_linewidth(2.5)
-            kind = "keyframe" if key else "ordinary step"
-            ax.set_title(f"{letter}: t = {ft}, APE {_number(ape[ft])} × mean\n{kind}", fontsize=9, color=color)
-    if title:
-        fig.suptitle(title + (f"\n{note}" if note else ""), fontsize=11)
-    return fig
-
-
-def _number(value: float) -> str:
-    return f"{value:,.0f}" if abs(value) >= 100 else f"{value:.2g}"
-
-
-def _spans_decades(ape: np.ndarray) -> bool:
-    positive = ape[ape > 0]
-    return bool(positive.size) and positive.max() / max(np.percentile(positive, 5), 1e-12) > 100
-
-
-def _plot_ape(ax, ape, keyframe, threshold, start, stop, log, legend):
-    t = np.arange(start, stop)
-    part, key = ape[start:stop], keyframe[start:stop]
-    ax.plot(t, part, color="0.35", lw=0.7 if stop - start > 300 else 1.0, label="APE / dataset mean")
-    ax.scatter(t[key], part[key], s=9 if stop - start > 300 else 16, color=KEY_COLOR, zorder=3,
-               label=f"keyframes ({int(key.sum())} of {stop - start} steps)")
-    if np.isfinite(threshold):
-        ax.axhline(threshold, color=KEY_COLOR, ls="--", lw=1, label=f"keyframe threshold ({threshold:.2g})")
-    if log:  # spikes span decades: a log axis keeps the calm stretches readable
-        ax.set_yscale("log")
-        ax.set_ylim(bottom=max(np.percentile(ape[ape > 0], 1) / 2, 1e-4))
-    ax.set_ylabel("APE (÷ mean)")
-    ax.set_xlim(start - 0.5, stop - 0.5)
-    if legend:
-        ax.legend(loc="upper left", fontsize=8, ncol=3, framealpha=0.9)
-
-
-def save_png(fig, path: pathlib.Path, dpi: int = 120) -> int:
-    """Writes `fig` to `path` as a PNG atomically (temporary file, then renamed); returns its size in bytes."""
-    from ape_jax import data
-
-    path = pathlib.Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    data.write_atomic(path, lambda f: fig.savefig(f, format="png", dpi=dpi))
-    return path.stat().st_size
-
-
-# -- the command --------------------------------------------------------------------------------
-
-def action_names(env) -> list[str] | None:
-    """Actuator names of a MuJoCo environment (else their joints' names), or ToyCar's (throttle, brake)."""
-    if env.name == "toycar":
-        return ["throttle", "brake"]
-    try:
-        model = env.brax_env.sys.mj_model
-    except AttributeError:
-        return None
-    names = []
-    for i in range(model.nu):
-        joint = model.joint(int(model.actuator(i).trnid[0])).name.removesuffix("_joint")
-        names.append(model.actuator(i).name or joint or f"a{i}")
-    return names
-
-
 def main(argv=None) -> int:
     args = parse(argv)
     import jax
@@ -338,7 +95,7 @@ def main(argv=None) -> int:
 
     import envs
     from ape_jax import ape as ape_lib
-    from ape_jax import collect, data
+    from ape_jax import collect, data, figures, keyframes
     from envs.experts import ExpertError
     from experiments.weights import fit_ape
 
@@ -371,31 +128,28 @@ def main(argv=None) -> int:
     except ValueError as e:
         return fail(None, f"{path}: {e}")
     ape_all = np.asarray(ape_all)
-    is_key, threshold = keyframe_mask(ape_all, args.thr)
+    is_key, threshold = keyframes.keyframe_mask(ape_all, args.thr)
     rows = np.flatnonzero(np.asarray(demos.episode) == args.episode)
     ape_ep, key_ep, actions = ape_all[rows], is_key[rows], np.asarray(demos.action)[rows]
-    min_gap = args.min_gap or max(1, len(rows) // (2 * (args.frames + args.ordinary)))
-    frame_t, frame_key = pick_frames(ape_ep, key_ep, args.frames, min_gap, args.ordinary, skip_start=ape_lib.K)
+    pick = keyframes.select(ape_ep, key_ep, args.frames, args.ordinary, args.min_gap, args.zoom, skip_start=ape_lib.K)
 
     env = envs.make(args.env, obs="image", image_size=args.image_size)
-    sims = jax.tree.map(lambda x: jnp.asarray(np.asarray(x)[rows[frame_t]]), demos.sim)
-    frames = np.asarray(jax.jit(jax.vmap(env.observe_sim))(sims)) if len(frame_t) else np.zeros((0, 1, 1, 3), np.uint8)
+    sims = jax.tree.map(lambda x: jnp.asarray(np.asarray(x)[rows[pick.steps]]), demos.sim)
+    frames = (np.asarray(jax.jit(jax.vmap(env.observe_sim))(sims)) if len(pick.steps)
+              else np.zeros((0, 1, 1, 3), np.uint8))
 
     n_key = int(key_ep.sum())
     title = (f"{args.env} expert, episode {args.episode}: {n_key} of {len(rows)} steps ({n_key / len(rows):.0%}) "
              f"are keyframes")
     note = (f"keyframes = top {args.thr:.0%} APE over all {len(demos):,} steps of the {demos.num_episodes} "
             f"demonstrations (APE model fitted on all of them, {args.ape_steps} Adam steps; APE ÷ its mean {scale:.3g})")
-    window = None
-    if 0 < args.zoom and 2 * args.zoom <= len(rows) and frame_key.any():
-        window = zoom_window(len(rows), int(frame_t[frame_key][np.argmax(ape_ep[frame_t[frame_key]])]), args.zoom)
-    fig = draw(ape_ep, actions, threshold, frames, frame_t, keyframe=key_ep, title=title, note=note,
-               action_names=action_names(env), frame_is_key=frame_key, window=window)
+    fig = figures.keyframes(ape_ep, actions, threshold, frames, pick.steps, keyframe=key_ep, title=title, note=note,
+                            action_names=keyframes.action_names(env), frame_is_key=pick.is_key, window=pick.window)
     try:
-        size = save_png(fig, args.out)
+        size = figures.save_png(fig, args.out)
     except OSError as e:
         return fail(None, f"--out {args.out}: cannot write ({e.strerror or e})")
-    shown = ", ".join(f"t={t}{'*' if k else ''}" for t, k in zip(frame_t, frame_key))
+    shown = ", ".join(f"t={t}{'*' if k else ''}" for t, k in zip(pick.steps, pick.is_key))
     print(f"{args.out} ({size / 1024:.0f} KB)\n{args.env} episode {args.episode}: {n_key}/{len(rows)} keyframes "
           f"(threshold {threshold:.3g} x mean APE); frames at {shown} (* keyframe); "
           f"{'cached' if cached else 'collected'} demonstrations {path.name}; {time.perf_counter() - started:.0f} s")

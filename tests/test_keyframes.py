@@ -1,10 +1,11 @@
-"""The keyframe picture: frame picking, the figure from plain arrays, refusals (no simulator needed)."""
+"""The keyframe picture: frame picking, the figure from plain arrays, the CLI's refusals (no simulator needed)."""
 
 import numpy as np
 import pytest
 from PIL import Image
 
-from experiments import keyframes
+from ape_jax import figures, keyframes
+from experiments import keyframes as cli
 
 CHANGES = (60, 130, 215, 300, 370)  # where the synthetic expert switches its action
 
@@ -50,17 +51,17 @@ def test_zoom_window_stays_inside_the_episode():
 
 
 @pytest.mark.parametrize("window", [None, (150, 290)])
-def test_draw_writes_a_png_a_person_can_open(tmp_path, window):
+def test_the_picture_is_a_png_a_person_can_open(tmp_path, window):
     actions, ape = synthetic_episode()
     mask, threshold = keyframes.keyframe_mask(ape, 0.05)
     steps, is_key = keyframes.pick_frames(ape, mask, count=4, min_gap=20)
     frames = np.zeros((len(steps), 32, 32, 3), np.uint8)
     frames[:, 8:24, 8:24] = np.array([200, 60, 40], np.uint8)
-    fig = keyframes.draw(ape, actions, threshold, frames, steps, keyframe=mask, title="synthetic, episode 0",
-                         note="a note", action_names=["x", "y", "z"], frame_is_key=is_key, window=window)
+    fig = figures.keyframes(ape, actions, threshold, frames, steps, keyframe=mask, title="synthetic, episode 0",
+                            note="a note", action_names=["x", "y", "z"], frame_is_key=is_key, window=window)
     assert len(fig.axes) == len(steps) + (3 if window else 2)  # a close-up adds the zoomed APE row
     out = tmp_path / "sub" / "kf.png"
-    size = keyframes.save_png(fig, out)
+    size = figures.save_png(fig, out)
     assert size == out.stat().st_size and 10_000 < size < 400_000
     assert [p.name for p in out.parent.iterdir()] == ["kf.png"]  # no temporary file left behind
     with Image.open(out) as im:
@@ -68,7 +69,19 @@ def test_draw_writes_a_png_a_person_can_open(tmp_path, window):
         pixels = np.asarray(im.convert("RGB"))
     assert (np.abs(pixels.astype(int) - [214, 39, 40]).sum(-1) < 30).any()  # the keyframe red is drawn
     with pytest.raises(ValueError, match="frames must be"):
-        keyframes.draw(ape, actions, threshold, frames[..., 0], steps)
+        figures.keyframes(ape, actions, threshold, frames[..., 0], steps)
+
+
+def test_select_spaces_the_frames_and_zooms_on_the_highest_ape_keyframe():
+    _, ape = synthetic_episode()
+    mask, _ = keyframes.keyframe_mask(ape, 0.05)
+    pick = keyframes.select(ape, mask, count=4, ordinary=1, zoom=100)
+    steps, is_key = keyframes.pick_frames(ape, mask, 4, 400 // (2 * 5), 1)  # the default gap: T / (2 × frames)
+    assert list(pick.steps) == list(steps) and list(pick.is_key) == list(is_key)
+    top = pick.steps[pick.is_key][np.argmax(ape[pick.steps[pick.is_key]])]
+    assert pick.window == keyframes.zoom_window(400, int(top), 100) and pick.window[0] <= top < pick.window[1]
+    assert keyframes.select(ape, mask, count=4, zoom=201).window is None  # episode shorter than twice the zoom
+    assert keyframes.select(ape, mask, count=4, zoom=0).window is None
 
 
 @pytest.mark.parametrize(
@@ -90,7 +103,7 @@ def test_draw_writes_a_png_a_person_can_open(tmp_path, window):
 )
 def test_bad_input_is_refused_on_one_line_with_exit_code_2(argv, message, capsys):
     with pytest.raises(SystemExit) as exc:
-        keyframes.main(argv)
+        cli.main(argv)
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1, err
@@ -100,8 +113,8 @@ def test_an_unwritable_out_is_refused_before_any_work(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("")
     with pytest.raises(SystemExit) as exc:
-        keyframes.main(["--out", str(blocker / "kf.png")])
+        cli.main(["--out", str(blocker / "kf.png")])
     assert exc.value.code == 2
     assert "cannot write there" in capsys.readouterr().err
     with pytest.raises(SystemExit):
-        keyframes.main(["--out", str(tmp_path)])  # a directory, not a file
+        cli.main(["--out", str(tmp_path)])  # a directory, not a file
