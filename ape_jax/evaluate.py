@@ -128,13 +128,12 @@ def loss_analysis(cfg: LearnerConfig, params: Any, data: Data, changepoint_frac:
       by APE, and on the rest.
     """
     learner = make_train(cfg)
-    changepoint = weighting.step(data.ape, changepoint_frac, 2.0) > 1.0
 
-    def one(p):
+    def one(p, data):  # data is an argument, not a closed-over constant XLA would try to fold
         losses = dataset_losses(learner, p, data)
-        cp = changepoint.astype(jnp.float32)
+        cp = (weighting.step(data.ape, changepoint_frac, 2.0) > 1.0).astype(jnp.float32)
         return {"unweighted": losses.mean(),
                 "changepoint": jnp.sum(losses * cp) / jnp.maximum(cp.sum(), 1.0),
                 "copycat": jnp.sum(losses * (1 - cp)) / jnp.maximum((1 - cp).sum(), 1.0)}
 
-    return jax.jit(jax.vmap(one))(params)
+    return jax.jit(jax.vmap(one, in_axes=(0, None)))(params, data)

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import resource
 import time
 from typing import Any, Callable
 
@@ -71,6 +72,10 @@ class Preset:
     chunk: int = 500              # iterations per compiled chunk (progress granularity)
     ape_normalization: str = "mean"
     val_frac: float = 0.2
+    step_grid: tuple[tuple[float, float], ...] = STEP_GRID  # (THR, W) of ours-step
+    softmax_grid: tuple[float, ...] = SOFTMAX_GRID            # τ of ours-softmax
+    image_size: tuple[int, int] | None = None  # image observations: (height, width); None: the env's default
+    encoder: str = "small"                     # image policies: "small" (CPU) or "resnet18" (the paper's, GPU)
 
     def learner_config(self, obs_shape, action_dim, history, loss, unroll: bool = False) -> LearnerConfig:
         return LearnerConfig(obs_shape=tuple(obs_shape), action_dim=action_dim, history=history,
@@ -84,6 +89,33 @@ PRESETS = {
     "default": Preset(iterations=30_000, seeds=3, eval_episodes=20, ape_steps=5_000, chunk=2_000),
     "paper": Preset(iterations=300_000, seeds=5, eval_episodes=100, ape_steps=20_000, chunk=10_000),
 }
+# Image observations. A conv policy trains ~1,000x slower than the state MLP on a 2-core CPU
+# (BENCHMARKS.md, "Image training"), so there `quick` and `default` shrink the images, the
+# iterations and the grid to the paper's step setting and the softmax τ that was best on states;
+# `paper` keeps the supplement's protocol with its ResNet-18, for GPUs.
+IMAGE_PRESETS = {
+    "quick": dict(iterations=300, eval_episodes=3, chunk=100, image_size=(32, 32),
+                  step_grid=((0.1, 5.0),), softmax_grid=()),
+    "default": dict(iterations=5_000, eval_episodes=10, chunk=250, image_size=(32, 32),
+                    step_grid=((0.1, 5.0),), softmax_grid=(10.0,)),
+    "paper": dict(encoder="resnet18"),
+}
+# ToyCar, the supplement's Table 4: 1k expert samples, 5 trials, BC-SO, BC-OH and Ours (THR 10%, W 5).
+TOYCAR_PRESETS = {
+    "quick": dict(image_size=(32, 32)),
+    "default": dict(iterations=2_000, seeds=5, eval_episodes=20, chunk=250, image_size=(64, 64), softmax_grid=()),
+    "paper": dict(seeds=5, softmax_grid=()),
+}
+
+
+def preset_for(name: str, env_name: str, obs: str) -> Preset:
+    """Preset `name` as it applies to `env_name` with observations `obs` (images shrink it on CPUs)."""
+    preset = PRESETS[name]
+    if obs == "image":
+        preset = dataclasses.replace(preset, **IMAGE_PRESETS[name])
+        if env_name == "toycar":
+            preset = dataclasses.replace(preset, **TOYCAR_PRESETS[name])
+    return preset
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,8 +142,8 @@ def baseline_hparams(method: str, env_name: str, n_train: int | None = None) -> 
     }[method]
 
 
-def grid_runs(methods: tuple[str, ...], seeds: int, env_name: str = "hopper", n_train: int | None = None
-              ) -> list[Run]:
+def grid_runs(methods: tuple[str, ...], seeds: int, env_name: str = "hopper", n_train: int | None = None,
+              step_grid=STEP_GRID, softmax_grid=SOFTMAX_GRID) -> list[Run]:
     """Every (method, hparams, seed) of the sweep, in a fixed order: BC-SO, BC-OH, step grid, softmax grid, baselines.
 
     `n_train` (the training split's size) sets DAgger's query budget.
@@ -127,9 +159,9 @@ def grid_runs(methods: tuple[str, ...], seeds: int, env_name: str = "hopper", n_
             if method in ("bc-so", "bc-oh"):
                 out.append(Run(method, {}, seed))
             elif method == "ours-step":
-                out += [Run(method, {"thr": thr, "w": w}, seed) for thr, w in STEP_GRID]
+                out += [Run(method, {"thr": thr, "w": w}, seed) for thr, w in step_grid]
             elif method == "ours-softmax":
-                out += [Run(method, {"tau": tau}, seed) for tau in SOFTMAX_GRID]
+                out += [Run(method, {"tau": tau}, seed) for tau in softmax_grid]
             else:
                 out += [Run(method, hp, seed) for hp in baseline_hparams(method, env_name, n_train)]
     return out
@@ -165,10 +197,14 @@ def data_settings(env_name: str, obs: str, preset: Preset, dataset: str | None =
     import pathlib
 
     if dataset is None:
-        return collect.settings(env_name, obs, preset.episodes, seed=0)
+        return collect.settings(env_name, obs, preset.episodes, seed=0, **_image_overrides(obs, preset))
     path = pathlib.Path(dataset)
     files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else []
     return {"dataset": str(path.absolute()), "bytes": sum(p.stat().st_size for p in files)}
+
+
+def _image_overrides(obs: str, preset: Preset) -> dict:
+    return {"image_size": preset.image_size} if obs == "image" and preset.image_size is not None else {}
 
 
 def fingerprint(env_name: str, obs: str, preset_name: str, preset: Preset, methods: tuple[str, ...],
@@ -341,7 +377,8 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
     t_start = time.perf_counter()
     system = _system()  # at the start: the code that runs, not what is checked out when it ends
     timing = {"compile_s": 0.0, "train_s": 0.0, "eval_s": 0.0}
-    env = envs.make(env_name, obs=obs, **({} if preset.eval_steps is None else {"episode_length": preset.eval_steps}))
+    env = envs.make(env_name, obs=obs, **_image_overrides(obs, preset),
+                    **({} if preset.eval_steps is None else {"episode_length": preset.eval_steps}))
     card = experts.card(env_name) if env_name != "toycar" else None
 
     settings = data_settings(env_name, obs, preset, dataset)
@@ -358,7 +395,10 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
         source = "from"
     log(f"demonstrations: {len(demos):,} transitions in {demos.num_episodes} episodes ({source}: {data_path})")
     train, val, mean, std = prepare(demos, preset)
-    runs = grid_runs(methods, preset.seeds, env_name, n_train=len(train))
+    runs = grid_runs(methods, preset.seeds, env_name, n_train=len(train), step_grid=preset.step_grid,
+                     softmax_grid=preset.softmax_grid)
+    if not runs:
+        raise ValueError(f"nothing to train: the preset's grids are empty for {', '.join(methods)}")
 
     saved = checkpoint.load_arrays("ape") if checkpoint is not None else None
     with bar(desc="fit APE", total=preset.ape_steps, unit="step") as b:
@@ -386,7 +426,7 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
         log(f"image policies on CPU: configurations train one after another, {CPU_IMAGE_CHUNK} unrolled "
             "iterations per call (XLA:CPU is slow at convolution gradients in loops and under vmap)")
     programs = []  # (name, cfg, runs, learner) in a fixed order
-    for name in dict.fromkeys(program_of(m) for m in METHODS if m in methods):
+    for name in dict.fromkeys(program_of(r.method) for r in runs):  # a method with an empty grid has none
         history = 1 if name == "bc-so" else preset.history
         cfg = preset.learner_config(env.observation_shape, env.action_size, history, loss, unroll=sequential)
         programs.append((name, cfg, [r for r in runs if program_of(r.method) == name],
@@ -436,6 +476,7 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
     timing["total_s"] = time.perf_counter() - t_start
     timing["resumed"] = bool(checkpoint is not None and checkpoint.resumed)
     timing["checkpoint_s"] = checkpoint.save_s if checkpoint is not None else 0.0  # included in the phases' times
+    timing["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # this process's peak memory
     results = {
         "schema": 1, "env": env_name, "obs": obs, "preset": preset_name,
         "config": {**dataclasses.asdict(preset), "methods": list(methods), "loss": loss,

@@ -552,13 +552,13 @@ def _grid_name(env: str, obs: str) -> str:
 def provenance(r: dict) -> str:
     """The command and setting one results file came from."""
     cfg = r["config"]
-    from ape_jax.sweep import PRESETS
+    from ape_jax.sweep import PRESETS, preset_for
 
     cmd = f"python -m experiments.sweep --env {r['env']} --obs {r['obs']} --preset {r['preset']}"
     default_methods = ["bc-so", "bc-oh", "ours-step", "ours-softmax"]
     if cfg.get("methods") != default_methods:
         cmd += f" --methods {','.join(cfg['methods'])}"
-    preset = PRESETS.get(r["preset"])
+    preset = preset_for(r["preset"], r["env"], r["obs"]) if r["preset"] in PRESETS else None
     for key, flag in (("iterations", "--iterations"), ("seeds", "--seeds"), ("eval_episodes", "--eval-episodes")):
         if preset is not None and cfg.get(key) != getattr(preset, key):
             cmd += f" {flag} {cfg[key]}"

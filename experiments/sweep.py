@@ -34,7 +34,7 @@ DEFAULT_METHODS = ("bc-so", "bc-oh", "ours-step", "ours-softmax")
 def parse(argv=None) -> argparse.Namespace:
     import envs
     from ape_jax import data
-    from ape_jax.sweep import METHODS, PRESETS
+    from ape_jax.sweep import METHODS, PRESETS, preset_for
 
     p = Parser(prog="python -m experiments.sweep", description=__doc__.splitlines()[0])
     p.add_argument("--env", default="hopper", help="hopper, halfcheetah, walker2d or toycar (default: hopper)")
@@ -87,7 +87,7 @@ def parse(argv=None) -> argparse.Namespace:
         from ape_jax.collect import default_episodes
 
         overrides["episodes"] = default_episodes("toycar")
-    args.preset_cfg = dataclasses.replace(PRESETS[args.preset], **overrides)
+    args.preset_cfg = dataclasses.replace(preset_for(args.preset, args.env, args.obs), **overrides)
     args.out = args.out or pathlib.Path("runs/sweep") / f"{args.env}-{args.obs}-{args.preset}"
     problem = "exists and is not a directory" if args.out.exists() and not args.out.is_dir() else unwritable(args.out)
     if problem:
