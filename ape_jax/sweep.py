@@ -89,7 +89,7 @@ PRESETS = {
     "default": Preset(iterations=30_000, seeds=3, eval_episodes=20, ape_steps=5_000, chunk=2_000),
     "paper": Preset(iterations=300_000, seeds=5, eval_episodes=100, ape_steps=20_000, chunk=10_000),
 }
-# Image observations. A conv policy trains ~1,000x slower than the state MLP on a 2-core CPU
+# Image observations. A conv policy trains 50-100x slower per iteration than the state MLP on a 2-core CPU
 # (BENCHMARKS.md, "Image training"), so there `quick` and `default` shrink the images, the
 # iterations and the grid to the paper's step setting and the softmax τ that was best on states;
 # `paper` keeps the supplement's protocol with its ResNet-18, for GPUs.
