@@ -41,7 +41,7 @@ from flax import struct
 
 from ape_jax import weighting
 from ape_jax.data import history_index
-from ape_jax.models import ImagePolicy, StatePolicy
+from ape_jax.models import IMAGE_ENCODERS, StatePolicy
 from ape_jax.weighting import Weighting
 
 LOSSES = ("l2", "l1")
@@ -59,12 +59,21 @@ class LearnerConfig:
     lr_decay_every: int = 100_000
     loss: str = "l2"
     unroll: bool = False         # unroll `run`'s scan: XLA:CPU runs convolutions in loop bodies ~50x slower
+    # Image encoder: "small" (`ImagePolicy`, 3 convs, CPU-sized) or "resnet18" (`ResNet18Policy`, the
+    # supplement's MuJoCo-Image network, ~11M parameters: for GPUs). State observations always use
+    # `StatePolicy`; they accept only "small", so a config never records an encoder it did not use.
+    encoder: str = "small"
 
     def __post_init__(self):
         if self.loss not in LOSSES:
             raise ValueError(f"unknown loss {self.loss!r}; valid: {list(LOSSES)}")
         if len(self.obs_shape) not in (1, 3):
             raise ValueError(f"obs_shape must be (D,) or (height, width, channels), got {self.obs_shape}")
+        if self.encoder not in IMAGE_ENCODERS:
+            raise ValueError(f"unknown encoder {self.encoder!r}; valid: {list(IMAGE_ENCODERS)}")
+        if self.encoder != "small" and not self.images:
+            raise ValueError(f"encoder {self.encoder!r} is for image observations; state observations "
+                             f"(obs_shape {self.obs_shape}) use the MLP StatePolicy: leave encoder='small'")
         for name in ("action_dim", "history", "iterations", "batch_size", "lr_decay_every"):
             if getattr(self, name) < 1:
                 raise ValueError(f"LearnerConfig.{name} must be >= 1, got {getattr(self, name)}")
@@ -74,7 +83,7 @@ class LearnerConfig:
         return len(self.obs_shape) == 3
 
     def model(self) -> nn.Module:
-        return ImagePolicy(self.action_dim) if self.images else StatePolicy(self.action_dim)
+        return IMAGE_ENCODERS[self.encoder](self.action_dim) if self.images else StatePolicy(self.action_dim)
 
 
 @struct.dataclass
@@ -230,6 +239,9 @@ def make_train(cfg: LearnerConfig) -> Learner:
         return state, {"loss": weighted, "unweighted_loss": unweighted}
 
     def run(state: TrainState, hp: Hparams, data: Data, n: int):
+        if n == 1 and cfg.unroll:  # a one-trip scan stays a loop even unrolled: the slow path `unroll` avoids
+            state, metrics = update(state, hp, data)
+            return state, jax.tree.map(lambda x: x[None], metrics)
         return jax.lax.scan(lambda s, _: update(s, hp, data), state, None, length=n, unroll=cfg.unroll)
 
     def train(key: jax.Array, hp: Hparams, data: Data):

@@ -81,7 +81,7 @@ class Preset:
         return LearnerConfig(obs_shape=tuple(obs_shape), action_dim=action_dim, history=history,
                              iterations=self.iterations, batch_size=self.batch_size,
                              lr_decay_every=self.lr_decay_every or max(1, math.ceil(self.iterations / 3)),
-                             loss=loss, unroll=unroll)
+                             loss=loss, unroll=unroll, encoder=self.encoder if len(obs_shape) == 3 else "small")
 
 
 PRESETS = {
@@ -425,6 +425,9 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
     if sequential:
         log(f"image policies on CPU: configurations train one after another, {CPU_IMAGE_CHUNK} unrolled "
             "iterations per call (XLA:CPU is slow at convolution gradients in loops and under vmap)")
+        if preset.encoder == "resnet18":
+            log("warning: ResNet-18 on a CPU takes ~24 s per iteration per configuration (BENCHMARKS.md); "
+                "the paper preset's image protocol is meant for GPUs")
     programs = []  # (name, cfg, runs, learner) in a fixed order
     for name in dict.fromkeys(program_of(r.method) for r in runs):  # a method with an empty grid has none
         history = 1 if name == "bc-so" else preset.history

@@ -39,6 +39,18 @@ def test_the_learner_fits_a_tiny_dataset(data):
     assert float(full) < 0.2 * first
 
 
+def test_unrolled_chunks_of_any_length_train_exactly_like_the_plain_loop(data):
+    import dataclasses
+
+    plain, unrolled = make_train(CFG), make_train(dataclasses.replace(CFG, unroll=True))
+    state = plain.init(jax.random.PRNGKey(0), GRID[1], data)
+    a, ma = plain.run(state, GRID[1], data, 3)
+    b, mb = unrolled.run(state, GRID[1], data, 1)  # a chunk of one iteration takes its own path
+    b, mb2 = unrolled.run(b, GRID[1], data, 2)
+    np.testing.assert_allclose(ma["loss"], np.concatenate([mb["loss"], mb2["loss"]]), rtol=1e-6)
+    jax.tree.map(lambda x, y: np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-7), a.params, b.params)
+
+
 def test_the_weighted_loss_uses_the_weighting(data):
     learner = make_train(CFG)
     state = learner.init(jax.random.PRNGKey(0), GRID[1], data)
