@@ -562,6 +562,10 @@ def provenance(r: dict) -> str:
     for key, flag in (("iterations", "--iterations"), ("seeds", "--seeds"), ("eval_episodes", "--eval-episodes")):
         if preset is not None and cfg.get(key) != getattr(preset, key):
             cmd += f" {flag} {cfg[key]}"
+    if preset is not None and "step_grid" in cfg and [list(g) for g in preset.step_grid] != cfg["step_grid"]:
+        cmd += " --step-grid " + ",".join(f"{thr:g}:{w:g}" for thr, w in cfg["step_grid"])
+    if preset is not None and "softmax_grid" in cfg and list(preset.softmax_grid) != cfg["softmax_grid"]:
+        cmd += " --softmax-grid " + ",".join(f"{tau:g}" for tau in cfg["softmax_grid"])
     s, t = r["system"], r.get("timing", {})
     machine = s.get("machine") or "machine not recorded in the file"
     commit = f"`{s.get('commit')}`" + (" with uncommitted changes" if s.get("dirty") else "")

@@ -22,6 +22,7 @@ import csv
 import dataclasses
 import io
 import json
+import math
 import pathlib
 import shutil
 import sys
@@ -47,6 +48,11 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--seeds", type=int, default=None, help="seeds per configuration (default: the preset's)")
     p.add_argument("--iterations", type=int, default=None, help="training iterations (default: the preset's)")
     p.add_argument("--eval-episodes", type=int, default=None, help="evaluation episodes (default: the preset's)")
+    p.add_argument("--step-grid", default=None, metavar="THR:W,...",
+                   help="ours-step's (THR, W) settings, e.g. 0.1:4,0.1:5,0.1:6 (default: the preset's, the paper's "
+                        "THR 10%%/20%% x W 3/5/10)")
+    p.add_argument("--softmax-grid", default=None, metavar="TAU,...",
+                   help="ours-softmax's temperatures, e.g. 0.1,0.2,0.5 (default: the preset's)")
     p.add_argument("--out", type=pathlib.Path, default=None, help="output directory (default: runs/sweep/ENV-OBS-PRESET)")
     p.add_argument("--resume", action="store_true",
                    help="continue the sweep in --out where it stopped, or report it if finished (also what a "
@@ -83,6 +89,10 @@ def parse(argv=None) -> argparse.Namespace:
             fail(p, f"--{name.replace('_', '-')} must be >= 1")
     overrides = {k: v for k, v in (("seeds", args.seeds), ("iterations", args.iterations),
                                    ("eval_episodes", args.eval_episodes)) if v is not None}
+    if args.step_grid is not None:
+        overrides["step_grid"] = _grid(p, "--step-grid", args.step_grid, _step_setting)
+    if args.softmax_grid is not None:
+        overrides["softmax_grid"] = _grid(p, "--softmax-grid", args.softmax_grid, _temperature)
     if args.env == "toycar":
         from ape_jax.collect import default_episodes
 
@@ -97,6 +107,39 @@ def parse(argv=None) -> argparse.Namespace:
     args.checkpoint_every = args.checkpoint_every or args.preset_cfg.chunk
     args.data_dir = args.data_dir or data.cache_dir()
     return args
+
+
+def _grid(p, flag: str, text: str, parse_one) -> tuple:
+    """A comma list of settings, each parsed by `parse_one` (ValueError -> a one-line refusal)."""
+    items = [t.strip() for t in text.split(",") if t.strip()]
+    if not items:
+        fail(p, f"{flag} is empty")
+    try:
+        values = tuple(parse_one(t) for t in items)
+    except ValueError as e:
+        fail(p, f"{flag}: {e}")
+    if len(set(values)) != len(values):
+        fail(p, f"{flag} lists a setting twice")
+    return values
+
+
+def _step_setting(text: str) -> tuple[float, float]:
+    thr, sep, w = text.partition(":")
+    if not sep:
+        raise ValueError(f"{text!r} is not THR:W (e.g. 0.1:5)")
+    thr, w = float(thr), float(w)
+    if not 0.0 < thr < 1.0:
+        raise ValueError(f"THR must be in (0, 1), got {thr:g}")
+    if not 1.0 <= w < math.inf:
+        raise ValueError(f"W must be a finite number >= 1, got {w:g}")
+    return thr, w
+
+
+def _temperature(text: str) -> float:
+    tau = float(text)
+    if not 0.0 < tau < math.inf:
+        raise ValueError(f"tau must be a finite number > 0, got {tau:g}")
+    return tau
 
 
 def write_json_atomic(path: pathlib.Path, obj) -> None:

@@ -98,3 +98,29 @@ def test_a_diverging_configuration_is_recorded_as_failed_and_the_others_finish(t
     assert sum(run["status"] == "ok" for run in r["runs"]) == 6
     row = next(s for s in r["summary"] if s["hparams"] == {"thr": 0.1, "w": 3.0})
     assert row["n_seeds"] == 0 and row["return_mean"] is None
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--step-grid", "0.1:0.5"], "--step-grid: W must be a finite number >= 1, got 0.5"),
+    (["--step-grid", "1.2:5"], "--step-grid: THR must be in (0, 1), got 1.2"),
+    (["--step-grid", "0.1"], "--step-grid: '0.1' is not THR:W"),
+    (["--step-grid", "0.1:5,0.1:5"], "--step-grid lists a setting twice"),
+    (["--softmax-grid", "0"], "--softmax-grid: tau must be a finite number > 0, got 0"),
+    (["--softmax-grid", ","], "--softmax-grid is empty"),
+])
+def test_custom_grids_are_validated(argv, message, capsys):
+    with pytest.raises(SystemExit) as exc:
+        sweep.parse(argv)
+    assert exc.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_custom_grids_replace_the_presets_and_name_the_runs():
+    from ape_jax.sweep import grid_runs
+
+    args = sweep.parse(["--env", "walker2d", "--preset", "default", "--step-grid", "0.1:4,0.1:5,0.1:6",
+                        "--softmax-grid", "0.1,0.2,0.5"])
+    p = args.preset_cfg
+    assert p.step_grid == ((0.1, 4.0), (0.1, 5.0), (0.1, 6.0)) and p.softmax_grid == (0.1, 0.2, 0.5)
+    runs = grid_runs(("ours-step", "ours-softmax"), 1, step_grid=p.step_grid, softmax_grid=p.softmax_grid)
+    assert [r.hparams for r in runs] == [{"thr": 0.1, "w": 4.0}, {"thr": 0.1, "w": 5.0}, {"thr": 0.1, "w": 6.0},
+                                         {"tau": 0.1}, {"tau": 0.2}, {"tau": 0.5}]
