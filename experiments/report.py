@@ -292,6 +292,34 @@ def loss_table(m: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def copycat_table(m: dict) -> str | None:
+    """The copycat diagnostics of every configuration that has them (None if no run does).
+
+    Per configuration, the mean over seeds of each seed's mean over evaluation episodes of
+    `rollout_ape` (the APE of the policy's own actions, ÷ the training set's mean APE) and
+    `imitation_error` (Σ_d (a − a*)² against the expert's action on the policy's own states).
+    """
+    groups: dict[tuple, list[dict]] = {}
+    for r in m["runs"]:
+        if r["status"] == "ok" and "rollout_ape" in r["eval"] and "imitation_error" in r["eval"]:
+            groups.setdefault(_config_key(r), []).append(r)
+    if not groups:
+        return None
+    expert = [src["config"]["ape"]["val_mean"] for src in m["sources"]
+              if isinstance(src["config"].get("ape"), dict) and "val_mean" in src["config"]["ape"]]
+    lines = ["| method | hparams | seeds | rollout APE (÷ training mean) | imitation error on own states | "
+             "% of expert |", "|---|---|---:|---:|---:|---:|"]
+    if expert:
+        lines.append(f"| expert (validation demonstrations) | — | — | {expert[0]:.2f} | 0 | 100 |")
+    for (method, hp), runs in groups.items():
+        mean = lambda k: sum(r["eval"][k] for r in runs) / len(runs)  # noqa: E731
+        norm = f"{mean('normalized'):.1f}" if all("normalized" in r["eval"] for r in runs) else "—"
+        hps = ", ".join(f"{k} {v:g}" for k, v in hp) or "—"
+        lines.append(f"| {LABELS.get(method, method)} | {hps} | {len(runs)} | {mean('rollout_ape'):.3f} | "
+                     f"{mean('imitation_error'):.4f} | {norm} |")
+    return "\n".join(lines) + "\n"
+
+
 # -- Ours − BC-OH: bootstrap over seeds ---------------------------------------------------------------------------
 
 class Interval(NamedTuple):
@@ -639,6 +667,12 @@ def build(files: list[dict], figure_dir: pathlib.Path | None = None,
             out += [f"- {c}" for c in choices] + [""]
         out += ["Loss analysis (the paper's Table 3; mean over seeds of the per-sample "
                 "loss; changepoints = top 10% APE of each split):", "", loss_table(m)]
+        copycat = copycat_table(m)
+        if copycat:
+            out += ["Copycat diagnostics, from the evaluation rollouts: how predictable each policy's own "
+                    "actions are from its previous 9 (ψ's APE, ÷ the training set's mean APE; a policy that "
+                    "repeats its last action scores below the expert), and how far its actions are from the "
+                    "expert's on the states it visits itself:", "", copycat]
     return "\n".join(out), drawn
 
 

@@ -219,3 +219,20 @@ def test_an_ok_run_without_its_evaluation_is_refused(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         report.main([str(_write(tmp_path, "r.json", r))])
     assert exc.value.code == 2 and "runs[0] has no field 'eval'" in capsys.readouterr().err
+
+
+def test_copycat_diagnostics_are_tabulated_for_runs_that_have_them(tmp_path):
+    r = _results()
+    r["config"]["ape"] = {"normalization": "mean", "scale": 0.02, "val_mean": 1.3}
+    for run in r["runs"]:
+        if run["method"] in ("bc-oh", "ours-step"):
+            copycat = run["method"] == "bc-oh"
+            run["eval"].update(rollout_ape=0.2 + 0.1 * run["seed"] if copycat else 0.9,
+                               imitation_error=0.5 if copycat else 0.25)
+    text = report.report([_loaded(tmp_path, r)])
+    table = text[text.index("Copycat diagnostics"):]
+    assert "| expert (validation demonstrations) | — | — | 1.30 | 0 | 100 |" in table
+    assert "| BC-OH | — | 2 | 0.250 | 0.5000 | 50.0 |" in table          # the mean over its two seeds
+    assert "| ours-step | thr 0.1, w 5 | 2 | 0.900 | 0.2500 | 75.0 |" in table
+    assert "| BC-SO |" not in table                                        # no diagnostics recorded: left out
+    assert "Copycat diagnostics" not in report.report([_loaded(tmp_path, _results(), "plain.json")])
