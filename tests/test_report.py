@@ -236,3 +236,14 @@ def test_copycat_diagnostics_are_tabulated_for_runs_that_have_them(tmp_path):
     assert "| ours-step | thr 0.1, w 5 | 2 | 0.900 | 0.2500 | 75.0 |" in table
     assert "| BC-SO |" not in table                                        # no diagnostics recorded: left out
     assert "Copycat diagnostics" not in report.report([_loaded(tmp_path, _results(), "plain.json")])
+
+
+def test_the_sensitivity_study_sits_next_to_the_papers_numbers(tmp_path):
+    methods = [("ours-softmax", {"tau": t}, ret) for t, ret in ((0.1, 700.0), (0.2, 760.0), (0.5, 730.0))] + \
+              [("ours-step", {"thr": 0.1, "w": w}, ret) for w, ret in ((4.0, 800.0), (5.0, 1000.0), (6.0, 900.0))]
+    text = report.report([_loaded(tmp_path, _results(env="walker2d", methods=methods))])
+    table = text[text.index("### Sensitivity"):]
+    assert "| softmax τ 0.2 | 760 ± 10 | 38.0 | Walker2d 769 ± 97 |" in table
+    assert "| step THR 10%, W 6 | 900 ± 10 | 45.0 | driving 41.3% success |" in table
+    assert "Over τ: the means span 60, beyond the largest std over seeds (10)." in table
+    assert "### Sensitivity" not in report.report([_loaded(tmp_path, _results(), "hopper.json")])
