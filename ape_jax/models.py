@@ -162,9 +162,10 @@ class ResNet18Policy(nn.Module):
     Size and cost: 11.19M encoder parameters with H = 2 (torchvision's
     ResNet-18 without its classifier has 11.18M; GroupNorm has as many as
     BatchNorm), 11.40M in all. A training iteration at batch 128, 64×64, H = 2
-    is ~90 GFLOP, 11× `ImagePolicy`; on a (contended) 2-core CPU it took 24 s
-    against 0.2 s, partly because XLA:CPU is very slow at the 3×3 512-channel
-    convolutions on stage 4's 2×2 maps. Meant for GPUs.
+    is ~90 GFLOP (XLA's cost estimate), 11× `ImagePolicy`; on a 2-core CPU it
+    ran about a hundred times slower than `ImagePolicy` in a one-off probe,
+    partly because XLA:CPU is very slow at the 3×3 512-channel convolutions on
+    stage 4's 2×2 maps. Meant for GPUs.
     """
 
     action_dim: int

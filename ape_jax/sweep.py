@@ -89,8 +89,8 @@ PRESETS = {
     "default": Preset(iterations=30_000, seeds=3, eval_episodes=20, ape_steps=5_000, chunk=2_000),
     "paper": Preset(iterations=300_000, seeds=5, eval_episodes=100, ape_steps=20_000, chunk=10_000),
 }
-# Image observations. A conv policy trains 50-100x slower per iteration than the state MLP on a 2-core CPU
-# (BENCHMARKS.md, "Image training"), so there `quick` and `default` shrink the images, the
+# Image observations. A conv policy trains tens of times slower per iteration than the state MLP on a
+# 2-core CPU, so there `quick` and `default` shrink the images, the
 # iterations and the grid to the paper's step setting and the softmax τ that was best on states;
 # `paper` keeps the supplement's protocol with its ResNet-18, for GPUs.
 IMAGE_PRESETS = {
@@ -362,7 +362,7 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
     Args:
       checkpoint: an opened `SweepCheckpoint`: every finished phase and the
         training states are saved there, and what it already holds is reused.
-      dataset: train from this dataset (`load_dataset`) instead of the
+      dataset: train from this dataset (`minari_io.load_dataset`) instead of the
         shipped expert's demonstrations; its observations and actions must
         fit `env_name`, which evaluates the policies.
       curves: `curves(program, runs, metrics)` after each program trains, with
@@ -426,7 +426,7 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
         log(f"image policies on CPU: configurations train one after another, {CPU_IMAGE_CHUNK} unrolled "
             "iterations per call (XLA:CPU is slow at convolution gradients in loops and under vmap)")
         if preset.encoder == "resnet18":
-            log("warning: ResNet-18 on a CPU takes ~24 s per iteration per configuration (BENCHMARKS.md); "
+            log("warning: ResNet-18 trains about a hundred times slower than the small encoder on a CPU; "
                 "the paper preset's image protocol is meant for GPUs")
     programs = []  # (name, cfg, runs, learner) in a fixed order
     for name in dict.fromkeys(program_of(r.method) for r in runs):  # a method with an empty grid has none
