@@ -1,0 +1,116 @@
+"""Image policies' training and evaluation speed, and memory: `python -m experiments.bench_images`.
+
+    python -m experiments.bench_images                        # print the table
+    python -m experiments.bench_images --write BENCHMARKS.md  # also replace its section
+
+For the image policies the sweep trains (frames stacked on channels, history
+2, batch 128, random uint8 frames):
+
+1. model-updates/s of one configuration, per encoder and image size, trained
+   the way the sweep trains images on this backend: on a CPU one chunk of
+   `ape_jax.sweep.CPU_IMAGE_CHUNK` unrolled iterations per call (XLA:CPU is slow
+   at convolution gradients inside loops), elsewhere a scanned chunk;
+2. evaluation policy-steps/s of the image evaluator on hopper (rendering
+   inside the jitted rollout, the CNN policy, vmapped over policies × episodes);
+3. the process's peak resident memory when done.
+
+Medians of `--repeats` timed runs after a separate compiling call.
+"""
+
+from __future__ import annotations
+
+import resource
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from experiments._cli import Parser
+from experiments._timing import machine, run_benchmark, time_jitted
+
+SECTION = "bench_images"
+H, BATCH, ACT = 2, 128, 3
+
+
+def train_rate(encoder: str, size: int, repeats: int) -> tuple[float, float]:
+    """(compile_s, model-updates/s) of one configuration at `size`×`size`."""
+    from ape_jax.learner import Data, Hparams, LearnerConfig, make_train
+    from ape_jax.sweep import CPU_IMAGE_CHUNK
+
+    cpu = jax.default_backend() == "cpu"
+    chunk = CPU_IMAGE_CHUNK if cpu else 100
+    cfg = LearnerConfig(obs_shape=(size, size, 3), action_dim=ACT, history=H, batch_size=BATCH, unroll=cpu,
+                        encoder=encoder)
+    rng = np.random.default_rng(0)
+    n = 2_000
+    data = Data(obs=jnp.asarray(rng.integers(0, 256, (n, size, size, 3), np.uint8)),
+                action=jnp.asarray(rng.uniform(-1, 1, (n, ACT)), jnp.float32),
+                t=jnp.asarray(np.arange(n) % 1000, jnp.int32), ape=jnp.ones(n, jnp.float32))
+    learner, hp = make_train(cfg), Hparams.make("step", thr=0.1, w=5.0)
+    state = jax.jit(learner.init)(jax.random.PRNGKey(0), hp, data)
+    run = jax.jit(lambda s, d: learner.run(s, hp, d, chunk)[0].params)
+    compile_s, steady_s, _ = time_jitted(run, state, data, repeats=repeats)
+    return compile_s, chunk / steady_s
+
+
+def eval_rate(size: int, policies: int, episodes: int, steps: int, repeats: int) -> tuple[float, float]:
+    """(compile_s, policy-steps/s) of the image evaluator on hopper at `size`×`size`."""
+    import envs
+    from ape_jax import evaluate
+    from ape_jax.learner import LearnerConfig
+
+    env = envs.make("hopper", obs="image", image_size=(size, size))
+    cfg = LearnerConfig(obs_shape=env.observation_shape, action_dim=env.action_size, history=H)
+    keys = jax.random.split(jax.random.PRNGKey(0), policies)
+    params = jax.vmap(lambda k: cfg.model().init(k, jnp.zeros((1, size, size, 3 * H))))(keys)
+    run = evaluate.make_evaluator(env, cfg, None, None, episodes, steps=steps)
+    compile_s, steady_s, _ = time_jitted(run, params, jax.random.PRNGKey(1), repeats=repeats)
+    return compile_s, policies * episodes * steps / steady_s
+
+
+def table(args) -> str:
+    cmd = (f"python -m experiments.bench_images --sizes {','.join(map(str, args.sizes))} --encoders "
+           f"{','.join(args.encoders)} --policies {args.policies} --episodes {args.episodes} --repeats {args.repeats}")
+    lines = ["## Image policies: training and evaluation speed, memory", "", f"Command: `{cmd}`  ",
+             f"Machine: {machine()}  ",
+             f"Medians of {args.repeats} runs after a compiling call, batch {BATCH}, history {H}; one configuration "
+             "trained as the sweep trains images on this backend.", "",
+             "| encoder | image | model-updates/s | ms per update | compile s |", "|---|---|---:|---:|---:|"]
+    for encoder in args.encoders:
+        for size in args.sizes:
+            compile_s, rate = train_rate(encoder, size, args.repeats)
+            lines.append(f"| {encoder} | {size}×{size} | {rate:,.1f} | {1e3 / rate:,.0f} | {compile_s:.1f} |")
+            print(lines[-1], file=sys.stderr)
+    compile_s, rate = eval_rate(args.sizes[0], args.policies, args.episodes, 200, args.repeats)
+    lines += ["", f"Evaluation, hopper {args.sizes[0]}×{args.sizes[0]} (small encoder, rendering in the jitted "
+              f"rollout, {args.policies} policies × {args.episodes} episodes × 200 steps): **{rate:,.0f}** "
+              f"policy-steps/s (compile {compile_s:.1f} s).", "",
+              f"Peak resident memory of this process: "
+              f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20:.2f} GB."]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    p = Parser(prog="python -m experiments.bench_images", description=__doc__.splitlines()[0])
+    p.add_argument("--sizes", type=lambda s: [int(x) for x in s.split(",")], default=[32, 64],
+                   help="image sides, comma list (default: 32,64; the first is also evaluated)")
+    p.add_argument("--encoders", type=lambda s: s.split(","), default=["small"],
+                   help="small and/or resnet18 (default: small; resnet18 takes tens of seconds per update on a CPU)")
+    p.add_argument("--policies", type=int, default=3, help="policies evaluated at once")
+    p.add_argument("--episodes", type=int, default=4, help="episodes per policy")
+    p.add_argument("--repeats", type=int, default=3, help="timed runs; the median is reported")
+    return run_benchmark(p, argv, ("--policies", "--episodes", "--repeats"), table, SECTION, check=_check)
+
+
+def _check(args) -> str | None:
+    from ape_jax.models import IMAGE_ENCODERS
+
+    if not args.sizes or min(args.sizes) < 8 or max(args.sizes) > 512:
+        return f"--sizes must be image sides in [8, 512], got {args.sizes}"
+    unknown = [e for e in args.encoders if e not in IMAGE_ENCODERS]
+    return f"--encoders: unknown {unknown}; valid: {', '.join(IMAGE_ENCODERS)}" if unknown else None
+
+
+if __name__ == "__main__":
+    sys.exit(main())
