@@ -486,7 +486,9 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
                    "ape": {"normalization": preset.ape_normalization, "scale": ape_scale,
                            "final_fit_mse": ape_fit_mse,
                            # the expert's reference for the policies' rollout_ape (the training split's is 1)
-                           "val_mean": float(jnp.mean(ape_val))},
+                           "val_mean": float(jnp.mean(ape_val)),
+                           # the training split's normalised APE distribution, for the weights' histograms
+                           "quantiles": np.quantile(np.asarray(ape_train), np.linspace(0, 1, 101)).tolist()},
                    "ape_normalization": preset.ape_normalization,
                    "data": {"path": str(data_path), "train_transitions": len(train),
                             "val_transitions": len(val), "settings": settings}},
@@ -560,13 +562,27 @@ def _run_record(run: Run, j: int, out: dict, losses: dict, loss_curve: np.ndarra
     record["eval"] = ev
     record["losses"] = {split: {k: float(v[j]) for k, v in losses[split].items()} for split in losses}
     record["train_loss_final"] = float(np.mean(loss_curve[-100:]))
+    record["train_curve"] = window_means(loss_curve, CURVE_POINTS)
     return _finite_or_none(record)
+
+
+CURVE_POINTS = 100  # points of each run's training curve in results.json (the full curves: OUT/curves/)
+
+
+def window_means(values: np.ndarray, points: int) -> list[float]:
+    """`values` cut into `points` consecutive windows of equal length (the last takes the rest), each window's mean."""
+    values = np.asarray(values, np.float64)
+    width = max(1, len(values) // points)
+    ends = [*range(width, len(values), width)][: points - 1] + [len(values)]
+    return [float(values[a:b].mean()) for a, b in zip([0, *ends[:-1]], ends)]
 
 
 def _finite_or_none(tree):
     """The record with every non-finite float replaced by None (JSON has no NaN)."""
     if isinstance(tree, dict):
         return {k: _finite_or_none(v) for k, v in tree.items()}
+    if isinstance(tree, list):
+        return [_finite_or_none(v) for v in tree]
     if isinstance(tree, float) and not math.isfinite(tree):
         return None
     return tree

@@ -35,6 +35,12 @@ def test_sweep_writes_results_matching_the_schema_with_every_configuration_and_s
     assert set(seen) == expected and all(s == {0, 1} for s in seen.values())
     assert len(r["summary"]) == len(expected) and all(row["n_seeds"] == 2 for row in r["summary"])
     assert r["config"]["iterations"] == 30 and r["config"]["ape_normalization"] == "mean"
+    quantiles = r["config"]["ape"]["quantiles"]
+    assert len(quantiles) == 101 and quantiles == sorted(quantiles) and quantiles[0] >= 0
+    for run in r["runs"]:  # the training curve: 30 iterations in (at most) 100 windows, and the copycat diagnostics
+        curve = run["train_curve"]  # one point per iteration here; train_loss_final is the mean of all 30
+        assert len(curve) == 30 and sum(curve) / 30 == pytest.approx(run["train_loss_final"], rel=1e-5)
+        assert run["eval"]["imitation_error"] >= 0 and run["eval"]["rollout_ape"] >= 0
     assert r["timing"]["total_s"] > 0 and r["system"]["backend"] == "cpu"
     assert (out / "results.csv").read_text().count("\n") == len(expected) + 1
     assert (out / "params" / "h2").is_dir() and (out / "params" / "h1").is_dir()
@@ -95,6 +101,7 @@ def test_a_diverging_configuration_is_recorded_as_failed_and_the_others_finish(t
     failed = [run for run in r["runs"] if run["status"] == "failed"]
     assert [(f["method"], f["hparams"]) for f in failed] == [("ours-step", {"thr": 0.1, "w": 3.0})]
     assert "non-finite" in failed[0]["error"]
+    assert None in failed[0]["train_curve"]  # NaN windows are null in JSON
     assert sum(run["status"] == "ok" for run in r["runs"]) == 6
     row = next(s for s in r["summary"] if s["hparams"] == {"thr": 0.1, "w": 3.0})
     assert row["n_seeds"] == 0 and row["return_mean"] is None
