@@ -11,6 +11,8 @@ writes atomically: a temporary file in the same folder, then `os.replace`.
   `center` (BC-OH's value) the diverging colours show better / worse than it.
 - `bars(labels, panels)` — one panel per environment, a horizontal bar per
   method (mean), error bar (std over seeds) and every seed as a dot.
+- `lines(panels)` — one panel per environment, a line per series (with a
+  shaded ± band if given): training curves, weight distributions.
 - `keyframes(ape, actions, threshold, frames, frame_t, ...)` — one episode's
   APE along time with its keyframes, the expert's actions, and rendered frames.
 """
@@ -123,6 +125,42 @@ def heatmap(title: str, panels: Sequence[Grid], center: float | None, unit: str 
     fig.suptitle(title, fontsize=10)
     fig.supxlabel("solid box: best cell of the panel; dashed box: the paper's choice; "
                   "cells: mean ± std over seeds", fontsize=8, color="0.25")
+    return fig
+
+
+class Lines(NamedTuple):
+    """One line panel: `series` of `(label, x, y, band)`, `band` the ± half-width around y or None."""
+
+    title: str
+    xlabel: str
+    ylabel: str
+    series: Sequence[tuple[str, Sequence[float], Sequence[float], Sequence[float] | None]]
+    log_x: bool = False
+    log_y: bool = False
+
+
+def lines(panels: Sequence[Lines], title: str = "") -> Figure:
+    """Line plots, one panel per environment (a shared legend under each panel)."""
+    if not panels:
+        raise ValueError("lines needs at least one panel")
+    fig = Figure(figsize=(4.2 * len(panels), 3.6), dpi=DPI, layout="constrained")
+    for ax, p in zip(fig.subplots(1, len(panels), squeeze=False)[0], panels):
+        for label, x, y, band in p.series:
+            x, y = np.asarray(x, float), np.asarray(y, float)
+            (line,) = ax.plot(x, y, lw=1.3, label=label)
+            if band is not None:
+                b = np.asarray(band, float)
+                ax.fill_between(x, y - b, y + b, color=line.get_color(), alpha=0.2, lw=0)
+        ax.set_xscale("log" if p.log_x else "linear")
+        ax.set_yscale("log" if p.log_y else "linear")
+        ax.set_title(p.title, fontsize=10)
+        ax.set_xlabel(p.xlabel, fontsize=9)
+        ax.set_ylabel(p.ylabel, fontsize=9)
+        ax.grid(color="0.9")
+        ax.tick_params(labelsize=8)
+        ax.legend(fontsize=7, frameon=False)
+    if title:
+        fig.suptitle(title, fontsize=10)
     return fig
 
 

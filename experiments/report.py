@@ -600,6 +600,58 @@ def returns_figure(merged: dict):
                                         "best softmax selected after the fact")
 
 
+def curves_figure(merged: dict):
+    """Training curves (the weighted loss of the sampled batches, mean ± std over seeds) of BC-OH, the paper's
+    step setting and the best softmax, one panel per environment; None if no run records its curve."""
+    from ape_jax import figures
+
+    panels = []
+    for (env, obs), m in _ordered(merged):
+        series = []
+        for label, row in (("BC-OH", _best(_rows(m, "bc-oh"))), ("Ours, step THR 10% W 5", next(
+                (r for r in _rows(m, "ours-step") if r["hparams"] == PAPER_STEP), None)),
+                           ("Ours, best softmax" + _hp(_best(_rows(m, "ours-softmax"))),
+                            _best(_rows(m, "ours-softmax")))):
+            runs = [r["train_curve"] for r in m["runs"] if row is not None and r["status"] == "ok"
+                    and _config_key(r) == _config_key(row) and r.get("train_curve")]
+            runs = [c for c in runs if None not in c and len(c) == len(runs[0])] if runs else []
+            if runs:
+                curve = np.asarray(runs, float)
+                iters = m["sources"][0]["config"]["iterations"]
+                x = (np.arange(curve.shape[1]) + 1) * iters / curve.shape[1]
+                series.append((label, x, curve.mean(0), curve.std(0)))
+        if series:
+            panels.append(figures.Lines(_env_title(env, obs), "iteration", "weighted BC loss (window mean)",
+                                        series, log_y=True))
+    return figures.lines(panels, "Training curves (mean ± std over seeds)") if panels else None
+
+
+def weights_figure(merged: dict, batch: int = 128, batches: int = 400):
+    """The per-sample weights softmax weighting gives within a batch, per τ, from each environment's APE
+    quantiles (batches drawn from that distribution); None if no results file records them."""
+    from ape_jax import figures
+
+    rng, bins = np.random.default_rng(0), np.logspace(-4, math.log10(batch), 49)
+    panels = []
+    for (env, obs), m in _ordered(merged):
+        q = next((src["config"]["ape"].get("quantiles") for src in m["sources"]
+                  if isinstance(src["config"].get("ape"), dict) and src["config"]["ape"].get("quantiles")), None)
+        taus = sorted({r["hparams"]["tau"] for r in _rows(m, "ours-softmax")})
+        if q is None or not taus:
+            continue
+        ape = np.interp(rng.uniform(size=(batches, batch)), np.linspace(0, 1, len(q)), q)
+        series = []
+        for tau in taus:
+            z = ape / tau
+            w = batch * np.exp(z - z.max(1, keepdims=True))
+            w /= w.sum(1, keepdims=True) / batch
+            hist, _ = np.histogram(w.ravel(), bins=bins)
+            series.append((f"τ {tau:g}", np.sqrt(bins[1:] * bins[:-1]), hist / w.size, None))
+        panels.append(figures.Lines(_env_title(env, obs), "weight of a sample in its batch (1 = uniform)",
+                                    "fraction of samples", series, log_x=True))
+    return figures.lines(panels, f"Softmax weights within a batch of {batch}") if panels else None
+
+
 def _ordered(merged: dict) -> list[tuple[tuple[str, str], dict]]:
     order = {e: i for i, e in enumerate((*MUJOCO, "toycar"))}
     return sorted(merged.items(), key=lambda kv: (order.get(kv[0][0], len(order)), kv[0]))
@@ -695,6 +747,14 @@ def build(files: list[dict], figure_dir: pathlib.Path | None = None,
         out += ["### Sensitivity (the supplement's §4)", "",
                 "Walker2d (states), softmax τ and the step weight W at THR 10%, next to the paper's numbers "
                 "(its W study was on CARLA driving, so only the pattern compares).", "", sensitivity]
+    extra = figure("curves.png", "Training curves", lambda: curves_figure(merged)) + \
+        figure("weights.png", "Softmax weights within a batch", lambda: weights_figure(merged))
+    if extra:
+        out += ["### Training curves and weights", "",
+                "From the results files that record them (runs since the training curve and the APE quantiles "
+                "were added to `results.json`). Weights: batches of 128 drawn from each task's training APE "
+                "distribution, weighted as the sweep does, `B·softmax(APE/τ)`; for comparison, step weighting at "
+                "THR 10% W 5 puts 10% of samples at 5 and the rest at 1.", ""] + extra
     for (env, obs), m in _ordered(merged):
         out += [f"### {TITLES.get(env, env)}, `{obs}` observations: every configuration", ""]
         out += [f"- {provenance(r)}" for r in m["sources"]]

@@ -247,3 +247,24 @@ def test_the_sensitivity_study_sits_next_to_the_papers_numbers(tmp_path):
     assert "| step THR 10%, W 6 | 900 ± 10 | 45.0 | driving 41.3% success |" in table
     assert "Over τ: the means span 60, beyond the largest std over seeds (10)." in table
     assert "### Sensitivity" not in report.report([_loaded(tmp_path, _results(), "hopper.json")])
+
+
+def test_training_curves_and_weight_histograms_are_drawn_from_files_that_record_them(tmp_path):
+    from PIL import Image
+
+    r = _results()
+    r["config"]["ape"] = {"normalization": "mean", "scale": 0.02, "val_mean": 1.0,
+                          "quantiles": [0.01 * 1.06 ** i for i in range(101)]}
+    for run in r["runs"]:
+        run["train_curve"] = [1.0 / (1 + i + run["seed"]) for i in range(100)]
+    out = tmp_path / "B.md"
+    assert report.main([str(_write(tmp_path, "r.json", r)), "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "![Training curves](figures/curves.png)" in text
+    assert "![Softmax weights within a batch](figures/weights.png)" in text
+    for name in ("curves.png", "weights.png"):
+        with Image.open(tmp_path / "figures" / name) as im:
+            assert im.size[0] > 300 and im.size[1] > 200
+    plain = tmp_path / "plain.md"
+    assert report.main([str(_write(tmp_path, "p.json", _results())), "--out", str(plain)]) == 0
+    assert "Training curves" not in plain.read_text()  # older files: no section, no figures
