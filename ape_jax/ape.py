@@ -109,3 +109,34 @@ def normalize(ape_train: jax.Array, ape_val: jax.Array, mode: str = "mean") -> t
         raise ValueError(f"APE normalization: the training-set mean APE is {scale}; the expert's actions "
                          "are perfectly predictable, so APE cannot rank samples (use 'none')")
     return ape_train / scale, ape_val / scale, scale
+
+
+def fit_all(actions, t, steps: int, seed: int = 0, bar=None):
+    """Raw APE `[N]` (numpy) of every sample of a dataset, from ψ fitted on all of it.
+
+    For the entry points that weight or picture a whole dataset (the sweep fits
+    on its training split only). `bar`: a tqdm-like progress bar, kept ticking
+    while the fit (one asynchronous scan) runs. APE is computed in chunks of
+    whole episodes (ψ sees past actions within an episode only, so the values
+    are exact) to bound memory.
+    """
+    import functools
+    import time
+
+    import numpy as np
+
+    actions, t = jnp.asarray(actions, jnp.float32), jnp.asarray(t)
+    params, losses = jax.jit(functools.partial(fit, steps=steps))(jax.random.PRNGKey(seed), actions, t)
+    while bar is not None and not losses.is_ready():
+        bar.update(0)
+        time.sleep(0.2)
+    if bar is not None:
+        bar.update(steps)
+    starts = np.flatnonzero(np.asarray(t) == 0)
+    cuts = [0]
+    for s in starts[1:]:
+        if s - cuts[-1] >= 1 << 16:
+            cuts.append(int(s))
+    cuts.append(len(actions))
+    return np.concatenate([np.asarray(errors(params, actions[a:b], t[a:b])) for a, b in zip(cuts, cuts[1:])])
+

@@ -97,7 +97,7 @@ def main(argv=None) -> int:
     from ape_jax import ape as ape_lib
     from ape_jax import collect, data, figures, keyframes
     from envs.experts import ExpertError
-    from experiments.weights import fit_ape
+    from tqdm import tqdm
 
     started = time.perf_counter()
     try:
@@ -122,7 +122,8 @@ def main(argv=None) -> int:
         return fail(None, f"--episode {args.episode}: not in {path} (episodes {demos.episode_ids.min()}.."
                     f"{demos.episode_ids.max()})")
 
-    ape_raw = fit_ape(demos, args.ape_steps, args.seed)
+    with tqdm(total=args.ape_steps, desc="fit APE", unit="step", delay=1.0, dynamic_ncols=True) as bar:
+        ape_raw = ape_lib.fit_all(demos.action, demos.t, args.ape_steps, args.seed, bar)
     try:
         ape_all, _, scale = ape_lib.normalize(ape_raw, ape_raw[:0], "mean")
     except ValueError as e:

@@ -31,7 +31,6 @@ import json
 import math
 import pathlib
 import sys
-import time
 
 from experiments._cli import Parser, fail, unwritable_file
 
@@ -71,30 +70,12 @@ def parse(argv=None) -> argparse.Namespace:
 
 def fit_ape(demos, steps: int, seed: int):
     """Raw APE `[N]` of every sample, from ψ fitted on all of `demos`; a progress bar after a second."""
-    import functools
-
-    import jax
-    import jax.numpy as jnp
-    import numpy as np
     from tqdm import tqdm
 
     from ape_jax import ape
 
-    actions, t = jnp.asarray(demos.action), jnp.asarray(demos.t)
     with tqdm(total=steps, desc="fit APE", unit="step", delay=1.0, dynamic_ncols=True) as bar:
-        params, losses = jax.jit(functools.partial(ape.fit, steps=steps))(jax.random.PRNGKey(seed), actions, t)
-        while not losses.is_ready():  # the fit runs asynchronously (one scan): keep the elapsed time ticking
-            bar.update(0)
-            time.sleep(0.2)
-        bar.update(steps)
-    # ψ sees past actions within an episode only, so chunks of whole episodes give exact APE in bounded memory
-    starts = np.flatnonzero(np.asarray(demos.t) == 0)
-    cuts = [0]
-    for s in starts[1:]:
-        if s - cuts[-1] >= 1 << 16:
-            cuts.append(int(s))
-    cuts.append(len(demos))
-    return np.concatenate([np.asarray(ape.errors(params, actions[a:b], t[a:b])) for a, b in zip(cuts, cuts[1:])])
+        return ape.fit_all(demos.action, demos.t, steps, seed, bar)
 
 
 def main(argv=None) -> int:
