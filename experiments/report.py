@@ -211,11 +211,12 @@ def _cell(row: dict | None) -> str:
     return f"{row['return_mean']:,.0f} ± {row['return_std']:,.0f}{norm}"
 
 
-def state_table(merged: dict) -> str:
-    envs = [e for e in MUJOCO if (e, "pos") in merged]
+def state_table(merged: dict, obs: str = "pos") -> str:
+    """Every method per MuJoCo task with observations `obs` ("pos": MuJoCo-State, "image": MuJoCo-Image)."""
+    envs = [e for e in MUJOCO if (e, obs) in merged]
     if not envs:
         return ""
-    heads = {e: headline(merged[(e, "pos")]) for e in envs}
+    heads = {e: headline(merged[(e, obs)]) for e in envs}
     lines = ["| method | " + " | ".join(TITLES[e] for e in envs) + " |", "|---|" + "---:|" * len(envs)]
     for i, (label, _) in enumerate(heads[envs[0]]):
         generic = label.split(" (")[0] if label.startswith("Ours, best") else label
@@ -227,12 +228,40 @@ def state_table(merged: dict) -> str:
                 cell += f" <br>{lab[len(generic) + 1:]}"
             cells.append(cell)
         lines.append(f"| {generic} | " + " | ".join(cells) + " |")
-    experts = [merged[(e, "pos")]["expert"] for e in envs]
+    experts = [merged[(e, obs)]["expert"] for e in envs]
     lines.append("| expert (ours) | " + " | ".join("—" if x["return_mean"] is None else
                                                    f"{x['return_mean']:,.0f} ± {x['return_std'] or 0:,.0f}"
                                                    for x in experts) + " |")
     lines.append("| random policy | " + " | ".join("—" if x["random_return_mean"] is None else
                                                    f"{x['random_return_mean']:,.0f}" for x in experts) + " |")
+    return "\n".join(lines) + "\n"
+
+
+# The supplement's Table 4 (ToyCar): success rate (%), mean ± std over 5 trials.
+PAPER_TABLE4 = {"bc-so": (97.2, 0.7), "bc-oh": (95.1, 4.5), "ours": (97.8, 0.5)}
+TOYCAR_METRICS = (("success", "success %", 100.0), ("red_light_violations", "red-light violations", 1.0),
+                  ("progress", "progress", 1.0), ("avg_speed", "average speed", 1.0), ("stuck", "stuck %", 100.0))
+
+
+def toycar_table(merged: dict) -> str | None:
+    """The supplement's Table 4 protocol: BC-SO, BC-OH and Ours (THR 10%, W 5) on ToyCar images, every
+    driving metric as mean ± std over seeds (of each seed's episode mean), the paper's success beside."""
+    m = merged.get(("toycar", "image"))
+    if m is None:
+        return None
+    lines = ["| method | seeds | " + " | ".join(name for _, name, _ in TOYCAR_METRICS) + " | paper: success % |",
+             "|---|---:|" + "---:|" * (len(TOYCAR_METRICS) + 1)]
+    for label, method, hp, paper in (("BC-SO", "bc-so", {}, "bc-so"), ("BC-OH", "bc-oh", {}, "bc-oh"),
+                                     ("Ours, step THR 10% W 5", "ours-step", PAPER_STEP, "ours")):
+        runs = [r for r in m["runs"] if r["method"] == method and r["hparams"] == hp and r["status"] == "ok"]
+        if not runs:
+            continue
+        cells = []
+        for key, _, scale in TOYCAR_METRICS:
+            v = np.array([r["eval"][key] for r in runs if key in r["eval"]], float) * scale
+            cells.append(f"{v.mean():.2f} ± {v.std():.2f}" if len(v) else "—")
+        p_mean, p_std = PAPER_TABLE4[paper]
+        lines.append(f"| {label} | {len(runs)} | " + " | ".join(cells) + f" | {p_mean} ± {p_std} |")
     return "\n".join(lines) + "\n"
 
 
@@ -725,6 +754,15 @@ def build(files: list[dict], figure_dir: pathlib.Path | None = None,
                 "Next to the supplement's Table 5 (its own experts, whose returns it does not give): mean "
                 "returns, and in brackets each method's ratio to BC-OH of the same source.", "",
                 paper_table(merged)]
+    if any((e, "image") in merged for e in MUJOCO):
+        out += ["### MuJoCo-Image", "",
+                "As MuJoCo-State, from rendered frames (the image presets: see each file's provenance below).", "",
+                state_table(merged, "image")]
+    toycar = toycar_table(merged)
+    if toycar:
+        out += ["### ToyCar (the supplement's Table 4 protocol)", "",
+                "Driving metrics per policy, mean ± std over seeds of each seed's mean over evaluation episodes; "
+                "the paper's success rates beside (its own ToyCar sandbox, not ours).", "", toycar]
     if figure_dir is None:
         out += ["_Figures not drawn: the report was printed without `--figures DIR` (with `--out` they go to "
                 "`figures/` next to it)._", ""]

@@ -268,3 +268,20 @@ def test_training_curves_and_weight_histograms_are_drawn_from_files_that_record_
     plain = tmp_path / "plain.md"
     assert report.main([str(_write(tmp_path, "p.json", _results())), "--out", str(plain)]) == 0
     assert "Training curves" not in plain.read_text()  # older files: no section, no figures
+
+
+def test_image_and_toycar_results_get_their_tables(tmp_path):
+    image = {**_results(), "obs": "image"}
+    toycar = {**_results(env="toycar", methods=(("bc-so", {}, 0.0), ("bc-oh", {}, 0.0),
+                                                 ("ours-step", {"thr": 0.1, "w": 5.0}, 0.0))), "obs": "image"}
+    toycar["expert"] = {"return_mean": None, "return_std": None, "random_return_mean": None}
+    for i, run in enumerate(toycar["runs"]):
+        run["eval"].update(success=0.9 + 0.05 * run["seed"], red_light_violations=0.0, progress=0.8,
+                           avg_speed=0.5, stuck=0.1 * run["seed"])
+    text = report.report([_loaded(tmp_path, image, "image.json"), _loaded(tmp_path, toycar, "toycar.json")])
+    img = text[text.index("### MuJoCo-Image"):]
+    assert "| BC-OH | 1,000 ± 10 (50%) |" in img
+    car = text[text.index("### ToyCar"):]
+    assert "| BC-OH | 2 | 92.50 ± 2.50 | 0.00 ± 0.00 | 0.80 ± 0.00 | 0.50 ± 0.00 | 5.00 ± 5.00 | 95.1 ± 4.5 |" in car
+    assert "| Ours, step THR 10% W 5 | 2 |" in car and "97.8 ± 0.5" in car
+    assert "### MuJoCo-State" not in text
