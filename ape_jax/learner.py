@@ -172,10 +172,17 @@ def drop_history(key: jax.Array, history: jax.Array, p: jax.Array | float) -> ja
 
 
 def dataset_losses(learner: Learner, params: Any, data: Data, chunk: int = 4096) -> jax.Array:
-    """`[N]` unweighted loss of every sample of `data` under policy `params`, computed in chunks of rows."""
+    """`[N]` unweighted loss of every sample of `data` under policy `params`, `chunk` rows at a time.
+
+    The chunks run in a `lax.map`, so memory holds one chunk's activations
+    whatever `N` is, and the program's size does not grow with `N`.
+    """
     n = data.obs.shape[0]
-    return jnp.concatenate([learner.per_sample_loss(params, data, idx)
-                            for idx in jnp.array_split(jnp.arange(n), max(1, n // chunk))])
+    chunk = max(1, min(chunk, n))
+    rounds = -(-n // chunk)
+    idx = jnp.arange(rounds * chunk).reshape(rounds, chunk) % n  # the last chunk wraps around; cut off below
+    losses = jax.lax.map(lambda i: learner.per_sample_loss(params, data, i), idx)
+    return losses.reshape(-1)[:n]
 
 
 def learning_rate(cfg: LearnerConfig, lr: jax.Array, step: jax.Array) -> jax.Array:

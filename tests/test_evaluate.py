@@ -88,3 +88,22 @@ def test_copycat_diagnostics_equal_a_step_by_step_reference():
             ape = np.asarray(ape_lib.errors(psi, traj.action[e], jnp.arange(traj.action.shape[1])))[:n]
             np.testing.assert_allclose(out["rollout_ape"][p, e], ape.mean() / 2.0, rtol=1e-5)
     assert np.all(out["imitation_error"] > 0)  # untrained policies do not act like the expert
+
+
+def test_image_loss_analysis_goes_policy_by_policy_in_chunks_and_matches_all_at_once():
+    """Image policies: one at a time over 256-row chunks (300 rows: a partial last chunk), same numbers."""
+    cfg = LearnerConfig(obs_shape=(8, 8, 3), action_dim=2, history=2, batch_size=4)
+    learner = make_train(cfg)
+    n = 300
+    k_obs, k_act, k_ape = jax.random.split(jax.random.PRNGKey(0), 3)
+    data = Data(obs=jax.random.randint(k_obs, (n, 8, 8, 3), 0, 256).astype(jnp.uint8),
+                action=jax.random.normal(k_act, (n, 2)), t=jnp.arange(n) % 50, ape=jax.random.uniform(k_ape, (n,)))
+    x = learner.policy_input(jnp.zeros((1, 2, 8, 8, 3), jnp.uint8))
+    params = jax.vmap(lambda k: cfg.model().init(k, x))(jax.random.split(jax.random.PRNGKey(1), 2))
+    out = evaluate.loss_analysis(cfg, params, data)
+    cp = np.asarray(data.ape) >= np.quantile(np.asarray(data.ape), 0.9)
+    for p in range(2):
+        losses = np.asarray(learner.per_sample_loss(jax.tree.map(lambda v: v[p], params), data, jnp.arange(n)))
+        np.testing.assert_allclose(out["unweighted"][p], losses.mean(), rtol=1e-5)
+        np.testing.assert_allclose(out["changepoint"][p], losses[cp].mean(), rtol=1e-5)
+        np.testing.assert_allclose(out["copycat"][p], losses[~cp].mean(), rtol=1e-5)
