@@ -236,6 +236,22 @@ def prepare(demos: Demonstrations, preset: Preset, seed: int = 0):
     return train, val, mean.astype(np.float32), std.astype(np.float32)
 
 
+def fit_ape(train: Demonstrations, val: Demonstrations, preset: Preset) -> dict:
+    """ψ fitted on the training split's actions (key 0, deterministic) and both splits' normalised APE.
+
+    Returns arrays (a checkpoint phase): `train`, `val` (APE), `scale` (the
+    normalisation's divisor), `final_fit_mse`, `psi` (ψ, flax-serialised).
+    """
+    fit = jax.jit(lambda k, a, t: ape_lib.fit(k, a, t, steps=preset.ape_steps))
+    ape_params, ape_losses = fit(jax.random.PRNGKey(0), jnp.asarray(train.action), jnp.asarray(train.t))
+    ape_train = ape_lib.errors(ape_params, jnp.asarray(train.action), jnp.asarray(train.t))
+    ape_val = ape_lib.errors(ape_params, jnp.asarray(val.action), jnp.asarray(val.t))
+    ape_train, ape_val, ape_scale = ape_lib.normalize(ape_train, ape_val, preset.ape_normalization)
+    return {"train": ape_train, "val": ape_val, "scale": ape_scale,
+            "final_fit_mse": np.mean(np.asarray(ape_losses)[-50:]),
+            "psi": np.frombuffer(flax.serialization.to_bytes(ape_params), np.uint8)}
+
+
 def _data(split: Demonstrations, ape: jax.Array, mean, std, scores: jax.Array | None = None) -> Data:
     obs = jnp.asarray(split.obs)
     if mean is not None:
@@ -403,14 +419,7 @@ def run_sweep(env_name: str, obs: str, preset_name: str, preset: Preset, methods
     saved = checkpoint.load_arrays("ape") if checkpoint is not None else None
     with bar(desc="fit APE", total=preset.ape_steps, unit="step") as b:
         if saved is None:
-            fit = jax.jit(lambda k, a, t: ape_lib.fit(k, a, t, steps=preset.ape_steps))
-            ape_params, ape_losses = fit(jax.random.PRNGKey(0), jnp.asarray(train.action), jnp.asarray(train.t))
-            ape_train = ape_lib.errors(ape_params, jnp.asarray(train.action), jnp.asarray(train.t))
-            ape_val = ape_lib.errors(ape_params, jnp.asarray(val.action), jnp.asarray(val.t))
-            ape_train, ape_val, ape_scale = ape_lib.normalize(ape_train, ape_val, preset.ape_normalization)
-            saved = {"train": ape_train, "val": ape_val, "scale": ape_scale,
-                     "final_fit_mse": np.mean(np.asarray(ape_losses)[-50:]),
-                     "psi": np.frombuffer(flax.serialization.to_bytes(ape_params), np.uint8)}
+            saved = fit_ape(train, val, preset)
             if checkpoint is not None:
                 checkpoint.save_arrays("ape", saved)
         b.update(preset.ape_steps)

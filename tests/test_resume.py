@@ -1,4 +1,5 @@
-"""Kill-and-resume and determinism of the sweep, and its refusal of checkpoints it cannot resume.
+"""Kill-and-resume and determinism of the sweep, its refusal of checkpoints it cannot resume, and the evaluation
+of its saved policies again.
 
 A shrunken ToyCar sweep (state observations: no MJX or convolution compiles)
 runs uninterrupted in this process; the same sweep is killed with SIGKILL in a
@@ -208,3 +209,38 @@ def test_a_dataset_that_does_not_fit_the_environment_is_refused(workdir, referen
     err = refused([*image, "--dataset", collected, "--out", str(workdir / "misfit")], capsys)
     assert "do not fit 'toycar'" in err and "pick the matching --env/--obs" in err
     assert not (workdir / "misfit").exists()  # nothing left behind
+
+
+def test_evaluating_saved_policies_again_adds_the_missing_fields_and_refuses_other_returns(workdir, reference,
+                                                                                         tmp_path, capsys):
+    """`experiments.evaluate` on a results file stripped of the diagnostics restores them from params/; a file whose
+    returns are not the policies' own is refused and left as it was."""
+    import copy
+
+    from experiments import evaluate
+
+    run = tmp_path / "run"
+    shutil.copytree(workdir / "reference" / "params", run / "params")
+    stripped = copy.deepcopy(reference)
+    for r in stripped["runs"]:
+        del r["eval"]["imitation_error"], r["eval"]["rollout_ape"]
+    del stripped["config"]["ape"]["quantiles"], stripped["config"]["ape"]["val_mean"]
+    (run / "results.json").write_text(json.dumps(stripped))
+    assert evaluate.main([str(run), "--data-dir", str(workdir / "data")]) == 0
+    again = json.loads((run / "results.json").read_text())
+    assert set(again["reevaluated"]["fields"]) == {"imitation_error", "rollout_ape", "config.ape.quantiles",
+                                                   "config.ape.val_mean"}
+    for r, ref in zip(again["runs"], reference["runs"]):
+        assert r["eval"] == pytest.approx(ref["eval"], rel=1e-6)
+    ape, ref_ape = again["config"]["ape"], reference["config"]["ape"]
+    assert ape["quantiles"] == pytest.approx(ref_ape["quantiles"], rel=1e-6)
+    assert ape["val_mean"] == pytest.approx(ref_ape["val_mean"], rel=1e-6)
+
+    stripped["runs"][0]["eval"]["return_mean"] += 1.0
+    (run / "results.json").write_text(json.dumps(stripped))
+    before = (run / "results.json").read_bytes()
+    with pytest.raises(SystemExit) as e:
+        evaluate.main([str(run), "--data-dir", str(workdir / "data")])
+    assert e.value.code == 2
+    assert "returns differ from the recorded ones" in capsys.readouterr().err
+    assert (run / "results.json").read_bytes() == before

@@ -1,0 +1,58 @@
+"""Evaluate a finished sweep's saved policies again: `python -m experiments.evaluate OUT`.
+
+Adds to `OUT/results.json` the evaluation fields it lacks (the copycat
+diagnostics `imitation_error` and `rollout_ape`, and the training APE's
+quantiles, for sweeps run before they existed), from the policies in
+`OUT/params/`, on the same episodes (`ape_jax.reevaluate`). Every run's return
+must come out as recorded, or nothing is written (exit 2). The file is
+replaced atomically; `--out FILE` writes elsewhere and leaves it alone.
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import sys
+
+from experiments._cli import Parser, fail, unwritable_file
+
+
+def main(argv=None) -> int:
+    from ape_jax import data
+
+    p = Parser(prog="python -m experiments.evaluate", description=__doc__.splitlines()[0])
+    p.add_argument("run", type=pathlib.Path, help="a sweep's --out directory (results.json and params/)")
+    p.add_argument("--out", type=pathlib.Path, default=None,
+                   help="write the completed results here (default: replace RUN/results.json)")
+    p.add_argument("--data-dir", type=pathlib.Path, default=None, help=f"demonstration cache (default: {data.cache_dir()})")
+    args = p.parse_args(argv)
+    source = args.run / "results.json"
+    try:
+        results = json.loads(source.read_text())
+    except FileNotFoundError:
+        fail(p, f"{source} does not exist: RUN must be a finished sweep's --out directory")
+    except (OSError, ValueError) as e:
+        fail(p, f"{source} is unreadable ({e})")
+    missing = [k for k in ("env", "obs", "config", "runs") if not isinstance(results, dict) or k not in results]
+    if missing:
+        fail(p, f"{source} is not a sweep's results.json (no {', '.join(missing)})")
+    target = args.out or source
+    if (why := unwritable_file(target)) is not None:
+        fail(p, why)
+
+    from ape_jax.reevaluate import ReevaluationError, reevaluate
+    from experiments.sweep import write_json_atomic
+
+    try:
+        new = reevaluate(results, args.run / "params", args.data_dir)
+    except ReevaluationError as e:
+        fail(p, str(e))
+    write_json_atomic(target, new)
+    added = new["reevaluated"]["fields"]
+    print(f"wrote {target}: " + (f"added {', '.join(added)}" if added else "nothing was missing")
+          + f" ({new['reevaluated']['eval_s']:.0f} s); every run's return came out as recorded")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
