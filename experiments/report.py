@@ -714,9 +714,14 @@ def provenance(r: dict) -> str:
     s, t = r["system"], r.get("timing", {})
     machine = s.get("machine") or "machine not recorded in the file"
     commit = f"`{s.get('commit')}`" + (" with uncommitted changes" if s.get("dirty") else "")
-    return (f"`{cmd}` — {cfg['iterations']:,} iterations, {cfg['seeds']} seeds, {cfg['eval_episodes']} evaluation "
+    line = (f"`{cmd}` — {cfg['iterations']:,} iterations, {cfg['seeds']} seeds, {cfg['eval_episodes']} evaluation "
             f"episodes; commit {commit}, jax {s.get('jax')} ({s.get('backend')}, {s.get('devices')} "
             f"device(s)), {machine}; {t.get('total_s', 0):,.0f} s in all")
+    again = r.get("reevaluated")
+    if again and again.get("fields"):
+        line += (f"; {', '.join(f'`{f}`' for f in again['fields'])} added later by `python -m experiments.evaluate` "
+                 f"(commit `{again['system'].get('commit')}`, every return as recorded)")
+    return line
 
 
 def build(files: list[dict], figure_dir: pathlib.Path | None = None,

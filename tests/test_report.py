@@ -56,6 +56,11 @@ def test_the_report_merges_files_per_environment_and_builds_every_table(tmp_path
     # provenance: the command is rebuilt from the file, with its commit and machine
     assert "`python -m experiments.sweep --env hopper --obs pos --preset default --seeds 2` " in text
     assert "--methods fca,dagger" in text and "commit `abc1234`" in text and "test CPU" in text
+    # fields added by experiments.evaluate are named with the commit that added them
+    again = {**_results(), "reevaluated": {"fields": ["imitation_error", "rollout_ape"], "eval_s": 9.0,
+                                           "system": {"commit": "def5678"}}}
+    assert ("`imitation_error`, `rollout_ape` added later by `python -m experiments.evaluate` (commit `def5678`"
+            in report.provenance(again))
     # the grid marks the best configuration; the loss table averages seeds
     assert "| **DAgger (online)** | rounds 4, budget 100 | 2 | **1,900.0 ± 10.0** | 95.0 |" in text
     assert "| BC-OH | 0.6000 | 0.3000 | 0.0500 | 0.6000 | 0.3000 | 0.0500 |" in text
