@@ -656,11 +656,18 @@ def curves_figure(merged: dict):
 
 
 def weights_figure(merged: dict, batch: int = 128, batches: int = 400):
-    """The per-sample weights softmax weighting gives within a batch, per τ, from each environment's APE
-    quantiles (batches drawn from that distribution); None if no results file records them."""
+    """How concentrated the softmax weights are within a batch, per τ, from each environment's APE quantiles
+    (batches drawn from that distribution): the share of a batch's total weight carried by its k heaviest
+    samples, against k; with uniform weights and the paper's step setting for reference. None if no results
+    file records the quantiles."""
     from ape_jax import figures
 
-    rng, bins = np.random.default_rng(0), np.logspace(-4, math.log10(batch), 49)
+    rng, k = np.random.default_rng(0), np.arange(1, batch + 1)
+
+    def share(w):  # [batches, batch] -> the mean over batches of the top-k share of the weight
+        top = -np.sort(-w, axis=1)
+        return (np.cumsum(top, axis=1) / top.sum(1, keepdims=True)).mean(0)
+
     panels = []
     for (env, obs), m in _ordered(merged):
         q = next((src["config"]["ape"].get("quantiles") for src in m["sources"]
@@ -672,13 +679,13 @@ def weights_figure(merged: dict, batch: int = 128, batches: int = 400):
         series = []
         for tau in taus:
             z = ape / tau
-            w = batch * np.exp(z - z.max(1, keepdims=True))
-            w /= w.sum(1, keepdims=True) / batch
-            hist, _ = np.histogram(w.ravel(), bins=bins)
-            series.append((f"τ {tau:g}", np.sqrt(bins[1:] * bins[:-1]), hist / w.size, None))
-        panels.append(figures.Lines(_env_title(env, obs), "weight of a sample in its batch (1 = uniform)",
-                                    "fraction of samples", series, log_x=True))
-    return figures.lines(panels, f"Softmax weights within a batch of {batch}") if panels else None
+            series.append((f"softmax τ {tau:g}", k, share(np.exp(z - z.max(1, keepdims=True))), None))
+        series.append(("step THR 10% W 5", k, share(np.where(ape >= np.interp(0.9, np.linspace(0, 1, len(q)), q),
+                                                             5.0, 1.0)), None))
+        series.append(("uniform (BC-OH)", k, k / batch, None))
+        panels.append(figures.Lines(_env_title(env, obs), f"k heaviest samples of the batch of {batch}",
+                                    "share of the batch's total weight", series, log_x=True))
+    return figures.lines(panels, "How much of a batch's weight its heaviest samples carry") if panels else None
 
 
 def _ordered(merged: dict) -> list[tuple[tuple[str, str], dict]]:
@@ -791,13 +798,14 @@ def build(files: list[dict], figure_dir: pathlib.Path | None = None,
                 "Walker2d (states), softmax τ and the step weight W at THR 10%, next to the paper's numbers "
                 "(its W study was on CARLA driving, so only the pattern compares).", "", sensitivity]
     extra = figure("curves.png", "Training curves", lambda: curves_figure(merged)) + \
-        figure("weights.png", "Softmax weights within a batch", lambda: weights_figure(merged))
+        figure("weights.png", "Weight concentration within a batch", lambda: weights_figure(merged))
     if extra:
         out += ["### Training curves and weights", "",
                 "From the results files that record them (runs since the training curve and the APE quantiles "
                 "were added to `results.json`). Weights: batches of 128 drawn from each task's training APE "
-                "distribution, weighted as the sweep does, `B·softmax(APE/τ)`; for comparison, step weighting at "
-                "THR 10% W 5 puts 10% of samples at 5 and the rest at 1.", ""] + extra
+                "distribution and weighted as the sweep does, `B·softmax(APE/τ)` or the step function; each curve "
+                "is the share of a batch's total weight its k heaviest samples carry (uniform weights: the "
+                "diagonal). A curve near 1 at k = 1 is a batch whose loss is one sample's.", ""] + extra
     for (env, obs), m in _ordered(merged):
         out += [f"### {TITLES.get(env, env)}, `{obs}` observations: every configuration", ""]
         out += [f"- {provenance(r)}" for r in m["sources"]]

@@ -266,7 +266,7 @@ def test_training_curves_and_weight_histograms_are_drawn_from_files_that_record_
     assert report.main([str(_write(tmp_path, "r.json", r)), "--out", str(out)]) == 0
     text = out.read_text()
     assert "![Training curves](figures/curves.png)" in text
-    assert "![Softmax weights within a batch](figures/weights.png)" in text
+    assert "![Weight concentration within a batch](figures/weights.png)" in text
     for name in ("curves.png", "weights.png"):
         with Image.open(tmp_path / "figures" / name) as im:
             assert im.size[0] > 300 and im.size[1] > 200
