@@ -655,37 +655,60 @@ def curves_figure(merged: dict):
     return figures.lines(panels, "Training curves (mean ± std over seeds)") if panels else None
 
 
-def weights_figure(merged: dict, batch: int = 128, batches: int = 400):
-    """How concentrated the softmax weights are within a batch, per τ, from each environment's APE quantiles
-    (batches drawn from that distribution): the share of a batch's total weight carried by its k heaviest
-    samples, against k; with uniform weights and the paper's step setting for reference. None if no results
-    file records the quantiles."""
-    from ape_jax import figures
+def weight_shares(merged: dict, batch: int = 128, batches: int = 400) -> list[tuple[str, list[tuple]]]:
+    """How concentrated the weights are within a batch, per environment that records its APE quantiles.
 
-    rng, k = np.random.default_rng(0), np.arange(1, batch + 1)
+    Batches of `batch` are drawn from each environment's training APE distribution
+    (its quantiles) and weighted as the sweep does: softmax at every τ it ran,
+    the paper's step setting and uniform weights. Returns
+    `[(panel title, [(label, share), ...])]`, `share[k-1]` the mean over batches
+    of the share of the total weight the k heaviest samples carry.
+    """
+    rng = np.random.default_rng(0)
 
-    def share(w):  # [batches, batch] -> the mean over batches of the top-k share of the weight
+    def share(w):  # [batches, batch] -> [batch]
         top = -np.sort(-w, axis=1)
         return (np.cumsum(top, axis=1) / top.sum(1, keepdims=True)).mean(0)
 
-    panels = []
+    out = []
     for (env, obs), m in _ordered(merged):
         q = next((src["config"]["ape"].get("quantiles") for src in m["sources"]
                   if isinstance(src["config"].get("ape"), dict) and src["config"]["ape"].get("quantiles")), None)
         taus = sorted({r["hparams"]["tau"] for r in _rows(m, "ours-softmax")})
         if q is None or not taus:
             continue
-        ape = np.interp(rng.uniform(size=(batches, batch)), np.linspace(0, 1, len(q)), q)
+        levels = np.linspace(0, 1, len(q))
+        ape = np.interp(rng.uniform(size=(batches, batch)), levels, q)
         series = []
         for tau in taus:
             z = ape / tau
-            series.append((f"softmax τ {tau:g}", k, share(np.exp(z - z.max(1, keepdims=True))), None))
-        series.append(("step THR 10% W 5", k, share(np.where(ape >= np.interp(0.9, np.linspace(0, 1, len(q)), q),
-                                                             5.0, 1.0)), None))
-        series.append(("uniform (BC-OH)", k, k / batch, None))
-        panels.append(figures.Lines(_env_title(env, obs), f"k heaviest samples of the batch of {batch}",
-                                    "share of the batch's total weight", series, log_x=True))
-    return figures.lines(panels, "How much of a batch's weight its heaviest samples carry") if panels else None
+            series.append((f"softmax τ {tau:g}", share(np.exp(z - z.max(1, keepdims=True)))))
+        series.append(("step THR 10% W 5", share(np.where(ape >= np.interp(0.9, levels, q), 5.0, 1.0))))
+        series.append(("uniform (BC-OH)", np.arange(1, batch + 1) / batch))
+        out.append((_env_title(env, obs), series))
+    return out
+
+
+def weights_figure(shares: list[tuple[str, list[tuple]]]):
+    """The share of a batch's weight carried by its k heaviest samples, against k (`weight_shares`)."""
+    from ape_jax import figures
+
+    if not shares:
+        return None
+    batch = len(shares[0][1][0][1])
+    k = np.arange(1, batch + 1)
+    panels = [figures.Lines(title, f"k heaviest samples of the batch of {batch}", "share of the batch's total weight",
+                            [(label, k, y, None) for label, y in series], log_x=True) for title, series in shares]
+    return figures.lines(panels, "How much of a batch's weight its heaviest samples carry")
+
+
+def weights_table(shares: list[tuple[str, list[tuple]]]) -> str:
+    """The heaviest sample's and the heaviest 10%'s share of a batch's weight, per environment and setting."""
+    lines = ["| environment | weighting | heaviest sample's share | heaviest 10%'s share |", "|---|---|---:|---:|"]
+    for title, series in shares:
+        for label, y in series:
+            lines.append(f"| {title} | {label} | {100 * y[0]:.0f}% | {100 * y[max(1, round(0.1 * len(y))) - 1]:.0f}% |")
+    return "\n".join(lines) + "\n"
 
 
 def _ordered(merged: dict) -> list[tuple[tuple[str, str], dict]]:
@@ -797,8 +820,11 @@ def build(files: list[dict], figure_dir: pathlib.Path | None = None,
         out += ["### Sensitivity (the supplement's §4)", "",
                 "Walker2d (states), softmax τ and the step weight W at THR 10%, next to the paper's numbers "
                 "(its W study was on CARLA driving, so only the pattern compares).", "", sensitivity]
+    shares = weight_shares(merged)
     extra = figure("curves.png", "Training curves", lambda: curves_figure(merged)) + \
-        figure("weights.png", "Weight concentration within a batch", lambda: weights_figure(merged))
+        figure("weights.png", "Weight concentration within a batch", lambda: weights_figure(shares))
+    if shares:
+        extra += [weights_table(shares)]
     if extra:
         out += ["### Training curves and weights", "",
                 "From the results files that record them (runs since the training curve and the APE quantiles "

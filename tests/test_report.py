@@ -2,6 +2,7 @@
 
 import json
 
+import numpy as np
 import pytest
 
 from experiments import report
@@ -267,6 +268,15 @@ def test_training_curves_and_weight_histograms_are_drawn_from_files_that_record_
     text = out.read_text()
     assert "![Training curves](figures/curves.png)" in text
     assert "![Weight concentration within a batch](figures/weights.png)" in text
+    # uniform weights: the heaviest of 128 carries 1/128, the heaviest 13 carry 13/128; the step setting's 10%
+    # of samples at W 5 carry about 5·0.1 / (5·0.1 + 0.9) = 36%; a small τ gives one sample nearly everything
+    assert "| Hopper | uniform (BC-OH) | 1% | 10% |" in text
+    step = next(line for line in text.splitlines() if line.startswith("| Hopper | step THR 10% W 5 |"))
+    assert 30 <= float(step.split("|")[4].strip(" %")) <= 42
+    shares = dict(report.weight_shares(report.merge([report.load(tmp_path / "r.json")]))[0][1])
+    for y in shares.values():
+        assert np.all(np.diff(y) >= -1e-12) and abs(y[-1] - 1) < 1e-9    # cumulative shares, ending at all of it
+    assert shares["softmax τ 5"][0] > shares["uniform (BC-OH)"][0]
     for name in ("curves.png", "weights.png"):
         with Image.open(tmp_path / "figures" / name) as im:
             assert im.size[0] > 300 and im.size[1] > 200
