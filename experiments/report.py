@@ -747,6 +747,8 @@ def provenance(r: dict) -> str:
     line = (f"`{cmd}` — {cfg['iterations']:,} iterations, {cfg['seeds']} seeds, {cfg['eval_episodes']} evaluation "
             f"episodes; commit {commit}, jax {s.get('jax')} ({s.get('backend')}, {s.get('devices')} "
             f"device(s)), {machine}; {t.get('total_s', 0):,.0f} s in all")
+    if t.get("peak_rss_mb"):
+        line += f", peak resident memory {t['peak_rss_mb'] / 1024:.1f} GB"
     again = r.get("reevaluated")
     if again and again.get("fields"):
         line += (f"; {', '.join(f'`{f}`' for f in again['fields'])} added later by `python -m experiments.evaluate` "

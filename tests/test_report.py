@@ -62,6 +62,8 @@ def test_the_report_merges_files_per_environment_and_builds_every_table(tmp_path
                                            "system": {"commit": "def5678"}}}
     assert ("`imitation_error`, `rollout_ape` added later by `python -m experiments.evaluate` (commit `def5678`"
             in report.provenance(again))
+    assert "100 s in all, peak resident memory 1.5 GB" in report.provenance(
+        {**_results(), "timing": {"total_s": 100.0, "peak_rss_mb": 1536.0}})
     # the grid marks the best configuration; the loss table averages seeds
     assert "| **DAgger (online)** | rounds 4, budget 100 | 2 | **1,900.0 ± 10.0** | 95.0 |" in text
     assert "| BC-OH | 0.6000 | 0.3000 | 0.0500 | 0.6000 | 0.3000 | 0.0500 |" in text
