@@ -133,10 +133,9 @@ def loss_analysis(cfg: LearnerConfig, params: Any, data: Data, changepoint_frac:
     (9 GB for nine 32×32 policies).
     """
     learner = make_train(cfg)
-    rows = 256 if cfg.images else 4096
 
     def one(p, data):  # data is an argument, not a closed-over constant XLA would try to fold
-        losses = dataset_losses(learner, p, data, chunk=rows)
+        losses = dataset_losses(learner, p, data)
         cp = (weighting.step(data.ape, changepoint_frac, 2.0) > 1.0).astype(jnp.float32)
         return {"unweighted": losses.mean(),
                 "changepoint": jnp.sum(losses * cp) / jnp.maximum(cp.sum(), 1.0),

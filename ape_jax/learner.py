@@ -171,13 +171,16 @@ def drop_history(key: jax.Array, history: jax.Array, p: jax.Array | float) -> ja
     return jnp.where(keep.reshape(keep.shape + (1,) * (history.ndim - 2)), history, jnp.zeros((), history.dtype))
 
 
-def dataset_losses(learner: Learner, params: Any, data: Data, chunk: int = 4096) -> jax.Array:
+def dataset_losses(learner: Learner, params: Any, data: Data, chunk: int | None = None) -> jax.Array:
     """`[N]` unweighted loss of every sample of `data` under policy `params`, `chunk` rows at a time.
 
     The chunks run in a `lax.map`, so memory holds one chunk's activations
-    whatever `N` is, and the program's size does not grow with `N`.
+    whatever `N` is, and the program's size does not grow with `N`. Default
+    chunk: 256 frames for images (a CNN's activations are large), 4,096 rows
+    of states.
     """
     n = data.obs.shape[0]
+    chunk = chunk or (256 if data.obs.ndim >= 4 else 4096)
     chunk = max(1, min(chunk, n))
     rounds = -(-n // chunk)
     idx = jnp.arange(rounds * chunk).reshape(rounds, chunk) % n  # the last chunk wraps around; cut off below
