@@ -181,7 +181,11 @@ def _rows(m: dict, method: str) -> list[dict]:
 
 
 def _best(rows: list[dict]) -> dict | None:
-    return max(rows, key=lambda r: r["return_mean"], default=None)
+    """The row with the highest % of expert (ToyCar: success rate), or return where that is missing."""
+    def score(r):
+        return r["normalized_mean"] if r.get("normalized_mean") is not None else r["return_mean"]
+
+    return max(rows, key=score, default=None)
 
 
 def headline(m: dict) -> list[tuple[str, dict | None]]:
@@ -287,8 +291,18 @@ def paper_table(merged: dict) -> str:
 
 
 def grid_table(m: dict) -> str:
+    """Every configuration: return and % of expert (ToyCar, whose reward is not its measure: success %)."""
     rows = [r for r in m["summary"]]
     best = _best([r for r in rows if r["n_seeds"]])
+    if m["sources"][0]["env"] == "toycar":
+        lines = ["| method | hparams | seeds | success % |", "|---|---|---:|---:|"]
+        for r in rows:
+            hp = ", ".join(f"{k} {v:g}" for k, v in r["hparams"].items()) or "—"
+            mark = "**" if r is best else ""
+            value = (f"{mark}{r['normalized_mean']:.1f} ± {r['normalized_std']:.1f}{mark}"
+                     if r["n_seeds"] and r.get("normalized_mean") is not None else "failed")
+            lines.append(f"| {mark}{LABELS.get(r['method'], r['method'])}{mark} | {hp} | {r['n_seeds']} | {value} |")
+        return "\n".join(lines) + "\n"
     lines = ["| method | hparams | seeds | return | % of expert |", "|---|---|---:|---:|---:|"]
     for r in rows:
         hp = ", ".join(f"{k} {v:g}" for k, v in r["hparams"].items()) or "—"
@@ -452,24 +466,26 @@ def comparisons(m: dict) -> list[tuple[str, dict | None]]:
             (f"Ours, best step{after(best_step)}", best_step), (f"Ours, best softmax{after(best_soft)}", best_soft)]
 
 
-def bootstrap_rows(merged: dict) -> list[tuple[str, str, Interval]]:
-    """Per environment and configuration of Ours (`comparisons`): Ours − BC-OH in mean return with its CI."""
+def bootstrap_rows(merged: dict) -> list[tuple[str, str, Interval, str]]:
+    """Per environment and configuration of Ours (`comparisons`): Ours − BC-OH with its CI, and the unit:
+    mean return, or for ToyCar (whose reward is not its measure) the success rate in percentage points."""
     out = []
     for (env, obs), m in _ordered(merged):
-        bcoh = _seeds(m, _best(_rows(m, "bc-oh")))
+        key, unit, scale = ("success", "success, % points", 100.0) if env == "toycar" else ("return_mean", "return", 1.0)
+        bcoh = [scale * v for v in _seeds(m, _best(_rows(m, "bc-oh")), key)]
         for label, row in comparisons(m) if bcoh else []:
-            ours = _seeds(m, row)
+            ours = [scale * v for v in _seeds(m, row, key)]
             if ours:
-                out.append((_env_title(env, obs), label, bootstrap_difference(ours, bcoh)))
+                out.append((_env_title(env, obs), label, bootstrap_difference(ours, bcoh), unit))
     return out
 
 
-def bootstrap_table(rows: list[tuple[str, str, Interval]]) -> str:
+def bootstrap_table(rows: list[tuple[str, str, Interval, str]]) -> str:
     """The rows of `bootstrap_rows` as a table: difference of means, 95% CI, verdict."""
-    lines = ["| environment | Ours | seeds (Ours / BC-OH) | Ours − BC-OH, return | 95% CI | verdict |",
+    lines = ["| environment | Ours | seeds (Ours / BC-OH) | Ours − BC-OH | 95% CI | verdict |",
              "|---|---|---:|---:|---:|---|"]
-    lines += [f"| {env} | {label} | {ci.n_a} / {ci.n_b} | {ci.diff:+,.0f} | [{ci.low:+,.0f}, {ci.high:+,.0f}] | "
-              f"{verdict(ci)} |" for env, label, ci in rows]
+    lines += [f"| {env} | {label} | {ci.n_a} / {ci.n_b} | {ci.diff:+,.0f} ({unit}) | [{ci.low:+,.0f}, {ci.high:+,.0f}] | "
+              f"{verdict(ci)} |" for env, label, ci, unit in rows]
     return "\n".join(lines) + "\n"
 
 
@@ -746,7 +762,8 @@ def provenance(r: dict) -> str:
     commit = f"`{s.get('commit')}`" + (" with uncommitted changes" if s.get("dirty") else "")
     line = (f"`{cmd}` — {cfg['iterations']:,} iterations, {cfg['seeds']} seeds, {cfg['eval_episodes']} evaluation "
             f"episodes; commit {commit}, jax {s.get('jax')} ({s.get('backend')}, {s.get('devices')} "
-            f"device(s)), {machine}; {t.get('total_s', 0):,.0f} s in all")
+            f"device(s)), {machine}; {t.get('total_s', 0):,.0f} s in all"
+            + (" (resumed after an interruption: the last process's time only)" if t.get("resumed") else ""))
     if t.get("peak_rss_mb"):
         line += f", peak resident memory {t['peak_rss_mb'] / 1024:.1f} GB"
     again = r.get("reevaluated")
@@ -808,8 +825,9 @@ def build(files: list[dict], figure_dir: pathlib.Path | None = None,
     if boot or returns:
         out += ["### Ours vs BC-OH over seeds", ""] + returns
     if boot:
-        seeds = min(min(ci.n_a, ci.n_b) for _, _, ci in boot)
-        out += ["Ours − BC-OH in mean return over seeds, with a 95% percentile bootstrap confidence interval "
+        seeds = min(min(ci.n_a, ci.n_b) for _, _, ci, _ in boot)
+        out += ["Ours − BC-OH in mean return over seeds (ToyCar: in success rate), with a 95% percentile "
+                "bootstrap confidence interval "
                 f"(each arm's seeds resampled with replacement, independently, {BOOTSTRAP_RESAMPLES:,} times; "
                 f"numpy seed {BOOTSTRAP_SEED}). The best-step and best-softmax rows were selected after the fact "
                 "on these same evaluation returns, so their differences are optimistic.", "", bootstrap_table(boot),

@@ -64,6 +64,8 @@ def test_the_report_merges_files_per_environment_and_builds_every_table(tmp_path
             in report.provenance(again))
     assert "100 s in all, peak resident memory 1.5 GB" in report.provenance(
         {**_results(), "timing": {"total_s": 100.0, "peak_rss_mb": 1536.0}})
+    assert "100 s in all (resumed after an interruption" in report.provenance(
+        {**_results(), "timing": {"total_s": 100.0, "resumed": True}})
     # the grid marks the best configuration; the loss table averages seeds
     assert "| **DAgger (online)** | rounds 4, budget 100 | 2 | **1,900.0 ± 10.0** | 95.0 |" in text
     assert "| BC-OH | 0.6000 | 0.3000 | 0.0500 | 0.6000 | 0.3000 | 0.0500 |" in text
@@ -122,15 +124,15 @@ def test_the_report_tabulates_the_bootstrap_per_environment(tmp_path):
                ("ours-step", {"thr": 0.2, "w": 3.0}, 1005.0), ("ours-softmax", {"tau": 5.0}, 800.0))
     text = report.report([_loaded(tmp_path, _results(methods=methods))])
     # seeds are ret ± 10: each arm's resampled mean is one of ret − 10, ret, ret + 10
-    assert "| Hopper | Ours, step THR 10% W 5 (the paper's) | 2 / 2 | +500 | [+480, +520] | Ours better |" in text
-    assert ("| Hopper | Ours, best step (thr 0.1, w 5; selected after the fact) | 2 / 2 | +500 | [+480, +520] | "
+    assert "| Hopper | Ours, step THR 10% W 5 (the paper's) | 2 / 2 | +500 (return) | [+480, +520] | Ours better |" in text
+    assert ("| Hopper | Ours, best step (thr 0.1, w 5; selected after the fact) | 2 / 2 | +500 (return) | [+480, +520] | "
             "Ours better |") in text
-    assert ("| Hopper | Ours, best softmax (tau 5; selected after the fact) | 2 / 2 | -200 | [-220, -180] | "
+    assert ("| Hopper | Ours, best softmax (tau 5; selected after the fact) | 2 / 2 | -200 (return) | [-220, -180] | "
             "BC-OH better |") in text
     assert "with 2 seeds per arm each arm has only 3 distinct resamples" in text
     close = report.report([_loaded(tmp_path, _results(methods=(("bc-oh", {}, 1000.0),
                                                                ("ours-step", {"thr": 0.1, "w": 5.0}, 1005.0))))])
-    assert "| +5 | [-15, +25] | not significant (CI contains 0) |" in close
+    assert "| +5 (return) | [-15, +25] | not significant (CI contains 0) |" in close
 
 
 # -- the grid search: the paper's choices -------------------------------------------------------------------------
@@ -295,10 +297,15 @@ def test_image_and_toycar_results_get_their_tables(tmp_path):
     for i, run in enumerate(toycar["runs"]):
         run["eval"].update(success=0.9 + 0.05 * run["seed"], red_light_violations=0.0, progress=0.8,
                            avg_speed=0.5, stuck=0.1 * run["seed"])
+    for row in toycar["summary"]:  # as the sweep summarises ToyCar: normalized = 100 · success
+        row.update(normalized_mean=92.5, normalized_std=2.5)
     text = report.report([_loaded(tmp_path, image, "image.json"), _loaded(tmp_path, toycar, "toycar.json")])
     img = text[text.index("### MuJoCo-Image"):]
     assert "| BC-OH | 1,000 ± 10 (50%) |" in img
     car = text[text.index("### ToyCar"):]
     assert "| BC-OH | 2 | 92.50 ± 2.50 | 0.00 ± 0.00 | 0.80 ± 0.00 | 0.50 ± 0.00 | 5.00 ± 5.00 | 95.1 ± 4.5 |" in car
     assert "| Ours, step THR 10% W 5 | 2 |" in car and "97.8 ± 0.5" in car
+    # ToyCar's measure is success, not its (zero) reward: in the grid table and the bootstrap
+    assert "| method | hparams | seeds | success % |" in car and "| ours-step | thr 0.1, w 5 | 2 | 92.5 ± 2.5 |" in car
+    assert "| ToyCar (image) | Ours, step THR 10% W 5 (the paper's) | 2 / 2 | +0 (success, % points) |" in text
     assert "### MuJoCo-State" not in text
