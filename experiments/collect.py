@@ -97,6 +97,22 @@ def parse(argv=None) -> argparse.Namespace:
     return args
 
 
+def action_summary(demos) -> str:
+    """Per action dimension: mean, std, and how many steps (in how many episodes) lie beyond 2 std of the mean:
+    the rare actions, such as ToyCar's braking for a red light, that a cloned policy may never learn."""
+    import numpy as np
+
+    actions, episode = np.asarray(demos.action), np.asarray(demos.episode)
+    lines = []
+    for d in range(actions.shape[1]):
+        a = actions[:, d]
+        rare = np.abs(a - a.mean()) > 2 * a.std()
+        lines.append(f"action {d}: mean {a.mean():.3f}, std {a.std():.3f}; beyond 2 std in {int(rare.sum()):,} of "
+                     f"{len(a):,} steps ({rare.mean():.1%}), in {len(np.unique(episode[rare]))} of "
+                     f"{demos.num_episodes} episodes")
+    return "\n".join(lines)
+
+
 def main(argv=None) -> int:
     args = parse(argv)
     from tqdm import tqdm
@@ -127,6 +143,7 @@ def main(argv=None) -> int:
           f"episodes ({len(train):,} train / {len(val):,} validation after the 20% split by episode); "
           f"expert return {meta['episode_return_mean']:.1f} ± {meta['episode_return_std']:.1f}, "
           f"mean episode length {meta['episode_length_mean']:.0f}")
+    print(action_summary(demos))
     print(f"dataset: {path}\nmetadata: {path.with_suffix('.json')}")
     if args.format == "minari":
         export_minari(args, demos, meta, path)

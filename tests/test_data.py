@@ -177,3 +177,18 @@ def test_mujoco_collection_records_every_mode_and_a_reobservable_state(obs):
         np.testing.assert_allclose(again[:, 0], d.obs[:, 0], atol=0.02)
     else:
         assert np.abs(again.astype(int) - d.obs).mean() < 8  # the same scene, up to that substep
+
+
+def test_collect_summarises_rare_actions_per_dimension():
+    """ToyCar-like data: the brake is pressed in 5 steps of one episode out of 4; the throttle never varies."""
+    from types import SimpleNamespace
+
+    from experiments.collect import action_summary
+
+    action = np.zeros((100, 2), np.float32)
+    action[:, 0] = 1.0
+    action[60:65, 1] = 1.0
+    demos = SimpleNamespace(action=action, episode=np.repeat(np.arange(4), 25), num_episodes=4)
+    lines = action_summary(demos).splitlines()
+    assert lines[0] == "action 0: mean 1.000, std 0.000; beyond 2 std in 0 of 100 steps (0.0%), in 0 of 4 episodes"
+    assert lines[1].startswith("action 1: mean 0.050, std 0.218; beyond 2 std in 5 of 100 steps (5.0%), in 1 of 4")
