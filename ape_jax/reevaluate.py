@@ -11,10 +11,11 @@ it deterministic). It then runs the sweep's own evaluation
 lacks, such as the copycat diagnostics `imitation_error` and `rollout_ape`
 written by newer code, and the training APE's `quantiles`.
 
-Nothing is overwritten that the file has: each run's returns must come out
-as recorded (they do on the same machine and jax; they would not if the
-policies, the environment or the demonstrations had changed), and otherwise
-`ReevaluationError` says which runs differ, and nothing is returned.
+Nothing is overwritten that the file has: each run's return and every
+metric it records must come out as recorded (they do on the same machine and
+jax; they would not if the policies, the environment or the demonstrations
+had changed), and otherwise `ReevaluationError` says which differ, and
+nothing is returned.
 """
 
 from __future__ import annotations
@@ -89,7 +90,8 @@ def reevaluate(results: dict, params_dir: str | pathlib.Path, data_dir=None, log
 
     Raises:
       ReevaluationError: the policies are missing, the demonstrations or ψ
-        are not those of the sweep, or returns differ from the recorded ones.
+        are not those of the sweep, or recorded returns or metrics differ
+        from the recomputed ones.
     """
     import envs
 
@@ -139,18 +141,21 @@ def reevaluate(results: dict, params_dir: str | pathlib.Path, data_dir=None, log
             if key not in records:
                 raise ReevaluationError(f"a saved policy ({run['method']} {run['hparams']} seed {run['seed']}) "
                                         "has no run in results.json: the params and the results are of different sweeps")
-            was, ev = records[key]["eval"], new_records[key]["eval"]
-            now = float(np.mean(out["return"][j]))
-            if was.get("return_mean") is not None and not np.isclose(now, was["return_mean"], rtol=rtol, atol=1e-3):
-                differ.append(f"{run['method']} {run['hparams']} seed {run['seed']}: {now:.6g} vs {was['return_mean']:.6g}")
-            for k in ("imitation_error", "rollout_ape", "success", "red_light_violations", "progress",
-                      "avg_speed", "stuck"):
-                if k in out and k not in ev:
-                    ev[k] = float(np.mean(out[k][j]))
-                    added.add(k)
+            was, ev = records[key].get("eval") or {}, new_records[key].setdefault("eval", {})
+            now = {"return_mean": out["return"][j], **{k: out[k][j] for k in sweep_lib.EVAL_METRICS if k in out}}
+            for k, values in now.items():
+                value = float(np.mean(values))
+                if was.get(k) is None:
+                    if k != "return_mean":
+                        ev[k] = value
+                        added.add(k)
+                elif not np.isclose(value, was[k], rtol=rtol, atol=1e-3):  # what is recorded must come out again
+                    differ.append(f"{run['method']} {run['hparams']} seed {run['seed']} {k}: {value:.6g} vs "
+                                  f"{was[k]:.6g}")
     if differ:
-        raise ReevaluationError(f"{len(differ)} of {len(records)} runs' returns differ from the recorded ones "
-                                f"(e.g. {differ[0]}): the policies, the environment or the evaluation changed")
+        raise ReevaluationError(f"{len(differ)} recorded evaluation numbers (returns, metrics) differ from the "
+                                f"recomputed ones (e.g. {differ[0]}): the policies, the environment or the "
+                                "evaluation changed")
     ape_record = new["config"].setdefault("ape", {})
     if "val_mean" not in ape_record:
         ape_record["val_mean"] = float(np.mean(ape["val"]))

@@ -53,6 +53,9 @@ WEIGHTED = ("bc-oh", "ours-step", "ours-softmax", "bcpd", "actfreq", "kmeans", "
 # configuration trains one after another through one compiled, fully unrolled chunk.
 CPU_IMAGE_CHUNK = 10
 EVAL_SEED = 12345  # every policy is evaluated on the same episodes
+# Evaluation outputs beside the return that a run's record keeps (per-episode means): ToyCar's driving
+# metrics and the copycat diagnostics.
+EVAL_METRICS = ("success", "red_light_violations", "progress", "avg_speed", "stuck", "imitation_error", "rollout_ape")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -563,7 +566,7 @@ def _run_record(run: Run, j: int, out: dict, losses: dict, loss_curve: np.ndarra
     ev = {"episodes": int(len(returns)), "return_mean": float(returns.mean()), "return_std": float(returns.std())}
     if card is not None:
         ev["normalized"] = float(evaluate.normalized(returns.mean(), card["return_mean"], card["random_return_mean"]))
-    for k in ("success", "red_light_violations", "progress", "avg_speed", "stuck", "imitation_error", "rollout_ape"):
+    for k in EVAL_METRICS:
         if k in out:
             ev[k] = float(np.mean(out[k][j]))
     if "success" in ev:

@@ -4,7 +4,7 @@ Adds to `OUT/results.json` the evaluation fields it lacks (the copycat
 diagnostics `imitation_error` and `rollout_ape`, and the training APE's
 quantiles, for sweeps run before they existed), from the policies in
 `OUT/params/`, on the same episodes (`ape_jax.reevaluate`). Every run's return
-must come out as recorded, or nothing is written (exit 2). The file is
+and recorded metric must come out as recorded, or nothing is written (exit 2). The file is
 replaced atomically; `--out FILE` writes elsewhere and leaves it alone.
 """
 
@@ -50,7 +50,7 @@ def main(argv=None) -> int:
     write_json_atomic(target, new)
     added = new["reevaluated"]["fields"]
     print(f"wrote {target}: " + (f"added {', '.join(added)}" if added else "nothing was missing")
-          + f" ({new['reevaluated']['eval_s']:.0f} s); every run's return came out as recorded")
+          + f" ({new['reevaluated']['eval_s']:.0f} s); every recorded return and metric came out as recorded")
     return 0
 
 

@@ -769,7 +769,7 @@ def provenance(r: dict) -> str:
     again = r.get("reevaluated")
     if again and again.get("fields"):
         line += (f"; {', '.join(f'`{f}`' for f in again['fields'])} added later by `python -m experiments.evaluate` "
-                 f"(commit `{again['system'].get('commit')}`, every return as recorded)")
+                 f"(commit `{again['system'].get('commit')}`, every recorded number reproduced)")
     return line
 
 

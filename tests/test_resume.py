@@ -242,5 +242,12 @@ def test_evaluating_saved_policies_again_adds_the_missing_fields_and_refuses_oth
     with pytest.raises(SystemExit) as e:
         evaluate.main([str(run), "--data-dir", str(workdir / "data")])
     assert e.value.code == 2
-    assert "returns differ from the recorded ones" in capsys.readouterr().err
+    assert "differ from the recomputed ones (e.g. bc-oh {} seed 0 return_mean" in capsys.readouterr().err
     assert (run / "results.json").read_bytes() == before
+    # ToyCar's reward is 0 everywhere: its driving metrics are checked too
+    stripped["runs"][0]["eval"]["return_mean"] -= 1.0
+    stripped["runs"][1]["eval"]["progress"] += 0.5
+    (run / "results.json").write_text(json.dumps(stripped))
+    with pytest.raises(SystemExit):
+        evaluate.main([str(run), "--data-dir", str(workdir / "data")])
+    assert "progress" in capsys.readouterr().err
