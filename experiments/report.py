@@ -294,26 +294,23 @@ def grid_table(m: dict) -> str:
     """Every configuration: return and % of expert (ToyCar, whose reward is not its measure: success %)."""
     rows = [r for r in m["summary"]]
     best = _best([r for r in rows if r["n_seeds"]])
-    if m["sources"][0]["env"] == "toycar":
-        lines = ["| method | hparams | seeds | success % |", "|---|---|---:|---:|"]
-        for r in rows:
-            hp = ", ".join(f"{k} {v:g}" for k, v in r["hparams"].items()) or "—"
-            mark = "**" if r is best else ""
-            value = (f"{mark}{r['normalized_mean']:.1f} ± {r['normalized_std']:.1f}{mark}"
-                     if r["n_seeds"] and r.get("normalized_mean") is not None else "failed")
-            lines.append(f"| {mark}{LABELS.get(r['method'], r['method'])}{mark} | {hp} | {r['n_seeds']} | {value} |")
-        return "\n".join(lines) + "\n"
-    lines = ["| method | hparams | seeds | return | % of expert |", "|---|---|---:|---:|---:|"]
+    toycar = m["sources"][0]["env"] == "toycar"
+    heads = ["success %"] if toycar else ["return", "% of expert"]
+    lines = ["| method | hparams | seeds | " + " | ".join(heads) + " |", "|---|---|---:|" + "---:|" * len(heads)]
     for r in rows:
         hp = ", ".join(f"{k} {v:g}" for k, v in r["hparams"].items()) or "—"
         label = LABELS.get(r["method"], r["method"])
-        if not r["n_seeds"]:
-            lines.append(f"| {label} | {hp} | 0 | failed | |")
+        ok = r["n_seeds"] and (not toycar or r.get("normalized_mean") is not None)
+        if not ok:
+            lines.append(f"| {label} | {hp} | {r['n_seeds']} | failed |" + ("" if toycar else " |"))
             continue
         mark = "**" if r is best else ""
-        norm = f"{r['normalized_mean']:.1f}" if r.get("normalized_mean") is not None else "—"
-        lines.append(f"| {mark}{label}{mark} | {hp} | {r['n_seeds']} | "
-                     f"{mark}{r['return_mean']:,.1f} ± {r['return_std']:,.1f}{mark} | {norm} |")
+        if toycar:
+            cells = [f"{mark}{r['normalized_mean']:.1f} ± {r['normalized_std']:.1f}{mark}"]
+        else:
+            cells = [f"{mark}{r['return_mean']:,.1f} ± {r['return_std']:,.1f}{mark}",
+                     f"{r['normalized_mean']:.1f}" if r.get("normalized_mean") is not None else "—"]
+        lines.append(f"| {mark}{label}{mark} | {hp} | {r['n_seeds']} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
