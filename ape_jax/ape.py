@@ -25,7 +25,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from ape_jax.data import history_index
+from ape_jax.history import history_index
 
 K = 9  # past actions seen by ψ
 HIDDEN = 300

@@ -40,7 +40,7 @@ import optax
 from flax import struct
 
 from ape_jax import weighting
-from ape_jax.data import history_index
+from ape_jax.history import history_index
 from ape_jax.models import IMAGE_ENCODERS, StatePolicy
 from ape_jax.weighting import Weighting
 

@@ -5,7 +5,7 @@
 
 The expert table is read from the cards written by `experiments.train_expert`
 (returns measured there over 100 episodes of `envs.make(env, obs="full")`).
-Collection throughput is `ape_jax.collect`'s jitted batch collector (expert
+Collection throughput is `ape_jax.pipeline.collect`'s jitted batch collector (expert
 policy, clean labels, simulator state recorded), median of `--repeats` runs
 after a separate compiling call, counting only the steps inside episodes.
 """
@@ -18,7 +18,7 @@ import jax
 import numpy as np
 
 import envs
-from ape_jax import collect
+from ape_jax.pipeline import collect
 from envs import experts
 from experiments._cli import Parser
 from experiments._timing import machine, run_benchmark, time_jitted

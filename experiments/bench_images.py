@@ -8,7 +8,7 @@ For the image policies the sweep trains (frames stacked on channels, history
 
 1. model-updates/s of one configuration, per encoder and image size, trained
    the way the sweep trains images on this backend: on a CPU one chunk of
-   `ape_jax.sweep.CPU_IMAGE_CHUNK` unrolled iterations per call (XLA:CPU is slow
+   `ape_jax.pipeline.sweep.CPU_IMAGE_CHUNK` unrolled iterations per call (XLA:CPU is slow
    at convolution gradients inside loops), elsewhere a scanned chunk;
 2. evaluation policy-steps/s of the image evaluator on hopper (rendering
    inside the jitted rollout, the CNN policy, vmapped over policies × episodes);
@@ -36,7 +36,7 @@ H, BATCH, ACT = 2, 128, 3
 def train_rate(encoder: str, size: int, repeats: int) -> tuple[float, float]:
     """(compile_s, model-updates/s) of one configuration at `size`×`size`."""
     from ape_jax.learner import Data, Hparams, LearnerConfig, make_train
-    from ape_jax.sweep import CPU_IMAGE_CHUNK
+    from ape_jax.pipeline.sweep import CPU_IMAGE_CHUNK
 
     cpu = jax.default_backend() == "cpu"
     chunk = CPU_IMAGE_CHUNK if cpu else 100

@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ape_jax.learner import Data, LearnerConfig, make_train, stack_hparams
-from ape_jax.sweep import SOFTMAX_GRID, STEP_GRID, Hparams, Run, hparams_of
+from ape_jax.pipeline.sweep import SOFTMAX_GRID, STEP_GRID, Hparams, Run, hparams_of
 from experiments._cli import Parser
 from experiments._timing import machine, run_benchmark, time_jitted
 

@@ -1,12 +1,12 @@
 """Collects expert demonstrations: `python -m experiments.collect --env hopper --obs pos --episodes 25`.
 
 Rolls the shipped expert out under jit and writes the dataset (`.npz` plus
-`.json` metadata, see `ape_jax.data`) into the cache directory, named by a hash
+`.json` metadata, see `ape_jax.pipeline.data`) into the cache directory, named by a hash
 of the settings; a second run with the same settings loads it instead. The
 sweep uses the same cache.
 
 `--format minari` also exports the dataset as a Minari dataset (see
-`ape_jax.minari_io`) with id `<npz name>-v0` under the Minari datasets root
+`ape_jax.pipeline.minari_io`) with id `<npz name>-v0` under the Minari datasets root
 `--out DIR` (default: `minari/` in the cache directory), for tools that read
 Minari: `MINARI_DATASETS_PATH=DIR` then `minari.load_dataset(id)`.
 
@@ -28,7 +28,7 @@ from experiments._cli import Parser, fail, unwritable, unwritable_file
 
 def parse(argv=None) -> argparse.Namespace:
     import envs
-    from ape_jax import collect, data
+    from ape_jax.pipeline import collect, data
 
     p = Parser(prog="python -m experiments.collect", description=__doc__.splitlines()[0])
     p.add_argument("--env", default="hopper", help="hopper, halfcheetah, walker2d, toycar, ... (default: hopper)")
@@ -117,7 +117,7 @@ def main(argv=None) -> int:
     args = parse(argv)
     from tqdm import tqdm
 
-    from ape_jax import collect, data
+    from ape_jax.pipeline import collect, data
     from envs.experts import ExpertError
 
     try:
@@ -154,7 +154,7 @@ def main(argv=None) -> int:
 
 def export_minari(args, demos, meta, path) -> None:
     import envs
-    from ape_jax import minari_io
+    from ape_jax.pipeline import minari_io
 
     dataset_id = f"{path.stem}-v0"
     target = args.out / dataset_id

@@ -3,7 +3,7 @@
 Adds to `OUT/results.json` the evaluation fields it lacks (the copycat
 diagnostics `imitation_error` and `rollout_ape`, and the training APE's
 quantiles, for sweeps run before they existed), from the policies in
-`OUT/params/`, on the same episodes (`ape_jax.reevaluate`). Every run's return
+`OUT/params/`, on the same episodes (`ape_jax.pipeline.reevaluate`). Every run's return
 and recorded metric must come out as recorded, or nothing is written (exit 2). The file is
 replaced atomically; `--out FILE` writes elsewhere and leaves it alone.
 """
@@ -18,7 +18,7 @@ from experiments._cli import Parser, fail, unwritable_file
 
 
 def main(argv=None) -> int:
-    from ape_jax import data
+    from ape_jax.pipeline import data
 
     p = Parser(prog="python -m experiments.evaluate", description=__doc__.splitlines()[0])
     p.add_argument("run", type=pathlib.Path, help="a sweep's --out directory (results.json and params/)")
@@ -40,7 +40,7 @@ def main(argv=None) -> int:
     if (why := unwritable_file(target)) is not None:
         fail(p, why)
 
-    from ape_jax.reevaluate import ReevaluationError, reevaluate
+    from ape_jax.pipeline.reevaluate import ReevaluationError, reevaluate
     from experiments.sweep import write_json_atomic
 
     try:

@@ -5,7 +5,7 @@ uses: `pos` observations for MuJoCo, `full` for ToyCar, the default number of
 episodes, seed 0): APE along time with its keyframes, the expert's actions (a
 `--zoom` close-up for a long episode), and frames rendered from the recorded
 simulator states at the `--frames` highest-APE keyframes and `--ordinary`
-low-APE steps (`ape_jax.keyframes.select`, drawn by `ape_jax.figures.keyframes`).
+low-APE steps (`ape_jax.pipeline.keyframes.select`, drawn by `experiments.report.figures.keyframes`).
 
 APE is fitted on **all** the demonstrations (the sweep fits on its training
 split only; see `experiments.weights`); the keyframes are the top `--thr`
@@ -37,7 +37,7 @@ def demo_obs(env_name: str) -> str:
 
 
 def parse(argv=None) -> argparse.Namespace:
-    from ape_jax import collect, data
+    from ape_jax.pipeline import collect, data
 
     p = Parser(prog="python -m experiments.keyframes", description=__doc__.splitlines()[0])
     p.add_argument("--env", default="hopper", help=f"one of {', '.join(ENVS)} (default: hopper)")
@@ -95,7 +95,8 @@ def main(argv=None) -> int:
 
     import envs
     from ape_jax import ape as ape_lib
-    from ape_jax import collect, data, figures, keyframes
+    from ape_jax.pipeline import collect, data, keyframes
+    from experiments.report import figures
     from envs.experts import ExpertError
     from tqdm import tqdm
 

@@ -9,10 +9,10 @@ schema in `DESIGN.md`), `results.csv` and the trained parameters (orbax) into
 Interrupted sweeps resume: the training states (every configuration × seed)
 are checkpointed in `OUT/checkpoints/` every `--checkpoint-every` iterations
 and after each phase, and a rerun with the same `--out` and settings continues
-where it stopped, bit-identically on the same machine (`ape_jax.checkpoint`).
+where it stopped, bit-identically on the same machine (`ape_jax.pipeline.checkpoint`).
 Rerunning a finished sweep reports it; `--fresh` discards what `--out` holds.
 Per-iteration training curves go to `OUT/curves/*.csv` and TensorBoard event
-files to `OUT/tensorboard/` (`ape_jax.logs`).
+files to `OUT/tensorboard/` (`ape_jax.pipeline.logs`).
 """
 
 from __future__ import annotations
@@ -34,8 +34,8 @@ DEFAULT_METHODS = ("bc-so", "bc-oh", "ours-step", "ours-softmax")
 
 def parse(argv=None) -> argparse.Namespace:
     import envs
-    from ape_jax import data
-    from ape_jax.sweep import METHODS, PRESETS, preset_for
+    from ape_jax.pipeline import data
+    from ape_jax.pipeline.sweep import METHODS, PRESETS, preset_for
 
     p = Parser(prog="python -m experiments.sweep", description=__doc__.splitlines()[0])
     p.add_argument("--env", default="hopper", help="hopper, halfcheetah, walker2d or toycar (default: hopper)")
@@ -94,7 +94,7 @@ def parse(argv=None) -> argparse.Namespace:
     if args.softmax_grid is not None:
         overrides["softmax_grid"] = _grid(p, "--softmax-grid", args.softmax_grid, _temperature)
     if args.env == "toycar":
-        from ape_jax.collect import default_episodes
+        from ape_jax.pipeline.collect import default_episodes
 
         overrides["episodes"] = default_episodes("toycar")
     args.preset_cfg = dataclasses.replace(preset_for(args.preset, args.env, args.obs), **overrides)
@@ -143,7 +143,7 @@ def _temperature(text: str) -> float:
 
 
 def write_json_atomic(path: pathlib.Path, obj) -> None:
-    from ape_jax.data import write_atomic
+    from ape_jax.pipeline.data import write_atomic
 
     write_atomic(path, lambda f: f.write((json.dumps(obj, indent=2, allow_nan=False) + "\n").encode()))
 
@@ -153,7 +153,7 @@ def write_outputs(out: pathlib.Path, results: dict, params: dict) -> None:
     import numpy as np
     import orbax.checkpoint as ocp
 
-    from ape_jax.data import write_atomic
+    from ape_jax.pipeline.data import write_atomic
 
     # orbax saves asynchronously (to a temporary name, renamed when done), so `params/` may not exist
     # yet when the JSON beside the first checkpoint is written: create it first.
@@ -177,7 +177,7 @@ def write_outputs(out: pathlib.Path, results: dict, params: dict) -> None:
 
 
 def table(results: dict) -> str:
-    from ape_jax.sweep import ONLINE
+    from ape_jax.pipeline.sweep import ONLINE
 
     rows = [r for r in results["summary"] if r["n_seeds"]]
     best = max(rows, key=lambda r: r["normalized_mean"], default=None)
@@ -210,10 +210,10 @@ def main(argv=None) -> int:
     args = parse(argv)
     from tqdm import tqdm
 
-    from ape_jax import logs
-    from ape_jax.checkpoint import CheckpointError, SweepCheckpoint, differences
-    from ape_jax.data import DataError
-    from ape_jax.sweep import data_settings, fingerprint, results_fingerprint, run_sweep
+    from ape_jax.pipeline import logs
+    from ape_jax.pipeline.checkpoint import CheckpointError, SweepCheckpoint, differences
+    from ape_jax.pipeline.data import DataError
+    from ape_jax.pipeline.sweep import data_settings, fingerprint, results_fingerprint, run_sweep
     from envs.experts import ExpertError
 
     p = args.preset_cfg

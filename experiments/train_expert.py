@@ -1,6 +1,6 @@
 """Trains an expert: `python -m experiments.train_expert --env hopper`.
 
-Soft actor-critic (`envs.experts.sac`, built from Brax's SAC parts) on the
+Soft actor-critic (`ape_jax.pipeline.sac`, built from Brax's SAC parts) on the
 **full** observation of the MJX environment. Every `epoch_steps` environment
 steps the run evaluates its deterministic policy (Brax's Evaluator, 16
 episodes), keeps the best one and checkpoints everything (networks, optimiser
@@ -85,7 +85,7 @@ def parse(argv=None) -> argparse.Namespace:
 
 
 def make_config(args):
-    from envs.experts.sac import SACConfig
+    from ape_jax.pipeline.sac import SACConfig
 
     kw = dict(CONFIGS.get(args.env, {}), seed=args.seed)
     if args.steps is not None:  # a short run: shrink the warm-up and the epoch to fit
@@ -103,7 +103,7 @@ def main(argv=None) -> int:
     from tqdm import tqdm
 
     import envs
-    from envs.experts.sac import Checkpoints, make_trainer, run_epoch
+    from ape_jax.pipeline.sac import Checkpoints, make_trainer, run_epoch
 
     cfg = make_config(args)
     env = envs.make(args.env, obs="full", episode_length=cfg.episode_length)
@@ -152,7 +152,7 @@ def export(args, cfg, env, params, meta) -> int:
     measured = expert_and_random_returns(env, policy, args.eval_episodes, jax.random.PRNGKey(cfg.seed + 2))
     target = TARGETS.get(args.env)
     card = {
-        "env": args.env, "obs": "full", "algorithm": "SAC (envs.experts.sac, from brax.training's SAC parts)",
+        "env": args.env, "obs": "full", "algorithm": "SAC (ape_jax.pipeline.sac, from brax.training's SAC parts)",
         "hyperparameters": dataclasses.asdict(cfg),
         "env_steps": meta["best_step"], "env_steps_trained": meta["history"][-1]["env_steps"] if meta["history"] else 0,
         "wall_s": round(meta["wall_s"], 1),

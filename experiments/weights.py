@@ -1,8 +1,8 @@
 """Computes APE and the sample weights of a demonstration dataset: `python -m experiments.weights --dataset PATH --out weights.npz`.
 
 The dataset is the project's own (`NAME.npz` beside `NAME.json`, see
-`ape_jax.data`) or a Minari dataset (its directory, or its id under
-`$MINARI_DATASETS_PATH`; see `ape_jax.minari_io`); any episodes of
+`ape_jax.pipeline.data`) or a Minari dataset (its directory, or its id under
+`$MINARI_DATASETS_PATH`; see `ape_jax.pipeline.minari_io`); any episodes of
 (observation, action) will do. APE is fitted on **all** of the dataset (the
 sweep fits on its training split only, so its numbers differ) and divided by
 its mean ("mean" normalisation). The output holds, per sample, in dataset order:
@@ -83,8 +83,9 @@ def main(argv=None) -> int:
     import jax
     import numpy as np
 
-    from ape_jax import ape, data, minari_io, weighting
-    from ape_jax.data import DataError
+    from ape_jax import ape, weighting
+    from ape_jax.pipeline import data, minari_io
+    from ape_jax.pipeline.data import DataError
 
     try:
         demos, where = minari_io.load_dataset(args.dataset, args.format)

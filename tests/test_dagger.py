@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import envs
-from ape_jax import collect
+from ape_jax.pipeline import collect
 from ape_jax.baselines import dagger
-from ape_jax.data import history_index
+from ape_jax.history import history_index
 from ape_jax.learner import Data, Hparams, LearnerConfig, make_train, stack_hparams
 
 # a short road, so episodes end both at the goal and at the time limit
@@ -147,7 +147,7 @@ def test_train_gives_model_params_and_vmaps_over_seeds(setup, rounds):
     assert metrics["loss"].shape == (2, CFG.iterations)
     assert np.all(np.isfinite(metrics["loss"]))
     np.testing.assert_array_equal(metrics["loss"], metrics["unweighted_loss"])
-    # per seed, round by round (`init`, `run`, `next_round`, ... as `ape_jax.sweep` drives it)
+    # per seed, round by round (`init`, `run`, `next_round`, ... as `ape_jax.pipeline.sweep` drives it)
     for i, (_, trained) in enumerate([rounds, _rounds(learner, data, keys[1])]):
         loss_i = np.concatenate([m["loss"] for _, m in trained])
         np.testing.assert_allclose(metrics["loss"][i], loss_i, rtol=2e-5, atol=1e-6)

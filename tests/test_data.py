@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 import envs
-from ape_jax import collect
-from ape_jax import data as data_lib
-from ape_jax.data import DataError, Demonstrations
+from ape_jax.history import history_index
+from ape_jax.pipeline import collect
+from ape_jax.pipeline import data as data_lib
+from ape_jax.pipeline.data import DataError, Demonstrations
 
 
 @pytest.fixture(scope="module")
@@ -67,10 +68,10 @@ def test_split_is_by_episode_without_leakage(demos):
 
 def test_history_index_pads_episode_starts_with_the_first_step():
     t = jnp.array([0, 1, 2, 3, 0, 1])
-    np.testing.assert_array_equal(data_lib.history_index(t, jnp.array([0, 2, 3, 5]), 3),
+    np.testing.assert_array_equal(history_index(t, jnp.array([0, 2, 3, 5]), 3),
                                   [[0, 0, 0], [0, 1, 2], [1, 2, 3], [4, 4, 5]])
     # previous actions only (offset 1): row 0 of an episode sees its first step
-    np.testing.assert_array_equal(data_lib.history_index(t, jnp.array([2, 4]), 2, offset=1), [[0, 1], [4, 4]])
+    np.testing.assert_array_equal(history_index(t, jnp.array([2, 4]), 2, offset=1), [[0, 1], [4, 4]])
 
 
 def test_save_and_load_round_trip_bit_exact(tmp_path, noisy):
@@ -156,7 +157,7 @@ def test_cache_collects_once_and_keys_on_every_setting(tmp_path):
 
 
 def test_demonstrations_is_a_pytree_that_jit_can_index(demos):
-    picked = jax.jit(lambda d, i: d.action[data_lib.history_index(d.t, i, 2)])(
+    picked = jax.jit(lambda d, i: d.action[history_index(d.t, i, 2)])(
         jax.tree.map(jnp.asarray, demos), jnp.array([0, 1]))
     assert picked.shape == (2, 2, 2)
     assert isinstance(demos.take(np.arange(3)), Demonstrations)

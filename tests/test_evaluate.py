@@ -6,7 +6,7 @@ import numpy as np
 
 import envs
 from ape_jax import evaluate
-from ape_jax.data import history_index
+from ape_jax.history import history_index
 from ape_jax.learner import Data, Hparams, LearnerConfig, make_train, stack_hparams
 
 CFG = LearnerConfig(obs_shape=(5,), action_dim=2, history=3, iterations=5, batch_size=8, loss="l1")

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from ape_jax.baselines.fca import ALPHA, FcaHparams, make_fca
-from ape_jax.data import history_index
+from ape_jax.history import history_index
 from ape_jax.learner import Data, LearnerConfig, stack_hparams
 from ape_jax.models import ImagePolicy, StatePolicy
 

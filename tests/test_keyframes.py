@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from ape_jax import figures, keyframes
+from ape_jax.pipeline import keyframes
+from experiments.report import figures
 from experiments import keyframes as cli
 
 CHANGES = (60, 130, 215, 300, 370)  # where the synthetic expert switches its action

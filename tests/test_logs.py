@@ -1,4 +1,4 @@
-"""Training curves on disk (`ape_jax.logs`): the CSV read back exactly, the TensorBoard events read back
+"""Training curves on disk (`ape_jax.pipeline.logs`): the CSV read back exactly, the TensorBoard events read back
 as window means, directory-safe unique labels, and rewrites that leave nothing stale.
 
 The `tensorboard` package (and its EventAccumulator) is not a dependency, so the event files are read
@@ -18,8 +18,8 @@ from hypothesis.extra import numpy as hnp
 from tensorboardX.proto.event_pb2 import Event
 from tensorboardX.record_writer import masked_crc32c
 
-from ape_jax.logs import run_label, write_curves
-from ape_jax.sweep import METHODS, Run, grid_runs
+from ape_jax.pipeline.logs import run_label, write_curves
+from ape_jax.pipeline.sweep import METHODS, Run, grid_runs
 
 RUNS = [Run("bc-oh", {}, 0), Run("ours-step", {"thr": 0.1, "w": 5.0}, 0), Run("ours-step", {"thr": 0.1, "w": 5.0}, 1)]
 

@@ -7,9 +7,9 @@ import minari
 import numpy as np
 import pytest
 
-from ape_jax import data as data_lib
-from ape_jax import minari_io
-from ape_jax.data import DataError, Demonstrations
+from ape_jax.pipeline import data as data_lib
+from ape_jax.pipeline import minari_io
+from ape_jax.pipeline.data import DataError, Demonstrations
 from experiments import collect as collect_cli
 
 FIELDS = ("obs", "action", "executed", "episode", "t", "done", "reward")

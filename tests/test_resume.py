@@ -27,7 +27,7 @@ ARGS = ["--env", "toycar", "--obs", "full", "--iterations", "60", "--checkpoint-
 # "train" (a training state, orbax) or "phase" (a finished phase's outputs: the APE fit, an evaluation group).
 KILLER = """
 import os, signal, sys
-from ape_jax import checkpoint
+from ape_jax.pipeline import checkpoint
 kind, at, count = os.environ["KILL_KIND"], int(os.environ["KILL_AT"]), [0]
 cls, name = (checkpoint.ProgramCheckpoint, "save") if kind == "train" else (checkpoint.SweepCheckpoint, "save_arrays")
 real = getattr(cls, name)
@@ -189,7 +189,7 @@ def test_an_output_directory_that_cannot_be_written_is_refused_before_any_work(t
 
 def test_a_sweep_from_the_minari_export_of_its_demonstrations_gives_the_same_numbers(workdir, reference, tmp_path):
     """`--dataset` on a Minari dataset: the same episodes as the collected ones, so the same results, bit for bit."""
-    from ape_jax import data, minari_io
+    from ape_jax.pipeline import data, minari_io
 
     collected = pathlib.Path(reference["config"]["data"]["path"])
     demos, meta = data.load(collected)

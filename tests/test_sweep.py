@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from ape_jax.sweep import SOFTMAX_GRID, STEP_GRID
+from ape_jax.pipeline.sweep import SOFTMAX_GRID, STEP_GRID
 from experiments import sweep
 
 
@@ -47,7 +47,7 @@ def test_sweep_writes_results_matching_the_schema_with_every_configuration_and_s
 
 
 def test_every_baseline_runs_from_the_sweep_under_its_design_name(tmp_path):
-    from ape_jax.sweep import METHODS
+    from ape_jax.pipeline.sweep import METHODS
 
     out = tmp_path / "run"
     argv = ["--env", "toycar", "--obs", "full", "--iterations", "24", "--eval-episodes", "2", "--seeds", "1",
@@ -85,7 +85,7 @@ def test_sweep_refuses_bad_input_before_compiling(argv, message, capsys):
 
 
 def test_a_diverging_configuration_is_recorded_as_failed_and_the_others_finish(tmp_path, monkeypatch):
-    from ape_jax import sweep as sweep_lib
+    from ape_jax.pipeline import sweep as sweep_lib
 
     real = sweep_lib.hparams_of
 
@@ -122,7 +122,7 @@ def test_custom_grids_are_validated(argv, message, capsys):
 
 
 def test_custom_grids_replace_the_presets_and_name_the_runs():
-    from ape_jax.sweep import grid_runs
+    from ape_jax.pipeline.sweep import grid_runs
 
     args = sweep.parse(["--env", "walker2d", "--preset", "default", "--step-grid", "0.1:4,0.1:5,0.1:6",
                         "--softmax-grid", "0.1,0.2,0.5"])

@@ -13,9 +13,9 @@ import pathlib
 import numpy as np
 import pytest
 
-from ape_jax import data as data_lib
-from ape_jax import minari_io
-from ape_jax.data import Demonstrations
+from ape_jax.pipeline import data as data_lib
+from ape_jax.pipeline import minari_io
+from ape_jax.pipeline.data import Demonstrations
 from experiments import collect, report, train_expert, weights
 
 # Creating a file under /proc fails for every user, root included (a chmod-ed
@@ -200,7 +200,7 @@ def test_collect_refuses_bad_input_before_collecting(tmp_path, capsys, args, mes
 
 def _cached(root):
     """The cache file `collect` would load for CAR, holding a small dataset (nothing collected)."""
-    from ape_jax import collect as collect_lib
+    from ape_jax.pipeline import collect as collect_lib
 
     cfg = collect_lib.settings("toycar", "full", 1)
     path = data_lib.cache_path(root, cfg)

@@ -5,9 +5,9 @@ import json
 import numpy as np
 import pytest
 
-from ape_jax import data as data_lib
-from ape_jax import minari_io
-from ape_jax.data import Demonstrations
+from ape_jax.pipeline import data as data_lib
+from ape_jax.pipeline import minari_io
+from ape_jax.pipeline.data import Demonstrations
 from experiments import weights
 
 STEPS = 300  # enough for ψ to learn "repeat the last action", so changepoints stand out

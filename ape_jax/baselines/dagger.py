@@ -46,7 +46,7 @@ Our reading of the algorithm (the paper of the benchmark gives no details):
   standardised like the demonstrations (`(obs − mean) / std`; images raw
   uint8), its time `t` within the episode and the expert's label. Streams are
   appended one after another (episodes contiguous, `t` restarting at 0), so
-  histories are built by `data.history_index` exactly as on the
+  histories are built by `ape_jax.history.history_index` exactly as on the
   demonstrations; the records are cut to exactly `q` rows (the last streams
   lose their tails). Every round rolls out the same number of steps (enough
   for the largest round), so one compiled rollout serves all rounds.
@@ -199,7 +199,7 @@ def make_dagger(cfg: LearnerConfig, env: envs.Env, expert: Callable[[jax.Array],
     Args:
       cfg: the learner's static settings; `cfg.iterations // rounds` iterations per round.
       env: the environment, in the observation mode of the demonstrations.
-      expert: `full_obs [d] -> action [A]`, jit-able (`ape_jax.collect.expert_for(env)[0]`).
+      expert: `full_obs [d] -> action [A]`, jit-able (`ape_jax.pipeline.collect.expert_for(env)[0]`).
       obs_mean, obs_std: the demonstrations' standardisation, `[D]` each; `None` for images.
       budget: expert queries in all, >= 0 (rows added to the demonstrations).
       rounds: R >= 2, round 0 on the demonstrations alone.

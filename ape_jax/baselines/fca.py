@@ -81,7 +81,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from ape_jax.data import history_index
+from ape_jax.history import history_index
 from ape_jax.learner import Data, Learner, LearnerConfig, adam_step, learning_rate, make_train
 
 ALPHA = {"hopper": 0.1, "halfcheetah": 0.5, "walker2d": 0.5, "toycar": 0.2}

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from ape_jax.data import write_atomic
+from ape_jax.pipeline.data import write_atomic
 
 FINGERPRINT = "sweep.json"
 

@@ -1,6 +1,6 @@
 """Per-iteration training curves of one program, as CSV and as TensorBoard event files.
 
-A program (`ape_jax.sweep`) trains a group of runs together and returns, per
+A program (`ape_jax.pipeline.sweep`) trains a group of runs together and returns, per
 metric, a `[len(runs), iterations]` float32 array. `write_curves` writes it twice:
 
     write_curves(out, "grid", runs, {"loss": loss, "unweighted_loss": unweighted})
@@ -71,7 +71,7 @@ def run_label(run: Any) -> str:
     `write_curves` refuses that.
 
     Args:
-      run: an `ape_jax.sweep.Run` (anything with `method`, `hparams`, `seed`).
+      run: an `ape_jax.pipeline.sweep.Run` (anything with `method`, `hparams`, `seed`).
 
     Returns:
       e.g. `"ours-step_thr=0.1_w=5_seed0"`, `"bc-oh_seed2"`.
@@ -90,7 +90,7 @@ def write_curves(out_dir: pathlib.Path, program: str, runs: Sequence[Any], metri
     Args:
       out_dir: the sweep's output directory; `curves/` and `tensorboard/` are created in it.
       program: the program's name (`"grid"`, `"bc-so"`, ...), the CSV's file name.
-      runs: the program's runs, `ape_jax.sweep.Run`, in the order of the metrics' rows.
+      runs: the program's runs, `ape_jax.pipeline.sweep.Run`, in the order of the metrics' rows.
       metrics: name -> `[len(runs), iterations] float32`, one value per training iteration;
         may hold NaN/inf. Names must match `[A-Za-z0-9_.-]+`.
       tb_points: the most points written per TensorBoard curve (>= 1).

@@ -46,7 +46,7 @@ or images kept uint8; other dtypes become float32); `Dict`/`Tuple`/other
 observation spaces are refused. Actions may be a `Box` (flattened to `[T, A]`
 float32) or `Discrete(n)` (one-hot, `[T, n]`, so APE is the squared error of
 the predicted action distribution). Everything is validated like
-`ape_jax.data.load` (finite values, shapes, episode structure); any problem is
+`ape_jax.pipeline.data.load` (finite values, shapes, episode structure); any problem is
 a `DataError` whose one-line message names the path.
 
 Writing is all or nothing: the dataset is built in a hidden staging directory
@@ -66,8 +66,8 @@ import warnings
 
 import numpy as np
 
-from ape_jax import data as data_lib
-from ape_jax.data import DataError, Demonstrations
+from ape_jax.pipeline import data as data_lib
+from ape_jax.pipeline.data import DataError, Demonstrations
 
 META_KEY = "ape_jax"
 _METADATA = "metadata.json"
@@ -154,7 +154,7 @@ def to_minari(demos: Demonstrations, meta: dict | None, dataset_id: str,
 
     Args:
       demos: the demonstrations (`obs [N, ...]` uint8 or float, `action [N, A]`, ...).
-      meta: JSON-able metadata (e.g. `ape_jax.data.load`'s), stored under the
+      meta: JSON-able metadata (e.g. `ape_jax.pipeline.data.load`'s), stored under the
         dataset metadata key `"ape_jax"`; may be None.
       dataset_id: Minari id, `(namespace/)name-v<N>`.
       root: Minari datasets root (see `datasets_root`).
@@ -191,7 +191,7 @@ def to_minari(demos: Demonstrations, meta: dict | None, dataset_id: str,
             dataset = minari.create_dataset_from_buffers(
                 dataset_id, _buffers(demos), observation_space=obs_space, action_space=action_space,
                 algorithm_name="expert",
-                description="Expert demonstrations exported by ape_jax (ape_jax.minari_io).",
+                description="Expert demonstrations exported by ape_jax (ape_jax.pipeline.minari_io).",
                 data_format="hdf5", jpeg_encoding=False)
             dataset.storage.update_metadata({META_KEY: meta_json})
         # a namespace is a directory with a metadata file: keep those Minari made

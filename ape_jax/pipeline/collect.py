@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
-from ape_jax import data as data_lib
+from ape_jax.pipeline import data as data_lib
 
 # The paper's protocol: ~20k training transitions for state observations with a
 # 20% validation split (25 expert episodes of up to 1000 steps), and 1k expert

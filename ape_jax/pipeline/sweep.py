@@ -3,7 +3,7 @@
 `experiments.sweep` is its command line. One sweep is one environment and
 observation mode:
 
-1. **collect** the shipped expert's demonstrations (cached, `ape_jax.collect`),
+1. **collect** the shipped expert's demonstrations (cached, `ape_jax.pipeline.collect`),
    split 80/20 by episode, standardise state observations with training
    statistics;
 2. **fit APE** on the training split (`ape_jax.ape`), normalise by the training mean;
@@ -32,9 +32,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from ape_jax import ape as ape_lib
-from ape_jax import collect, evaluate, minari_io
-from ape_jax.data import Demonstrations
-from ape_jax.checkpoint import ProgramCheckpoint, SweepCheckpoint
+from ape_jax import evaluate
+from ape_jax.pipeline import collect, minari_io
+from ape_jax.pipeline.data import Demonstrations
+from ape_jax.pipeline.checkpoint import ProgramCheckpoint, SweepCheckpoint
 from ape_jax.grid import grid_runner, pad_grid
 from ape_jax.learner import Data, Hparams, Learner, LearnerConfig, make_train
 

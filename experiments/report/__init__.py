@@ -565,7 +565,7 @@ def paper_choices(m: dict) -> list[str]:
 
 def grid_figure(m: dict):
     """The grid search of one environment as heatmaps (step THR × W, softmax τ), or None if neither was run."""
-    from ape_jax import figures
+    from experiments.report import figures
 
     prefix, unit = _metric(m)
     panels = []
@@ -598,7 +598,7 @@ def grid_figure(m: dict):
 
 
 def _grid_panel(title, row_label, col_label, rows, cols, cells, prefix, marked):
-    from ape_jax import figures
+    from experiments.report import figures
 
     mean = np.array([[_value(c, prefix)[0] if c else np.nan for c in line] for line in cells])
     std = np.array([[_value(c, prefix)[1] if c else np.nan for c in line] for line in cells])
@@ -613,7 +613,7 @@ BAR_BASELINES = ("fca", "dagger", "bcpd", "actfreq", "kmeans", "boosting", "hist
 
 def returns_figure(merged: dict):
     """Every method's return per environment (bars: mean, error bars: std over seeds, dots: seeds), or None."""
-    from ape_jax import figures
+    from experiments.report import figures
 
     envs = _ordered(merged)
     baselines = [b for b in BAR_BASELINES if any(_rows(m, b) for _, m in envs)]
@@ -645,7 +645,7 @@ def returns_figure(merged: dict):
 def curves_figure(merged: dict):
     """Training curves (the weighted loss of the sampled batches, mean ± std over seeds) of BC-OH, the paper's
     step setting and the best softmax, one panel per environment; None if no run records its curve."""
-    from ape_jax import figures
+    from experiments.report import figures
 
     panels = []
     for (env, obs), m in _ordered(merged):
@@ -704,7 +704,7 @@ def weight_shares(merged: dict, batch: int = 128, batches: int = 400) -> list[tu
 
 def weights_figure(shares: list[tuple[str, list[tuple]]]):
     """The share of a batch's weight carried by its k heaviest samples, against k (`weight_shares`)."""
-    from ape_jax import figures
+    from experiments.report import figures
 
     if not shares:
         return None
@@ -740,7 +740,7 @@ def _grid_name(env: str, obs: str) -> str:
 def provenance(r: dict) -> str:
     """The command and setting one results file came from."""
     cfg = r["config"]
-    from ape_jax.sweep import PRESETS, preset_for
+    from ape_jax.pipeline.sweep import PRESETS, preset_for
 
     cmd = f"python -m experiments.sweep --env {r['env']} --obs {r['obs']} --preset {r['preset']}"
     default_methods = ["bc-so", "bc-oh", "ours-step", "ours-softmax"]
@@ -780,7 +780,7 @@ def build(files: list[dict], figure_dir: pathlib.Path | None = None,
       base: the folder the markdown's links are relative to (the `--out` file's); default the working folder.
 
     Returns:
-      `(text, figures)`: the markdown, and `{path: matplotlib Figure}` to write with `ape_jax.figures.save_png`.
+      `(text, figures)`: the markdown, and `{path: matplotlib Figure}` to write with `experiments.report.figures.save_png`.
     """
     merged = merge(files)
     drawn: dict[pathlib.Path, object] = {}
@@ -873,7 +873,7 @@ def build(files: list[dict], figure_dir: pathlib.Path | None = None,
 
 def report(files: list[dict], figure_dir: pathlib.Path | None = None, base: pathlib.Path | None = None) -> str:
     """`build`, then writes its figures (atomically); returns the markdown."""
-    from ape_jax.figures import save_png
+    from experiments.report.figures import save_png
 
     text, drawn = build(files, figure_dir, base)
     for path, fig in drawn.items():
@@ -908,7 +908,7 @@ def main(argv=None) -> int:
                             None if args.out is None else args.out.parent)
     except ReportError as e:
         return fail(None, str(e))
-    from ape_jax.figures import save_png
+    from experiments.report.figures import save_png
 
     log = sys.stdout if args.out is not None else sys.stderr   # stdout carries the markdown when printing
     for path, fig in drawn.items():

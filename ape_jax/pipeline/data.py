@@ -2,7 +2,7 @@
 
 A dataset is a flat table of transitions, episodes concatenated in order, each
 episode's rows contiguous with time index `t = 0, 1, ...`. Histories are built
-by index at batch time (`history_index`), never by copying frames.
+by index at batch time (`ape_jax.history.history_index`), never by copying frames.
 
 On disk a dataset is two files side by side (the format is documented in
 `README.md`):
@@ -111,28 +111,6 @@ class Demonstrations:
         val_ids = np.random.default_rng(seed).permutation(ids)[:n_val]
         is_val = np.isin(np.asarray(self.episode), val_ids)
         return Split(self.take(np.flatnonzero(~is_val)), self.take(np.flatnonzero(is_val)))
-
-
-def history_index(t: jax.Array, idx: jax.Array, length: int, offset: int = 0) -> jax.Array:
-    """Row indices of the `length` steps ending `offset` steps before each row in `idx`.
-
-    Rows before the episode's first step are replaced by the first step, so a
-    history at an episode start repeats the first observation (or action).
-
-    Args:
-      t: time indices of the dataset, `[N] int32`.
-      idx: rows, `[B] int32`.
-      length: history length `H`.
-      offset: 0 for observation histories ending at the row itself; 1 for
-        "the previous `H` actions".
-
-    Returns:
-      `[B, H] int32`, oldest first.
-    """
-    idx = jnp.asarray(idx)
-    start = idx - jnp.asarray(t)[idx]
-    back = jnp.arange(length - 1 + offset, offset - 1, -1)
-    return jnp.maximum(idx[:, None] - back[None, :], start[:, None])
 
 
 # -- files ----------------------------------------------------------------------------------

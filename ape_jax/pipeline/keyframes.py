@@ -1,7 +1,7 @@
 """Keyframes of one demonstration episode: which steps they are, which to render, where to zoom in.
 
 Host-side NumPy on plain arrays, no simulator and no matplotlib, for
-`experiments.keyframes`; `ape_jax.figures.keyframes` draws the result.
+`experiments.keyframes`; `experiments.report.figures.keyframes` draws the result.
 
 - `keyframe_mask(ape, thr)` — the top `thr` of APE over the dataset, the samples
   `ape_jax.weighting.step` upweights, and the threshold they lie above;

@@ -30,9 +30,9 @@ import flax.serialization
 import jax
 import numpy as np
 
-from ape_jax import collect, minari_io
-from ape_jax import data as data_lib
-from ape_jax import sweep as sweep_lib
+from ape_jax.pipeline import collect, minari_io
+from ape_jax.pipeline import data as data_lib
+from ape_jax.pipeline import sweep as sweep_lib
 
 
 class ReevaluationError(ValueError):
@@ -85,7 +85,7 @@ def reevaluate(results: dict, params_dir: str | pathlib.Path, data_dir=None, log
     Args:
       results: a sweep's `results.json`.
       params_dir: the sweep's `params/`.
-      data_dir: the demonstration cache (default: `ape_jax.data.cache_dir()`).
+      data_dir: the demonstration cache (default: `ape_jax.pipeline.data.cache_dir()`).
       rtol: how closely each run's mean return must come out as recorded.
 
     Raises:
