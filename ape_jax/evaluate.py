@@ -8,8 +8,8 @@ episode start by repeating the first observation, exactly as in training;
 state observations are standardised with the training set's statistics.
 Every policy sees the same `E` episodes (common random numbers), so
 differences between methods are not differences between start states.
-ToyCar adds its driving metrics (`success`, `red_light_violations`,
-`progress`, `avg_speed`, `stuck`).
+An environment with metrics of its own (`env.episode_metric_names`, e.g.
+the driving sandbox's `success`, `red_light_violations`, …) adds them.
 
 Copycat diagnostics (given the expert, and ψ of `ape_jax.ape`), per episode,
 over the steps before it ends:
@@ -70,11 +70,11 @@ def make_evaluator(env: envs.Env, cfg: LearnerConfig, obs_mean: jax.Array | None
     (see the module docstring).
     """
     policy = history_policy(cfg, obs_mean, obs_std, env)
-    toycar = env.name == "toycar"
+    own_metrics = bool(env.episode_metric_names)
 
     def record(state):
         out = {}
-        if toycar:
+        if own_metrics:
             out["sim"] = env.sim_state(state)
         if expert is not None:
             out["expert_action"] = jnp.asarray(expert(env.expert_observation(state)), jnp.float32)
@@ -86,10 +86,8 @@ def make_evaluator(env: envs.Env, cfg: LearnerConfig, obs_mean: jax.Array | None
     def one(params, key):
         traj = envs.rollout(env, policy, params, key, episodes, steps, record=record)
         out = {"return": traj.returns, "length": traj.lengths.astype(jnp.float32)}
-        if toycar:
-            metrics = jax.vmap(_toycar_metrics, in_axes=(0, 0, 0, None))(traj.extra["sim"], traj.final.pipeline_state,
-                                                                        traj.valid, env.config)
-            out.update(metrics)
+        if own_metrics:
+            out.update(jax.vmap(env.episode_metrics)(traj.extra["sim"], traj.final, traj.valid))
         if expert is not None:
             err = jnp.sum((traj.action - traj.extra["expert_action"]) ** 2, axis=-1)
             out["imitation_error"] = per_episode(err, traj.valid)
@@ -100,13 +98,6 @@ def make_evaluator(env: envs.Env, cfg: LearnerConfig, obs_mean: jax.Array | None
         return out
 
     return jax.jit(jax.vmap(one, in_axes=(0, None)))
-
-
-def _toycar_metrics(pre, final, valid, cfg):
-    # the states after each step are the states before the next one, then the final one
-    after = jax.tree.map(lambda p, f: jnp.concatenate([p[1:], f[None]]), pre, final)
-    initial = jax.tree.map(lambda p: p[0], pre)
-    return envs.toycar.episode_metrics(initial, after, valid, cfg)
 
 
 def normalized(returns: jax.Array | float, expert: float, random: float) -> Any:

@@ -163,6 +163,22 @@ class Env(abc.ABC):
         """The observation (in this env's mode) of simulator state `sim` from `sim_state`."""
         raise NotImplementedError(f"{self.name}: observe_sim is not available")
 
+    # Per-episode metrics beside the return (e.g. a driving task's success); none by default.
+    episode_metric_names: tuple[str, ...] = ()
+
+    def episode_metrics(self, sims: Any, final: State, valid: jax.Array) -> dict[str, jax.Array]:
+        """This environment's own metrics of one episode (`episode_metric_names`), inside jit.
+
+        Args:
+          sims: `sim_state` before each step, stacked (fields `[T, ...]`).
+          final: the state after the last step.
+          valid: `[T] float32`, 1 for the steps inside the episode.
+
+        Returns:
+          `{name: [] float32}` for every name of `episode_metric_names` (none by default).
+        """
+        return {}
+
     def check_action(self, action: jax.Array) -> None:
         """Raises `ValueError` at trace time when `action` has the wrong shape."""
         shape = tuple(jnp.shape(action))

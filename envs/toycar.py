@@ -35,6 +35,8 @@ from flax import struct
 
 from envs.base import Env, State
 
+METRICS = ("success", "red_light_violations", "progress", "avg_speed", "stuck")  # `episode_metrics`, in order
+
 
 @dataclasses.dataclass(frozen=True)
 class ToyCarConfig:
@@ -203,6 +205,13 @@ class ToyCar(Env):
     def expert(self, full_obs: jax.Array) -> jax.Array:
         """The rule-based expert on this environment's settings; see `expert_action`."""
         return expert_action(full_obs, self.config)
+
+    episode_metric_names = METRICS
+
+    def episode_metrics(self, sims: ToyCarSim, final: State, valid: jax.Array) -> dict[str, jax.Array]:
+        # the states after each step are the states before the next one, then the final one
+        after = jax.tree.map(lambda p, f: jnp.concatenate([p[1:], f[None]]), sims, final.pipeline_state)
+        return episode_metrics(jax.tree.map(lambda p: p[0], sims), after, valid, self.config)
 
 
 def full_observation(sim: ToyCarSim) -> jax.Array:

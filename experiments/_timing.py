@@ -62,7 +62,7 @@ def machine() -> str:
     """The CPU, core count, and JAX and MuJoCo versions, for benchmark headers."""
     from importlib.metadata import version
 
-    from ape_jax.pipeline.sweep import machine as cpu
+    from experiments._provenance import machine as cpu
 
     return f"{cpu()}, jax {jax.__version__} ({jax.default_backend()}), mujoco {version('mujoco')}"
 

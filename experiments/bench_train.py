@@ -34,8 +34,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ape_jax.learner import Data, LearnerConfig, make_train, stack_hparams
-from ape_jax.pipeline.sweep import SOFTMAX_GRID, STEP_GRID, Hparams, Run, hparams_of
+from ape_jax import methods
+from ape_jax.learner import Data, Hparams, LearnerConfig, make_train, stack_hparams
+from ape_jax.pipeline.presets import SOFTMAX_GRID, STEP_GRID
 from experiments._cli import Parser
 from experiments._timing import machine, run_benchmark, time_jitted
 
@@ -52,9 +53,9 @@ def _data(n=20_000, seed=0) -> Data:
 
 
 def _grid() -> list[Hparams]:
-    runs = [Run("bc-oh", {}, 0)] + [Run("ours-step", {"thr": t, "w": w}, 0) for t, w in STEP_GRID] + \
-           [Run("ours-softmax", {"tau": tau}, 0) for tau in SOFTMAX_GRID]
-    return [hparams_of(r, 2e-4) for r in runs]
+    runs = [("bc-oh", {})] + [("ours-step", {"thr": t, "w": w}) for t, w in STEP_GRID] + \
+           [("ours-softmax", {"tau": tau}) for tau in SOFTMAX_GRID]
+    return [methods.get(name).hparams(settings, 2e-4, 0) for name, settings in runs]
 
 
 def macs_per_sample(cfg: LearnerConfig) -> int:

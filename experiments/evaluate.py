@@ -10,7 +10,6 @@ replaced atomically; `--out FILE` writes elsewhere and leaves it alone.
 
 from __future__ import annotations
 
-import json
 import pathlib
 import sys
 
@@ -27,30 +26,29 @@ def main(argv=None) -> int:
     p.add_argument("--data-dir", type=pathlib.Path, default=None, help=f"demonstration cache (default: {data.cache_dir()})")
     args = p.parse_args(argv)
     source = args.run / "results.json"
-    try:
-        results = json.loads(source.read_text())
-    except FileNotFoundError:
+    from ape_jax.pipeline import results as results_lib
+
+    if not source.exists():
         fail(p, f"{source} does not exist: RUN must be a finished sweep's --out directory")
-    except (OSError, ValueError) as e:
-        fail(p, f"{source} is unreadable ({e})")
-    missing = [k for k in ("env", "obs", "config", "runs") if not isinstance(results, dict) or k not in results]
-    if missing:
-        fail(p, f"{source} is not a sweep's results.json (no {', '.join(missing)})")
+    try:
+        res = results_lib.load(source)
+    except results_lib.ResultsError as e:
+        fail(p, str(e))
     target = args.out or source
     if (why := unwritable_file(target)) is not None:
         fail(p, why)
-
     from ape_jax.pipeline.reevaluate import ReevaluationError, reevaluate
-    from experiments.sweep import write_json_atomic
+    from envs.experts import ExpertError
+    from experiments._provenance import system
 
     try:
-        new = reevaluate(results, args.run / "params", args.data_dir)
-    except ReevaluationError as e:
+        new = reevaluate(res, args.run / "params", args.data_dir, system=system())
+    except (ReevaluationError, ExpertError, ValueError) as e:
         fail(p, str(e))
-    write_json_atomic(target, new)
-    added = new["reevaluated"]["fields"]
+    results_lib.save(target, new)
+    added = new.reevaluated["fields"]
     print(f"wrote {target}: " + (f"added {', '.join(added)}" if added else "nothing was missing")
-          + f" ({new['reevaluated']['eval_s']:.0f} s); every recorded return and metric came out as recorded")
+          + f" ({new.reevaluated['eval_s']:.0f} s); every recorded return and metric came out as recorded")
     return 0
 
 

@@ -18,10 +18,7 @@ files to `OUT/tensorboard/` (`ape_jax.pipeline.logs`).
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
-import io
-import json
 import math
 import pathlib
 import shutil
@@ -29,30 +26,33 @@ import sys
 
 from experiments._cli import Parser, fail, unwritable
 
-DEFAULT_METHODS = ("bc-so", "bc-oh", "ours-step", "ours-softmax")
-
 
 def parse(argv=None) -> argparse.Namespace:
     import envs
+    from ape_jax import methods, tasks
     from ape_jax.pipeline import data
-    from ape_jax.pipeline.sweep import METHODS, PRESETS, preset_for
+    from ape_jax.pipeline.presets import PRESETS, preset_for
 
     p = Parser(prog="python -m experiments.sweep", description=__doc__.splitlines()[0])
-    p.add_argument("--env", default="hopper", help="hopper, halfcheetah, walker2d or toycar (default: hopper)")
-    p.add_argument("--obs", default=None, help="observation mode (default: pos; image for toycar)")
+    p.add_argument("--env", default="hopper", help=f"{', '.join(tasks.sweepable())} (default: hopper)")
+    p.add_argument("--obs", default=None, help="observation mode (default: the task's: pos, or image for the "
+                                               "driving sandbox)")
     p.add_argument("--preset", default="quick", choices=sorted(PRESETS),
                    help="quick: <= 5 min on a 2-core CPU; default: the CPU numbers we report; paper: for GPUs")
-    p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
-                   help=f"comma list of {', '.join(METHODS)}, or 'all', or 'baselines' "
-                        f"(default: {','.join(DEFAULT_METHODS)})")
+    p.add_argument("--plugins", default="", metavar="MODULE,...",
+                   help="import these modules (from PYTHONPATH) first: each registers methods with "
+                        "@ape_jax.methods.weighting(NAME), which --methods can then name")
+    p.add_argument("--methods", default="default",
+                   help="comma list of method names, or the shortcuts all, baselines, default, plugins "
+                        f"(default: {','.join(methods.default())}); built-in: {', '.join(methods.names())}")
     p.add_argument("--seeds", type=int, default=None, help="seeds per configuration (default: the preset's)")
     p.add_argument("--iterations", type=int, default=None, help="training iterations (default: the preset's)")
     p.add_argument("--eval-episodes", type=int, default=None, help="evaluation episodes (default: the preset's)")
     p.add_argument("--step-grid", default=None, metavar="THR:W,...",
-                   help="ours-step's (THR, W) settings, e.g. 0.1:4,0.1:5,0.1:6 (default: the preset's, the paper's "
-                        "THR 10%%/20%% x W 3/5/10)")
+                   help="the step weightings' (THR, W) settings, e.g. 0.1:4,0.1:5,0.1:6 (default: the preset's, the "
+                        "paper's THR 10%%/20%% x W 3/5/10)")
     p.add_argument("--softmax-grid", default=None, metavar="TAU,...",
-                   help="ours-softmax's temperatures, e.g. 0.1,0.2,0.5 (default: the preset's)")
+                   help="the softmax weightings' temperatures, e.g. 0.1,0.2,0.5 (default: the preset's)")
     p.add_argument("--out", type=pathlib.Path, default=None, help="output directory (default: runs/sweep/ENV-OBS-PRESET)")
     p.add_argument("--resume", action="store_true",
                    help="continue the sweep in --out where it stopped, or report it if finished (also what a "
@@ -70,20 +70,17 @@ def parse(argv=None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if args.resume and args.fresh:
         fail(p, "--resume and --fresh contradict each other")
-    valid_envs = [*envs.MUJOCO_TASKS, "toycar"]
-    if args.env not in valid_envs:
-        fail(p, f"unknown env {args.env!r} for the sweep; valid: {', '.join(valid_envs)} (envs with an expert)")
-    args.obs = args.obs or ("image" if args.env == "toycar" else "pos")
+    if args.env not in tasks.sweepable():
+        fail(p, f"unknown env {args.env!r} for the sweep; valid: {', '.join(tasks.sweepable())} (envs with an expert)")
+    args.obs = args.obs or tasks.get(args.env).default_obs
     if args.obs not in envs.obs_modes(args.env):
         fail(p, f"--obs {args.obs!r} is not supported by {args.env}; valid: {', '.join(envs.obs_modes(args.env))}")
-    shortcuts = {"all": METHODS, "baselines": tuple(m for m in METHODS if m not in DEFAULT_METHODS)}
-    args.methods = tuple(m.strip() for m in args.methods.split(",") if m.strip())
-    args.methods = tuple(m for name in args.methods for m in shortcuts.get(name, (name,)))
-    unknown = [m for m in args.methods if m not in METHODS]
-    if unknown or not args.methods:
-        fail(p, f"unknown method(s) {unknown or args.methods!r}; valid: {', '.join(METHODS)}")
-    if len(set(args.methods)) != len(args.methods):
-        fail(p, "--methods lists a method twice")
+    args.plugins = tuple(m.strip() for m in args.plugins.split(",") if m.strip())
+    try:
+        methods.load_plugins(args.plugins)
+        args.methods = methods.resolve(args.methods)
+    except (methods.PluginError, methods.MethodError) as e:
+        fail(p, str(e))
     for name in ("seeds", "iterations", "eval_episodes", "checkpoint_every"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             fail(p, f"--{name.replace('_', '-')} must be >= 1")
@@ -93,10 +90,6 @@ def parse(argv=None) -> argparse.Namespace:
         overrides["step_grid"] = _grid(p, "--step-grid", args.step_grid, _step_setting)
     if args.softmax_grid is not None:
         overrides["softmax_grid"] = _grid(p, "--softmax-grid", args.softmax_grid, _temperature)
-    if args.env == "toycar":
-        from ape_jax.pipeline.collect import default_episodes
-
-        overrides["episodes"] = default_episodes("toycar")
     args.preset_cfg = dataclasses.replace(preset_for(args.preset, args.env, args.obs), **overrides)
     args.out = args.out or pathlib.Path("runs/sweep") / f"{args.env}-{args.obs}-{args.preset}"
     problem = "exists and is not a directory" if args.out.exists() and not args.out.is_dir() else unwritable(args.out)
@@ -142,65 +135,52 @@ def _temperature(text: str) -> float:
     return tau
 
 
-def write_json_atomic(path: pathlib.Path, obj) -> None:
-    from ape_jax.pipeline.data import write_atomic
-
-    write_atomic(path, lambda f: f.write((json.dumps(obj, indent=2, allow_nan=False) + "\n").encode()))
-
-
-def write_outputs(out: pathlib.Path, results: dict, params: dict) -> None:
-    import jax
-    import numpy as np
-    import orbax.checkpoint as ocp
-
-    from ape_jax.pipeline.data import write_atomic
-
-    # orbax saves asynchronously (to a temporary name, renamed when done), so `params/` may not exist
-    # yet when the JSON beside the first checkpoint is written: create it first.
-    (out / "params").mkdir(parents=True, exist_ok=True)
-    with ocp.StandardCheckpointer() as ckpt:
-        for name, block in params.items():
-            target = (out / "params" / name).absolute()
-            if target.exists():
-                shutil.rmtree(target)
-            tree = {k: v for k, v in block.items() if k != "runs" and v is not None}
-            ckpt.save(target, jax.tree.map(np.asarray, tree))
-            write_json_atomic(out / "params" / f"{name}.json", block["runs"])
-    rows = io.StringIO()
-    w = csv.writer(rows)
-    w.writerow(["method", "hparams", "n_seeds", "return_mean", "return_std", "normalized_mean", "normalized_std"])
-    for row in results["summary"]:
-        w.writerow([row["method"], json.dumps(row["hparams"], sort_keys=True), row["n_seeds"], row["return_mean"],
-                    row["return_std"], row["normalized_mean"], row["normalized_std"]])
-    write_atomic(out / "results.csv", lambda f: f.write(rows.getvalue().encode()))
-    write_json_atomic(out / "results.json", results)  # last: its presence means the sweep finished
-
-
-def table(results: dict) -> str:
-    from ape_jax.pipeline.sweep import ONLINE
-
-    rows = [r for r in results["summary"] if r["n_seeds"]]
-    best = max(rows, key=lambda r: r["normalized_mean"], default=None)
-    lines = [f"{'':2}{'method':<17}{'hparams':<30}{'seeds':>5}  {'return (mean ± std over seeds)':>32}  {'normalized':>11}"]
-    for r in results["summary"]:
+def table(res) -> str:
+    """The printed summary: one row per configuration, the task's main metric first, the best marked."""
+    metric = res.main_metric
+    shown = list(res.config.get("task_metrics", []))
+    rows = [r for r in res.summary if r["n_seeds"]]
+    best = max(rows, key=lambda r: r["normalized_mean"] if r["normalized_mean"] is not None else -math.inf,
+               default=None)
+    heads = [f"{m} (mean ± std over seeds)" for m in shown] if shown else ["return (mean ± std over seeds)"]
+    width = [max(len(h), 18) for h in heads]
+    lines = [f"{'':2}{'method':<17}{'hparams':<30}{'seeds':>5}  " + "  ".join(f"{h:>{w}}" for h, w in zip(heads, width))
+             + ("" if metric != "return" else f"  {'normalized':>11}")]
+    for r in res.summary:
         hp = ", ".join(f"{k}={v:g}" for k, v in r["hparams"].items()) or "-"
+        if res.online(r["method"]):
+            hp = f"{hp} (online)"
         if not r["n_seeds"]:
-            lines.append(f"{'':2}{r['method']:<17}{hp:<30}{0:>5}  {'failed':>32}")
+            lines.append(f"{'':2}{r['method']:<17}{hp:<30}{0:>5}  {'failed':>{width[0]}}")
             continue
         mark = "* " if r is best else "  "
-        if r["method"] in ONLINE:
-            hp = f"{hp} (online)"
-        ret = f"{r['return_mean']:,.1f} ± {r['return_std']:,.1f}"
-        lines.append(f"{mark}{r['method']:<17}{hp:<30}{r['n_seeds']:>5}  {ret:>32}  {r['normalized_mean']:>10.1f}%")
-    e = results["expert"]
-    if e["return_mean"] is not None:
+        if shown:
+            scale = {m: 100.0 if m == metric else 1.0 for m in shown}
+            cells = [_pm(r["metrics"][m]["mean"], r["metrics"][m]["std"], scale[m], "%" if m == metric else "")
+                     for m in shown]
+        else:
+            cells = [f"{r['return_mean']:,.1f} ± {r['return_std']:,.1f}"]
+        line = f"{mark}{r['method']:<17}{hp:<30}{r['n_seeds']:>5}  " + "  ".join(f"{c:>{w}}" for c, w in zip(cells, width))
+        if metric == "return":
+            line += f"  {r['normalized_mean']:>10.1f}%"
+        lines.append(line)
+    e = res.expert
+    if e.get("return_mean") is not None:
         lines.append(f"expert {e['return_mean']:,.1f} ± {e['return_std']:,.1f}, random policy "
                      f"{e['random_return_mean']:,.1f}; normalized = 100 (R - R_random) / (R_expert - R_random); "
                      "* = best configuration")
-    failed = [r for r in results["runs"] if r["status"] != "ok"]
-    for r in failed:
-        lines.append(f"failed: {r['method']} {r['hparams']} seed {r['seed']}: {r['error']}")
+    elif metric != "return":
+        lines.append(f"{metric} in % of episodes; the other metrics are per-episode means; * = best {metric}")
+    for r in res.runs:
+        if r["status"] != "ok":
+            lines.append(f"failed: {r['method']} {r['hparams']} seed {r['seed']}: {r['error']}")
     return "\n".join(lines)
+
+
+def _pm(mean, std, scale: float, unit: str) -> str:
+    if mean is None:
+        return "-"
+    return f"{scale * mean:,.{1 if scale != 1 else 2}f}{unit} ± {scale * std:,.{1 if scale != 1 else 2}f}{unit}"
 
 
 OUTPUTS = ("results.json", "results.csv", "params", "curves", "tensorboard", "checkpoints")
@@ -210,16 +190,23 @@ def main(argv=None) -> int:
     args = parse(argv)
     from tqdm import tqdm
 
+    from ape_jax.pipeline import checkpoint as ckpt_lib
     from ape_jax.pipeline import logs
+    from ape_jax.pipeline import results as results_lib
     from ape_jax.pipeline.checkpoint import CheckpointError, SweepCheckpoint, differences
     from ape_jax.pipeline.data import DataError
-    from ape_jax.pipeline.sweep import data_settings, fingerprint, results_fingerprint, run_sweep
+    from ape_jax.pipeline.sweep import Hooks, SweepSpec, run_sweep
+    from ape_jax.methods import PluginError
     from envs.experts import ExpertError
+    from experiments._provenance import system
 
     p = args.preset_cfg
+    started = system()  # at the start: the code that runs, not what is checked out when it ends
     try:
-        fp = fingerprint(args.env, args.obs, args.preset, p, args.methods,
-                         data_settings(args.env, args.obs, p, args.dataset))
+        spec = SweepSpec(args.env, args.obs, args.preset, p, args.methods, dataset=args.dataset,
+                         data_dir=args.data_dir, command=("python", "-m", "experiments.sweep", *(
+                             sys.argv[1:] if argv is None else argv)))
+        fp = spec.fingerprint()
     except (ExpertError, ValueError) as e:
         return fail(None, str(e))
     results_path = args.out / "results.json"
@@ -229,10 +216,10 @@ def main(argv=None) -> int:
             shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
     elif results_path.exists():
         try:
-            old = json.loads(results_path.read_text())
-            diff = differences(results_fingerprint(old), fp)
-        except (OSError, ValueError, AttributeError) as e:
-            return fail(None, f"{results_path} is unreadable ({e}); move it away, or pass --fresh to replace it")
+            old = results_lib.load(results_path)
+            diff = differences(old.fingerprint(), fp)
+        except results_lib.ResultsError as e:
+            return fail(None, f"{e}; move it away, or pass --fresh to replace it")
         if diff:
             return fail(None, f"{args.out} holds a finished sweep with other settings, differing in "
                               f"{'; '.join(diff[:4])}; use another --out, or pass --fresh to replace it")
@@ -250,20 +237,22 @@ def main(argv=None) -> int:
     print(f"sweep: {args.env} ({args.obs}), preset {args.preset}: {p.iterations:,} iterations, {p.seeds} seed(s), "
           f"{p.eval_episodes} evaluation episodes, methods {', '.join(args.methods)}")
     bar = (lambda **kw: tqdm(disable=True, **kw)) if args.quiet else (lambda **kw: tqdm(dynamic_ncols=True, **kw))
+    hooks = Hooks(bar=bar, log=tqdm.write, curves=lambda *a: logs.write_curves(args.out, *a))
     try:
-        results, params = run_sweep(args.env, args.obs, args.preset, p, args.methods, args.data_dir,
-                                    bar=bar, log=tqdm.write, checkpoint=checkpoint, dataset=args.dataset,
-                                    curves=lambda *a: logs.write_curves(args.out, *a))
-    except (ExpertError, CheckpointError, DataError, ValueError) as e:
+        res, policies = run_sweep(spec, hooks, checkpoint)
+    except (ExpertError, CheckpointError, DataError, PluginError, ValueError) as e:
         checkpoint.discard_if_empty()  # a refusal leaves --out as it found it
         if created and args.out.is_dir() and not any(args.out.iterdir()):
             args.out.rmdir()
         return fail(None, str(e))
-    write_outputs(args.out, results, params)
+    res.system = started
+    ckpt_lib.save_policies(args.out / "params", policies)
+    results_lib.write_csv(args.out / "results.csv", res)
+    results_lib.save(results_path, res)  # last: its presence means the sweep finished
     checkpoint.clear()  # the outputs hold everything now
-    t = results["timing"]
+    t = res.timing
     print()
-    print(table(results))
+    print(table(res))
     print(f"\ntime: {t['total_s']:.0f} s in all{' (resumed)' if t['resumed'] else ''} (compile ~{t['compile_s']:.0f} s, "
           f"train {t['train_s']:.0f} s, evaluate {t['eval_s']:.0f} s)\n"
           f"wrote {results_path}, {args.out / 'results.csv'}, {args.out / 'params'}/, training curves in "

@@ -28,6 +28,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ape_jax import methods
+
 BINS = 5
 
 
@@ -69,3 +71,10 @@ def weights(actions: np.ndarray, bins: int = BINS) -> np.ndarray:
     joint = joint.reshape(-1)  # NumPy 2.0.x returns it with the input's rank
     n = joint.shape[0]
     return (n / (len(counts) * counts[joint].astype(np.float64))).astype(np.float32)
+
+
+def _score(key, actions, t):
+    return np.asarray(weights(np.asarray(actions)), np.float32)
+
+
+methods.weighting("actfreq", kind="given", label="ActFreq", role="baseline")(_score)

@@ -66,6 +66,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ape_jax import methods
+
 HAZARD = 1.0 / 100.0
 PRIOR_VAR = 1.0
 NOISE_VAR = 0.1
@@ -149,3 +151,12 @@ def _scores(actions, t, hazard, prior_var, noise_var, max_run):
     init = (fresh, jnp.zeros((max_run, x.shape[1]), jnp.float32))
     _, score = jax.lax.scan(step, init, (x, start))
     return score
+
+
+def _score(key, actions, t):
+    return jnp.asarray(changepoint_prob(actions, t), jnp.float32)
+
+
+
+# Ranked by the step function at the paper's setting for ours (THR 10%, W 5), like APE.
+methods.weighting("bcpd", kind="step", grid=[{"thr": 0.1, "w": 5.0}], label="BCPD", role="baseline")(_score)

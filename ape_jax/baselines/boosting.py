@@ -29,6 +29,7 @@ from flax import struct
 
 from ape_jax.learner import (Data, Hparams, Learner, LearnerConfig, TrainState, dataset_losses, make_train,
                              train_in_rounds)
+from ape_jax import methods
 
 ROUNDS = 3
 
@@ -84,3 +85,13 @@ def make_boosting(cfg: LearnerConfig, rounds: int = ROUNDS) -> Learner:
                       per_sample_loss=base.per_sample_loss, policy_params=lambda s: s.train.params,
                       rounds=rounds, round_iterations=cfg.iterations, next_round=next_round)
     return learner._replace(train=lambda key, hp, data: train_in_rounds(learner, key, hp, data))
+
+
+def _learner(ctx) -> Learner:
+    return make_boosting(ctx.cfg)
+
+
+methods.register(methods.Method(
+    "boosting", "Boosting", grid=lambda ctx: [{"rounds": ROUNDS}],
+    hparams=lambda settings, lr, row: Hparams.make("uniform", lr=lr), program="boosting", learner=_learner,
+    module=__name__))

@@ -82,6 +82,7 @@ import envs
 from ape_jax.evaluate import history_policy
 from ape_jax.learner import (Data, Hparams, Learner, LearnerConfig, adam_step, learning_rate, make_train,
                              train_in_rounds)
+from ape_jax import methods
 
 ROUNDS = 4
 NUM_ENVS = 16
@@ -275,3 +276,13 @@ def make_dagger(cfg: LearnerConfig, env: envs.Env, expert: Callable[[jax.Array],
                       per_sample_loss=base.per_sample_loss, policy_params=lambda s: s.params,
                       rounds=rounds, round_iterations=cfg.iterations // rounds, next_round=next_round)
     return learner._replace(train=lambda key, hp, data: train_in_rounds(learner, key, hp, data))
+
+
+def _learner(ctx) -> Learner:
+    return make_dagger(ctx.cfg, ctx.env, ctx.expert, ctx.obs_mean, ctx.obs_std, budget=ctx.n_train)
+
+
+methods.register(methods.Method(
+    "dagger", "DAgger", grid=lambda ctx: [{"rounds": ROUNDS, "budget": ctx.n_train}],
+    hparams=lambda settings, lr, row: Hparams.make("uniform", lr=lr), program="dagger", learner=_learner,
+    online=True, module=__name__))

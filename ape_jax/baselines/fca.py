@@ -16,11 +16,11 @@ estimates). The trained policy is plain `cfg.model()` parameters: evaluation and
 the loss analysis treat FCA like every other method.
 
     learner = make_fca(cfg)
-    params, metrics = learner.train(key, FcaHparams.make(ALPHA["hopper"]), data)
+    params, metrics = learner.train(key, FcaHparams.make(alpha=0.1), data)
     params, metrics = jax.jit(jax.vmap(learner.train, (0, 0, None)))(keys, stacked_hparams, data)
 
-`α` (`ALPHA`) is the paper's supplement's: Hopper 0.1, HalfCheetah and Walker2d
-0.5, ToyCar 0.2.
+`α` per task is the paper's supplement's (`ape_jax.tasks`, `Task.fca_alpha`):
+Hopper 0.1, HalfCheetah and Walker2d 0.5, and 0.2 for the driving sandbox.
 
 Our readings where the paper leaves details open (or where we follow the
 authors' code, github.com/AlvinWen428/fighting-copycat-agents, over the text):
@@ -83,8 +83,8 @@ from flax import struct
 
 from ape_jax.history import history_index
 from ape_jax.learner import Data, Learner, LearnerConfig, adam_step, learning_rate, make_train
+from ape_jax import methods
 
-ALPHA = {"hopper": 0.1, "halfcheetah": 0.5, "walker2d": 0.5, "toycar": 0.2}
 ADVERSARY_HIDDEN = (300, 300)
 
 
@@ -202,3 +202,13 @@ def make_fca(cfg: LearnerConfig) -> Learner:
     return Learner(init=init, run=run, train=train, policy_input=base.policy_input,
                    per_sample_loss=base.per_sample_loss, policy_params=lambda state: state.policy,
                    round_iterations=cfg.iterations)
+
+
+def _learner(ctx) -> Learner:
+    return make_fca(ctx.cfg)
+
+
+methods.register(methods.Method(
+    "fca", "FCA", grid=lambda ctx: [{"alpha": ctx.task.fca_alpha}],
+    hparams=lambda settings, lr, row: FcaHparams.make(alpha=settings["alpha"], lr=lr), program="fca",
+    learner=_learner, module=__name__))

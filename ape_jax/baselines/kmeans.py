@@ -33,6 +33,8 @@ import functools
 import jax
 import jax.numpy as jnp
 
+from ape_jax import methods
+
 K = 6
 ITERATIONS = 50
 
@@ -122,3 +124,10 @@ def weights(key: jax.Array, actions: jax.Array, k: int = K, iterations: int = IT
     """
     _, labels = fit(key, actions, k, iterations)
     return cluster_weights(labels, k)
+
+
+def _score(key, actions, t):
+    return jnp.asarray(weights(key, actions), jnp.float32)
+
+
+methods.weighting("kmeans", kind="given", label="k-means", role="baseline")(_score)

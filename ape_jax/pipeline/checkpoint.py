@@ -1,4 +1,6 @@
-"""A sweep's checkpoints: resume after any interruption, bit-exact.
+"""A sweep's checkpoints and saved policies: every file a sweep writes but its results.json.
+
+Resuming after any interruption, bit-exact:
 
 Everything lives in `OUT/checkpoints/`:
 
@@ -16,6 +18,11 @@ Everything lives in `OUT/checkpoints/`:
 Training runs in fixed chunks and the state holds every random key, so
 continuing from a saved state runs the same compiled chunks on the same inputs
 as an uninterrupted run: on one machine the results are bit-identical.
+
+The finished sweep's policies go to `OUT/params/` (`save_policies`,
+`load_policies`): per history `h<H>/` (orbax: the parameters, leaves
+`[len(runs), ...]`, and the observation statistics) beside `h<H>.json` (the
+runs, in order), which `experiments.evaluate` evaluates again.
 """
 
 from __future__ import annotations
@@ -174,3 +181,99 @@ class ProgramCheckpoint:
         self._last_saved = iteration
         if self.owner is not None:
             self.owner.save_s += time.perf_counter() - t0
+
+
+# -- phase outputs with structure: the APE fit -----------------------------------------------------------------------
+
+def save_ape(checkpoint: SweepCheckpoint | None, fit: Any) -> None:
+    """Saves an `ApeFit` (ψ flax-serialised) as the `ape` phase; nothing without a checkpoint."""
+    import flax.serialization
+
+    if checkpoint is None:
+        return
+    checkpoint.save_arrays("ape", {"train": fit.train, "val": fit.val, "scale": fit.scale,
+                                   "final_fit_mse": fit.final_fit_mse,
+                                   "psi": np.frombuffer(flax.serialization.to_bytes(fit.params), np.uint8)})
+
+
+def load_ape(checkpoint: SweepCheckpoint | None, make: Any) -> Any:
+    """The saved `ape` phase as `make(params=, train=, val=, scale=, final_fit_mse=)`, or None."""
+    import flax.serialization
+
+    saved = checkpoint.load_arrays("ape") if checkpoint is not None else None
+    if saved is None:
+        return None
+    return make(params=flax.serialization.msgpack_restore(saved["psi"].tobytes()), train=saved["train"],
+                val=saved["val"], scale=float(saved["scale"]), final_fit_mse=float(saved["final_fit_mse"]))
+
+
+def save_evaluation(checkpoint: SweepCheckpoint | None, name: str, out: dict, losses: dict) -> None:
+    """Saves one evaluation group's outputs (`eval/<k>`, `<split>/<k>` arrays)."""
+    if checkpoint is not None:
+        checkpoint.save_arrays(name, {**{f"eval/{k}": v for k, v in out.items()},
+                                      **{f"{s}/{k}": v for s, ls in losses.items() for k, v in ls.items()}})
+
+
+def load_evaluation(checkpoint: SweepCheckpoint | None, name: str) -> tuple[dict, dict] | None:
+    """`(eval outputs, {"train": losses, "val": losses})` of a saved evaluation group, or None."""
+    saved = checkpoint.load_arrays(name) if checkpoint is not None else None
+    if saved is None:
+        return None
+    parts: dict[str, dict] = {"eval": {}, "train": {}, "val": {}}
+    for k, v in saved.items():
+        part, key = k.split("/", 1)
+        parts[part][key] = v
+    return parts["eval"], {"train": parts["train"], "val": parts["val"]}
+
+
+# -- a finished sweep's policies -------------------------------------------------------------------------------------
+
+class PolicyError(ValueError):
+    """Saved policies that are missing or unreadable (one line)."""
+
+
+def save_policies(params_dir: os.PathLike, groups: dict[str, dict]) -> None:
+    """Writes `{"h<H>": {"runs": [...], "params": ..., "obs_mean", "obs_std"}}` under `params_dir`.
+
+    Each group's orbax folder is replaced whole; `h<H>.json` (the runs) is
+    written atomically after it.
+    """
+    import jax
+    import orbax.checkpoint as ocp
+
+    params_dir = pathlib.Path(params_dir)
+    # orbax saves to a temporary name and renames when done: create the parent first.
+    params_dir.mkdir(parents=True, exist_ok=True)
+    with ocp.StandardCheckpointer() as ckpt:
+        for name, block in groups.items():
+            target = (params_dir / name).absolute()
+            if target.exists():
+                shutil.rmtree(target)
+            tree = {k: v for k, v in block.items() if k != "runs" and v is not None}
+            ckpt.save(target, jax.tree.map(np.asarray, tree))
+            write_atomic(params_dir / f"{name}.json",
+                         lambda f, runs=block["runs"]: f.write((json.dumps(runs, indent=2) + "\n").encode()))
+
+
+def load_policies(params_dir: os.PathLike) -> dict[str, dict]:
+    """What `save_policies` wrote: leaves of `params` `[len(runs), ...]`; `obs_mean`/`obs_std` None for images."""
+    import orbax.checkpoint as ocp
+
+    params_dir = pathlib.Path(params_dir)
+    groups = sorted(p.stem for p in params_dir.glob("h*.json"))
+    if not groups:
+        raise PolicyError(f"{params_dir} holds no saved policies (h*.json beside orbax folders)")
+    out = {}
+    with ocp.StandardCheckpointer() as ckpt:
+        for name in groups:
+            if not (params_dir / name).is_dir():
+                raise PolicyError(f"{params_dir / name} is missing: the sweep's parameters were not saved")
+            try:
+                tree = ckpt.restore((params_dir / name).absolute())
+                runs = json.loads((params_dir / f"{name}.json").read_text())
+            except Exception as e:  # noqa: BLE001 - orbax raises many types for damaged files
+                raise PolicyError(f"{params_dir / name} is unreadable ({type(e).__name__}: "
+                                  f"{str(e).splitlines()[0][:200] if str(e) else ''})") from e
+            out[name] = {"runs": runs, "params": tree["params"], "obs_mean": tree.get("obs_mean"),
+                         "obs_std": tree.get("obs_std")}
+    return out

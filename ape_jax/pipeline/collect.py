@@ -25,29 +25,26 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
+from ape_jax import tasks
 from ape_jax.pipeline import data as data_lib
 
-# The paper's protocol: ~20k training transitions for state observations with a
-# 20% validation split (25 expert episodes of up to 1000 steps), and 1k expert
-# samples for ToyCar.
-DEFAULT_EPISODES = {"toycar": 10}
-DEFAULT_MUJOCO_EPISODES = 25
-
-
 def default_episodes(env_name: str) -> int:
-    return DEFAULT_EPISODES.get(env_name, DEFAULT_MUJOCO_EPISODES)
+    """Expert episodes a sweep collects for `env_name` (its task record's: ~20k training transitions for
+    MuJoCo with a 20% validation split, ~1k samples for the driving sandbox)."""
+    return tasks.get(env_name).episodes
 
 
 def expert_for(env: envs.Env) -> tuple[Callable[[jax.Array], jax.Array], dict]:
     """The expert of `env` as `full_obs -> action`, and a description of it for metadata.
 
-    ToyCar's is the rule-based expert; a Brax environment's is the shipped
-    checkpoint (`envs.experts.load`), which raises `ExpertError` if missing.
+    A task with a rule-based expert (`ape_jax.tasks.Task.expert`) uses the
+    environment's own `expert`; any other uses the shipped checkpoint
+    (`envs.experts.load`), which raises `ExpertError` if missing.
     """
     from envs import experts
 
-    if env.name == "toycar":
-        return env.expert, {"kind": "rule-based", "function": "envs.toycar.expert_action"}
+    if tasks.get(env.name).expert == "rule-based":
+        return env.expert, {"kind": "rule-based", "function": f"{type(env).__module__}.expert_action"}
     policy = experts.load(env.name)
     card_file = experts.directory(env.name) / experts.CARD
     card = experts.card(env.name)

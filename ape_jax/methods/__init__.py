@@ -1,0 +1,371 @@
+"""The method registry: one record per method, and the plugin contract.
+
+Every method the sweep can train is one `Method` record, registered once. The
+sweep, the command line's defaults and shortcuts, `results.json` and the
+report read their lists of methods from here, so adding a method is one
+module:
+
+- a **built-in** is a module of `ape_jax.methods` or `ape_jax.baselines` that
+  calls `register` (or `weighting`) at import; the registry imports every such
+  module the first time it is asked for a method (`BUILTIN_PACKAGES`);
+- a **plugin** is any module on `PYTHONPATH`, imported by the sweep's
+  `--plugins` before the methods are resolved:
+
+      import jax.numpy as jnp
+      from ape_jax import methods
+
+      @methods.weighting("action-norm")   # kind="step": ranked at the preset's (THR, W) grid, like ours-step
+      def action_norm(key, actions, t):    # actions [N, A] float32, t [N] int32 -> scores [N] float32
+          return jnp.sum(actions ** 2, axis=-1)
+
+A weighting method's scores become one row of the score table the weighted
+learner reads (`ape_jax.weighting`; row 0 is the APE), so it trains in the
+same vmapped grid program as BC-OH and the paper's grids. `kind` says how the
+row becomes weights: `"step"` ranks it over the training set (top THR × W, at
+each (THR, W) of the preset's step grid), `"softmax"` weights each minibatch by
+`B · softmax(score / τ)` (each τ of the preset's softmax grid), `"given"` uses
+the scores as the weights themselves (they must be >= 0).
+
+Names are unique: registering a name twice is refused with the registered
+names listed, and so is asking for an unknown one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import importlib
+import pkgutil
+import re
+import sys
+import zlib
+from typing import Any, Callable, Iterator, Mapping, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+ROLES = ("reference", "ours", "baseline", "plugin")  # the order methods are listed in
+WEIGHTING_KINDS = ("step", "softmax", "given")
+BUILTIN_PACKAGES = ("ape_jax.methods", "ape_jax.baselines")
+_NAME = re.compile(r"^[a-z0-9][a-z0-9_.-]*$")
+
+
+class MethodError(ValueError):
+    """An unknown or duplicate method, or a method record that does not make sense (one line)."""
+
+
+class PluginError(ValueError):
+    """A plugin that cannot be used: it fails to import, or its scores are not `[N]` finite float32 (one line)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class GridContext:
+    """What a method's default grid may depend on.
+
+    Attributes:
+      task: the environment's `ape_jax.tasks.Task` (e.g. FCA's α per task).
+      step_grid: the preset's (THR, W) settings of step weightings.
+      softmax_grid: the preset's temperatures of softmax weightings.
+      n_train: transitions in the training split (e.g. DAgger's query budget).
+    """
+
+    task: Any
+    step_grid: tuple[tuple[float, float], ...]
+    softmax_grid: tuple[float, ...]
+    n_train: int
+
+
+@dataclasses.dataclass(frozen=True)
+class LearnerContext:
+    """What a method's learner factory may depend on.
+
+    Attributes:
+      cfg: the program's `ape_jax.learner.LearnerConfig`.
+      env: the environment the policies are evaluated in.
+      expert: the expert as `full observation -> action` (online methods query it).
+      obs_mean, obs_std: the observation standardisation (None for images).
+      n_train: transitions in the training split.
+    """
+
+    cfg: Any
+    env: Any
+    expert: Callable[[jax.Array], jax.Array] | None
+    obs_mean: Any
+    obs_std: Any
+    n_train: int
+
+
+Scores = Callable[[jax.Array, jax.Array, jax.Array], jax.Array]
+
+
+@dataclasses.dataclass(frozen=True)
+class Method:
+    """One method: how its configurations are listed, made traced, trained, and reported.
+
+    Attributes:
+      name: the command line's and the results' name (`"ours-step"`).
+      label: how tables and figures name it (`"Ours (step)"`).
+      grid: `grid(GridContext) -> [settings]`, the hyperparameter settings it
+        runs at by default, each a JSON-able dict of numbers (`{"thr": 0.1, "w": 5.0}`).
+      hparams: `hparams(settings, lr, score_row) -> traced hyperparameters` of
+        its learner (an `ape_jax.learner.Hparams` for the weighted learner);
+        `score_row` is the row of the score table its weights read (0: APE).
+      program: methods with the same program train in one compiled, vmapped
+        program: `"grid"` is the weighted learner at the preset's history.
+      history: observations the policy sees; None: the preset's.
+      learner: `learner(LearnerContext) -> ape_jax.learner.Learner`; None: the
+        weighted learner (`ape_jax.learner.make_train`).
+      score: `score(key, actions [N, A], t [N]) -> [N] float32`, the method's
+        per-sample scores (a row of the score table); None: it reads the APE.
+      online: whether it queries the expert during training (DAgger).
+      role: `"reference"` (BC-SO, BC-OH), `"ours"`, `"baseline"` or `"plugin"`.
+      module: the module that registered it.
+    """
+
+    name: str
+    label: str
+    grid: Callable[[GridContext], Sequence[Mapping[str, float]]]
+    hparams: Callable[[Mapping[str, float], float, int], Any]
+    program: str = "grid"
+    history: int | None = None
+    learner: Callable[[LearnerContext], Any] | None = None
+    score: Scores | None = None
+    online: bool = False
+    role: str = "baseline"
+    module: str = ""
+
+    def settings(self, ctx: GridContext) -> list[dict]:
+        """The default grid as plain dicts of floats (what `results.json` records as `hparams`)."""
+        return [{k: float(v) for k, v in dict(s).items()} for s in self.grid(ctx)]
+
+
+_registry: dict[str, Method] = {}
+_builtins = "unloaded"  # -> "loading" -> "loaded"
+
+
+def _ensure_builtins() -> None:
+    global _builtins
+    if _builtins != "unloaded":
+        return
+    _builtins = "loading"
+    try:
+        for package_name in BUILTIN_PACKAGES:
+            package = importlib.import_module(package_name)
+            for info in sorted(pkgutil.iter_modules(package.__path__), key=lambda m: m.name):
+                if not info.name.startswith("_"):
+                    importlib.import_module(f"{package_name}.{info.name}")
+    finally:
+        _builtins = "loaded"
+
+
+def register(method: Method) -> Method:
+    """Adds `method` to the registry and returns it.
+
+    Raises:
+      MethodError: the name is taken or malformed, the role unknown, or
+        another method of the same program trains with a different history
+        or learner.
+    """
+    _ensure_builtins()
+    if not _NAME.match(method.name):
+        raise MethodError(f"method name {method.name!r} must be lowercase letters, digits, '-', '_' or '.'")
+    if method.name in _registry:
+        other = _registry[method.name]
+        raise MethodError(f"method {method.name!r} is already registered (by {other.module or 'a module'}); "
+                          f"pick another name; registered: {', '.join(_registry)}")
+    if method.role not in ROLES:
+        raise MethodError(f"method {method.name!r}: unknown role {method.role!r}; valid: {', '.join(ROLES)}")
+    for other in _registry.values():
+        if other.program == method.program and (other.history, other.learner) != (method.history, method.learner):
+            raise MethodError(f"method {method.name!r} trains in program {method.program!r} with another history "
+                              f"or learner than {other.name!r}; give it a program of its own")
+    _registry[method.name] = method
+    return method
+
+
+def get(name: str) -> Method:
+    """The record of `name`; `MethodError` listing the registered names if there is none."""
+    _ensure_builtins()
+    if name not in _registry:
+        raise MethodError(f"unknown method {name!r}; valid: {', '.join(names())}")
+    return _registry[name]
+
+
+def names(role: str | None = None) -> tuple[str, ...]:
+    """Registered names in listing order (references, ours, baselines, plugins), optionally of one role."""
+    _ensure_builtins()
+    ordered = sorted(_registry.values(), key=lambda m: ROLES.index(m.role))  # stable: registration order within
+    return tuple(m.name for m in ordered if role is None or m.role == role)
+
+
+def default() -> tuple[str, ...]:
+    """What the sweep trains when no methods are asked for: the references and ours (the paper's grid)."""
+    return names("reference") + names("ours")
+
+
+def shortcuts() -> dict[str, tuple[str, ...]]:
+    """Words the command line expands: `all`, `baselines`, `default`, `plugins`."""
+    return {"all": names(), "baselines": names("baseline"), "default": default(), "plugins": names("plugin")}
+
+
+def resolve(text: str | Sequence[str]) -> tuple[str, ...]:
+    """A comma list (or sequence) of names and shortcuts as registered names, in the order given.
+
+    Raises:
+      MethodError: an unknown name, a name listed twice, or nothing at all.
+    """
+    words = [w.strip() for w in (text.split(",") if isinstance(text, str) else text) if w.strip()]
+    short = shortcuts()
+    out = tuple(m for w in words for m in short.get(w, (w,)))
+    if not out:
+        raise MethodError("no methods given")
+    unknown = [m for m in out if m not in _registry]
+    if unknown:
+        raise MethodError(f"unknown method(s) {', '.join(unknown)}; valid: {', '.join(names())} "
+                          f"(or {', '.join(short)})")
+    if len(set(out)) != len(out):
+        raise MethodError("a method is listed twice")
+    return out
+
+
+def run_key(seed: int, method: str, hparams: Mapping[str, float]) -> jax.Array:
+    """The PRNG key of one run, from its identity alone: `fold_in(PRNGKey(seed), crc32(method, hparams))`.
+
+    The same configuration gets the same initialisation and batches whatever
+    else trains beside it, and in whatever order.
+    """
+    ident = method + "|" + ",".join(f"{k}={float(v)!r}" for k, v in sorted(hparams.items()))
+    return jax.random.fold_in(jax.random.PRNGKey(seed), zlib.crc32(ident.encode()) & 0x7FFFFFFF)
+
+
+def score_key(method: str) -> jax.Array:
+    """The key a method's score function gets (from its name: the same scores whatever else runs)."""
+    return run_key(0, method, {"score": 1.0})
+
+
+# -- weighting methods: the plugin contract -----------------------------------------------------------------------
+
+def weighting_hparams(kind: str) -> Callable[[Mapping[str, float], float, int], Any]:
+    from ape_jax.learner import Hparams
+
+    def hparams(settings: Mapping[str, float], lr: float, row: int):
+        if kind == "step":
+            return Hparams.make("step", lr=lr, thr=settings["thr"], w=settings["w"], source=row)
+        if kind == "softmax":
+            return Hparams.make("softmax", lr=lr, tau=settings["tau"], source=row)
+        return Hparams.make("given", lr=lr, source=row)
+
+    return hparams
+
+
+def weighting_grid(kind: str, grid: Sequence[Mapping[str, float]] | None) -> Callable[[GridContext], list[dict]]:
+    keys = {"step": {"thr", "w"}, "softmax": {"tau"}, "given": set()}[kind]
+    if grid is not None:
+        grid = [dict(s) for s in grid]
+        for s in grid:
+            if set(s) != keys:
+                raise MethodError(f"a {kind} weighting's grid settings have the keys {sorted(keys)}, got {sorted(s)}")
+        return lambda ctx: grid
+    if kind == "step":
+        return lambda ctx: [{"thr": thr, "w": w} for thr, w in ctx.step_grid]
+    if kind == "softmax":
+        return lambda ctx: [{"tau": tau} for tau in ctx.softmax_grid]
+    return lambda ctx: [{}]
+
+
+def weighting(name: str, kind: str = "step", grid: Sequence[Mapping[str, float]] | None = None,
+              label: str | None = None, *, role: str = "plugin") -> Callable[[Scores], Scores]:
+    """Registers a per-sample score function as a weighting method of the grid program (a decorator).
+
+    Args:
+      name: the method's name on the command line and in results.
+      kind: `"step"` (ranked, top THR × W), `"softmax"` (minibatch softmax at
+        temperature τ) or `"given"` (the scores are the weights, >= 0).
+      grid: the settings it runs at, e.g. `[{"thr": 0.1, "w": 5.0}]`; default:
+        the preset's step grid (`"step"`), its softmax grid (`"softmax"`), or
+        one setting `{}` (`"given"`).
+      label: its name in tables and figures (default: `name`).
+      role: `"plugin"` for user modules; the built-in baselines say `"baseline"`.
+
+    The decorated function is `score(key, actions [N, A] float32, t [N] int32)
+    -> [N] float32`, called once per sweep on the training split, outside
+    `jit` (it may use NumPy); it is returned unchanged.
+    """
+    if kind not in WEIGHTING_KINDS:
+        raise MethodError(f"method {name!r}: unknown weighting kind {kind!r}; valid: {', '.join(WEIGHTING_KINDS)}")
+    make_grid = weighting_grid(kind, grid)
+
+    def decorate(fn: Scores) -> Scores:
+        register(Method(name=name, label=label or name, grid=make_grid, hparams=weighting_hparams(kind),
+                        score=_checked(name, kind, fn), role=role, module=getattr(fn, "__module__", "") or ""))
+        return fn
+
+    return decorate
+
+
+def _checked(name: str, kind: str, fn: Scores) -> Scores:
+    """`fn` with its output refused (`PluginError`, naming the method) unless it is `[N]` finite float32."""
+
+    def score(key: jax.Array, actions: jax.Array, t: jax.Array) -> jax.Array:
+        n = int(np.shape(actions)[0])
+        try:
+            out = fn(key, actions, t)
+        except Exception as e:  # noqa: BLE001 - a user's function may raise anything; name it and stop
+            raise PluginError(f"method {name!r}: its score function raised {type(e).__name__}: {e}") from e
+        dtype = getattr(out, "dtype", None)
+        if np.shape(out) != (n,):
+            raise PluginError(f"method {name!r}: its score function returned shape {tuple(np.shape(out))}, "
+                              f"expected ({n},) (one score per training sample)")
+        if dtype != np.float32:
+            raise PluginError(f"method {name!r}: its score function returned dtype {dtype}, expected float32")
+        out = jnp.asarray(out)
+        if not bool(jnp.all(jnp.isfinite(out))):
+            raise PluginError(f"method {name!r}: its score function returned "
+                              f"{int(jnp.sum(~jnp.isfinite(out)))} non-finite scores")
+        if kind == "given" and bool(jnp.any(out < 0)):
+            raise PluginError(f"method {name!r}: a 'given' weighting's scores are its weights and must be >= 0")
+        return out
+
+    return score
+
+
+def load_plugins(modules: Sequence[str]) -> list[str]:
+    """Imports each plugin module (by dotted name, from `PYTHONPATH`); returns the names they registered.
+
+    Raises:
+      PluginError: a module fails to import, registers nothing, or registers
+        a name that is taken (the message names the module).
+    """
+    added = []
+    for module in modules:
+        mine = [m for m in names() if _registry[m].module == module]
+        if mine:  # imported and registered already (a second sweep in one process)
+            added += mine
+            continue
+        before = set(names())
+        try:
+            loaded = sys.modules.get(module)  # imported before, its registrations undone by `scratch`
+            importlib.reload(loaded) if loaded is not None else importlib.import_module(module)
+        except MethodError as e:
+            raise PluginError(f"plugin {module!r}: {e}") from e
+        except Exception as e:  # noqa: BLE001 - a plugin may fail any way; say which and how
+            raise PluginError(f"plugin {module!r} failed to import: {type(e).__name__}: {e}") from e
+        new = [m for m in names() if m not in before]
+        if not new:
+            raise PluginError(f"plugin {module!r} registered no method (decorate a score function with "
+                              "@ape_jax.methods.weighting(NAME))")
+        added += new
+    return added
+
+
+@contextlib.contextmanager
+def scratch() -> Iterator[None]:
+    """Registrations made inside are undone on exit (for tests and notebooks)."""
+    _ensure_builtins()
+    saved = dict(_registry)
+    try:
+        yield
+    finally:
+        _registry.clear()
+        _registry.update(saved)

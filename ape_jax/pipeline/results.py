@@ -1,0 +1,277 @@
+"""`results.json`: the one reader, writer and validator of a sweep's results.
+
+    res = results.load("runs/sweep/hopper-pos-quick/results.json")   # validated, schema 1 upgraded
+    res.label("ours-step"), res.preset(), res.fingerprint()
+    results.save(path, res)                                           # atomic
+
+The layout is `DESIGN.md`'s. Schema 2 (written since the method registry)
+adds, beside schema 1's fields:
+
+- `command`: the exact command line the sweep ran with (`None` from Python);
+- `protocol`: how demonstrations and evaluation were set up (frame skip,
+  episode length, reward scale, history);
+- `methods`: per method its label, role, program and whether it is online,
+  so a report reads a plugin's label without importing the plugin;
+- summary rows' `metrics`: mean and std over seeds of the task's own
+  per-episode metrics (ToyCar's success, violations, …).
+
+Schema 1 files still load: `from_json` fills `methods` from the registry (or
+the name), and leaves `command` and `protocol` empty. Anything else that is not
+a complete, well-typed results file is refused with a one-line `ResultsError`
+naming the file and the field.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import json
+import math
+import pathlib
+from typing import Any, Sequence
+
+import numpy as np
+
+from ape_jax.pipeline.data import write_atomic
+from ape_jax.pipeline.presets import Preset
+
+SCHEMA = 2
+READS = (1, 2)
+
+
+class ResultsError(ValueError):
+    """A results file that cannot be used (one line: the file and the problem)."""
+
+
+@dataclasses.dataclass
+class Results:
+    """One sweep's results (see the module docstring; field meanings are `DESIGN.md`'s)."""
+
+    env: str
+    obs: str
+    preset: str
+    config: dict
+    expert: dict
+    runs: list[dict]
+    summary: list[dict]
+    timing: dict = dataclasses.field(default_factory=dict)
+    system: dict | None = None
+    command: list[str] | None = None
+    protocol: dict = dataclasses.field(default_factory=dict)
+    methods: dict[str, dict] = dataclasses.field(default_factory=dict)
+    reevaluated: dict | None = None
+    schema: int = SCHEMA
+
+    # -- reading --------------------------------------------------------------------------------------------------
+    @classmethod
+    def from_json(cls, obj: Any, where: str = "results") -> "Results":
+        """Validates `obj` (a parsed results.json) and returns it, schema 1 upgraded to 2."""
+        if not isinstance(obj, dict):
+            raise ResultsError(f"{where}: not a sweep results file (a JSON object is expected)")
+        missing = [k for k in _REQUIRED if k not in obj]
+        if missing:
+            raise ResultsError(f"{where}: not a sweep results file (missing {', '.join(missing)})")
+        if obj["schema"] not in READS:
+            raise ResultsError(f"{where}: results schema {obj['schema']!r}; this version reads schemas "
+                               f"{', '.join(map(str, READS))}")
+        validate(obj, where)
+        obj = json.loads(json.dumps(obj))  # a copy: the caller's object is left as it was
+        if obj["schema"] == 1:
+            obj.update(schema=SCHEMA, command=None, protocol={}, methods={})
+        names = dict.fromkeys([*obj["config"].get("methods", []), *(r["method"] for r in obj["runs"])])
+        known = {**{m: method_info(m) for m in names if m not in obj.get("methods", {})}, **obj.get("methods", {})}
+        fields = {f.name for f in dataclasses.fields(cls)}
+        return cls(**{k: v for k, v in obj.items() if k in fields and k != "methods"}, methods=known)
+
+    def to_json(self) -> dict:
+        out = {"schema": self.schema, "env": self.env, "obs": self.obs, "preset": self.preset,
+               "command": self.command, "protocol": self.protocol, "methods": self.methods,
+               "config": self.config, "expert": self.expert, "runs": self.runs, "summary": self.summary,
+               "timing": self.timing, "system": self.system}
+        if self.reevaluated is not None:
+            out["reevaluated"] = self.reevaluated
+        return _finite_or_none(out)
+
+    def label(self, method: str) -> str:
+        return self.methods.get(method, {}).get("label") or method
+
+    def online(self, method: str) -> bool:
+        return bool(self.methods.get(method, {}).get("online"))
+
+    def role(self, method: str) -> str:
+        return self.methods.get(method, {}).get("role") or "plugin"
+
+    def preset_settings(self) -> Preset:
+        """The `Preset` this sweep ran with."""
+        return Preset.from_json(self.config)
+
+    def fingerprint(self) -> dict:
+        """The settings that identify the sweep (what `ape_jax.pipeline.sweep.SweepSpec.fingerprint` gives)."""
+        fields = [f.name for f in dataclasses.fields(Preset)]
+        fp = {"env": self.env, "obs": self.obs, "preset": self.preset,
+              "settings": {k: self.config.get(k) for k in fields}, "methods": self.config.get("methods"),
+              "data": self.config.get("data", {}).get("settings")}
+        if self.protocol:
+            fp["protocol"] = self.protocol
+        return fp
+
+    @property
+    def main_metric(self) -> str:
+        """`"return"`, or the task metric the sweep is judged by (ToyCar: `"success"`)."""
+        return self.config.get("metric", "return")
+
+
+_REQUIRED = ("schema", "env", "obs", "preset", "config", "expert", "runs", "summary", "system")
+
+
+def method_info(name: str) -> dict:
+    """What `results.json` records of a method: label, role, program, online (from the registry if it knows it)."""
+    from ape_jax import methods
+
+    try:
+        m = methods.get(name)
+    except methods.MethodError:
+        return {"label": name, "role": "plugin", "program": None, "online": False}
+    return {"label": m.label, "role": m.role, "program": m.program, "online": m.online}
+
+
+def load(path: str | pathlib.Path) -> Results:
+    """Reads and validates a results.json (`ResultsError` naming the file if it cannot be used)."""
+    try:
+        obj = json.loads(pathlib.Path(path).read_text())
+    except (OSError, UnicodeDecodeError) as e:
+        raise ResultsError(f"{path}: cannot read ({e})") from None
+    except json.JSONDecodeError as e:
+        raise ResultsError(f"{path}: not valid JSON ({e.msg} at line {e.lineno})") from None
+    return Results.from_json(obj, str(path))
+
+
+def save(path: str | pathlib.Path, results: Results) -> None:
+    """Writes `results` to `path` atomically (a temporary file renamed into place)."""
+    write_json(path, results.to_json())
+
+
+def write_json(path: str | pathlib.Path, obj: Any) -> None:
+    write_atomic(pathlib.Path(path),
+                 lambda f: f.write((json.dumps(obj, indent=2, allow_nan=False) + "\n").encode()))
+
+
+def write_csv(path: str | pathlib.Path, results: Results) -> None:
+    """`results.csv`: one summary row per configuration, the task's own metrics first (ToyCar: success, …)."""
+    metrics = list(results.config.get("task_metrics", []))
+    rows = io.StringIO()
+    w = csv.writer(rows)
+    w.writerow(["method", "label", "hparams", "n_seeds", *(f"{m}_{s}" for m in metrics for s in ("mean", "std")),
+                "return_mean", "return_std", "normalized_mean", "normalized_std"])
+    for row in results.summary:
+        ms = row.get("metrics", {})
+        w.writerow([row["method"], results.label(row["method"]), json.dumps(row["hparams"], sort_keys=True),
+                    row["n_seeds"], *(ms.get(m, {}).get(s) for m in metrics for s in ("mean", "std")),
+                    row["return_mean"], row["return_std"], row["normalized_mean"], row["normalized_std"]])
+    write_atomic(pathlib.Path(path), lambda f: f.write(rows.getvalue().encode()))
+
+
+# -- the summary ----------------------------------------------------------------------------------------------------
+
+def summarize(runs: Sequence[dict], metrics: Sequence[str] = ()) -> list[dict]:
+    """Mean and std over seeds of the per-seed means, per (method, hparams); failed runs left out.
+
+    `metrics` (the task's own per-episode metrics) are summarised the same way
+    under each row's `metrics`.
+    """
+    groups: dict[tuple, list[dict]] = {}
+    for r in runs:
+        groups.setdefault((r["method"], tuple(sorted(r["hparams"].items()))), []).append(r)
+    rows = []
+    for (method, hp), rs in groups.items():
+        ok = [r for r in rs if r["status"] == "ok"]
+
+        def stats(key):
+            values = np.array([np.nan if r["eval"].get(key) is None else r["eval"][key] for r in ok], np.float64)
+            return (float(values.mean()), float(values.std())) if len(ok) else (None, None)
+
+        row = {"method": method, "hparams": dict(hp), "n_seeds": len(ok)}
+        row["return_mean"], row["return_std"] = stats("return_mean")
+        row["normalized_mean"], row["normalized_std"] = stats("normalized")
+        if metrics:
+            row["metrics"] = {m: dict(zip(("mean", "std"), stats(m))) for m in metrics}
+        rows.append(row)
+    return _finite_or_none(rows)
+
+
+def _finite_or_none(tree):
+    """`tree` with every non-finite float replaced by None (JSON has no NaN)."""
+    if isinstance(tree, dict):
+        return {k: _finite_or_none(v) for k, v in tree.items()}
+    if isinstance(tree, list):
+        return [_finite_or_none(v) for v in tree]
+    if isinstance(tree, float) and not math.isfinite(tree):
+        return None
+    return tree
+
+
+# -- validation -----------------------------------------------------------------------------------------------------
+
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _count(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool) and v >= 0
+
+
+def _hparams(v) -> bool:
+    return isinstance(v, dict) and all(_number(x) for x in v.values())
+
+
+def _optional(test):
+    return lambda v: v is None or test(v)
+
+
+def _row(where: str, row, fields: dict) -> None:
+    if not isinstance(row, dict):
+        raise ResultsError(f"{where} must be an object, got {type(row).__name__}")
+    for key, (test, want) in fields.items():
+        if key not in row:
+            raise ResultsError(f"{where} has no field '{key}'")
+        if not test(row[key]):
+            raise ResultsError(f"{where} field '{key}' must be {want}, got {row[key]!r:.80}")
+
+
+_TEXT = (lambda v: isinstance(v, str), "a string")
+_OBJECT = (lambda v: isinstance(v, dict), "an object")
+_SUMMARY = {"method": _TEXT, "hparams": (_hparams, "an object of numbers"),
+            "n_seeds": (_count, "an int >= 0"),
+            "return_mean": (_optional(_number), "a number or null"), "return_std": (_optional(_number), "a number or null")}
+_RUN = {"method": _TEXT, "hparams": (_hparams, "an object of numbers"), "status": _TEXT}
+_EVAL = {"return_mean": (lambda v: _number(v) and math.isfinite(v), "a finite number"),
+         "normalized": (_optional(_number), "a number or null")}
+_LOSSES = {s: (lambda v: isinstance(v, dict) and all(
+    _number(v.get(k)) for k in ("unweighted", "changepoint", "copycat")), "an object with numbers unweighted, "
+    "changepoint and copycat") for s in ("train", "val")}
+
+
+def validate(obj: dict, where: str = "results") -> None:
+    """Refuses (`ResultsError`, one line) a results object lacking a field the readers use, or with a wrong type."""
+    _row(f"{where}:", obj, {"env": _TEXT, "obs": _TEXT, "preset": _TEXT, "config": _OBJECT, "expert": _OBJECT,
+                            "runs": (lambda v: isinstance(v, list), "a list"),
+                            "summary": (lambda v: isinstance(v, list), "a list"),
+                            "system": (_optional(lambda v: isinstance(v, dict)), "an object or null")})
+    if obj.get("schema") == 2:
+        _row(f"{where}:", obj, {"command": (_optional(lambda v: isinstance(v, list) and all(
+            isinstance(x, str) for x in v)), "a list of strings or null"), "protocol": _OBJECT, "methods": _OBJECT})
+    _row(f"{where}: config", obj["config"], {k: (_count, "an int >= 0") for k in ("iterations", "seeds", "eval_episodes")})
+    _row(f"{where}: expert", obj["expert"], {k: (_optional(_number), "a number or null")
+                                             for k in ("return_mean", "return_std", "random_return_mean")})
+    for i, row in enumerate(obj["summary"]):
+        _row(f"{where}: summary[{i}]", row, _SUMMARY)
+        if row["n_seeds"] and not all(_number(row[k]) and math.isfinite(row[k]) for k in ("return_mean", "return_std")):
+            raise ResultsError(f"{where}: summary[{i}] has {row['n_seeds']} seeds but return "
+                               f"{row['return_mean']!r} ± {row['return_std']!r}; expected finite numbers")
+    for i, run in enumerate(obj["runs"]):
+        _row(f"{where}: runs[{i}]", run, _RUN)
+        if run["status"] == "ok":
+            _row(f"{where}: runs[{i}]", run, {"losses": _OBJECT, "eval": _OBJECT})
+            _row(f"{where}: runs[{i}] losses", run["losses"], _LOSSES)
+            _row(f"{where}: runs[{i}] eval", {"normalized": None, **run["eval"]}, _EVAL)
