@@ -1,11 +1,17 @@
 """`experiments.report`: tables built from results files, merged per environment; bad files refused."""
 
 import json
+import pathlib
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 
+from ape_jax import tasks
+from ape_jax.pipeline.results import Results
 from experiments import report
+from experiments.report import figures
 
 
 def _results(env="hopper", methods=(("bc-so", {}, 300.0), ("bc-oh", {}, 1000.0),
@@ -40,6 +46,12 @@ def _loaded(tmp_path, obj, name="r.json"):
     return report.load(_write(tmp_path, name, obj))
 
 
+def _schema2(obj, command=None, methods=None):
+    """A schema-1 fixture as the sweep writes schema 2: with its command, protocol and methods recorded."""
+    return {**obj, "schema": 2, "command": command, "protocol": {"name": "brax", "dt": 0.008},
+            "methods": methods or {}, "config": {**obj["config"], "metric": "return", "task_metrics": []}}
+
+
 def test_the_report_merges_files_per_environment_and_builds_every_table(tmp_path):
     main = _write(tmp_path, "main.json", _results())
     base = _write(tmp_path, "base.json", _results(methods=(("fca", {"alpha": 0.1}, 1100.0),
@@ -51,24 +63,36 @@ def test_the_report_merges_files_per_environment_and_builds_every_table(tmp_path
     assert "| Ours, step THR 10% W 5 | 1,500 ± 10 (75%) |" in state
     assert "| Ours, best step | 1,600 ± 10 (80%) <br>(thr 0.2, w 3) |" in state     # the best, with its setting
     assert "| FCA | 1,100 ± 10 (55%) |" in state and "| DAgger (online) | 1,900 ± 10 (95%) |" in state
-    assert "| HistoryDropout | — |" in state                                         # not run: a dash
+    assert state.index("| DAgger (online) |") < state.index("| FCA |")               # the registry's order
+    assert "HistoryDropout" not in state                                               # in no file: no row
     # next to the paper: ratios to BC-OH within each source
     assert "| Ours | 641 (2.19×) | 1,500 (1.50×) |" in text
-    # provenance: the command is rebuilt from the file, with its commit and machine
-    assert "`python -m experiments.sweep --env hopper --obs pos --preset default --seeds 2` " in text
+    # provenance: a schema-1 file's command is rebuilt from its settings, and says so; with its commit and machine
+    assert ("`python -m experiments.sweep --env hopper --obs pos --preset default --seeds 2` (rebuilt from its "
+            "settings: the file predates results schema 2") in text
     assert "--methods fca,dagger" in text and "commit `abc1234`" in text and "test CPU" in text
     # fields added by experiments.evaluate are named with the commit that added them
     again = {**_results(), "reevaluated": {"fields": ["imitation_error", "rollout_ape"], "eval_s": 9.0,
                                            "system": {"commit": "def5678"}}}
     assert ("`imitation_error`, `rollout_ape` added later by `python -m experiments.evaluate` (commit `def5678`"
-            in report.provenance(again))
+            in report.provenance(Results.from_json(again)))
     assert "100 s in all, peak resident memory 1.5 GB" in report.provenance(
-        {**_results(), "timing": {"total_s": 100.0, "peak_rss_mb": 1536.0}})
+        Results.from_json({**_results(), "timing": {"total_s": 100.0, "peak_rss_mb": 1536.0}}))
     assert "100 s in all (resumed after an interruption" in report.provenance(
-        {**_results(), "timing": {"total_s": 100.0, "resumed": True}})
+        Results.from_json({**_results(), "timing": {"total_s": 100.0, "resumed": True}}))
     # the grid marks the best configuration; the loss table averages seeds
     assert "| **DAgger (online)** | rounds 4, budget 100 | 2 | **1,900.0 ± 10.0** | 95.0 |" in text
     assert "| BC-OH | 0.6000 | 0.3000 | 0.0500 | 0.6000 | 0.3000 | 0.0500 |" in text
+
+
+def test_provenance_quotes_the_recorded_command():
+    command = ["python", "-m", "experiments.sweep", "--env", "hopper", "--out", "runs/my sweep", "--seeds", "2"]
+    line = report.provenance(Results.from_json(_schema2(_results(), command=command)))
+    assert line.startswith("`python -m experiments.sweep --env hopper --out 'runs/my sweep' --seeds 2` — 30,000 "
+                           "iterations, 2 seeds")
+    assert "rebuilt" not in line and "schema" not in line
+    from_python = report.provenance(Results.from_json(_schema2(_results())))   # schema 2, run from Python
+    assert "--seeds 2` (rebuilt from its settings: the sweep ran from Python)" in from_python
 
 
 def test_the_cli_writes_the_report_section_and_keeps_the_rest(tmp_path, capsys):
@@ -243,7 +267,7 @@ def test_copycat_diagnostics_are_tabulated_for_runs_that_have_them(tmp_path):
     table = text[text.index("Copycat diagnostics"):]
     assert "| expert (validation demonstrations) | — | — | 1.30 | 0 | 100 |" in table
     assert "| BC-OH | — | 2 | 0.250 | 0.5000 | 50.0 |" in table          # the mean over its two seeds
-    assert "| ours-step | thr 0.1, w 5 | 2 | 0.900 | 0.2500 | 75.0 |" in table
+    assert "| Ours (step) | thr 0.1, w 5 | 2 | 0.900 | 0.2500 | 75.0 |" in table   # the registry's label
     assert "| BC-SO |" not in table                                        # no diagnostics recorded: left out
     assert "Copycat diagnostics" not in report.report([_loaded(tmp_path, _results(), "plain.json")])
 
@@ -289,23 +313,69 @@ def test_training_curves_and_weight_histograms_are_drawn_from_files_that_record_
     assert "Training curves" not in plain.read_text()  # older files: no section, no figures
 
 
-def test_image_and_toycar_results_get_their_tables(tmp_path):
+def test_image_results_and_a_task_judged_by_a_rate_get_their_tables(tmp_path):
     image = {**_results(), "obs": "image"}
-    toycar = {**_results(env="toycar", methods=(("bc-so", {}, 0.0), ("bc-oh", {}, 0.0),
-                                                 ("ours-step", {"thr": 0.1, "w": 5.0}, 0.0))), "obs": "image"}
-    toycar["expert"] = {"return_mean": None, "return_std": None, "random_return_mean": None}
-    for i, run in enumerate(toycar["runs"]):
+    # the driving sandbox: judged by its success rate, its reward is 0 (found by its record, not by name)
+    car = tasks.get(next(t for t in tasks.sweepable() if tasks.get(t).metric != "return"))
+    assert car.metric == "success" and car.paper["bc-oh"] == (95.1, 4.5)
+    sandbox = {**_results(env=car.name, methods=(("bc-so", {}, 0.0), ("bc-oh", {}, 0.0),
+                                                  ("ours-step", {"thr": 0.1, "w": 5.0}, 0.0))), "obs": "image"}
+    sandbox["expert"] = {"return_mean": None, "return_std": None, "random_return_mean": None}
+    for i, run in enumerate(sandbox["runs"]):
         run["eval"].update(success=0.9 + 0.05 * run["seed"], red_light_violations=0.0, progress=0.8,
                            avg_speed=0.5, stuck=0.1 * run["seed"])
-    for row in toycar["summary"]:  # as the sweep summarises ToyCar: normalized = 100 · success
+    for row in sandbox["summary"]:  # as the sweep summarises it: normalized = 100 · success
         row.update(normalized_mean=92.5, normalized_std=2.5)
-    text = report.report([_loaded(tmp_path, image, "image.json"), _loaded(tmp_path, toycar, "toycar.json")])
+    text = report.report([_loaded(tmp_path, image, "image.json"), _loaded(tmp_path, sandbox, "sandbox.json")])
     img = text[text.index("### MuJoCo-Image"):]
     assert "| BC-OH | 1,000 ± 10 (50%) |" in img
-    car = text[text.index("### ToyCar"):]
-    assert "| BC-OH | 2 | 92.50 ± 2.50 | 0.00 ± 0.00 | 0.80 ± 0.00 | 0.50 ± 0.00 | 5.00 ± 5.00 | 95.1 ± 4.5 |" in car
-    assert "| Ours, step THR 10% W 5 | 2 |" in car and "97.8 ± 0.5" in car
-    # ToyCar's measure is success, not its (zero) reward: in the grid table and the bootstrap
-    assert "| method | hparams | seeds | success % |" in car and "| ours-step | thr 0.1, w 5 | 2 | 92.5 ± 2.5 |" in car
-    assert "| ToyCar (image) | Ours, step THR 10% W 5 (the paper's) | 2 / 2 | +0 (success, % points) |" in text
+    table = text[text.index(f"### {car.title} (the supplement's Table 4 protocol)"):]
+    assert ("| method | seeds | success % | red-light violations | progress | average speed | stuck % | "
+            "paper: success % |") in table
+    assert "| BC-OH | 2 | 92.50 ± 2.50 | 0.00 ± 0.00 | 0.80 ± 0.00 | 0.50 ± 0.00 | 5.00 ± 5.00 | 95.1 ± 4.5 |" in table
+    assert "| Ours, step THR 10% W 5 | 2 |" in table and "97.8 ± 0.5" in table   # the paper's, from the task record
+    # its measure is success, not its (zero) reward: in the grid table and the bootstrap
+    assert "| method | hparams | seeds | success % |" in table
+    assert "| Ours (step) | thr 0.1, w 5 | 2 | 92.5 ± 2.5 |" in table
+    assert (f"| {car.title} (image) | Ours, step THR 10% W 5 (the paper's) | 2 / 2 | +0 (success, % points) |"
+            in text)
+    assert f"({car.title}: in success rate)" in text
     assert "### MuJoCo-State" not in text
+
+
+def test_a_plugin_and_the_baselines_are_listed_by_their_recorded_labels(tmp_path):
+    """A method the registry does not know appears in the tables and the returns figure under the label its
+    results file records; online methods say so, by their flag; baselines come first, in the registry's order."""
+    main = _results()
+    walker = _results(env="walker2d")
+    info = {"my-plugin": {"label": "My plugin", "role": "plugin", "program": "grid", "online": False},
+            "my-online": {"label": "My online plugin", "role": "plugin", "program": "online", "online": True}}
+    extra = _schema2(_results(methods=(("my-plugin", {"thr": 0.1, "w": 5.0}, 1700.0), ("fca", {"alpha": 0.1}, 1100.0),
+                                       ("my-online", {}, 1300.0), ("dagger", {"rounds": 4.0}, 1900.0)),
+                              preset_methods=["my-plugin", "fca", "my-online", "dagger"]),
+                     command=["python", "-m", "experiments.sweep", "--env", "hopper", "--plugins", "my_plugin"],
+                     methods=info)
+    files = [_loaded(tmp_path, main, "main.json"), _loaded(tmp_path, extra, "extra.json"),
+             _loaded(tmp_path, walker, "walker.json")]
+    text = report.report(files)
+    state = text[text.index("| method | Hopper | Walker2d |"):]
+    rows = [line.split(" | ")[0][2:] for line in state.splitlines()[2:13]]
+    assert rows[5:] == ["DAgger (online)", "FCA", "My plugin", "My online plugin (online)", "expert (ours)",
+                        "random policy"]
+    assert "| My plugin | 1,700 ± 10 (85%) | — |" in state        # not run on Walker2d: a dash
+    assert "| My online plugin (online) | 1,300 ± 10 (65%) | — |" in state
+    assert "| My plugin | thr 0.1, w 5 | 2 | 1,700.0 ± 10.0 | 85.0 |" in text        # the grid table
+    assert "`python -m experiments.sweep --env hopper --plugins my_plugin` — " in text   # its recorded command
+    fig = figures.returns_figure(report.merge(files))
+    labels = [t.get_text() for t in fig.axes[0].get_yticklabels()]
+    assert labels == ["BC-SO", "BC-OH", "Ours, step THR 10% W 5", "Ours, best softmax", "DAgger", "FCA", "My plugin",
+                      "My online plugin"]
+
+
+def test_python_m_experiments_report_runs(tmp_path):
+    path = _write(tmp_path, "r.json", _results())
+    root = pathlib.Path(__file__).resolve().parents[1]
+    done = subprocess.run([sys.executable, "-m", "experiments.report", str(path)], cwd=root, capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "| BC-SO | 300 ± 10 (15%) |" in done.stdout

@@ -109,12 +109,9 @@ class Results:
     def fingerprint(self) -> dict:
         """The settings that identify the sweep (what `ape_jax.pipeline.sweep.SweepSpec.fingerprint` gives)."""
         fields = [f.name for f in dataclasses.fields(Preset)]
-        fp = {"env": self.env, "obs": self.obs, "preset": self.preset,
-              "settings": {k: self.config.get(k) for k in fields}, "methods": self.config.get("methods"),
-              "data": self.config.get("data", {}).get("settings")}
-        if self.protocol:
-            fp["protocol"] = self.protocol
-        return fp
+        return {"env": self.env, "obs": self.obs, "preset": self.preset,
+                "settings": {k: self.config.get(k) for k in fields}, "methods": self.config.get("methods"),
+                "data": self.config.get("data", {}).get("settings")}
 
     @property
     def main_metric(self) -> str:

@@ -330,16 +330,19 @@ def score_rows(names: Sequence[str]) -> tuple[str, ...]:
     return ("ape", *(m for m in methods_lib.names() if m in names and methods_lib.get(m).score is not None))
 
 
-def score_table(names: Sequence[str], train: Demonstrations, ape: jax.Array) -> jax.Array:
-    """`[len(score_rows(names)), N] float32`: the APE and each weighting method's scores on `train`.
+def method_scores(names: Sequence[str], train: Demonstrations) -> jax.Array:
+    """`[len(score_rows(names)) - 1, N] float32`: each weighting method's scores on `train` (the rows after the APE).
 
     Raises `methods.PluginError` for scores that are not `[N]` finite float32.
     """
     action, t = jnp.asarray(train.action), jnp.asarray(train.t)
-    rows = [jnp.asarray(ape, jnp.float32)]
-    for m in score_rows(names)[1:]:
-        rows.append(methods_lib.get(m).score(methods_lib.score_key(m), action, t))
-    return jnp.stack(rows)
+    rows = [methods_lib.get(m).score(methods_lib.score_key(m), action, t) for m in score_rows(names)[1:]]
+    return jnp.stack(rows) if rows else jnp.zeros((0, len(train)), jnp.float32)
+
+
+def score_table(ape: jax.Array, scores: jax.Array) -> jax.Array:
+    """The table the weighted learner reads: the APE (row 0) above the methods' scores (`method_scores`)."""
+    return jnp.concatenate([jnp.asarray(ape, jnp.float32)[None], scores])
 
 
 def plan(spec: SweepSpec, prepared: Prepared) -> list[Program]:
@@ -585,7 +588,8 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
     for group, out, losses in zip(evaluated.groups, evaluated.outputs, evaluated.losses):
         for j, r in enumerate(group.runs):
             records[r.ident] = run_record(r, j, out, losses, curves[r.ident], prepared)
-    runs = [records[r.ident] for t in trained for r in t.program.runs]
+    order = {m: i for i, m in enumerate(methods_lib.names())}  # the plan's order: methods, settings, seeds
+    runs = sorted((records[r.ident] for t in trained for r in t.program.runs), key=lambda rec: order[rec["method"]])
     task, preset = prepared.task, spec.preset
     config = {**preset.to_json(), "methods": list(spec.methods), "loss": task.loss, "metric": task.metric,
               "task_metrics": list(task.metrics),
@@ -630,8 +634,9 @@ def run_sweep(spec: SweepSpec, hooks: Hooks = Hooks(),
     t_start = time.perf_counter()
     prepared = prepare(spec, hooks)
     programs = plan(spec, prepared)
+    scores = method_scores(spec.methods, prepared.train)  # a plugin's bad scores are refused before APE compiles
     ape = fit_ape(prepared, spec.preset, hooks, checkpoint)
-    data = prepared.data(prepared.train, ape.train, score_table(spec.methods, prepared.train, ape.train))
+    data = prepared.data(prepared.train, ape.train, score_table(ape.train, scores))
     trained = train(programs, spec, prepared, data, hooks, checkpoint)
     evaluated = evaluate(trained, prepared, ape, spec.preset, hooks, checkpoint)
     timing = {"compile_s": sum(t.compile_s for t in trained), "train_s": sum(t.train_s for t in trained),

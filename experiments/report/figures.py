@@ -15,6 +15,11 @@ writes atomically: a temporary file in the same folder, then `os.replace`.
   shaded ± band if given): training curves, weight distributions.
 - `keyframes(ape, actions, threshold, frames, frame_t, ...)` — one episode's
   APE along time with its keyframes, the expert's actions, and rendered frames.
+
+The report's figures are built from merged results (`experiments.report.analysis`)
+with these: `grid_figure` (one environment's grid search), `returns_figure`
+(every method's return per environment), `curves_figure` (training curves)
+and `weights_figure` (how concentrated a batch's weights are).
 """
 
 from __future__ import annotations
@@ -28,6 +33,10 @@ import numpy as np
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
+
+from experiments.report.analysis import (PAPER_STEP, PAPER_TAU, _best, _config_key, _env_title, _hp, _metric,
+                                         _ordered, _paper_step, _pct, _rows, _seeds, _value, extra_methods,
+                                         known_methods, label)
 
 DPI = 120
 # Saved without the matplotlib version, so a regenerated figure is byte-identical across matplotlib upgrades
@@ -369,3 +378,111 @@ def save_png(fig: Figure, path: str | os.PathLike) -> int:
     finally:
         tmp.unlink(missing_ok=True)
     return path.stat().st_size
+
+
+# -- the report's figures -------------------------------------------------------------------------------------------
+
+def grid_figure(m: dict) -> Figure | None:
+    """The grid search of one environment as heatmaps (step THR × W, softmax τ), or None if neither was run."""
+    prefix, unit = _metric(m)
+    panels = []
+    step = {(r["hparams"]["thr"], r["hparams"]["w"]): r for r in _rows(m, "ours-step")
+            if set(r["hparams"]) == {"thr", "w"}}
+    if step:
+        thrs, ws = sorted({k[0] for k in step}), sorted({k[1] for k in step})
+        panels.append(_grid_panel("step weighting", "THR (top fraction of APE)", "W (weight)",
+                                  [_pct(t) for t in thrs], [f"{w:g}" for w in ws],
+                                  [[step.get((t, w)) for w in ws] for t in thrs], prefix,
+                                  next(((i, j) for i, t in enumerate(thrs) for j, w in enumerate(ws)
+                                        if {"thr": t, "w": w} == PAPER_STEP), None)))
+    soft = {r["hparams"]["tau"]: r for r in _rows(m, "ours-softmax") if set(r["hparams"]) == {"tau"}}
+    if soft:
+        taus = sorted(soft)
+        tau = PAPER_TAU.get(m["env"])
+        panels.append(_grid_panel("softmax weighting", "", "τ (temperature)", [""], [f"{t:g}" for t in taus],
+                                  [[soft[t] for t in taus]], prefix,
+                                  (0, taus.index(tau)) if tau in taus else None))
+    if not panels:
+        return None
+    bcoh = _best(_rows(m, "bc-oh"))
+    seeds = max(r["n_seeds"] for r in (*step.values(), *soft.values()))
+    ref, center = "", None
+    if bcoh is not None:
+        center, std = _value(bcoh, prefix)
+        ref = f"; BC-OH {center:.1f} ± {std:.1f}"
+    title = (f"{_env_title(m['env'], m['obs'])}: grid search, {unit} (mean ± std over {seeds} seeds){ref}")
+    return heatmap(title, panels, center, unit)
+
+
+def _grid_panel(title, row_label, col_label, rows, cols, cells, prefix, marked) -> Grid:
+    mean = np.array([[_value(c, prefix)[0] if c else np.nan for c in line] for line in cells])
+    std = np.array([[_value(c, prefix)[1] if c else np.nan for c in line] for line in cells])
+    best = np.unravel_index(np.nanargmax(mean), mean.shape)
+    return Grid(title, row_label, col_label, rows, cols, mean, std, (int(best[0]), int(best[1])), marked)
+
+
+def returns_figure(merged: dict) -> Figure | None:
+    """Every method's return per environment (bars: mean, error bars: std over seeds, dots: seeds), or None.
+
+    BC-SO, BC-OH, Ours at the paper's step setting and the best softmax, then
+    every baseline and plugin that ran (`analysis.extra_methods`), by its label.
+    """
+    envs = _ordered(merged)
+    known = known_methods(merged)
+    baselines = [b for b in extra_methods(merged) if any(_rows(m, b) for _, m in envs)]
+    labels = ["BC-SO", "BC-OH", "Ours, step THR 10% W 5", "Ours, best softmax",
+              *(label(known, b, online=False) for b in baselines)]
+    panels = []
+    for (env, obs), m in envs:
+        prefix, unit = _metric(m)
+        soft = _best(_rows(m, "ours-softmax"))
+        rows = [_best(_rows(m, "bc-so")), _best(_rows(m, "bc-oh")), _paper_step(m), soft,
+                *(_best(_rows(m, b)) for b in baselines)]
+        if not any(rows):
+            continue
+        key = "normalized" if prefix == "normalized" else "return_mean"
+        notes = ["" for _ in rows]
+        if soft is not None:
+            notes[3] = f"τ {soft['hparams']['tau']:g}"
+        panels.append(Bars(
+            _env_title(env, obs), unit, [None if r is None else _value(r, prefix)[0] for r in rows],
+            [None if r is None else _value(r, prefix)[1] for r in rows], [_seeds(m, r, key) for r in rows], notes,
+            100.0 if prefix == "normalized" else None, "expert"))
+    if not panels:
+        return None
+    return bars(labels, panels, "Return per method: bars = mean over seeds, error bars = std, dots = seeds; "
+                                "best softmax selected after the fact")
+
+
+def curves_figure(merged: dict) -> Figure | None:
+    """Training curves (the weighted loss of the sampled batches, mean ± std over seeds) of BC-OH, the paper's
+    step setting and the best softmax, one panel per environment; None if no run records its curve."""
+    panels = []
+    for (env, obs), m in _ordered(merged):
+        series = []
+        best_soft = _best(_rows(m, "ours-softmax"))
+        for name, row in (("BC-OH", _best(_rows(m, "bc-oh"))), ("Ours, step THR 10% W 5", _paper_step(m)),
+                          ("Ours, best softmax" + _hp(best_soft), best_soft)):
+            runs = [r["train_curve"] for r in m["runs"] if row is not None and r["status"] == "ok"
+                    and _config_key(r) == _config_key(row) and r.get("train_curve")]
+            runs = [c for c in runs if None not in c and len(c) == len(runs[0])] if runs else []
+            if runs:
+                curve = np.asarray(runs, float)
+                iters = m["sources"][0].config["iterations"]
+                x = (np.arange(curve.shape[1]) + 1) * iters / curve.shape[1]
+                series.append((name, x, curve.mean(0), curve.std(0)))
+        if series:
+            panels.append(Lines(_env_title(env, obs), "iteration", "weighted BC loss (window mean)",
+                                series, log_y=True))
+    return lines(panels, "Training curves (mean ± std over seeds)") if panels else None
+
+
+def weights_figure(shares: list[tuple[str, list[tuple]]]) -> Figure | None:
+    """The share of a batch's weight carried by its k heaviest samples, against k (`analysis.weight_shares`)."""
+    if not shares:
+        return None
+    batch = len(shares[0][1][0][1])
+    k = np.arange(1, batch + 1)
+    panels = [Lines(title, f"k heaviest samples of the batch of {batch}", "share of the batch's total weight",
+                    [(name, k, y, None) for name, y in series], log_x=True) for title, series in shares]
+    return lines(panels, "How much of a batch's weight its heaviest samples carry")

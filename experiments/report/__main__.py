@@ -1,0 +1,7 @@
+"""`python -m experiments.report RESULTS... [--out BENCHMARKS.md] [--figures DIR]` (see `experiments.report`)."""
+
+import sys
+
+from experiments.report import main
+
+sys.exit(main())

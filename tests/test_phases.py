@@ -1,0 +1,98 @@
+"""The sweep's phases called directly (prepare → plan → fit APE → train → evaluate → assemble), seeds by
+identity, and the task records the phases read. ToyCar's `full` observations: no MJX compile."""
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+
+from ape_jax import methods, tasks
+from ape_jax.pipeline import sweep as S
+from ape_jax.pipeline.presets import PRESETS, preset_for
+
+PRESET = dataclasses.replace(PRESETS["quick"], iterations=40, eval_episodes=2, chunk=20, seeds=2,
+                             step_grid=((0.1, 5.0), (0.2, 3.0)), softmax_grid=(1.0,))
+
+
+def _train(spec):
+    prepared = S.prepare(spec)
+    programs = S.plan(spec, prepared)
+    ape = S.fit_ape(prepared, spec.preset)
+    data = prepared.data(prepared.train, ape.train, S.score_table(ape.train, S.method_scores(spec.methods,
+                                                                                             prepared.train)))
+    return prepared, programs, ape, S.train(programs, spec, prepared, data)
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    data_dir = tmp_path_factory.mktemp("data")
+    spec = S.SweepSpec("toycar", "full", "quick", PRESET, ("bc-so", "bc-oh", "ours-step"), data_dir=data_dir)
+    return (spec, *_train(spec))
+
+
+def test_a_spec_fills_in_what_the_preset_leaves_to_the_task():
+    spec = S.SweepSpec("toycar", "full", "quick", PRESETS["quick"], ("bc-oh",))   # the state preset, episodes unset
+    assert PRESETS["quick"].episodes is None and spec.preset.episodes == tasks.get("toycar").episodes == 10
+    assert S.SweepSpec("hopper", "pos", "quick", PRESETS["quick"], ("bc-oh",)).preset.episodes == 25
+    assert preset_for("default", "toycar", "image").seeds == 5 and preset_for("default", "hopper", "image").seeds == 3
+    with pytest.raises(methods.MethodError, match="unknown method 'nope'"):
+        S.SweepSpec("hopper", "pos", "quick", PRESETS["quick"], ("nope",))
+
+
+def test_prepare_splits_by_episode_and_standardises_with_training_statistics(small):
+    spec, prepared, *_ = small
+    train, val = prepared.train, prepared.val
+    assert not set(np.asarray(train.episode)) & set(np.asarray(val.episode))
+    assert len(set(np.asarray(train.episode))) == 8 and len(set(np.asarray(val.episode))) == 2  # 10 episodes
+    obs = np.asarray(prepared.normalizer(train.obs))
+    varying = np.asarray(train.obs).std(0) > 1e-3
+    np.testing.assert_allclose(obs.mean(0), 0.0, atol=1e-4)
+    np.testing.assert_allclose(obs.std(0)[varying], 1.0, rtol=1e-3)
+    assert prepared.task.loss == "l1" and prepared.card is None   # the sandbox: L1, a rule-based expert
+
+
+def test_plan_groups_runs_into_their_programs_with_their_history(small):
+    spec, prepared, programs, *_ = small
+    assert [(p.name, p.cfg.history, len(p.runs)) for p in programs] == [("bc-so", 1, 2), ("grid", 2, 2 + 2 * 2)]
+    grid = programs[1]
+    assert [(r.method, r.hparams) for r in grid.runs[::2]] == [("bc-oh", {}), ("ours-step", {"thr": 0.1, "w": 5.0}),
+                                                               ("ours-step", {"thr": 0.2, "w": 3.0})]
+    assert [r.seed for r in grid.runs] == [0, 1] * 3
+
+
+def test_fit_ape_normalises_the_training_split_to_mean_one(small):
+    _, prepared, _, ape, _ = small
+    assert ape.train.shape == (len(prepared.train),) and np.isclose(np.mean(ape.train), 1.0, rtol=1e-4)
+    assert ape.scale > 0 and np.isfinite(ape.final_fit_mse) and np.all(ape.val >= 0)
+
+
+def test_evaluate_and_assemble_give_one_record_per_run_in_plan_order(small):
+    spec, prepared, programs, ape, trained = small
+    evaluated = S.evaluate(trained, prepared, ape, spec.preset)
+    assert [g.name for g in evaluated.groups] == ["h1", "h2"]
+    res = S.assemble(spec, prepared, ape, trained, evaluated, timing={})
+    assert [(r["method"], r["seed"]) for r in res.runs] == [(r.method, r.seed) for p in programs for r in p.runs]
+    for r in res.runs:   # the sandbox is judged by success: "normalized" is its rate in %
+        assert r["eval"]["normalized"] == pytest.approx(100 * r["eval"]["success"])
+    row = res.summary[0]
+    seeds = [r["eval"]["success"] for r in res.runs if r["method"] == row["method"]]
+    assert row["metrics"]["success"]["mean"] == pytest.approx(np.mean(seeds))
+    assert res.main_metric == "success" and res.methods["bc-so"]["label"] == "BC-SO"
+    assert res.protocol["history"] == 2 and res.command is None
+
+
+def test_a_grid_with_one_more_method_leaves_the_shared_configurations_bit_identical(small, tmp_path):
+    spec, _, _, _, trained = small
+    wider = dataclasses.replace(spec, methods=("bc-so", "bc-oh", "ours-step", "ours-softmax", "kmeans"))
+    *_, trained_wider = _train(wider)
+
+    def by_run(trained):
+        return {r.ident: jax.tree.map(lambda x: np.asarray(x[i]), t.params)
+                for t in trained for i, r in enumerate(t.program.runs)}
+
+    a, b = by_run(trained), by_run(trained_wider)
+    assert len(b) == len(a) + 2 + 2 and set(a) < set(b)
+    for ident, params in a.items():
+        for x, y in zip(jax.tree.leaves(params), jax.tree.leaves(b[ident])):
+            np.testing.assert_array_equal(x, y, err_msg=str(ident))
