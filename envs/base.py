@@ -163,6 +163,8 @@ class Env(abc.ABC):
         """The observation (in this env's mode) of simulator state `sim` from `sim_state`."""
         raise NotImplementedError(f"{self.name}: observe_sim is not available")
 
+    # Names of the action dimensions where the environment defines them (else None: MuJoCo's actuators).
+    action_names: tuple[str, ...] | None = None
     # Per-episode metrics beside the return (e.g. a driving task's success); none by default.
     episode_metric_names: tuple[str, ...] = ()
 

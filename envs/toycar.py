@@ -207,6 +207,7 @@ class ToyCar(Env):
         return expert_action(full_obs, self.config)
 
     episode_metric_names = METRICS
+    action_names = ("throttle", "brake")
 
     def episode_metrics(self, sims: ToyCarSim, final: State, valid: jax.Array) -> dict[str, jax.Array]:
         # the states after each step are the states before the next one, then the final one

@@ -63,3 +63,13 @@ def unwritable_file(path: str | os.PathLike) -> str | None:
     if path.is_dir():
         return f"{path} is a directory"
     return unwritable(path.parent)
+
+
+def data_directory(parser: argparse.ArgumentParser, path: pathlib.Path | None) -> pathlib.Path:
+    """`--data-dir`: the demonstration cache given (default `ape_jax.pipeline.data.cache_dir()`); a file is refused."""
+    from ape_jax.pipeline import data
+
+    path = path or data.cache_dir()
+    if path.exists() and not path.is_dir():
+        fail(parser, f"--data-dir {path} is a file; it must be a directory")
+    return path

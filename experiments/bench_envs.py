@@ -20,6 +20,7 @@ import jax
 import numpy as np
 
 import envs
+from ape_jax import tasks
 from envs._quiet import mujoco
 from experiments._cli import Parser
 from experiments._timing import machine, rollout_throughput, run_benchmark, time_jitted
@@ -29,7 +30,7 @@ SECTION = "bench_envs"
 
 def mjx_steps(name: str, obs: str, batch: int, steps: int, repeats: int, **overrides) -> dict:
     """Batched control steps/s of `envs.rollout` with a random policy (no early termination)."""
-    if name != "toycar" and "terminate_when_unhealthy" in envs.brax_env.constructor_params(name):
+    if name in envs.brax_env.brax_names() and "terminate_when_unhealthy" in envs.brax_env.constructor_params(name):
         overrides["terminate_when_unhealthy"] = False  # every timed step simulates
     return rollout_throughput(envs.make(name, obs=obs, **overrides), batch, steps, repeats)
 
@@ -110,10 +111,12 @@ def table(args) -> str:
         lines.append(f"| {size}×{size} | {r['fps']:,.0f} | {r['compile_s']:.1f} | {r['native_fps']:,.0f} |")
         print(lines[-1], file=sys.stderr)
     lines += ["", "| env (obs) | batch | env steps/s | compile s |", "|---|---:|---:|---:|"]
-    for obs, size in (("image", 128), ("image", 64), ("full", None)):
+    pure_jax = [n for n in tasks.sweepable() if n not in envs.brax_env.brax_names()]  # the driving sandbox
+    for name, obs, size in ((n, obs, size) for n in pure_jax for obs, size in (("image", 128), ("image", 64),
+                                                                                ("full", None))):
         kw = {"image_size": size} if size else {}
-        m = mjx_steps("toycar", obs, args.batch, args.steps, args.repeats, **kw)
-        label = f"toycar ({obs}{f' {size}×{size}' if size else ''})"
+        m = mjx_steps(name, obs, args.batch, args.steps, args.repeats, **kw)
+        label = f"{name} ({obs}{f' {size}×{size}' if size else ''})"
         lines.append(f"| {label} | {args.batch} | {m['steps_per_s']:,.0f} | {m['compile_s']:.1f} |")
         print(lines[-1], file=sys.stderr)
     return "\n".join(lines) + "\n"

@@ -18,6 +18,7 @@ import jax
 import numpy as np
 
 import envs
+from ape_jax import tasks
 from ape_jax.pipeline import collect
 from envs import experts
 from experiments._cli import Parser
@@ -26,7 +27,8 @@ from experiments._timing import machine, run_benchmark, time_jitted
 SECTION = "bench_experts"
 CASES = (("hopper", "pos", {}), ("hopper", "full", {}), ("hopper", "image", {"image_size": 64}),
          ("halfcheetah", "pos", {}), ("walker2d", "pos", {}),
-         ("toycar", "full", {}), ("toycar", "image", {"image_size": 128}))
+         *((name, obs, kw) for name in tasks.sweepable() if tasks.get(name).expert == "rule-based"
+           for obs, kw in (("full", {}), ("image", {"image_size": 128}))))
 
 
 def expert_rows() -> list[str]:

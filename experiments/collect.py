@@ -23,19 +23,21 @@ import math
 import pathlib
 import sys
 
-from experiments._cli import Parser, fail, unwritable, unwritable_file
+from experiments._cli import Parser, data_directory, fail, unwritable, unwritable_file
 
 
 def parse(argv=None) -> argparse.Namespace:
     import envs
+    from ape_jax import tasks
     from ape_jax.pipeline import collect, data
 
     p = Parser(prog="python -m experiments.collect", description=__doc__.splitlines()[0])
-    p.add_argument("--env", default="hopper", help="hopper, halfcheetah, walker2d, toycar, ... (default: hopper)")
-    p.add_argument("--obs", default=None, help="full, pos or image (default: pos, or image for toycar)")
+    p.add_argument("--env", default="hopper", help=f"{', '.join(tasks.sweepable())}, or any Brax env with an expert "
+                                                   "(default: hopper)")
+    p.add_argument("--obs", default=None, help="full, pos or image (default: the task's, e.g. pos for MuJoCo)")
     p.add_argument("--episodes", type=int, default=None,
-                   help="episodes to collect (default: 25 for MuJoCo, ~20k training transitions after a 20%% "
-                        "validation split; 10 for toycar, ~1k training samples)")
+                   help="episodes to collect (default: the task's: 25 for MuJoCo, ~20k training transitions after a "
+                        "20%% validation split; 10 for the driving sandbox, ~1k training samples)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--noise-frac", type=float, default=0.0,
                    help="probability that a step's executed action is perturbed (DART-style; label stays clean)")
@@ -55,7 +57,8 @@ def parse(argv=None) -> argparse.Namespace:
     if args.env not in envs.names():
         fail(p, f"unknown env {args.env!r}; valid: {', '.join(envs.names())}")
     modes = envs.obs_modes(args.env)
-    args.obs = args.obs or ("image" if args.env == "toycar" else "pos" if "pos" in modes else envs.default_obs(args.env))
+    default = tasks.get(args.env).default_obs
+    args.obs = args.obs or (default if default in modes else envs.default_obs(args.env))
     if args.obs not in modes:
         fail(p, f"--obs {args.obs!r} is not supported by {args.env}; valid: {', '.join(modes)}")
     if args.episodes is None:
@@ -82,9 +85,7 @@ def parse(argv=None) -> argparse.Namespace:
         why = unwritable_file(args.preview)
         if why:
             fail(p, f"--preview {args.preview}: cannot write there: {why}")
-    args.data_dir = args.data_dir or data.cache_dir()
-    if args.data_dir.exists() and not args.data_dir.is_dir():
-        fail(p, f"--data-dir {args.data_dir} is a file; it must be a directory")
+    args.data_dir = data_directory(p, args.data_dir)
     if args.out is not None and args.format != "minari":
         fail(p, "--out applies to --format minari only")
     args.out = args.out or args.data_dir / "minari"

@@ -57,7 +57,7 @@ def _sweep(args, out: pathlib.Path) -> list[str]:
 
 
 def _numbers(results: dict) -> dict:
-    return {k: v for k, v in results.items() if k not in ("timing", "system")}
+    return {k: v for k, v in results.items() if k not in ("timing", "system", "command")}
 
 
 def main(argv=None) -> int:

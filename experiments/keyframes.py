@@ -26,21 +26,22 @@ import time
 
 import numpy as np
 
-from experiments._cli import Parser, fail, unwritable, unwritable_file
-
-ENVS = ("hopper", "halfcheetah", "walker2d", "toycar")
+from ape_jax import tasks
+from experiments._cli import Parser, data_directory, fail, unwritable, unwritable_file
 
 
 def demo_obs(env_name: str) -> str:
-    """The observation mode of the demonstrations the sweep uses by default for `env_name`."""
-    return "full" if env_name == "toycar" else "pos"
+    """The state observations of `env_name`'s demonstrations: `pos` where it has them (MuJoCo), else `full`."""
+    import envs
+
+    return "pos" if "pos" in envs.obs_modes(env_name) else "full"
 
 
 def parse(argv=None) -> argparse.Namespace:
     from ape_jax.pipeline import collect, data
 
     p = Parser(prog="python -m experiments.keyframes", description=__doc__.splitlines()[0])
-    p.add_argument("--env", default="hopper", help=f"one of {', '.join(ENVS)} (default: hopper)")
+    p.add_argument("--env", default="hopper", help=f"one of {', '.join(tasks.sweepable())} (default: hopper)")
     p.add_argument("--episode", type=int, default=0, help="which demonstration episode to draw (default: 0)")
     p.add_argument("--out", type=pathlib.Path, default=None,
                    help="the PNG to write (default: figures/keyframes-ENV.png)")
@@ -58,8 +59,8 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--data-dir", type=pathlib.Path, default=None,
                    help=f"demonstrations cache (default: {data.cache_dir()})")
     args = p.parse_args(argv)
-    if args.env not in ENVS:
-        fail(p, f"unknown env {args.env!r}; valid: {', '.join(ENVS)}")
+    if args.env not in tasks.sweepable():
+        fail(p, f"unknown env {args.env!r}; valid: {', '.join(tasks.sweepable())}")
     episodes = collect.default_episodes(args.env)
     if not 0 <= args.episode < episodes:
         fail(p, f"--episode must be in [0, {episodes - 1}] ({args.env} has {episodes} demonstration episodes), "
@@ -82,9 +83,7 @@ def parse(argv=None) -> argparse.Namespace:
     why = unwritable_file(args.out)
     if why:
         fail(p, f"--out {args.out}: cannot write there: {why}")
-    args.data_dir = args.data_dir or data.cache_dir()
-    if args.data_dir.exists() and not args.data_dir.is_dir():
-        fail(p, f"--data-dir {args.data_dir} is a file; it must be a directory")
+    args.data_dir = data_directory(p, args.data_dir)
     return args
 
 

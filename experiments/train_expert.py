@@ -60,10 +60,13 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--eval-episodes", type=int, default=100, help="episodes for the final measurement")
     p.add_argument("--seed", type=int, default=0)
     args = p.parse_args(argv)
-    if args.env == "toycar":
-        fail(p, "toycar's expert is rule-based (envs.toycar.expert_action); nothing to train")
+    from ape_jax import tasks
+
+    trainable = [n for n in envs.names() if tasks.get(n).expert == "shipped"]
+    if args.env in envs.names() and args.env not in trainable:
+        fail(p, f"{args.env}'s expert is rule-based (the environment's own `expert`); nothing to train")
     if args.env not in envs.names():
-        fail(p, f"unknown env {args.env!r}; valid: {', '.join(n for n in envs.names() if n != 'toycar')}")
+        fail(p, f"unknown env {args.env!r}; valid: {', '.join(trainable)}")
     if args.steps is not None and args.steps < 1:
         fail(p, f"--steps must be >= 1, got {args.steps}")
     if args.eval_episodes < 1:

@@ -43,8 +43,8 @@ sys.exit(sweep.main(sys.argv[1:]))
 
 
 def numbers(results: dict) -> dict:
-    """Everything in results.json but timing and system (which say when and where it ran)."""
-    return {k: v for k, v in results.items() if k not in ("timing", "system")}
+    """Everything in results.json but timing, system and command (when, where and how it was started)."""
+    return {k: v for k, v in results.items() if k not in ("timing", "system", "command")}
 
 
 @pytest.fixture(scope="module")

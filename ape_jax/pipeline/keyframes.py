@@ -123,7 +123,7 @@ def select(ape: np.ndarray, keyframe: np.ndarray, count: int, ordinary: int = 1,
 
 
 def action_names(env) -> list[str] | None:
-    """Actuator names of a MuJoCo environment (else their joints' names), or ToyCar's (throttle, brake).
+    """The environment's own action names (`env.action_names`), else a MuJoCo model's actuator (or joint) names.
 
     Args:
       env: an environment from `envs.make`.
@@ -131,8 +131,8 @@ def action_names(env) -> list[str] | None:
     Returns:
       One name per action dimension, or None when the environment exposes no MuJoCo model.
     """
-    if env.name == "toycar":
-        return ["throttle", "brake"]
+    if env.action_names is not None:
+        return list(env.action_names)
     try:
         model = env.brax_env.sys.mj_model
     except AttributeError:

@@ -8,8 +8,8 @@ explicit argument first (`root=`), so nothing is written to the home directory
 unless asked; `minari.load_dataset(id)` finds our datasets when
 `MINARI_DATASETS_PATH` names the same root.
 
-    path = to_minari(demos, meta, "toycar-full-v0", root="datasets")   # datasets/toycar-full-v0
-    demos = from_minari(path)                       # or from_minari("toycar-full-v0", root="datasets")
+    path = to_minari(demos, meta, "hopper-pos-v0", root="datasets")    # datasets/hopper-pos-v0
+    demos = from_minari(path)                       # or from_minari("hopper-pos-v0", root="datasets")
 
 Mapping between the formats, per episode of `T` steps (Minari stores one
 episode per group; ours are rows of a flat table grouped by `episode`):
@@ -90,7 +90,7 @@ def check_dataset_id(dataset_id: str) -> None:
         parse_dataset_id(dataset_id)
     except (ValueError, TypeError):  # Minari raises TypeError when the version is missing
         raise ValueError(f"invalid Minari dataset id {dataset_id!r}: ids read '(namespace/)name-v<N>', "
-                         "e.g. 'toycar-full-v0'") from None
+                         "e.g. 'hopper-pos-v0'") from None
 
 
 @contextlib.contextmanager

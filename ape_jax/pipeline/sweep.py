@@ -508,39 +508,37 @@ class Evaluated:
     eval_s: float
 
 
-def evaluate_group(prepared: Prepared, ape: ApeFit, preset: Preset, group: PolicyGroup,
-                   checkpoint: SweepCheckpoint | None = None) -> tuple[dict, dict]:
-    """Evaluation outputs (copycat diagnostics included) and the loss analysis of one group, reused from
-    `checkpoint` if saved there."""
-    name = f"eval-{group.name}"
-    saved = ckpt_lib.load_evaluation(checkpoint, name)
-    if saved is not None:
-        return saved
+def evaluate_group(prepared: Prepared, ape: ApeFit, preset: Preset, group: PolicyGroup) -> tuple[dict, dict]:
+    """Evaluation outputs `{"return": [P, E], metric: [P, E], ...}` (copycat diagnostics included) and the loss
+    analysis `{"train": {...: [P]}, "val": {...}}` of one group."""
     evaluator = evaluate_lib.make_evaluator(prepared.env, group.cfg, prepared.normalizer.mean, prepared.normalizer.std,
                                             preset.eval_episodes, expert=prepared.expert, ape_params=ape.params,
                                             ape_scale=ape.scale)
     out = jax.device_get(evaluator(group.params, jax.random.PRNGKey(EVAL_SEED)))
     losses = {split: jax.device_get(evaluate_lib.loss_analysis(group.cfg, group.params, prepared.data(s, a)))
               for split, s, a in (("train", prepared.train, ape.train), ("val", prepared.val, ape.val))}
-    ckpt_lib.save_evaluation(checkpoint, name, out, losses)
     return out, losses
 
 
 def evaluate(trained: Sequence[Trained], prepared: Prepared, ape: ApeFit, preset: Preset, hooks: Hooks = Hooks(),
              checkpoint: SweepCheckpoint | None = None) -> Evaluated:
-    """Phase 4: every policy on the same episodes, one program per history."""
-    t0 = time.perf_counter()
-    groups, outputs, losses = [], [], []
+    """Phase 4: every policy on the same episodes, one program per history (groups saved in `checkpoint` reused)."""
+    eval_s, groups, outputs, losses = 0.0, [], [], []
     total = sum(len(t.program.runs) for t in trained) * preset.eval_episodes
     with hooks.bar(desc="evaluate", total=total, unit="episode") as b:
         for history in dict.fromkeys(t.program.cfg.history for t in trained):
             mine = [t for t in trained if t.program.cfg.history == history]
             group = PolicyGroup(history, mine[0].program.cfg, tuple(r for t in mine for r in t.program.runs),
                                 jax.tree.map(lambda *xs: jnp.concatenate(xs), *[t.params for t in mine]))
-            out, ls = evaluate_group(prepared, ape, preset, group, checkpoint)
-            groups.append(group), outputs.append(out), losses.append(ls)
+            saved = ckpt_lib.load_evaluation(checkpoint, f"eval-{group.name}")
+            if saved is None:
+                t0 = time.perf_counter()
+                saved = evaluate_group(prepared, ape, preset, group)
+                eval_s += time.perf_counter() - t0
+                ckpt_lib.save_evaluation(checkpoint, f"eval-{group.name}", *saved)
+            groups.append(group), outputs.append(saved[0]), losses.append(saved[1])
             b.update(len(group.runs) * preset.eval_episodes)
-    return Evaluated(tuple(groups), tuple(outputs), tuple(losses), time.perf_counter() - t0)
+    return Evaluated(tuple(groups), tuple(outputs), tuple(losses), eval_s)
 
 
 # -- 5. assemble ----------------------------------------------------------------------------------------------------

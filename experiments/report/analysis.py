@@ -335,9 +335,10 @@ def bootstrap_rows(merged: dict) -> list[tuple[str, str, Interval, str]]:
 # -- grid search: the paper's choices ------------------------------------------------------------------------------
 
 def _metric(m: dict) -> tuple[str, str]:
-    """Which summary numbers the figures show: `(prefix, unit)`; % of expert where every row has it."""
+    """Which summary numbers the figures show: `(prefix, unit)`; % of expert where every row has it (a task
+    judged by a rate: that rate, in %)."""
     if all(r.get("normalized_mean") is not None for r in m["summary"] if r["n_seeds"]):
-        return "normalized", "% of expert"
+        return "normalized", f"{m['metric']} %" if is_rate(m) else "% of expert"
     return "return", "return"
 
 

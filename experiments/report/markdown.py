@@ -170,10 +170,12 @@ def copycat_table(m: dict) -> str | None:
     if not groups:
         return None
     expert = expert_ape(m)
+    unit = _metric(m)[1] if _metric(m)[0] == "normalized" else "% of expert"
     lines = ["| method | hparams | seeds | rollout APE (÷ training mean) | imitation error on own states | "
-             "% of expert |", "|---|---|---:|---:|---:|---:|"]
+             f"{unit} |", "|---|---|---:|---:|---:|---:|"]
     if expert is not None:
-        lines.append(f"| expert (validation demonstrations) | — | — | {expert:.2f} | 0 | 100 |")
+        lines.append(f"| expert (validation demonstrations) | — | — | {expert:.2f} | 0 | "
+                     f"{'—' if is_rate(m) else 100} |")
     for (method, hp), runs in groups.items():
         mean = lambda k: sum(r["eval"][k] for r in runs) / len(runs)  # noqa: E731
         norm = f"{mean('normalized'):.1f}" if all("normalized" in r["eval"] for r in runs) else "—"
@@ -414,7 +416,7 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
         out += figure(_grid_name(env, obs), f"{_env_title(env, obs)} grid search", lambda: figures.grid_figure(m))
         sentences = paper_choices(m)
         if sentences:
-            unit = "% of expert" if _metric(m)[0] == "normalized" else "return"
+            unit = _metric(m)[1]
             out += [f"Are the paper's settings near the best of our grid? (In {unit}; \"within one std\": "
                     "the gap to the best is at most the larger of the two settings' std over seeds.)", ""]
             out += [f"- {c}" for c in sentences] + [""]
