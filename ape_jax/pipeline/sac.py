@@ -34,7 +34,7 @@ import flax
 import jax
 import jax.numpy as jnp
 import optax
-from brax import envs as brax_envs
+from envs._quiet import brax_envs  # first: MuJoCo warnings go to Python, not to MUJOCO_LOG.TXT in the working directory
 from brax.training import acting, gradients, replay_buffers
 from brax.training.acme import running_statistics, specs
 from brax.training.agents.sac import losses as sac_losses

@@ -1,0 +1,64 @@
+"""results.json through its one reader: every committed file loads, schema 1 is upgraded, a round trip is exact."""
+
+import json
+import pathlib
+
+import pytest
+
+from ape_jax.pipeline import results
+from ape_jax.pipeline.presets import Preset
+
+COMMITTED = sorted((pathlib.Path(__file__).resolve().parent.parent / "results").glob("*.json"))
+
+
+def test_there_are_committed_results_to_read():
+    assert len(COMMITTED) >= 10
+
+
+@pytest.mark.parametrize("path", COMMITTED, ids=lambda p: p.name)
+def test_every_committed_results_file_loads_and_round_trips(path):
+    res = results.load(path)
+    raw = json.loads(path.read_text())
+    assert res.schema == results.SCHEMA and (res.env, res.obs, res.preset) == (raw["env"], raw["obs"], raw["preset"])
+    assert {r["method"] for r in res.runs} <= set(res.methods)
+    assert all(info["label"] for info in res.methods.values())
+    if raw["schema"] == 1:
+        assert res.command is None and res.protocol == {}
+    assert isinstance(res.preset_settings(), Preset) and res.preset_settings().iterations == raw["config"]["iterations"]
+    again = results.Results.from_json(res.to_json(), "again")
+    assert again.to_json() == res.to_json()
+    assert res.fingerprint()["methods"] == raw["config"]["methods"]
+
+
+def test_labels_of_methods_the_registry_does_not_know_come_from_the_file():
+    res = results.load(COMMITTED[0])
+    obj = res.to_json()
+    obj["methods"]["mine"] = {"label": "Mine", "role": "plugin", "program": "grid", "online": False}
+    obj["runs"].append({**obj["runs"][0], "method": "mine"})
+    loaded = results.Results.from_json(obj)
+    assert loaded.label("mine") == "Mine" and loaded.role("mine") == "plugin"
+    assert loaded.label("bc-oh") == "BC-OH"
+
+
+@pytest.mark.parametrize("change, problem", [
+    (lambda r: r.update(schema=3), "results schema 3; this version reads schemas 1, 2"),
+    (lambda r: r.pop("runs"), "missing runs"),
+    (lambda r: r["runs"][0].update(hparams={"thr": "a"}), "runs[0] field 'hparams' must be an object of numbers"),
+    (lambda r: r["summary"][0].update(n_seeds=-1), "summary[0] field 'n_seeds' must be an int >= 0"),
+    (lambda r: r.update(command="python -m x"), "field 'command' must be a list of strings or null"),
+])
+def test_a_malformed_file_is_refused_naming_the_field(tmp_path, change, problem):
+    obj = results.load(COMMITTED[0]).to_json()
+    change(obj)
+    path = tmp_path / "results.json"
+    path.write_text(json.dumps(obj))
+    with pytest.raises(results.ResultsError, match=f"{path}: .*{problem}".replace("[", r"\[").replace("]", r"\]")):
+        results.load(path)
+
+
+def test_save_is_atomic_and_writes_no_nan(tmp_path):
+    res = results.load(COMMITTED[0])
+    res.timing["nan"] = float("nan")
+    results.save(tmp_path / "r.json", res)
+    assert json.loads((tmp_path / "r.json").read_text())["timing"]["nan"] is None
+    assert [p.name for p in tmp_path.iterdir()] == ["r.json"]
