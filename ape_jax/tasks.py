@@ -20,6 +20,70 @@ from typing import Any, Mapping
 
 
 @dataclasses.dataclass(frozen=True)
+class Protocol:
+    """How a task's demonstrations and evaluation are set up, apart from the compute preset.
+
+    Attributes:
+      name: `"fca"` or `"brax"`.
+      frame_skip: simulator steps per control step (Brax's `n_frames`); None: the environment's own.
+      horizon: simulated time per episode, in the environment's *standard* control steps (at its own
+        frame skip); None: its own episode length. At frame skip 1 an episode of `horizon` standard steps
+        is `horizon × standard frame skip` control steps.
+      collect_transitions: expert steps collected (whole episodes, rounded up); None: the task's episodes.
+      train_transitions, val_transitions: the demonstrations' split sizes (whole episodes apart, cut to
+        size); None: split 80/20 by episode.
+      history: observations the policies see (BC-SO: 1).
+      doc: one line saying where the protocol comes from.
+
+    Rewards are scaled by `frame_skip / standard frame skip`, so returns stay on the scale of the
+    standard control step (the FCA code's 1/4 and 1/5).
+    """
+
+    name: str
+    frame_skip: int | None = None
+    horizon: int | None = None
+    collect_transitions: int | None = None
+    train_transitions: int | None = None
+    val_transitions: int | None = None
+    history: int = 2
+    doc: str = ""
+
+    def settings(self, standard_frame_skip: int | None) -> dict[str, Any]:
+        """Every field, resolved for an environment whose own frame skip is `standard_frame_skip` (None: not a
+        Brax environment): what results.json records as `protocol`."""
+        skip = self.frame_skip or standard_frame_skip
+        out = {"name": self.name, "frame_skip": skip, "standard_frame_skip": standard_frame_skip,
+               "episode_length": None, "reward_scale": 1.0, "collect_transitions": self.collect_transitions,
+               "train_transitions": self.train_transitions,
+               "val_transitions": self.val_transitions, "history": self.history}
+        if standard_frame_skip is not None and self.frame_skip is not None:
+            out["reward_scale"] = self.frame_skip / standard_frame_skip
+        if self.horizon is not None and standard_frame_skip is not None:
+            out["episode_length"] = self.horizon * standard_frame_skip // skip
+        return out
+
+    def env_overrides(self, standard_frame_skip: int | None) -> dict[str, Any]:
+        """The `envs.make` settings this protocol fixes (frame skip, episode length, reward scale)."""
+        s = self.settings(standard_frame_skip)
+        out: dict[str, Any] = {}
+        if self.frame_skip is not None:
+            out.update(n_frames=self.frame_skip, reward_scale=s["reward_scale"])
+        if s["episode_length"] is not None:
+            out["episode_length"] = s["episode_length"]
+        return out
+
+
+PROTOCOLS: Mapping[str, Protocol] = MappingProxyType({p.name: p for p in (
+    Protocol("fca", frame_skip=1, horizon=500, collect_transitions=50_000, train_transitions=20_000,
+             val_transitions=4_000,
+             doc="the paper's MuJoCo-State setting (FCA's code): frame skip 1, 500 standard steps of simulated "
+                 "time, rewards on the standard-step scale, 50,000 expert steps of which 20,000 train and 4,000 "
+                 "validate"),
+    Protocol("brax", doc="the environment's own settings: Brax's frame skip and 1,000-step episodes for MuJoCo"),
+)})
+
+
+@dataclasses.dataclass(frozen=True)
 class Task:
     """A task's settings.
 
@@ -40,6 +104,8 @@ class Task:
         applied after the observation mode's own.
       paper: the paper's main-metric results per method name (mean, std), for
         the report (a rate metric's in %).
+      protocols: the protocols (`PROTOCOLS`) the task can take.
+      default_protocols: the protocol a sweep uses unless told, per observation mode (others: `"brax"`).
     """
 
     name: str
@@ -54,6 +120,9 @@ class Task:
     presets: Mapping[str, Mapping[str, Mapping[str, Any]]] = dataclasses.field(
         default_factory=lambda: MappingProxyType({}))
     paper: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=lambda: MappingProxyType({}))
+    protocols: tuple[str, ...] = ("fca", "brax")
+    default_protocols: Mapping[str, str] = dataclasses.field(
+        default_factory=lambda: MappingProxyType({"pos": "fca", "full": "fca"}))
 
     def __post_init__(self):
         if self.loss not in ("l1", "l2"):
@@ -62,6 +131,13 @@ class Task:
             raise ValueError(f"task {self.name!r}: metric {self.metric!r} is neither 'return' nor one of {self.metrics}")
         if self.expert not in ("shipped", "rule-based"):
             raise ValueError(f"task {self.name!r}: expert must be 'shipped' or 'rule-based', got {self.expert!r}")
+
+    def protocol(self, name: str | None, obs: str) -> Protocol:
+        """Protocol `name` (None: this task's default for `obs`); `ValueError` listing the valid ones."""
+        name = name or self.default_protocols.get(obs, "brax")
+        if name not in self.protocols:
+            raise ValueError(f"unknown protocol {name!r} for {self.name}; valid: {', '.join(self.protocols)}")
+        return PROTOCOLS[name]
 
     @property
     def has_card(self) -> bool:
@@ -80,7 +156,7 @@ TASKS: Mapping[str, Task] = MappingProxyType({t.name: t for t in (
     Task("halfcheetah", "HalfCheetah", fca_alpha=0.5),
     Task("walker2d", "Walker2d", fca_alpha=0.5),
     Task("toycar", "ToyCar", loss="l1", episodes=10, fca_alpha=0.2, metric="success", metrics=_TOYCAR_METRICS,
-         default_obs="image", expert="rule-based", presets={"image": {
+         default_obs="image", expert="rule-based", protocols=("brax",), default_protocols={}, presets={"image": {
              "quick": {"image_size": (32, 32)},
              "default": {"iterations": 2_000, "seeds": 5, "eval_episodes": 20, "chunk": 250,
                          "image_size": (64, 64), "softmax_grid": ()},

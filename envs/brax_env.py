@@ -48,6 +48,8 @@ class BraxConfig:
       episode_length: control steps per episode (the time limit; Brax uses 1000).
       image_size: (height, width) of `image` observations.
       camera: the `render.Camera`; `None` frames the model automatically.
+      reward_scale: every reward is multiplied by this (e.g. 1/4 at a quarter of the
+        frame skip, so returns stay on the scale of the standard control step).
       brax_kwargs: keyword arguments for the Brax environment's constructor,
         as a tuple of (name, value) pairs so the config stays hashable.
     """
@@ -56,6 +58,7 @@ class BraxConfig:
     episode_length: int = 1000
     image_size: tuple[int, int] = (64, 64)
     camera: render_lib.Camera | None = None
+    reward_scale: float = 1.0
     brax_kwargs: tuple[tuple[str, object], ...] = ()
 
 
@@ -66,6 +69,12 @@ def _supports_mjx(name: str) -> bool:
     except ValueError:  # e.g. Brax's Swimmer: "Unsupported backend: mjx."
         return False
     return True
+
+
+@functools.lru_cache(maxsize=None)
+def default_frame_skip(name: str) -> int:
+    """Simulator steps per control step that Brax's `name` takes by default (its `n_frames`: 4 for Hopper)."""
+    return int(_build_brax(name, default_config(name).backend, ())._n_frames)
 
 
 def default_config(name: str) -> BraxConfig:
@@ -223,6 +232,11 @@ class BraxEnv(Env):
     def episode_length(self) -> int:
         return self.config.episode_length
 
+    @property
+    def frame_skip(self) -> int:
+        """Simulator steps per control step (Brax's `n_frames`)."""
+        return int(self._env._n_frames)
+
     # -- dynamics -----------------------------------------------------------------------
     def _observe(self, brax_state) -> jax.Array:
         if self.obs_mode == "full":
@@ -235,7 +249,7 @@ class BraxEnv(Env):
         return State(
             pipeline_state=brax_state.pipeline_state,
             obs=self._observe(brax_state),
-            reward=brax_state.reward,
+            reward=brax_state.reward * self.config.reward_scale,
             done=brax_state.done,
             metrics=dict(brax_state.metrics),
             # Brax's own observation is kept: experts act on it, and health checks read it.

@@ -37,6 +37,9 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--env", default="hopper", help=f"{', '.join(tasks.sweepable())} (default: hopper)")
     p.add_argument("--obs", default=None, help="observation mode (default: the task's: pos, or image for the "
                                                "driving sandbox)")
+    p.add_argument("--protocol", default=None,
+                   help=f"how demonstrations and evaluation are set up: {', '.join(tasks.PROTOCOLS)} (default: the "
+                        "task's: fca, the paper's frame skip 1, for state observations; brax for images)")
     p.add_argument("--preset", default="quick", choices=sorted(PRESETS),
                    help="quick: <= 5 min on a 2-core CPU; default: the CPU numbers we report; paper: for GPUs")
     p.add_argument("--plugins", default="", metavar="MODULE,...",
@@ -75,6 +78,10 @@ def parse(argv=None) -> argparse.Namespace:
     args.obs = args.obs or tasks.get(args.env).default_obs
     if args.obs not in envs.obs_modes(args.env):
         fail(p, f"--obs {args.obs!r} is not supported by {args.env}; valid: {', '.join(envs.obs_modes(args.env))}")
+    try:
+        args.protocol = tasks.get(args.env).protocol(args.protocol, args.obs).name
+    except ValueError as e:
+        fail(p, str(e))
     args.plugins = tuple(m.strip() for m in args.plugins.split(",") if m.strip())
     try:
         methods.load_plugins(args.plugins)
@@ -204,7 +211,7 @@ def main(argv=None) -> int:
     started = system()  # at the start: the code that runs, not what is checked out when it ends
     try:
         spec = SweepSpec(args.env, args.obs, args.preset, p, args.methods, dataset=args.dataset,
-                         data_dir=args.data_dir, command=("python", "-m", "experiments.sweep", *(
+                         data_dir=args.data_dir, protocol=args.protocol, command=("python", "-m", "experiments.sweep", *(
                              sys.argv[1:] if argv is None else argv)))
         fp = spec.fingerprint()
     except (ExpertError, ValueError) as e:
@@ -234,8 +241,10 @@ def main(argv=None) -> int:
     except CheckpointError as e:
         return fail(None, str(e))
 
-    print(f"sweep: {args.env} ({args.obs}), preset {args.preset}: {p.iterations:,} iterations, {p.seeds} seed(s), "
-          f"{p.eval_episodes} evaluation episodes, methods {', '.join(args.methods)}")
+    proto = spec.protocol_settings()
+    print(f"sweep: {args.env} ({args.obs}), protocol {spec.protocol} (frame skip {proto['frame_skip'] or '-'}, "
+          f"{proto['episode_length']:,}-step episodes), preset {args.preset}: {p.iterations:,} iterations, "
+          f"{p.seeds} seed(s), {p.eval_episodes} evaluation episodes, methods {', '.join(args.methods)}")
     bar = (lambda **kw: tqdm(disable=True, **kw)) if args.quiet else (lambda **kw: tqdm(dynamic_ncols=True, **kw))
     hooks = Hooks(bar=bar, log=tqdm.write, curves=lambda *a: logs.write_curves(args.out, *a))
     try:

@@ -61,10 +61,36 @@ def test_plan_groups_runs_into_their_programs_with_their_history(small):
     assert [r.seed for r in grid.runs] == [0, 1] * 3
 
 
-def test_fit_ape_normalises_the_training_split_to_mean_one(small):
-    _, prepared, _, ape, _ = small
-    assert ape.train.shape == (len(prepared.train),) and np.isclose(np.mean(ape.train), 1.0, rtol=1e-4)
-    assert ape.scale > 0 and np.isfinite(ape.final_fit_mse) and np.all(ape.val >= 0)
+def test_fit_ape_gives_the_raw_ape_by_default_and_divides_by_its_mean_on_request(small):
+    import jax.numpy as jnp
+
+    from ape_jax import ape as ape_lib
+
+    spec, prepared, _, ape, _ = small
+    raw = ape_lib.errors(ape.params, jnp.asarray(prepared.train.action), jnp.asarray(prepared.train.t))
+    assert spec.preset.ape_normalization == "none" and ape.scale == 1.0
+    np.testing.assert_array_equal(ape.train, np.asarray(raw))   # no rescaling: the paper's τ means what it meant
+    assert np.isclose(ape.raw_mean, float(np.mean(raw)), rtol=1e-6)
+    mean = S.fit_ape(prepared, dataclasses.replace(spec.preset, ape_normalization="mean"))
+    assert np.isclose(np.mean(mean.train), 1.0, rtol=1e-4) and np.isclose(mean.scale, float(np.mean(raw)), rtol=1e-5)
+    assert np.isclose(mean.raw_mean, ape.raw_mean, rtol=1e-5)
+
+
+def test_the_softmax_weights_a_batch_by_b_softmax_of_the_raw_ape_over_tau(small):
+    import jax.numpy as jnp
+
+    from ape_jax import weighting
+
+    spec, prepared, _, ape, _ = small
+    data = prepared.data(prepared.train, ape.train)
+    idx = jnp.arange(0, 128 * 7, 7)
+    for tau in (0.1, 1.0):
+        hp = methods.get("ours-softmax").hparams({"tau": tau}, 2e-4, 0)
+        static = weighting.dataset_weights(data.score_table(), hp.weighting)
+        w = weighting.batch_weights(data.score_table(), static, idx, hp.weighting)
+        z = np.asarray(ape.train, np.float64)[np.asarray(idx)] / tau
+        want = 128 * np.exp(z - z.max()) / np.exp(z - z.max()).sum()
+        np.testing.assert_allclose(np.asarray(w), want, rtol=1e-4, atol=1e-6)
 
 
 def test_evaluate_and_assemble_give_one_record_per_run_in_plan_order(small):

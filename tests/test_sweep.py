@@ -31,8 +31,10 @@ def test_sweep_writes_results_matching_the_schema_with_every_configuration_and_s
     r = json.loads((out / "results.json").read_text())
     assert r["schema"] == 2 and (r["env"], r["obs"], r["preset"]) == ("toycar", "full", "quick")
     assert r["command"] == ["python", "-m", "experiments.sweep", *argv]
-    assert set(r["protocol"]) == {"name", "dt", "episode_length", "reward_scale", "history"}
-    assert r["protocol"]["history"] == 2 and r["protocol"]["reward_scale"] == 1.0
+    assert r["protocol"] == {"name": "brax", "frame_skip": None, "standard_frame_skip": None, "episode_length": 300,
+                             "reward_scale": 1.0, "collect_transitions": None, "train_transitions": None,
+                             "val_transitions": None, "history": 2}   # the sandbox takes its own settings only
+    assert r["config"]["env"]["episode_length"] == 300 and r["config"]["env"]["dt"] == pytest.approx(0.1)
     expected = {("bc-so", ()), ("bc-oh", ())} | {("ours-step", (("thr", t), ("w", w))) for t, w in STEP_GRID} | \
                {("ours-softmax", (("tau", tau),)) for tau in SOFTMAX_GRID}
     seen = {}
@@ -48,7 +50,7 @@ def test_sweep_writes_results_matching_the_schema_with_every_configuration_and_s
     assert [run["method"] for run in r["runs"]] == sorted((run["method"] for run in r["runs"]),
                                                          key=methods.names().index)
     assert len(r["summary"]) == len(expected) and all(row["n_seeds"] == 2 for row in r["summary"])
-    assert r["config"]["iterations"] == 30 and r["config"]["ape_normalization"] == "mean"
+    assert r["config"]["iterations"] == 30 and r["config"]["ape_normalization"] == "none"
     assert r["config"]["data"]["settings"]["episodes"] == 10   # the task's demonstration count
     quantiles = r["config"]["ape"]["quantiles"]
     assert len(quantiles) == 101 and quantiles == sorted(quantiles)

@@ -112,6 +112,40 @@ class Demonstrations:
         is_val = np.isin(np.asarray(self.episode), val_ids)
         return Split(self.take(np.flatnonzero(~is_val)), self.take(np.flatnonzero(is_val)))
 
+    def split_sizes(self, train: int, val: int, seed: int = 0) -> Split:
+        """`Split(train, val)` of exactly `train` and `val` transitions, no episode in both.
+
+        Episodes in a random order fill the validation split until it holds
+        `val` transitions, the rest (in order) the training split; each is then
+        cut to its size, keeping the first steps of the episode it cuts.
+
+        Raises:
+          ValueError: fewer than `train + val` transitions, or an episode
+            structure that cannot give both sizes.
+        """
+        ids = self.episode_ids
+        if len(self) < train + val:
+            raise ValueError(f"{len(self):,} transitions in {len(ids)} episodes, fewer than the {train:,} + "
+                             f"{val:,} the split needs; collect more episodes")
+        episode = np.asarray(self.episode)
+        sizes = {int(e): int(np.sum(episode == e)) for e in ids}
+        val_ids, held = [], 0
+        for e in np.random.default_rng(seed).permutation(ids):
+            if held >= val:
+                break
+            val_ids.append(int(e))
+            held += sizes[int(e)]
+        rest = [int(e) for e in ids if int(e) not in val_ids]
+        if sum(sizes[e] for e in rest) < train:
+            raise ValueError(f"the validation split's {len(val_ids)} whole episodes leave {sum(sizes[e] for e in rest):,} "
+                             f"transitions, fewer than {train:,} for training; collect more episodes")
+
+        def rows(episodes, n):
+            idx = np.concatenate([np.flatnonzero(episode == e) for e in episodes])
+            return idx[:n]
+
+        return Split(self.take(rows(rest, train)), self.take(rows(val_ids, val)))
+
 
 # -- files ----------------------------------------------------------------------------------
 

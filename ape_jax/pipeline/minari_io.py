@@ -333,6 +333,21 @@ def _labels(actions: np.ndarray, space, where: str) -> np.ndarray:
     return np.eye(int(space.n), dtype=np.float32)[index]
 
 
+def dataset_settings(spec: str | os.PathLike, fmt: str = "auto") -> dict | None:
+    """The collection settings a dataset records (the project's `NAME.json` `settings`), or None where it has none
+    (a Minari dataset, or your own data): what says which protocol it was collected under."""
+    if fmt == "auto":
+        fmt = "npz" if str(spec).endswith((".npz", ".json")) else "minari"
+    if fmt != "npz":
+        return None
+    try:
+        meta = json.loads(data_lib.meta_path(pathlib.Path(spec).with_suffix(".npz")).read_text())
+    except (OSError, ValueError):
+        return None
+    settings = meta.get("settings") if isinstance(meta, dict) else None
+    return settings if isinstance(settings, dict) else None
+
+
 def load_dataset(spec: str | os.PathLike, fmt: str = "auto") -> tuple[Demonstrations, str]:
     """`(demos, where)` of a dataset named on a command line: the project's `NAME.npz`, or a Minari directory or id.
 

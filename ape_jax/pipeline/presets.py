@@ -36,7 +36,7 @@ class Preset:
     history: int = 2
     eval_steps: int | None = None  # default: the environment's episode length (1000 for MuJoCo)
     chunk: int = 500              # iterations per compiled chunk (progress granularity)
-    ape_normalization: str = "mean"
+    ape_normalization: str = "none"   # the official code's softmax reads the raw APE; "mean": ÷ its training mean
     val_frac: float = 0.2
     step_grid: tuple[tuple[float, float], ...] = STEP_GRID  # (THR, W) of step weightings
     softmax_grid: tuple[float, ...] = SOFTMAX_GRID            # τ of softmax weightings

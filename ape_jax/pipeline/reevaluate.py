@@ -44,7 +44,8 @@ def spec_of(results: Results, data_dir=None) -> sweep_lib.SweepSpec:
     """The `SweepSpec` that produced `results` (its methods need not be registered: only evaluated here)."""
     settings = results.config["data"]["settings"]
     return sweep_lib.SweepSpec(results.env, results.obs, results.preset, results.preset_settings(), (),
-                               dataset=settings.get("dataset"), data_dir=data_dir)
+                               dataset=settings.get("dataset"), data_dir=data_dir,
+                               protocol=results.protocol.get("name") or "brax")  # schema 1: Brax's setting
 
 
 def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, log: Callable[[str], None] = print,

@@ -111,7 +111,7 @@ class Results:
         fields = [f.name for f in dataclasses.fields(Preset)]
         return {"env": self.env, "obs": self.obs, "preset": self.preset,
                 "settings": {k: self.config.get(k) for k in fields}, "methods": self.config.get("methods"),
-                "data": self.config.get("data", {}).get("settings")}
+                "data": self.config.get("data", {}).get("settings"), "protocol": self.protocol}
 
     @property
     def main_metric(self) -> str:

@@ -117,12 +117,14 @@ class SweepSpec:
     Attributes:
       env, obs: the task and observation mode.
       preset_name, preset: the compute preset's name and resolved settings
-        (`preset_for`; settings it leaves to the task are filled in here).
+        (`preset_for`; settings it leaves to the task or the protocol are filled in here: the episodes
+        collected, the history).
       methods: registered method names (`ape_jax.methods`).
       dataset: train from this dataset (`minari_io.load_dataset`) instead of
         the shipped expert's demonstrations; it must fit `env`/`obs`.
       data_dir: the demonstration cache (default `ape_jax.pipeline.data.cache_dir()`).
       command: the command line, recorded in results.json.
+      protocol: `ape_jax.tasks.PROTOCOLS` name (None: the task's default for `obs`: `fca` for states).
     """
 
     env: str
@@ -133,21 +135,51 @@ class SweepSpec:
     dataset: str | None = None
     data_dir: pathlib.Path | None = None
     command: tuple[str, ...] | None = None
+    protocol: str | None = None
 
     def __post_init__(self):
         for m in self.methods:
             methods_lib.get(m)  # MethodError for an unknown name
-        object.__setattr__(self, "preset", resolved(self.preset, self.env))
+        protocol = self.task.protocol(self.protocol, self.obs)  # ValueError for one the task cannot take
+        object.__setattr__(self, "protocol", protocol.name)
+        preset = dataclasses.replace(self.preset, history=protocol.history)
+        if protocol.collect_transitions is not None:  # episodes of the expert's, as many as that many steps take
+            length = self.protocol_settings()["episode_length"]
+            preset = dataclasses.replace(preset, episodes=-(-protocol.collect_transitions // length))
+        object.__setattr__(self, "preset", resolved(preset, self.env))
 
     @property
     def task(self) -> tasks.Task:
         return tasks.get(self.env)
 
+    def protocol_settings(self) -> dict:
+        """Every field of the protocol as it applies to this environment (results.json's `protocol`)."""
+        import envs
+
+        protocol = tasks.PROTOCOLS[self.protocol]
+        brax = self.env in envs.brax_env.brax_names()
+        standard = envs.brax_env.default_frame_skip(self.env) if brax else None
+        out = protocol.settings(standard)
+        if out["episode_length"] is None:
+            out["episode_length"] = envs.make(self.env, obs="full" if brax else None).episode_length
+        return out
+
+    def collection_overrides(self) -> dict:
+        """The `envs.make` settings demonstrations are collected with: the protocol's, and the image size."""
+        import envs
+
+        standard = envs.brax_env.default_frame_skip(self.env) if self.env in envs.brax_env.brax_names() else None
+        image = {"image_size": self.preset.image_size} if self.obs == "image" and self.preset.image_size else {}
+        return {**tasks.PROTOCOLS[self.protocol].env_overrides(standard), **image}
+
+    def env_overrides(self) -> dict:
+        """The `envs.make` settings policies are evaluated with: the collection's, and the preset's `eval_steps`."""
+        return {**self.collection_overrides(), **self.preset.env_overrides(self.obs)}
+
     def data_settings(self) -> dict:
         """What names the demonstrations: the collection settings, or the dataset file's path and size."""
         if self.dataset is None:
-            image = {"image_size": self.preset.image_size} if self.obs == "image" and self.preset.image_size else {}
-            return collect.settings(self.env, self.obs, self.preset.episodes, seed=0, **image)
+            return collect.settings(self.env, self.obs, self.preset.episodes, seed=0, **self.collection_overrides())
         path = pathlib.Path(self.dataset)
         files = ([path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
                  if path.is_dir() else [])
@@ -156,7 +188,7 @@ class SweepSpec:
     def fingerprint(self) -> dict:
         """Everything that determines the results (`checkpoint.SweepCheckpoint` compares these)."""
         return {"env": self.env, "obs": self.obs, "preset": self.preset_name, "settings": self.preset.to_json(),
-                "methods": list(self.methods), "data": self.data_settings()}
+                "methods": list(self.methods), "data": self.data_settings(), "protocol": self.protocol_settings()}
 
 
 # -- 1. prepare -----------------------------------------------------------------------------------------------------
@@ -231,7 +263,7 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks(), demos: Demonstrations | Non
     from envs import experts
 
     preset = spec.preset
-    env = envs.make(spec.env, obs=spec.obs, **preset.env_overrides(spec.obs))
+    env = envs.make(spec.env, obs=spec.obs, **spec.env_overrides())
     settings = spec.data_settings()
     if demos is not None:
         path, source = "(given)", "given"
@@ -242,18 +274,42 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks(), demos: Demonstrations | Non
             b.update(preset.episodes - b.n)
         source = "cached" if cached else "collected"
     else:
+        check_protocol(minari_io.dataset_settings(spec.dataset), spec, str(spec.dataset))
         demos, path = minari_io.load_dataset(spec.dataset)
         source = "from"
     check_fits(demos, env, str(path))
     hooks.log(f"demonstrations: {len(demos):,} transitions in {demos.num_episodes} episodes ({source}: {path})")
-    train, val = demos.split(preset.val_frac, seed=0)
+    protocol = tasks.PROTOCOLS[spec.protocol]
+    if protocol.train_transitions is None:
+        train, val = demos.split(preset.val_frac, seed=0)
+    else:
+        train, val = demos.split_sizes(protocol.train_transitions, protocol.val_transitions, seed=0)
     if len(train) < preset.batch_size:
         raise ValueError(f"the training split has {len(train)} transitions, fewer than the batch size "
                          f"{preset.batch_size}; collect more episodes")
     expert, _ = collect.expert_for(env)
-    card = experts.card(spec.env) if spec.task.has_card else None
+    card = experts.reference(spec.env, spec.protocol) if spec.task.has_card else None
     return Prepared(env=env, task=spec.task, train=train, val=val, normalizer=Normalizer.fit(train.obs),
                     expert=expert, card=card, data_path=str(path), source=source, settings=settings)
+
+
+PROTOCOL_KEYS = ("n_frames", "episode_length", "reward_scale")  # the collection settings a protocol fixes
+
+
+def check_protocol(recorded: dict | None, spec: SweepSpec, where: str) -> None:
+    """Refuses (ValueError, one line) a dataset whose recorded collection settings are of another protocol.
+
+    `recorded`: the dataset's collection settings (`minari_io.dataset_settings`); None (a dataset that
+    records none, e.g. your own or a Minari one) cannot be checked and passes.
+    """
+    if recorded is None:
+        return
+    had = {k: v for k, v in (recorded.get("env_overrides") or {}).items() if k in PROTOCOL_KEYS}
+    want = {k: v for k, v in spec.collection_overrides().items() if k in PROTOCOL_KEYS}
+    if had != want:
+        raise ValueError(f"{where} was collected with {had or 'the environment defaults'}, not under the "
+                         f"{spec.protocol!r} protocol's {want or 'environment defaults'}; pass the --protocol it "
+                         "was collected under, or collect it again")
 
 
 def check_fits(demos: Demonstrations, env, where: str) -> None:
@@ -285,6 +341,11 @@ class ApeFit:
     val: Any
     scale: float
     final_fit_mse: float
+
+    @property
+    def raw_mean(self) -> float:
+        """The training split's mean APE before normalisation (what the copycat diagnostic `rollout_ape` divides by)."""
+        return float(self.scale * np.mean(self.train))
 
 
 def fit_ape(prepared: Prepared, preset: Preset, hooks: Hooks = Hooks(),
@@ -513,7 +574,7 @@ def evaluate_group(prepared: Prepared, ape: ApeFit, preset: Preset, group: Polic
     analysis `{"train": {...: [P]}, "val": {...}}` of one group."""
     evaluator = evaluate_lib.make_evaluator(prepared.env, group.cfg, prepared.normalizer.mean, prepared.normalizer.std,
                                             preset.eval_episodes, expert=prepared.expert, ape_params=ape.params,
-                                            ape_scale=ape.scale)
+                                            ape_scale=ape.raw_mean)
     out = jax.device_get(evaluator(group.params, jax.random.PRNGKey(EVAL_SEED)))
     losses = {split: jax.device_get(evaluate_lib.loss_analysis(group.cfg, group.params, prepared.data(s, a)))
               for split, s, a in (("train", prepared.train, ape.train), ("val", prepared.val, ape.val))}
@@ -605,13 +666,12 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
     expert = ({"return_mean": card["return_mean"], "return_std": card["return_std"],
                "random_return_mean": card["random_return_mean"]} if card is not None else
               {"return_mean": None, "return_std": None, "random_return_mean": None, "kind": task.expert})
-    env = prepared.env
-    protocol = {"name": "brax", "dt": float(env.dt), "episode_length": int(preset.eval_steps or env.episode_length),
-                "reward_scale": 1.0, "history": preset.history}
+    config["env"] = {"dt": float(prepared.env.dt), "episode_length": int(prepared.env.episode_length),
+                     "overrides": {k: list(v) if isinstance(v, tuple) else v for k, v in spec.env_overrides().items()}}
     return results_lib.Results(
         env=spec.env, obs=spec.obs, preset=spec.preset_name, config=config, expert=expert, runs=runs,
         summary=results_lib.summarize(runs, task.metrics), timing=timing,
-        command=list(spec.command) if spec.command is not None else None, protocol=protocol,
+        command=list(spec.command) if spec.command is not None else None, protocol=spec.protocol_settings(),
         methods={m: results_lib.method_info(m) for m in dict.fromkeys(r["method"] for r in runs)})
 
 

@@ -35,6 +35,7 @@ import numpy as np
 ROOT = pathlib.Path(__file__).parent
 CARD = "card.json"
 POLICY = "policy"
+REFERENCES = "references.json"  # the expert's and a random policy's returns under other protocols
 
 
 class ExpertError(RuntimeError):
@@ -73,6 +74,36 @@ def card(name: str, root: pathlib.Path | None = None) -> dict:
                           f"`{train_command(name)}`") from e
     data["network"]["layer_sizes"] = sizes
     return data
+
+
+def reference_command(name: str, protocol: str) -> str:
+    return f"python -m experiments.expert_references --env {name} --protocol {protocol}"
+
+
+def reference(name: str, protocol: str = "brax", root: pathlib.Path | None = None) -> dict:
+    """The returns to normalise by under `protocol`: `return_mean`, `return_std`, `random_return_mean`, `episodes`.
+
+    `"brax"` (the setting the expert was trained and measured at) reads its card; any other protocol
+    reads `references.json` beside it, written by `experiments.expert_references`.
+
+    Raises:
+      ExpertError: no card, or no reference for the protocol (naming the command that measures it).
+    """
+    data = card(name, root)
+    if protocol == "brax":
+        return {k: data[k] for k in ("return_mean", "return_std", "random_return_mean", "episodes") if k in data}
+    path = (root or directory(name)) / REFERENCES
+    try:
+        refs = json.loads(path.read_text()) if path.is_file() else {}
+        ref = refs.get(protocol)
+        if ref is not None:
+            return {k: float(ref[k]) if k != "episodes" else int(ref[k])
+                    for k in ("return_mean", "return_std", "random_return_mean", "episodes")}
+    except (ValueError, KeyError, TypeError, AttributeError) as e:
+        raise ExpertError(f"corrupt expert references {path}: {type(e).__name__}: {e}; measure them again with "
+                          f"`{reference_command(name, protocol)}`") from e
+    raise ExpertError(f"{name}'s expert has no reference returns under protocol {protocol!r} ({path}); measure "
+                      f"them with `{reference_command(name, protocol)}`")
 
 
 def save(out: pathlib.Path, params: dict, card_data: dict) -> None:
