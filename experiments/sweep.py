@@ -56,7 +56,8 @@ def parse(argv=None) -> argparse.Namespace:
                         "paper's THR 10%%/20%% x W 3/5/10)")
     p.add_argument("--softmax-grid", default=None, metavar="TAU,...",
                    help="the softmax weightings' temperatures, e.g. 0.1,0.2,0.5 (default: the preset's)")
-    p.add_argument("--out", type=pathlib.Path, default=None, help="output directory (default: runs/sweep/ENV-OBS-PRESET)")
+    p.add_argument("--out", type=pathlib.Path, default=None, help="output directory (default: runs/sweep/ENV-OBS-PRESET, or ENV-OBS-PROTOCOL-PRESET for a protocol "
+                        "other than the task's default)")
     p.add_argument("--resume", action="store_true",
                    help="continue the sweep in --out where it stopped, or report it if finished (also what a "
                         "rerun with the same --out and settings does without this flag)")
@@ -98,7 +99,9 @@ def parse(argv=None) -> argparse.Namespace:
     if args.softmax_grid is not None:
         overrides["softmax_grid"] = _grid(p, "--softmax-grid", args.softmax_grid, _temperature)
     args.preset_cfg = dataclasses.replace(preset_for(args.preset, args.env, args.obs), **overrides)
-    args.out = args.out or pathlib.Path("runs/sweep") / f"{args.env}-{args.obs}-{args.preset}"
+    default_protocol = tasks.get(args.env).protocol(None, args.obs).name
+    name = [args.env, args.obs, *([args.protocol] if args.protocol != default_protocol else []), args.preset]
+    args.out = args.out or pathlib.Path("runs/sweep") / "-".join(name)
     problem = "exists and is not a directory" if args.out.exists() and not args.out.is_dir() else unwritable(args.out)
     if problem:
         fail(p, f"--out {args.out}: {problem}")
