@@ -100,8 +100,21 @@ def test_the_embedding_comes_from_the_same_params():
         assert set(params["params"]["Head_0"]) == {"embedding", "head", "action"}
 
 
+def _update_mismatch(params, reference, init) -> float:
+    """`‖params − reference‖ / ‖reference − init‖` over all leaves (as `tests/test_learner.py` explains:
+    two programs training the same model agree up to rounding, which Adam can turn into ±lr on a
+    component whose gradient is within rounding of zero; the update as a whole agrees to ~1e-6)."""
+    diff = sum(float(np.sum((np.asarray(a, np.float64) - np.asarray(b)) ** 2))
+               for a, b in zip(jax.tree.leaves(params), jax.tree.leaves(reference)))
+    update = sum(float(np.sum((np.asarray(b, np.float64) - np.asarray(c)) ** 2))
+                 for b, c in zip(jax.tree.leaves(reference), jax.tree.leaves(init)))
+    assert update > 0, "the reference did not train"
+    return (diff / update) ** 0.5
+
+
 def test_one_vmapped_run_equals_per_seed_runs(data):
-    cfg = LearnerConfig(obs_shape=(4,), action_dim=2, history=2, iterations=30, batch_size=32, lr_decay_every=20)
+    # a few iterations (the learning rate decays after the second): rounding has no time to grow
+    cfg = LearnerConfig(obs_shape=(4,), action_dim=2, history=2, iterations=4, batch_size=32, lr_decay_every=2)
     learner = make_fca(cfg)
     keys = jax.random.split(jax.random.PRNGKey(1), 2)
     hp = stack_hparams([FcaHparams.make(ALPHA["hopper"], lr=1e-3), FcaHparams.make(ALPHA["walker2d"], lr=5e-4)])
@@ -109,14 +122,17 @@ def test_one_vmapped_run_equals_per_seed_runs(data):
     run = jax.jit(jax.vmap(lambda k, h, d: (traces.append(1), learner.train(k, h, d))[1], (0, 0, None)))
     params, metrics = run(keys, hp, data)
     assert set(metrics) >= {"loss", "unweighted_loss", "adversary_loss"}
-    assert metrics["loss"].shape == (2, 30)
+    assert metrics["loss"].shape == (2, 4)
     single = jax.jit(learner.train)
+    init = jax.jit(lambda k: learner.init(k, FcaHparams.make(0.0), data).policy)  # depends on the key only
     for i in range(2):
         p_i, m_i = single(keys[i], jax.tree.map(lambda x: x[i], hp), data)
         for name in metrics:
-            np.testing.assert_allclose(metrics[name][i], m_i[name], rtol=2e-5, atol=1e-6)
-        for a, b in zip(jax.tree.leaves(params), jax.tree.leaves(p_i)):
-            np.testing.assert_allclose(a[i], b, rtol=2e-4, atol=2e-6)
+            np.testing.assert_allclose(metrics[name][i], m_i[name], rtol=1e-4)
+        assert _update_mismatch(jax.tree.map(lambda x: x[i], params), p_i, init(keys[i])) < 1e-2
+        # the other row's alpha and learning rate with this row's key: far outside that tolerance
+        p_w, m_w = single(keys[i], jax.tree.map(lambda x: x[1 - i], hp), data)
+        assert _update_mismatch(jax.tree.map(lambda x: x[i], params), p_w, init(keys[i])) > 0.1
     assert not np.allclose(metrics["loss"][0], metrics["loss"][1])
     run(jax.random.split(jax.random.PRNGKey(2), 2), hp, data)  # new seeds: no retrace
     assert len(traces) == 1
