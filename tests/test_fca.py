@@ -12,7 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from ape_jax.baselines.fca import ALPHA, FcaHparams, make_fca
+from ape_jax import tasks
+from ape_jax.baselines.fca import FcaHparams, make_fca
 from ape_jax.history import history_index
 from ape_jax.learner import Data, LearnerConfig, stack_hparams
 from ape_jax.models import ImagePolicy, StatePolicy
@@ -117,7 +118,8 @@ def test_one_vmapped_run_equals_per_seed_runs(data):
     cfg = LearnerConfig(obs_shape=(4,), action_dim=2, history=2, iterations=4, batch_size=32, lr_decay_every=2)
     learner = make_fca(cfg)
     keys = jax.random.split(jax.random.PRNGKey(1), 2)
-    hp = stack_hparams([FcaHparams.make(ALPHA["hopper"], lr=1e-3), FcaHparams.make(ALPHA["walker2d"], lr=5e-4)])
+    hp = stack_hparams([FcaHparams.make(tasks.get("hopper").fca_alpha, lr=1e-3),
+                        FcaHparams.make(tasks.get("walker2d").fca_alpha, lr=5e-4)])
     traces = []
     run = jax.jit(jax.vmap(lambda k, h, d: (traces.append(1), learner.train(k, h, d))[1], (0, 0, None)))
     params, metrics = run(keys, hp, data)
@@ -145,10 +147,11 @@ def test_the_hparams_refuse_bad_values():
         FcaHparams.make(float("nan"))
     with pytest.raises(ValueError, match="learning rate must be > 0"):
         FcaHparams.make(0.1, lr=0.0)
-    hp = FcaHparams.make(ALPHA["toycar"])
+    hp = FcaHparams.make(0.2)
     assert hp.alpha.dtype == hp.lr.dtype == jnp.float32
     assert float(hp.alpha) == pytest.approx(0.2) and float(hp.lr) == pytest.approx(2e-4)
-    assert set(ALPHA) == {"hopper", "halfcheetah", "walker2d", "toycar"}
+    # the paper's α per task: Hopper 0.1, HalfCheetah and Walker2d 0.5
+    assert [tasks.get(t).fca_alpha for t in ("hopper", "halfcheetah", "walker2d")] == [0.1, 0.5, 0.5]
 
 
 def test_a_dataset_smaller_than_the_batch_is_refused(data):
