@@ -167,3 +167,12 @@ def test_a_plugin_with_bad_scores_is_refused_before_training(tmp_path, capsys):
     err = capsys.readouterr().err
     assert exc.value.code == 2 and "method 'wrong-shape': its score function returned shape (3,)" in err
     assert not (tmp_path / "run").exists()
+
+
+def test_the_listing_order_does_not_depend_on_which_module_was_imported_first():
+    code = ("import ape_jax.baselines.bcpd\n"  # it registers while the registry loads the others
+            "from ape_jax import methods\nprint(','.join(methods.names()))\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert proc.stdout.strip().splitlines()[-1] == ",".join(methods.names())
+    assert methods.names("baseline") == ("actfreq", "bcpd", "boosting", "dagger", "fca", "history-dropout", "kmeans")

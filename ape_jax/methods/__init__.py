@@ -141,6 +141,8 @@ class Method:
 
 
 _registry: dict[str, Method] = {}
+_sequence: dict[str, int] = {}   # registration order
+_builtin_modules: list[str] = []  # the built-in modules, in discovery (alphabetical) order
 _builtins = "unloaded"  # -> "loading" -> "loaded"
 
 
@@ -154,7 +156,9 @@ def _ensure_builtins() -> None:
             package = importlib.import_module(package_name)
             for info in sorted(pkgutil.iter_modules(package.__path__), key=lambda m: m.name):
                 if not info.name.startswith("_"):
-                    importlib.import_module(f"{package_name}.{info.name}")
+                    _builtin_modules.append(f"{package_name}.{info.name}")
+        for module in _builtin_modules:
+            importlib.import_module(module)
     finally:
         _builtins = "loaded"
 
@@ -181,6 +185,7 @@ def register(method: Method) -> Method:
             raise MethodError(f"method {method.name!r} trains in program {method.program!r} with another history "
                               f"or learner than {other.name!r}; give it a program of its own")
     _registry[method.name] = method
+    _sequence[method.name] = len(_sequence)
     return method
 
 
@@ -195,8 +200,12 @@ def get(name: str) -> Method:
 def names(role: str | None = None) -> tuple[str, ...]:
     """Registered names in listing order (references, ours, baselines, plugins), optionally of one role."""
     _ensure_builtins()
-    ordered = sorted(_registry.values(), key=lambda m: ROLES.index(m.role))  # stable: registration order within
-    return tuple(m.name for m in ordered if role is None or m.role == role)
+
+    def rank(m: Method):  # built-ins by module (whatever order they were imported in), then registration
+        module = _builtin_modules.index(m.module) if m.module in _builtin_modules else len(_builtin_modules)
+        return ROLES.index(m.role), module, _sequence[m.name]
+
+    return tuple(m.name for m in sorted(_registry.values(), key=rank) if role is None or m.role == role)
 
 
 def default() -> tuple[str, ...]:
@@ -363,9 +372,11 @@ def load_plugins(modules: Sequence[str]) -> list[str]:
 def scratch() -> Iterator[None]:
     """Registrations made inside are undone on exit (for tests and notebooks)."""
     _ensure_builtins()
-    saved = dict(_registry)
+    saved, sequence = dict(_registry), dict(_sequence)
     try:
         yield
     finally:
         _registry.clear()
         _registry.update(saved)
+        _sequence.clear()
+        _sequence.update(sequence)
