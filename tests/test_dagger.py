@@ -12,6 +12,7 @@ from ape_jax.pipeline import collect
 from ape_jax.baselines import dagger
 from ape_jax.history import history_index
 from ape_jax.learner import Data, Hparams, LearnerConfig, make_train, stack_hparams
+from _compare import UPDATE_RTOL, update_mismatch
 
 # a short road, so episodes end both at the goal and at the time limit
 ENV_KW = dict(episode_length=40, road_length=30.0, light_range=(12.0, 20.0))
@@ -22,17 +23,7 @@ BUDGET, ROUNDS, NUM_ENVS = 97, 3, 4   # 48 rows before round 1, 49 before round 
 # program's reductions its own way; Adam can turn rounding into ±lr on a component whose gradient is
 # within rounding of zero), so trained parameters are compared through their update as a whole, over
 # a few steps (see `tests/test_learner.py`): another minibatch, key or configuration is far outside.
-LOSS_RTOL, UPDATE_RTOL = 1e-4, 1e-2
-
-
-def _update_mismatch(params, reference, init) -> float:
-    """`‖params − reference‖ / ‖reference − init‖` over all leaves."""
-    diff = sum(float(np.sum((np.asarray(a, np.float64) - np.asarray(b)) ** 2))
-               for a, b in zip(jax.tree.leaves(params), jax.tree.leaves(reference)))
-    update = sum(float(np.sum((np.asarray(b, np.float64) - np.asarray(c)) ** 2))
-                 for b, c in zip(jax.tree.leaves(reference), jax.tree.leaves(init)))
-    assert update > 0, "the reference did not train"
-    return (diff / update) ** 0.5
+LOSS_RTOL = 1e-4
 
 
 @pytest.fixture(scope="module")
@@ -171,7 +162,7 @@ def test_train_gives_model_params_and_vmaps_over_seeds(setup, rounds):
         np.testing.assert_allclose(metrics["loss"][i], loss_i, rtol=LOSS_RTOL)
         row = jax.tree.map(lambda x: x[i], params)
         reference = learner.policy_params(trained[-1][0])
-        assert _update_mismatch(row, reference, learner.policy_params(states[0])) < UPDATE_RTOL, i
+        assert update_mismatch(row, reference, learner.policy_params(states[0])) < UPDATE_RTOL, i
     x = make_train(CFG).policy_input(data.obs[history_index(data.t, jnp.arange(8), CFG.history)])
     out = CFG.model().apply(jax.tree.map(lambda p: p[0], params), x)
     assert out.shape == (8, 2) and np.all(np.isfinite(out))
@@ -216,13 +207,13 @@ def test_budget_zero_is_bc_in_rounds(setup):
     loss = np.concatenate([m["loss"] for _, m in trained])
     np.testing.assert_allclose(loss, bc_metrics["unweighted_loss"], rtol=LOSS_RTOL)
     np.testing.assert_allclose(loss, bc_metrics["loss"], rtol=LOSS_RTOL)  # uniform weights
-    assert _update_mismatch(learner.policy_params(final), bc_end.params, bc_start.params) < UPDATE_RTOL
+    assert update_mismatch(learner.policy_params(final), bc_end.params, bc_start.params) < UPDATE_RTOL
     # Adam's moments carried over the rounds too: the same step count, the same first and second moments
     adam, bc_adam = final.opt_state, bc_end.opt_state
     assert int(adam.count) == int(bc_adam.count) == cfg.iterations
     for moment in ("mu", "nu"):
         zeros = jax.tree.map(jnp.zeros_like, getattr(bc_adam, moment))
-        assert _update_mismatch(getattr(adam, moment), getattr(bc_adam, moment), zeros) < UPDATE_RTOL, moment
+        assert update_mismatch(getattr(adam, moment), getattr(bc_adam, moment), zeros) < UPDATE_RTOL, moment
 
 
 def test_image_observations_are_recorded_raw():

@@ -17,6 +17,7 @@ from ape_jax.baselines.fca import FcaHparams, make_fca
 from ape_jax.history import history_index
 from ape_jax.learner import Data, LearnerConfig, stack_hparams
 from ape_jax.models import ImagePolicy, StatePolicy
+from _compare import UPDATE_RTOL, update_mismatch
 
 
 def _copycat_dataset(n_episodes=8, length=32, seed=0) -> Data:
@@ -101,18 +102,6 @@ def test_the_embedding_comes_from_the_same_params():
         assert set(params["params"]["Head_0"]) == {"embedding", "head", "action"}
 
 
-def _update_mismatch(params, reference, init) -> float:
-    """`‖params − reference‖ / ‖reference − init‖` over all leaves (as `tests/test_learner.py` explains:
-    two programs training the same model agree up to rounding, which Adam can turn into ±lr on a
-    component whose gradient is within rounding of zero; the update as a whole agrees to ~1e-6)."""
-    diff = sum(float(np.sum((np.asarray(a, np.float64) - np.asarray(b)) ** 2))
-               for a, b in zip(jax.tree.leaves(params), jax.tree.leaves(reference)))
-    update = sum(float(np.sum((np.asarray(b, np.float64) - np.asarray(c)) ** 2))
-                 for b, c in zip(jax.tree.leaves(reference), jax.tree.leaves(init)))
-    assert update > 0, "the reference did not train"
-    return (diff / update) ** 0.5
-
-
 def test_one_vmapped_run_equals_per_seed_runs(data):
     # a few iterations (the learning rate decays after the second): rounding has no time to grow
     cfg = LearnerConfig(obs_shape=(4,), action_dim=2, history=2, iterations=4, batch_size=32, lr_decay_every=2)
@@ -131,10 +120,10 @@ def test_one_vmapped_run_equals_per_seed_runs(data):
         p_i, m_i = single(keys[i], jax.tree.map(lambda x: x[i], hp), data)
         for name in metrics:
             np.testing.assert_allclose(metrics[name][i], m_i[name], rtol=1e-4)
-        assert _update_mismatch(jax.tree.map(lambda x: x[i], params), p_i, init(keys[i])) < 1e-2
+        assert update_mismatch(jax.tree.map(lambda x: x[i], params), p_i, init(keys[i])) < UPDATE_RTOL
         # the other row's alpha and learning rate with this row's key: far outside that tolerance
         p_w, m_w = single(keys[i], jax.tree.map(lambda x: x[1 - i], hp), data)
-        assert _update_mismatch(jax.tree.map(lambda x: x[i], params), p_w, init(keys[i])) > 0.1
+        assert update_mismatch(jax.tree.map(lambda x: x[i], params), p_w, init(keys[i])) > 0.1
     assert not np.allclose(metrics["loss"][0], metrics["loss"][1])
     run(jax.random.split(jax.random.PRNGKey(2), 2), hp, data)  # new seeds: no retrace
     assert len(traces) == 1
