@@ -231,7 +231,7 @@ def test_image_observations_are_recorded_raw():
         state.params, jax.random.PRNGKey(0))
     sims = envs.toycar.ToyCarSim(*[rec.expert_obs[:, i] for i in range(5)], t=jnp.zeros(5, jnp.int32),
                                  key=jnp.zeros((5, 2), jnp.uint32))
-    frames = jax.vmap(env.observe_sim)(sims)
+    frames = jax.jit(jax.vmap(env.observe_sim))(sims)
     np.testing.assert_array_equal(rec.obs, frames)
 
 

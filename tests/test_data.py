@@ -44,7 +44,7 @@ def test_collected_transitions_have_consistent_shapes_and_episode_boundaries(car
 
 
 def test_observations_can_be_recomputed_from_the_recorded_simulator_state(car, demos):
-    reobserved = jax.vmap(car.observe_sim)(jax.tree.map(jnp.asarray, demos.sim))
+    reobserved = jax.jit(jax.vmap(car.observe_sim))(jax.tree.map(jnp.asarray, demos.sim))
     np.testing.assert_allclose(np.asarray(reobserved), demos.obs, rtol=1e-6)  # XLA may fuse differently
 
 
@@ -135,7 +135,8 @@ def test_image_datasets_stay_uint8_and_reject_float_frames(tmp_path):
     car = envs.make("toycar", obs="image", image_size=16)
     d = collect.collect(car, car.expert, jax.random.PRNGKey(2), num_episodes=1)
     assert d.obs.dtype == np.uint8 and d.obs.shape[1:] == (16, 16, 3)
-    np.testing.assert_array_equal(np.asarray(jax.vmap(car.observe_sim)(jax.tree.map(jnp.asarray, d.sim))), d.obs)
+    np.testing.assert_array_equal(np.asarray(jax.jit(jax.vmap(car.observe_sim))(jax.tree.map(jnp.asarray, d.sim))),
+                                  d.obs)
     arrays = _arrays(d)
     arrays["obs"] = arrays["obs"].astype(np.float32)
     _write_raw(tmp_path / "f.npz", arrays, {"obs": "image"})
@@ -170,7 +171,8 @@ def test_mujoco_collection_records_every_mode_and_a_reobservable_state(obs):
     d = collect.collect(env, expert, jax.random.PRNGKey(0), num_episodes=2)
     assert d.obs.shape == (len(d), *env.observation_shape) and d.obs.dtype == env.observation_dtype
     assert d.sim["qpos"].shape == (len(d), 6) and d.sim["qvel"].shape == (len(d), 6)
-    again = np.asarray(jax.vmap(env.observe_sim)(jax.tree.map(jnp.asarray, d.sim)))
+    # jitted: MJX's mj_forward run op by op under vmap takes ~10x longer than compiling it
+    again = np.asarray(jax.jit(jax.vmap(env.observe_sim))(jax.tree.map(jnp.asarray, d.sim)))
     if obs == "pos":
         # joint angles come straight from qpos; Brax's torso height (dim 0) is read from body
         # poses computed before the last physics substep, so re-observing moves it slightly
