@@ -253,11 +253,9 @@ class Prepared:
                                      unroll=self.sequential)
 
 
-def prepare(spec: SweepSpec, hooks: Hooks = Hooks(), demos: Demonstrations | None = None) -> Prepared:
-    """Phase 1: the environment, the demonstrations (collected, cached or given), the split and the normaliser.
-
-    `demos` skips loading (the caller has them). Raises `ValueError` (one
-    line) for demonstrations that do not fit the environment or are too few.
+def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
+    """Phase 1: the environment, the demonstrations (collected or cached, or `spec.dataset`), the split and the
+    normaliser. Raises `ValueError` (one line) for demonstrations that do not fit the environment or are too few.
     """
     import envs
     from envs import experts
@@ -265,9 +263,7 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks(), demos: Demonstrations | Non
     preset = spec.preset
     env = envs.make(spec.env, obs=spec.obs, **spec.env_overrides())
     settings = spec.data_settings()
-    if demos is not None:
-        path, source = "(given)", "given"
-    elif spec.dataset is None:
+    if spec.dataset is None:
         with hooks.bar(desc="collect", total=preset.episodes, unit="episode") as b:
             demos, _, path, cached = collect.collect_cached(settings, spec.data_dir,
                                                             progress=lambda n: b.update(n - b.n))
