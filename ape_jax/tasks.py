@@ -73,12 +73,23 @@ class Protocol:
         return out
 
 
+def _fca(frame_skip: int) -> Protocol:
+    """FCA's protocol at simulator frame skip `frame_skip`: the same 500 standard steps of simulated time, the same
+    expert steps and the same 20,000 / 4,000 training / validation transitions at any frame skip."""
+    name = "fca" if frame_skip == 1 else f"fca-fs{frame_skip}"
+    doc = ("the paper's MuJoCo-State setting (FCA's code): frame skip 1, 500 standard steps of simulated time, "
+           "rewards on the standard-step scale, 50,000 expert steps of which 20,000 train and 4,000 validate"
+           if frame_skip == 1 else
+           f"the copycat map's fca at frame skip {frame_skip}: fca's simulated time, rewards and data sizes, "
+           f"{frame_skip} simulator steps per control step")
+    return Protocol(name, frame_skip=frame_skip, horizon=500, collect_transitions=50_000, train_transitions=20_000,
+                    val_transitions=4_000, doc=doc)
+
+
+# The copycat map (BENCHMARKS.md) compares fca at frame skips 1, 2 and 4: where does the history stop helping?
+FCA_FRAME_SKIPS = (1, 2, 4)
 PROTOCOLS: Mapping[str, Protocol] = MappingProxyType({p.name: p for p in (
-    Protocol("fca", frame_skip=1, horizon=500, collect_transitions=50_000, train_transitions=20_000,
-             val_transitions=4_000,
-             doc="the paper's MuJoCo-State setting (FCA's code): frame skip 1, 500 standard steps of simulated "
-                 "time, rewards on the standard-step scale, 50,000 expert steps of which 20,000 train and 4,000 "
-                 "validate"),
+    *(_fca(k) for k in FCA_FRAME_SKIPS),
     Protocol("brax", doc="the environment's own settings: Brax's frame skip and 1,000-step episodes for MuJoCo"),
 )})
 
@@ -120,7 +131,7 @@ class Task:
     presets: Mapping[str, Mapping[str, Mapping[str, Any]]] = dataclasses.field(
         default_factory=lambda: MappingProxyType({}))
     paper: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=lambda: MappingProxyType({}))
-    protocols: tuple[str, ...] = ("fca", "brax")
+    protocols: tuple[str, ...] = tuple(PROTOCOLS)
     default_protocols: Mapping[str, str] = dataclasses.field(
         default_factory=lambda: MappingProxyType({"pos": "fca", "full": "fca"}))
 

@@ -115,3 +115,15 @@ def test_expert_references_come_per_protocol(tmp_path):
     assert experts.reference("hopper", "fca", root=root) == {"return_mean": 1.0, "return_std": 0.5,
                                                              "random_return_mean": 0.1, "episodes": 100}
     assert tasks.PROTOCOLS["fca"].settings(4)["episode_length"] == 2000
+
+
+@pytest.mark.parametrize("name,standard,length,scale", [
+    ("fca", 4, 2000, 0.25), ("fca-fs2", 4, 1000, 0.5), ("fca-fs4", 4, 500, 1.0), ("fca-fs4", 5, 625, 0.8)])
+def test_the_copycat_maps_protocols_keep_fcas_time_rewards_and_data_at_every_frame_skip(name, standard, length, scale):
+    """The map's columns differ only in frame skip: 500 standard steps of simulated time, returns on the standard
+    scale, the same 50,000 expert steps and 20,000 / 4,000 training / validation transitions."""
+    s = tasks.PROTOCOLS[name].settings(standard)
+    assert (s["episode_length"], s["reward_scale"]) == (length, scale)
+    assert s["episode_length"] * s["frame_skip"] == 500 * standard                    # the same simulated time
+    assert (s["collect_transitions"], s["train_transitions"], s["val_transitions"]) == (50_000, 20_000, 4_000)
+    assert name in tasks.get("hopper").protocols and name not in tasks.get("toycar").protocols
