@@ -1,4 +1,9 @@
-"""Collects expert demonstrations: `python -m experiments.collect --env hopper --obs pos --episodes 25`.
+"""Collects expert demonstrations: `python -m experiments.collect --env hopper --obs pos`.
+
+Under `--protocol` (default: the task's, as the sweep: `fca` for state
+observations, `brax` for images and ToyCar), with its frame skip, episode
+length, reward scale and number of expert steps, so the dataset is the one a
+sweep of the same protocol collects (and accepts with `--dataset`).
 
 Rolls the shipped expert out under jit and writes the dataset (`.npz` plus
 `.json` metadata, see `ape_jax.pipeline.data`) into the cache directory, named by a hash
@@ -35,9 +40,12 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--env", default="hopper", help=f"{', '.join(tasks.sweepable())}, or any Brax env with an expert "
                                                    "(default: hopper)")
     p.add_argument("--obs", default=None, help="full, pos or image (default: the task's, e.g. pos for MuJoCo)")
+    p.add_argument("--protocol", default=None,
+                   help=f"{', '.join(tasks.PROTOCOLS)} (default: the task's, as the sweep's: fca for state "
+                        "observations, brax for images)")
     p.add_argument("--episodes", type=int, default=None,
-                   help="episodes to collect (default: the task's: 25 for MuJoCo, ~20k training transitions after a "
-                        "20%% validation split; 10 for the driving sandbox, ~1k training samples)")
+                   help="episodes to collect (default: the protocol's: fca's 50,000 expert steps, 25 episodes of "
+                        "2,000 steps for Hopper; under brax the task's: 25 for MuJoCo, 10 for the driving sandbox)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--noise-frac", type=float, default=0.0,
                    help="probability that a step's executed action is perturbed (DART-style; label stays clean)")
@@ -61,8 +69,12 @@ def parse(argv=None) -> argparse.Namespace:
     args.obs = args.obs or (default if default in modes else envs.default_obs(args.env))
     if args.obs not in modes:
         fail(p, f"--obs {args.obs!r} is not supported by {args.env}; valid: {', '.join(modes)}")
+    try:
+        args.setup = collect.protocol_setup(args.env, args.obs, args.protocol)
+    except ValueError as e:
+        fail(p, str(e))
     if args.episodes is None:
-        args.episodes = collect.default_episodes(args.env)
+        args.episodes = args.setup.episodes
     for flag, value in (("--episodes", args.episodes), ("--batch", args.batch)):
         if value < 1:
             fail(p, f"{flag} must be >= 1, got {value}")
@@ -70,7 +82,7 @@ def parse(argv=None) -> argparse.Namespace:
         fail(p, f"--noise-frac must be in [0, 1], got {args.noise_frac}")
     if not 0.0 <= args.noise_std < math.inf:
         fail(p, f"--noise-std must be a finite number >= 0, got {args.noise_std}")
-    args.overrides = {}
+    args.overrides = dict(args.setup.env_overrides)
     if args.image_size is not None:
         if args.obs != "image":
             fail(p, "--image-size applies to --obs image only")
@@ -139,9 +151,19 @@ def main(argv=None) -> int:
         return fail(None, f"{e}; the cached dataset is left as it is: run again with --force to collect it anew")
     except OSError as e:
         return fail(None, f"--data-dir {args.data_dir}: cannot write the dataset ({e.strerror or e})")
-    train, val = demos.split()
+    sizes = args.setup.settings
+    try:  # the split the sweep makes: the protocol's sizes, else 80/20 by episode
+        if sizes["train_transitions"] is None:
+            raise ValueError("the protocol fixes no split sizes")
+        train, val = demos.split_sizes(sizes["train_transitions"], sizes["val_transitions"], seed=0)
+        how = f"the {args.setup.name} protocol's split"
+    except ValueError:
+        train, val = demos.split()
+        how = "the 20% split"
     print(f"{'loaded cached' if cached else 'collected'} {len(demos):,} transitions in {demos.num_episodes} "
-          f"episodes ({len(train):,} train / {len(val):,} validation after the 20% split by episode); "
+          f"episodes under the {args.setup.name} protocol (frame skip {sizes['frame_skip'] or '-'}, "
+          f"{sizes['episode_length']:,}-step episodes); {len(train):,} train / {len(val):,} validation after "
+          f"{how} by episode; "
           f"expert return {meta['episode_return_mean']:.1f} ± {meta['episode_return_std']:.1f}, "
           f"mean episode length {meta['episode_length_mean']:.0f}")
     print(action_summary(demos))

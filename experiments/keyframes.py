@@ -1,8 +1,10 @@
 """Draws one expert episode's keyframes as a picture: `python -m experiments.keyframes --env hopper`.
 
 For one episode of the shipped expert's cached demonstrations (those the sweep
-uses: `pos` observations for MuJoCo, `full` for ToyCar, the default number of
-episodes, seed 0): APE along time with its keyframes, the expert's actions (a
+uses under `--protocol`, by default the task's: `fca` (frame skip 1) for
+MuJoCo, where the picture is `figures/keyframes-ENV.png`, or e.g. `brax`,
+`figures/keyframes-ENV-brax.png`; `pos` observations for MuJoCo, `full` for
+ToyCar; seed 0): APE along time with its keyframes, the expert's actions (a
 `--zoom` close-up for a long episode), and frames rendered from the recorded
 simulator states at the `--frames` highest-APE keyframes and `--ordinary`
 low-APE steps (`ape_jax.pipeline.keyframes.select`, drawn by `experiments.report.figures.keyframes`).
@@ -42,6 +44,8 @@ def parse(argv=None) -> argparse.Namespace:
 
     p = Parser(prog="python -m experiments.keyframes", description=__doc__.splitlines()[0])
     p.add_argument("--env", default="hopper", help=f"one of {', '.join(tasks.sweepable())} (default: hopper)")
+    p.add_argument("--protocol", default=None,
+                   help=f"{', '.join(tasks.PROTOCOLS)} (default: the task's, as the sweep's: fca for MuJoCo)")
     p.add_argument("--episode", type=int, default=0, help="which demonstration episode to draw (default: 0)")
     p.add_argument("--out", type=pathlib.Path, default=None,
                    help="the PNG to write (default: figures/keyframes-ENV.png)")
@@ -61,7 +65,11 @@ def parse(argv=None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if args.env not in tasks.sweepable():
         fail(p, f"unknown env {args.env!r}; valid: {', '.join(tasks.sweepable())}")
-    episodes = collect.default_episodes(args.env)
+    try:
+        args.setup = collect.protocol_setup(args.env, demo_obs(args.env), args.protocol)
+    except ValueError as e:
+        fail(p, str(e))
+    episodes = args.setup.episodes
     if not 0 <= args.episode < episodes:
         fail(p, f"--episode must be in [0, {episodes - 1}] ({args.env} has {episodes} demonstration episodes), "
                 f"got {args.episode}")
@@ -77,7 +85,9 @@ def parse(argv=None) -> argparse.Namespace:
         fail(p, f"--image-size must be <= 1024, got {args.image_size}")
     if not 0.0 < args.thr < 1.0:
         fail(p, f"--thr must be in (0, 1), got {args.thr}")
-    args.out = args.out or pathlib.Path("figures") / f"keyframes-{args.env}.png"
+    default = tasks.get(args.env).protocol(None, demo_obs(args.env)).name
+    suffix = "" if args.setup.name == default else f"-{args.setup.name}"
+    args.out = args.out or pathlib.Path("figures") / f"keyframes-{args.env}{suffix}.png"
     if args.out.suffix.lower() != ".png":
         fail(p, f"--out must name a .png file, got {args.out}")
     why = unwritable_file(args.out)
@@ -101,7 +111,7 @@ def main(argv=None) -> int:
 
     started = time.perf_counter()
     try:
-        cfg = collect.settings(args.env, demo_obs(args.env), collect.default_episodes(args.env), seed=0)
+        cfg = collect.settings(args.env, demo_obs(args.env), args.setup.episodes, seed=0, **args.setup.env_overrides)
     except ExpertError as e:
         return fail(None, str(e))
     if not data.cache_path(args.data_dir, cfg).exists():
@@ -134,14 +144,14 @@ def main(argv=None) -> int:
     ape_ep, key_ep, actions = ape_all[rows], is_key[rows], np.asarray(demos.action)[rows]
     pick = keyframes.select(ape_ep, key_ep, args.frames, args.ordinary, args.min_gap, args.zoom, skip_start=ape_lib.K)
 
-    env = envs.make(args.env, obs="image", image_size=args.image_size)
+    env = envs.make(args.env, obs="image", image_size=args.image_size, **args.setup.env_overrides)
     sims = jax.tree.map(lambda x: jnp.asarray(np.asarray(x)[rows[pick.steps]]), demos.sim)
     frames = (np.asarray(jax.jit(jax.vmap(env.observe_sim))(sims)) if len(pick.steps)
               else np.zeros((0, 1, 1, 3), np.uint8))
 
     n_key = int(key_ep.sum())
-    title = (f"{args.env} expert, episode {args.episode}: {n_key} of {len(rows)} steps ({n_key / len(rows):.0%}) "
-             f"are keyframes")
+    title = (f"{args.env} expert ({args.setup.name} protocol, frame skip {args.setup.settings['frame_skip'] or '-'}), "
+             f"episode {args.episode}: {n_key} of {len(rows)} steps ({n_key / len(rows):.0%}) are keyframes")
     note = (f"keyframes = top {args.thr:.0%} APE over all {len(demos):,} steps of the {demos.num_episodes} "
             f"demonstrations (APE model fitted on all of them, {args.ape_steps} Adam steps; APE ÷ its mean {scale:.3g})")
     fig = figures.keyframes(ape_ep, actions, threshold, frames, pick.steps, keyframe=key_ep, title=title, note=note,

@@ -76,7 +76,7 @@ def test_split_sizes_gives_exact_sizes_from_disjoint_episodes():
 
 
 def test_an_unknown_protocol_or_one_the_task_cannot_take_is_refused(capsys):
-    for argv, message in ((["--protocol", "gym"], "unknown protocol 'gym' for hopper; valid: fca, brax"),
+    for argv, message in ((["--protocol", "gym"], "unknown protocol 'gym' for hopper; valid: fca, fca-fs2, fca-fs4, brax"),
                           (["--env", "toycar", "--protocol", "fca"], "unknown protocol 'fca' for toycar; valid: brax")):
         with pytest.raises(SystemExit) as exc:
             sweep.parse(argv)
@@ -127,3 +127,27 @@ def test_the_copycat_maps_protocols_keep_fcas_time_rewards_and_data_at_every_fra
     assert s["episode_length"] * s["frame_skip"] == 500 * standard                    # the same simulated time
     assert (s["collect_transitions"], s["train_transitions"], s["val_transitions"]) == (50_000, 20_000, 4_000)
     assert name in tasks.get("hopper").protocols and name not in tasks.get("toycar").protocols
+
+
+@pytest.mark.parametrize("protocol", [None, "fca-fs2", "brax"])
+def test_collect_names_the_dataset_the_sweep_of_the_same_protocol_uses(protocol, tmp_path):
+    """`experiments.collect` defaults to the sweep's protocol, so what it collects is what `--dataset` accepts."""
+    from experiments import collect as collect_cli
+
+    flags = [] if protocol is None else ["--protocol", protocol]
+    args = collect_cli.parse(["--env", "hopper", "--obs", "pos", "--data-dir", str(tmp_path), *flags])
+    spec = S.SweepSpec("hopper", "pos", "quick", preset_for("quick", "hopper", "pos"), ("bc-oh",), protocol=protocol)
+    assert args.setup.name == spec.protocol == (protocol or "fca")
+    assert args.episodes == spec.preset.episodes
+    mine = S.collect.settings("hopper", "pos", args.episodes, args.seed, **args.overrides)
+    assert mine == spec.data_settings()   # the same settings: the same cached file
+
+
+def test_collect_refuses_a_protocol_the_task_cannot_take(capsys):
+    from experiments import collect as collect_cli
+
+    for argv, message in ((["--env", "hopper", "--protocol", "gym"], "unknown protocol 'gym' for hopper"),
+                          (["--env", "toycar", "--protocol", "fca"], "unknown protocol 'fca' for toycar; valid: brax")):
+        with pytest.raises(SystemExit) as exc:
+            collect_cli.parse(argv)
+        assert exc.value.code == 2 and message in capsys.readouterr().err

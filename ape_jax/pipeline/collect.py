@@ -29,9 +29,40 @@ from ape_jax import tasks
 from ape_jax.pipeline import data as data_lib
 
 def default_episodes(env_name: str) -> int:
-    """Expert episodes a sweep collects for `env_name` (its task record's: ~20k training transitions for
-    MuJoCo with a 20% validation split, ~1k samples for the driving sandbox)."""
+    """Expert episodes a sweep collects for `env_name` under the `brax` protocol (its task record's: ~20k training
+    transitions for MuJoCo with a 20% validation split, ~1k samples for the driving sandbox)."""
     return tasks.get(env_name).episodes
+
+
+@dataclasses.dataclass(frozen=True)
+class ProtocolSetup:
+    """A protocol as it applies to one environment: what the sweep, `experiments.collect` and the keyframe picture
+    collect under it, so the three name the same cached dataset.
+
+    Attributes:
+      name: the protocol's name (`ape_jax.tasks.PROTOCOLS`).
+      settings: every field, resolved for the environment (results.json's `protocol`).
+      env_overrides: the `envs.make` settings it fixes (frame skip, episode length, reward scale).
+      episodes: expert episodes to collect: as many whole episodes as its expert steps take, else the task's.
+    """
+
+    name: str
+    settings: dict
+    env_overrides: dict
+    episodes: int
+
+
+def protocol_setup(env_name: str, obs: str, protocol: str | None = None) -> ProtocolSetup:
+    """Protocol `protocol` (None: the task's default for `obs`) for `env_name`; `ValueError` for one it cannot take."""
+    proto = tasks.get(env_name).protocol(protocol, obs)
+    brax = env_name in envs.brax_env.brax_names()
+    standard = envs.brax_env.default_frame_skip(env_name) if brax else None
+    settings = proto.settings(standard)
+    if settings["episode_length"] is None:
+        settings["episode_length"] = envs.make(env_name, obs="full" if brax else None).episode_length
+    episodes = (-(-proto.collect_transitions // settings["episode_length"]) if proto.collect_transitions is not None
+                else default_episodes(env_name))
+    return ProtocolSetup(proto.name, settings, proto.env_overrides(standard), episodes)
 
 
 def expert_for(env: envs.Env) -> tuple[Callable[[jax.Array], jax.Array], dict]:

@@ -140,37 +140,30 @@ class SweepSpec:
     def __post_init__(self):
         for m in self.methods:
             methods_lib.get(m)  # MethodError for an unknown name
-        protocol = self.task.protocol(self.protocol, self.obs)  # ValueError for one the task cannot take
-        object.__setattr__(self, "protocol", protocol.name)
-        preset = dataclasses.replace(self.preset, history=protocol.history)
-        if protocol.collect_transitions is not None:  # episodes of the expert's, as many as that many steps take
-            length = self.protocol_settings()["episode_length"]
-            preset = dataclasses.replace(preset, episodes=-(-protocol.collect_transitions // length))
+        setup = self.setup  # ValueError for a protocol the task cannot take
+        object.__setattr__(self, "protocol", setup.name)
+        preset = dataclasses.replace(self.preset, history=tasks.PROTOCOLS[setup.name].history)
+        if tasks.PROTOCOLS[setup.name].collect_transitions is not None:
+            preset = dataclasses.replace(preset, episodes=setup.episodes)
         object.__setattr__(self, "preset", resolved(preset, self.env))
 
     @property
     def task(self) -> tasks.Task:
         return tasks.get(self.env)
 
+    @property
+    def setup(self) -> collect.ProtocolSetup:
+        """The protocol as it applies to this environment (`collect.protocol_setup`)."""
+        return collect.protocol_setup(self.env, self.obs, self.protocol)
+
     def protocol_settings(self) -> dict:
         """Every field of the protocol as it applies to this environment (results.json's `protocol`)."""
-        import envs
-
-        protocol = tasks.PROTOCOLS[self.protocol]
-        brax = self.env in envs.brax_env.brax_names()
-        standard = envs.brax_env.default_frame_skip(self.env) if brax else None
-        out = protocol.settings(standard)
-        if out["episode_length"] is None:
-            out["episode_length"] = envs.make(self.env, obs="full" if brax else None).episode_length
-        return out
+        return self.setup.settings
 
     def collection_overrides(self) -> dict:
         """The `envs.make` settings demonstrations are collected with: the protocol's, and the image size."""
-        import envs
-
-        standard = envs.brax_env.default_frame_skip(self.env) if self.env in envs.brax_env.brax_names() else None
         image = {"image_size": self.preset.image_size} if self.obs == "image" and self.preset.image_size else {}
-        return {**tasks.PROTOCOLS[self.protocol].env_overrides(standard), **image}
+        return {**self.setup.env_overrides, **image}
 
     def env_overrides(self) -> dict:
         """The `envs.make` settings policies are evaluated with: the collection's, and the preset's `eval_steps`."""
