@@ -17,19 +17,23 @@ from experiments.report import figures
 def _results(env="hopper", methods=(("bc-so", {}, 300.0), ("bc-oh", {}, 1000.0),
                                      ("ours-step", {"thr": 0.1, "w": 5.0}, 1500.0),
                                      ("ours-step", {"thr": 0.2, "w": 3.0}, 1600.0),
-                                     ("ours-softmax", {"tau": 5.0}, 1200.0)), preset_methods=None):
+                                     ("ours-softmax", {"tau": 5.0}, 1200.0)), preset_methods=None,
+             deltas=(-10.0, 10.0)):
+    """A schema-1 results file: per method, one seed per `deltas` returning `ret + delta`, `normalized` (% of the
+    expert's 2,000) `(ret + delta) / 20`; the summary their mean and std over seeds."""
     runs, summary = [], []
+    std = float(np.std(deltas))
     for method, hp, ret in methods:
-        for seed, delta in enumerate((-10.0, 10.0)):
+        for seed, delta in enumerate(deltas):
             runs.append({"method": method, "hparams": hp, "seed": seed, "status": "ok", "error": None,
                          "eval": {"episodes": 5, "return_mean": ret + delta, "return_std": 1.0,
                                   "normalized": (ret + delta) / 20},
                          "losses": {s: {"unweighted": 0.1 + seed, "changepoint": 0.3, "copycat": 0.05}
                                     for s in ("train", "val")}})
-        summary.append({"method": method, "hparams": hp, "n_seeds": 2, "return_mean": ret, "return_std": 10.0,
-                        "normalized_mean": ret / 20, "normalized_std": 0.5})
+        summary.append({"method": method, "hparams": hp, "n_seeds": len(deltas), "return_mean": ret,
+                        "return_std": std, "normalized_mean": ret / 20, "normalized_std": std / 20})
     return {"schema": 1, "env": env, "obs": "pos", "preset": "default",
-            "config": {"iterations": 30000, "seeds": 2, "eval_episodes": 20,
+            "config": {"iterations": 30000, "seeds": len(deltas), "eval_episodes": 20,
                        "methods": preset_methods or ["bc-so", "bc-oh", "ours-step", "ours-softmax"]},
             "expert": {"return_mean": 2000.0, "return_std": 50.0, "random_return_mean": 0.0},
             "runs": runs, "summary": summary, "timing": {"total_s": 100.0},
@@ -46,10 +50,37 @@ def _loaded(tmp_path, obj, name="r.json"):
     return report.load(_write(tmp_path, name, obj))
 
 
-def _schema2(obj, command=None, methods=None):
-    """A schema-1 fixture as the sweep writes schema 2: with its command, protocol and methods recorded."""
-    return {**obj, "schema": 2, "command": command, "protocol": {"name": "brax", "dt": 0.008},
+def _schema2(obj, command=None, methods=None, protocol=None):
+    """A schema-1 fixture as the sweep writes schema 2: with its command, protocol (default brax's) and methods."""
+    return {**obj, "schema": 2, "command": command, "protocol": protocol or {"name": "brax", "dt": 0.008},
             "methods": methods or {}, "config": {**obj["config"], "metric": "return", "task_metrics": []}}
+
+
+def _fca(frame_skip=1, standard=4):
+    """The fca family's protocol dict as `ape_jax.tasks.Protocol.settings` records it: `fca` at frame skip 1, else
+    `fca-fs<N>`, 500 standard steps of simulated time, 20,000 / 4,000 training / validation transitions."""
+    return {"name": "fca" if frame_skip == 1 else f"fca-fs{frame_skip}", "frame_skip": frame_skip,
+            "standard_frame_skip": standard, "episode_length": 500 * standard // frame_skip,
+            "reward_scale": frame_skip / standard, "collect_transitions": 50_000, "train_transitions": 20_000,
+            "val_transitions": 4_000, "history": 2}
+
+
+def _map_files(tmp_path, fs1=(600.0, 610.0, 1000.0), fs2=(600.0, 1000.0, 1100.0), fs4=(400.0, 1600.0, 1500.0),
+               env="hopper"):
+    """One task under fca at frame skips 1, 2, 4 (BC-SO, BC-OH, Ours at THR 10% W 5 returning `fsN`; the expert's
+    2,000 is 100%) and under brax (schema 1, another expert): the copycat map's fixture. The frame-skip-1 file
+    also holds a softmax τ, the FCA baseline and a third seed, which the map does not use."""
+    def methods(bcso, bcoh, ours):
+        return (("bc-so", {}, bcso), ("bc-oh", {}, bcoh), ("ours-step", {"thr": 0.1, "w": 5.0}, ours))
+
+    files = [_schema2(_results(env, methods(*fs1) + (("ours-softmax", {"tau": 0.2}, 900.0),
+                                                      ("fca", {"alpha": 0.1}, 1200.0)), deltas=(-10.0, 0.0, 10.0)),
+                      protocol=_fca(1))]
+    files += [_schema2(_results(env, methods(*fs)), protocol=_fca(skip)) for skip, fs in ((2, fs2), (4, fs4))]
+    brax = _results(env)
+    brax["expert"] = {"return_mean": 3000.0, "return_std": 80.0, "random_return_mean": 10.0}
+    files.append(brax)
+    return [_loaded(tmp_path, f, f"{env}-{i}.json") for i, f in enumerate(files)]
 
 
 def test_the_report_merges_files_per_environment_and_builds_every_table(tmp_path):
@@ -66,7 +97,7 @@ def test_the_report_merges_files_per_environment_and_builds_every_table(tmp_path
     assert state.index("| DAgger (online) |") < state.index("| FCA |")               # the registry's order
     assert "HistoryDropout" not in state                                               # in no file: no row
     # next to the paper: ratios to BC-OH within each source
-    assert "| Ours | 641 (2.19×) | 1,500 (1.50×) |" in text
+    assert "| Ours, step THR 10% W 5 | 641 (2.19×) | 1,500 (1.50×) |" in text
     # provenance: a schema-1 file's command is rebuilt from its settings, and says so; with its commit and machine
     assert ("`python -m experiments.sweep --env hopper --obs pos --preset default --seeds 2` (rebuilt from its "
             "settings: the file predates results schema 2") in text
@@ -148,11 +179,13 @@ def test_the_report_tabulates_the_bootstrap_per_environment(tmp_path):
                ("ours-step", {"thr": 0.2, "w": 3.0}, 1005.0), ("ours-softmax", {"tau": 5.0}, 800.0))
     text = report.report([_loaded(tmp_path, _results(methods=methods))])
     # seeds are ret ± 10: each arm's resampled mean is one of ret − 10, ret, ret + 10
-    assert "| Hopper | Ours, step THR 10% W 5 (the paper's) | 2 / 2 | +500 (return) | [+480, +520] | Ours better |" in text
-    assert ("| Hopper | Ours, best step (thr 0.1, w 5; selected after the fact) | 2 / 2 | +500 (return) | [+480, +520] | "
+    assert ("| Hopper | Ours, step THR 10% W 5 (the paper's) − BC-OH | 2 / 2 | +500 (return) | [+480, +520] | "
             "Ours better |") in text
-    assert ("| Hopper | Ours, best softmax (tau 5; selected after the fact) | 2 / 2 | -200 (return) | [-220, -180] | "
-            "BC-OH better |") in text
+    assert ("| Hopper | Ours, best step (thr 0.1, w 5; selected after the fact) − BC-OH | 2 / 2 | +500 (return) | "
+            "[+480, +520] | Ours better |") in text
+    assert ("| Hopper | Ours, best softmax (tau 5; selected after the fact) − BC-OH | 2 / 2 | -200 (return) | "
+            "[-220, -180] | BC-OH better |") in text
+    assert "BC-OH − BC-SO" not in text.split("| task | comparison |")[1]    # no BC-SO in the fixture: no such row
     assert "with 2 seeds per arm each arm has only 3 distinct resamples" in text
     close = report.report([_loaded(tmp_path, _results(methods=(("bc-oh", {}, 1000.0),
                                                                ("ours-step", {"thr": 0.1, "w": 5.0}, 1005.0))))])
@@ -298,12 +331,14 @@ def test_training_curves_and_weight_histograms_are_drawn_from_files_that_record_
     assert "![Weight concentration within a batch](figures/weights.png)" in text
     # uniform weights: the heaviest of 128 carries 1/128, the heaviest 13 carry 13/128; the step setting's 10%
     # of samples at W 5 carry about 5·0.1 / (5·0.1 + 0.9) = 36%; a small τ gives one sample nearly everything
-    assert "| Hopper | uniform (BC-OH) | 1% | 10% |" in text
+    assert "| Hopper | uniform (BC-OH) | 1% | 10% | 1% | 10% |" in text       # raw APE and ÷ its mean alike
     step = next(line for line in text.splitlines() if line.startswith("| Hopper | step THR 10% W 5 |"))
     assert 30 <= float(step.split("|")[4].strip(" %")) <= 42
-    shares = dict(report.weight_shares(report.merge([report.load(tmp_path / "r.json")]))[0][1])
-    for y in shares.values():
+    panel = report.weight_shares(report.merge([report.load(tmp_path / "r.json")]))[0]
+    shares = {lab: raw for lab, raw, _ in panel.series}
+    for y in (y for _, raw, by_mean in panel.series for y in (raw, by_mean)):
         assert np.all(np.diff(y) >= -1e-12) and abs(y[-1] - 1) < 1e-9    # cumulative shares, ending at all of it
+    assert panel.trained == "mean"
     assert shares["softmax τ 5"][0] > shares["uniform (BC-OH)"][0]
     for name in ("curves.png", "weights.png"):
         with Image.open(tmp_path / "figures" / name) as im:
@@ -337,7 +372,9 @@ def test_image_results_and_a_task_judged_by_a_rate_get_their_tables(tmp_path):
     # its measure is success, not its (zero) reward: in the grid table and the bootstrap
     assert "| method | hparams | seeds | success % |" in table
     assert "| Ours (step) | thr 0.1, w 5 | 2 | 92.5 ± 2.5 |" in table
-    assert (f"| {car.title} (image) | Ours, step THR 10% W 5 (the paper's) | 2 / 2 | +0 (success, % points) |"
+    assert (f"| {car.title} (image) | Ours, step THR 10% W 5 (the paper's) − BC-OH | 2 / 2 | +0 (success, % points) |"
+            in text)
+    assert (f"| {car.title} (image) | BC-OH − BC-SO (does the history help?) | 2 / 2 | +0 (success, % points) |"
             in text)
     assert f"({car.title}: in success rate)" in text
     assert "### MuJoCo-State" not in text
