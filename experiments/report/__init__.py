@@ -45,12 +45,13 @@ import pathlib
 import sys
 
 from experiments._cli import Parser, fail, unwritable, unwritable_file
-from experiments.report.analysis import ReportError, bootstrap_difference, load, merge, verdict, weight_shares
+from experiments.report.analysis import (ReportError, bootstrap_difference, bootstrap_rows, copycat_map, load, merge,
+                                         verdict, weight_shares)
 from experiments.report.figures import save_png
 from experiments.report.markdown import build, provenance
 
-__all__ = ["ReportError", "bootstrap_difference", "build", "load", "main", "merge", "provenance", "report", "verdict",
-           "weight_shares"]
+__all__ = ["ReportError", "bootstrap_difference", "bootstrap_rows", "build", "copycat_map", "load", "main", "merge",
+           "provenance", "report", "verdict", "weight_shares"]
 
 
 def report(files: list, figure_dir: pathlib.Path | None = None, base: pathlib.Path | None = None) -> str:

@@ -504,9 +504,10 @@ def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
                         f"{ci.diff:+{number}} {unit} ({_ci(ci, '+,.0f')}): "
                         f"{_words(ci, 'Ours', 'BC-OH', 'it beats BC-OH', 'BC-OH beats it')}.")
         if copycat and paper is not None:
-            beats = verdict(paper[1]) == "Ours better"
-            text.append("So where copycat is present, keyframe weighting at the paper's setting "
-                        + ("beats BC-OH on these seeds." if beats else "does not detectably beat BC-OH on these seeds."))
+            text.append("So where copycat is present, keyframe weighting at the paper's setting " + _words(
+                paper[1], "Ours", "BC-OH", "beats BC-OH on these seeds.", "does worse than BC-OH on these seeds.")
+                .replace("not significant: these seeds cannot tell them apart",
+                         "does not detectably beat BC-OH on these seeds."))
         contrast = []
         cm = maps_of.get((key.env, key.obs))
         here = cm.at(m["protocol"].get("frame_skip")) if cm else None
