@@ -303,6 +303,11 @@ def test_copycat_diagnostics_are_tabulated_for_runs_that_have_them(tmp_path):
     assert "| Ours (step) | thr 0.1, w 5 | 2 | 0.900 | 0.2500 | 75.0 |" in table   # the registry's label
     assert "| BC-SO |" not in table                                        # no diagnostics recorded: left out
     assert "Copycat diagnostics" not in report.report([_loaded(tmp_path, _results(), "plain.json")])
+    # trained on the raw APE: val_mean is raw, not on rollout_ape's scale (÷ the training mean), so no expert row
+    r["config"]["ape"] = {"normalization": "none", "scale": 1.0, "val_mean": 0.03}
+    table = report.report([_loaded(tmp_path, r, "raw.json")])
+    table = table[table.index("Copycat diagnostics"):]
+    assert "expert (validation demonstrations)" not in table and "| BC-OH | — | 2 | 0.250 | 0.5000 | 50.0 |" in table
 
 
 def test_the_sensitivity_study_sits_next_to_the_papers_numbers(tmp_path):
@@ -483,8 +488,8 @@ def test_the_copycat_map_gives_each_frame_skip_its_row_and_gaps(tmp_path):
     assert [(r.history_ci.low, r.history_ci.high) for r in cm.rows[1:]] == [(19.0, 21.0), (59.0, 61.0)]
     assert cm.rows[0].history_ci == report.bootstrap_difference([30.0, 30.5, 31.0], [29.5, 30.0, 30.5])
     text = report.report(files)
-    assert ("| Hopper | 2 | fca-fs2 | 30.0 ± 0.5 | 50.0 ± 0.5 | 55.0 ± 0.5 | 2 / 2 / 2 | +20.0 [+19.0, +21.0] | 50.0 |"
-            in text)
+    assert ("| Hopper | 2 | fca-fs2 | 30.0 ± 0.5 | 50.0 ± 0.5 | 55.0 ± 0.5 | 2 / 2 / 2 | +20.0 [+19.0, +21.0] | "
+            "50.0 |") in text
     low, high = cm.rows[0].history_ci.low, cm.rows[0].history_ci.high
     assert low < 0 < high
     assert (f"- Hopper: at frame skip 4 the history lifts BC-OH 60.0 points of expert above BC-SO (95% CI [+59.0, "

@@ -259,7 +259,7 @@ def _hp(row: dict | None) -> str:
 
 def headline(m: dict, extras: Sequence[str] = (), known: Mapping[str, dict] | None = None
              ) -> list[tuple[str, dict | None]]:
-    """The state table's rows of one environment: (label, summary row or None).
+    """The state table's rows of one group (task, observation mode, protocol): (label, summary row or None).
 
     BC-SO, BC-OH, Ours at the paper's step setting and the best step and
     softmax settings, then each of `extras` (`extra_methods`), labelled from
@@ -326,9 +326,16 @@ def copycat_groups(m: dict) -> dict[tuple, list[dict]]:
 
 
 def expert_ape(m: dict) -> float | None:
-    """The validation demonstrations' mean APE (÷ the training mean) that the first of `m`'s files records."""
+    """The validation demonstrations' mean APE ÷ the training mean (the scale of the policies' `rollout_ape`), from
+    the first of `m`'s files that records it on that scale.
+
+    `config["ape"]["val_mean"]` is the mean of the APE the file trained on: ÷ the training mean only where that is
+    `normalization: "mean"` (files without a normalization predate `"none"` and are). A `"none"` file records
+    it raw and not the raw training mean it would need dividing by, so it gives none.
+    """
     return next((src.config["ape"]["val_mean"] for src in m["sources"]
-                 if isinstance(src.config.get("ape"), dict) and "val_mean" in src.config["ape"]), None)
+                 if isinstance(src.config.get("ape"), dict) and "val_mean" in src.config["ape"]
+                 and src.config["ape"].get("normalization", "mean") == "mean"), None)
 
 
 def sensitivity(m: dict) -> tuple[list[tuple[float, dict | None]], list[tuple[float, dict | None]]]:
@@ -676,7 +683,7 @@ def raw_quantiles(ape: Mapping) -> np.ndarray:
 
 
 def quantile_mean(q: np.ndarray) -> float:
-    """The mean of a distribution from its quantiles `[Q]` at evenly spaced levels 0..1: ∫₀¹ F⁻¹(p) dp (trapezoid).
+    """The mean of a distribution from its quantiles `[Q]` at evenly spaced levels 0..1: ∫₀¹ F⁻¹(p) dp, trapezoid.
 
     Exactly the mean of the batches `weight_shares` draws (the quantile function interpolated linearly); of a
     heavy-tailed APE it overstates the true mean, the last interval being a straight line up to the maximum
@@ -737,7 +744,7 @@ def weight_shares(merged: dict, batch: int = 128, batches: int = 400) -> list[We
     return out
 
 
-# -- environments: order and titles --------------------------------------------------------------------------------
+# -- groups: order, titles, file names ----------------------------------------------------------------------------
 
 def _protocol_rank(p: dict) -> tuple:
     """Protocols in report order: the fca family by frame skip (the paper's first), then `brax`, then others."""

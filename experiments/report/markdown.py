@@ -21,15 +21,13 @@ from ape_jax import tasks
 from ape_jax.pipeline import results as results_lib
 from experiments.report import figures
 from experiments.report.analysis import (APE_SCALES, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, BRAX, FCA, MAP_METHODS,
-                                         MUJOCO, PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP,
-                                         PAPER_TABLE5, CopycatMap, Difference, Interval, Key, ReportError,
-                                         WeightShares, _best,
-                                         _metric, _ordered, _paper_step, _pct, _rows, _title, _unit,
-                                         bootstrap_rows, choices, copycat_groups, copycat_map, expert_ape,
-                                         extra_methods, file_stem, gap, groups_of, headline, history_difference,
-                                         in_fca_family, is_rate, known_methods, label, loss_rows, merge,
-                                         ours_differences, protocol_words, protocols_of, sensitivity,
-                                         task_metric_rows, verdict, weight_shares)
+                                         PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP, PAPER_TABLE5,
+                                         CopycatMap, Difference, Interval, Key, ReportError, WeightShares, _best,
+                                         _metric, _ordered, _paper_step, _pct, _rows, _title, _unit, bootstrap_rows,
+                                         choices, copycat_groups, copycat_map, expert_ape, extra_methods, file_stem,
+                                         gap, groups_of, headline, history_difference, in_fca_family, is_rate,
+                                         known_methods, label, loss_rows, merge, ours_differences, protocol_words,
+                                         protocols_of, sensitivity, task_metric_rows, verdict, weight_shares)
 
 # How the task-metrics table heads a task's own metrics, and the factor it shows them at (rates in %); a metric
 # not listed is headed by its name, and a task's main metric (a rate) is shown in %.
@@ -504,10 +502,10 @@ def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
                         f"{ci.diff:+{number}} {unit} ({_ci(ci, '+,.0f')}): "
                         f"{_words(ci, 'Ours', 'BC-OH', 'it beats BC-OH', 'BC-OH beats it')}.")
         if copycat and paper is not None:
-            text.append("So where copycat is present, keyframe weighting at the paper's setting " + _words(
-                paper[1], "Ours", "BC-OH", "beats BC-OH on these seeds.", "does worse than BC-OH on these seeds.")
-                .replace("not significant: these seeds cannot tell them apart",
-                         "does not detectably beat BC-OH on these seeds."))
+            outcome = {"Ours better": "beats BC-OH", "BC-OH better": "does worse than BC-OH"}.get(
+                verdict(paper[1]), "does not detectably beat BC-OH")
+            text.append(f"So where copycat is present, keyframe weighting at the paper's setting {outcome} on these "
+                        "seeds.")
         contrast = []
         cm = maps_of.get((key.env, key.obs))
         here = cm.at(m["protocol"].get("frame_skip")) if cm else None
@@ -520,8 +518,8 @@ def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
         brax = merged.get(Key(key.env, key.obs, BRAX))
         brax_history = None if brax is None else history_difference(brax, "normalized", 1.0)
         if brax_history is not None:
-            contrast.append(f"under Brax's own frame skip (brax) it {_lift(brax_history.diff)} "
-                            f"({_ci(brax_history)})")
+            contrast.append(f"under Brax's own frame skip (brax) {'it' if contrast else 'the history'} "
+                            f"{_lift(brax_history.diff)} ({_ci(brax_history)})")
         if contrast:
             text.append("In % of expert: " + "; ".join(contrast) + ".")
         out.append(" ".join(text))
@@ -588,8 +586,8 @@ def provenance(r: results_lib.Results) -> str:
     machine = s.get("machine") or "machine not recorded in the file"
     commit = f"`{s.get('commit')}`" + (" with uncommitted changes" if s.get("dirty") else "")
     line = (f"{cmd} — {cfg['iterations']:,} iterations, {cfg['seeds']} seeds, {cfg['eval_episodes']} evaluation "
-            f"episodes; {_protocol_provenance(r)}; commit {commit}, jax {s.get('jax')} ({s.get('backend')}, {s.get('devices')} "
-            f"device(s)), {machine}; {t.get('total_s', 0):,.0f} s in all"
+            f"episodes; {_protocol_provenance(r)}; commit {commit}, jax {s.get('jax')} ({s.get('backend')}, "
+            f"{s.get('devices')} device(s)), {machine}; {t.get('total_s', 0):,.0f} s in all"
             + (" (resumed after an interruption: the last process's time only)" if t.get("resumed") else ""))
     if t.get("peak_rss_mb"):
         line += f", peak resident memory {t['peak_rss_mb'] / 1024:.1f} GB"
