@@ -17,19 +17,23 @@ from experiments.report import figures
 def _results(env="hopper", methods=(("bc-so", {}, 300.0), ("bc-oh", {}, 1000.0),
                                      ("ours-step", {"thr": 0.1, "w": 5.0}, 1500.0),
                                      ("ours-step", {"thr": 0.2, "w": 3.0}, 1600.0),
-                                     ("ours-softmax", {"tau": 5.0}, 1200.0)), preset_methods=None):
+                                     ("ours-softmax", {"tau": 5.0}, 1200.0)), preset_methods=None,
+             deltas=(-10.0, 10.0)):
+    """A schema-1 results file: per method, one seed per `deltas` returning `ret + delta`, `normalized` (% of the
+    expert's 2,000) `(ret + delta) / 20`; the summary their mean and std over seeds."""
     runs, summary = [], []
+    std = float(np.std(deltas))
     for method, hp, ret in methods:
-        for seed, delta in enumerate((-10.0, 10.0)):
+        for seed, delta in enumerate(deltas):
             runs.append({"method": method, "hparams": hp, "seed": seed, "status": "ok", "error": None,
                          "eval": {"episodes": 5, "return_mean": ret + delta, "return_std": 1.0,
                                   "normalized": (ret + delta) / 20},
                          "losses": {s: {"unweighted": 0.1 + seed, "changepoint": 0.3, "copycat": 0.05}
                                     for s in ("train", "val")}})
-        summary.append({"method": method, "hparams": hp, "n_seeds": 2, "return_mean": ret, "return_std": 10.0,
-                        "normalized_mean": ret / 20, "normalized_std": 0.5})
+        summary.append({"method": method, "hparams": hp, "n_seeds": len(deltas), "return_mean": ret,
+                        "return_std": std, "normalized_mean": ret / 20, "normalized_std": std / 20})
     return {"schema": 1, "env": env, "obs": "pos", "preset": "default",
-            "config": {"iterations": 30000, "seeds": 2, "eval_episodes": 20,
+            "config": {"iterations": 30000, "seeds": len(deltas), "eval_episodes": 20,
                        "methods": preset_methods or ["bc-so", "bc-oh", "ours-step", "ours-softmax"]},
             "expert": {"return_mean": 2000.0, "return_std": 50.0, "random_return_mean": 0.0},
             "runs": runs, "summary": summary, "timing": {"total_s": 100.0},
@@ -46,10 +50,37 @@ def _loaded(tmp_path, obj, name="r.json"):
     return report.load(_write(tmp_path, name, obj))
 
 
-def _schema2(obj, command=None, methods=None):
-    """A schema-1 fixture as the sweep writes schema 2: with its command, protocol and methods recorded."""
-    return {**obj, "schema": 2, "command": command, "protocol": {"name": "brax", "dt": 0.008},
+def _schema2(obj, command=None, methods=None, protocol=None):
+    """A schema-1 fixture as the sweep writes schema 2: with its command, protocol (default brax's) and methods."""
+    return {**obj, "schema": 2, "command": command, "protocol": protocol or {"name": "brax", "dt": 0.008},
             "methods": methods or {}, "config": {**obj["config"], "metric": "return", "task_metrics": []}}
+
+
+def _fca(frame_skip=1, standard=4):
+    """The fca family's protocol dict as `ape_jax.tasks.Protocol.settings` records it: `fca` at frame skip 1, else
+    `fca-fs<N>`, 500 standard steps of simulated time, 20,000 / 4,000 training / validation transitions."""
+    return {"name": "fca" if frame_skip == 1 else f"fca-fs{frame_skip}", "frame_skip": frame_skip,
+            "standard_frame_skip": standard, "episode_length": 500 * standard // frame_skip,
+            "reward_scale": frame_skip / standard, "collect_transitions": 50_000, "train_transitions": 20_000,
+            "val_transitions": 4_000, "history": 2}
+
+
+def _map_files(tmp_path, fs1=(600.0, 610.0, 1000.0), fs2=(600.0, 1000.0, 1100.0), fs4=(400.0, 1600.0, 1500.0),
+               env="hopper"):
+    """One task under fca at frame skips 1, 2, 4 (BC-SO, BC-OH, Ours at THR 10% W 5 returning `fsN`; the expert's
+    2,000 is 100%) and under brax (schema 1, another expert): the copycat map's fixture. The frame-skip-1 file
+    also holds a softmax τ, the FCA baseline and a third seed, which the map does not use."""
+    def methods(bcso, bcoh, ours):
+        return (("bc-so", {}, bcso), ("bc-oh", {}, bcoh), ("ours-step", {"thr": 0.1, "w": 5.0}, ours))
+
+    files = [_schema2(_results(env, methods(*fs1) + (("ours-softmax", {"tau": 0.2}, 900.0),
+                                                      ("fca", {"alpha": 0.1}, 1200.0)), deltas=(-10.0, 0.0, 10.0)),
+                      protocol=_fca(1))]
+    files += [_schema2(_results(env, methods(*fs)), protocol=_fca(skip)) for skip, fs in ((2, fs2), (4, fs4))]
+    brax = _results(env)
+    brax["expert"] = {"return_mean": 3000.0, "return_std": 80.0, "random_return_mean": 10.0}
+    files.append(brax)
+    return [_loaded(tmp_path, f, f"{env}-{i}.json") for i, f in enumerate(files)]
 
 
 def test_the_report_merges_files_per_environment_and_builds_every_table(tmp_path):
@@ -66,7 +97,7 @@ def test_the_report_merges_files_per_environment_and_builds_every_table(tmp_path
     assert state.index("| DAgger (online) |") < state.index("| FCA |")               # the registry's order
     assert "HistoryDropout" not in state                                               # in no file: no row
     # next to the paper: ratios to BC-OH within each source
-    assert "| Ours | 641 (2.19×) | 1,500 (1.50×) |" in text
+    assert "| Ours, step THR 10% W 5 | 641 (2.19×) | 1,500 (1.50×) |" in text
     # provenance: a schema-1 file's command is rebuilt from its settings, and says so; with its commit and machine
     assert ("`python -m experiments.sweep --env hopper --obs pos --preset default --seeds 2` (rebuilt from its "
             "settings: the file predates results schema 2") in text
@@ -148,11 +179,13 @@ def test_the_report_tabulates_the_bootstrap_per_environment(tmp_path):
                ("ours-step", {"thr": 0.2, "w": 3.0}, 1005.0), ("ours-softmax", {"tau": 5.0}, 800.0))
     text = report.report([_loaded(tmp_path, _results(methods=methods))])
     # seeds are ret ± 10: each arm's resampled mean is one of ret − 10, ret, ret + 10
-    assert "| Hopper | Ours, step THR 10% W 5 (the paper's) | 2 / 2 | +500 (return) | [+480, +520] | Ours better |" in text
-    assert ("| Hopper | Ours, best step (thr 0.1, w 5; selected after the fact) | 2 / 2 | +500 (return) | [+480, +520] | "
+    assert ("| Hopper | Ours, step THR 10% W 5 (the paper's) − BC-OH | 2 / 2 | +500 (return) | [+480, +520] | "
             "Ours better |") in text
-    assert ("| Hopper | Ours, best softmax (tau 5; selected after the fact) | 2 / 2 | -200 (return) | [-220, -180] | "
-            "BC-OH better |") in text
+    assert ("| Hopper | Ours, best step (thr 0.1, w 5; selected after the fact) − BC-OH | 2 / 2 | +500 (return) | "
+            "[+480, +520] | Ours better |") in text
+    assert ("| Hopper | Ours, best softmax (tau 5; selected after the fact) − BC-OH | 2 / 2 | -200 (return) | "
+            "[-220, -180] | BC-OH better |") in text
+    assert "BC-OH − BC-SO" not in text.split("| task | comparison |")[1]    # no BC-SO in the fixture: no such row
     assert "with 2 seeds per arm each arm has only 3 distinct resamples" in text
     close = report.report([_loaded(tmp_path, _results(methods=(("bc-oh", {}, 1000.0),
                                                                ("ours-step", {"thr": 0.1, "w": 5.0}, 1005.0))))])
@@ -270,6 +303,11 @@ def test_copycat_diagnostics_are_tabulated_for_runs_that_have_them(tmp_path):
     assert "| Ours (step) | thr 0.1, w 5 | 2 | 0.900 | 0.2500 | 75.0 |" in table   # the registry's label
     assert "| BC-SO |" not in table                                        # no diagnostics recorded: left out
     assert "Copycat diagnostics" not in report.report([_loaded(tmp_path, _results(), "plain.json")])
+    # trained on the raw APE: val_mean is raw, not on rollout_ape's scale (÷ the training mean), so no expert row
+    r["config"]["ape"] = {"normalization": "none", "scale": 1.0, "val_mean": 0.03}
+    table = report.report([_loaded(tmp_path, r, "raw.json")])
+    table = table[table.index("Copycat diagnostics"):]
+    assert "expert (validation demonstrations)" not in table and "| BC-OH | — | 2 | 0.250 | 0.5000 | 50.0 |" in table
 
 
 def test_the_sensitivity_study_sits_next_to_the_papers_numbers(tmp_path):
@@ -298,12 +336,14 @@ def test_training_curves_and_weight_histograms_are_drawn_from_files_that_record_
     assert "![Weight concentration within a batch](figures/weights.png)" in text
     # uniform weights: the heaviest of 128 carries 1/128, the heaviest 13 carry 13/128; the step setting's 10%
     # of samples at W 5 carry about 5·0.1 / (5·0.1 + 0.9) = 36%; a small τ gives one sample nearly everything
-    assert "| Hopper | uniform (BC-OH) | 1% | 10% |" in text
+    assert "| Hopper | uniform (BC-OH) | 1% | 10% | 1% | 10% |" in text       # raw APE and ÷ its mean alike
     step = next(line for line in text.splitlines() if line.startswith("| Hopper | step THR 10% W 5 |"))
     assert 30 <= float(step.split("|")[4].strip(" %")) <= 42
-    shares = dict(report.weight_shares(report.merge([report.load(tmp_path / "r.json")]))[0][1])
-    for y in shares.values():
+    panel = report.weight_shares(report.merge([report.load(tmp_path / "r.json")]))[0]
+    shares = {lab: raw for lab, raw, _ in panel.series}
+    for y in (y for _, raw, by_mean in panel.series for y in (raw, by_mean)):
         assert np.all(np.diff(y) >= -1e-12) and abs(y[-1] - 1) < 1e-9    # cumulative shares, ending at all of it
+    assert panel.trained == "mean"
     assert shares["softmax τ 5"][0] > shares["uniform (BC-OH)"][0]
     for name in ("curves.png", "weights.png"):
         with Image.open(tmp_path / "figures" / name) as im:
@@ -337,7 +377,9 @@ def test_image_results_and_a_task_judged_by_a_rate_get_their_tables(tmp_path):
     # its measure is success, not its (zero) reward: in the grid table and the bootstrap
     assert "| method | hparams | seeds | success % |" in table
     assert "| Ours (step) | thr 0.1, w 5 | 2 | 92.5 ± 2.5 |" in table
-    assert (f"| {car.title} (image) | Ours, step THR 10% W 5 (the paper's) | 2 / 2 | +0 (success, % points) |"
+    assert (f"| {car.title} (image) | Ours, step THR 10% W 5 (the paper's) − BC-OH | 2 / 2 | +0 (success, % points) |"
+            in text)
+    assert (f"| {car.title} (image) | BC-OH − BC-SO (does the history help?) | 2 / 2 | +0 (success, % points) |"
             in text)
     assert f"({car.title}: in success rate)" in text
     assert "### MuJoCo-State" not in text
@@ -379,3 +421,183 @@ def test_python_m_experiments_report_runs(tmp_path):
                           text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert "| BC-SO | 300 ± 10 (15%) |" in done.stdout
+
+
+# -- protocols: fca, its other frame skips, brax -----------------------------------------------------------------
+
+def test_fca_and_brax_results_of_one_task_are_merged_apart_into_two_tables(tmp_path, capsys):
+    files = _map_files(tmp_path)
+    merged = report.merge(files)
+    assert sorted(merged) == sorted([("hopper", "pos", p) for p in ("fca", "fca-fs2", "fca-fs4", "brax")])
+    assert merged[("hopper", "pos", "brax")]["expert"]["return_mean"] == 3000.0   # each group keeps its expert
+    assert [m["title"] for m in merged.values()] == ["Hopper (fca)", "Hopper (fca, frame skip 2)",
+                                                     "Hopper (fca, frame skip 4)", "Hopper (brax)"]
+    text = report.report(files)
+    fca = text[text.index("### MuJoCo-State, the paper's protocol (fca): frame skip 1, 500 standard steps of "
+                          "simulated time, 20,000 training transitions"):text.index("### MuJoCo-State, Brax's")]
+    brax = text[text.index("### MuJoCo-State, Brax's frame skip, where copycat is absent (the project's first "
+                           "results)"):text.index("### The copycat map")]
+    assert "| BC-SO | 600 ± 8 (30%) |" in fca and "| FCA | 1,200 ± 8 (60%) |" in fca
+    assert "| BC-SO | 300 ± 10 (15%) |" in brax and "| expert (ours) | 3,000 ± 80 |" in brax
+    assert text.count("| method | Hopper |") == 2          # frame skips 2 and 4 get no state table: they feed the map
+    assert "| Hopper (fca) | BC-OH − BC-SO (does the history help?) | 3 / 3 |" in text
+    assert "| Hopper (brax) | BC-OH − BC-SO (does the history help?) | 2 / 2 | +700 (return) |" in text
+    assert "### Hopper, `pos` observations, protocol fca, frame skip 4: every configuration" in text
+    assert ("protocol fca-fs2, frame skip 2 (the environment's own: 4), 1,000-step episodes, 20,000 training "
+            "transitions; commit") in text
+    assert "protocol brax (not recorded: results schema 1 predates protocols" in text
+    # within one group the same configuration twice, or another expert or frame skip, is still refused
+    again = [_schema2(_results(), protocol=_fca(1)), _schema2(_results(), protocol=_fca(1))]
+    with pytest.raises(report.ReportError, match="is also in another results file of hopper \\(pos, protocol fca\\)"):
+        report.merge([_loaded(tmp_path, r, f"again{i}.json") for i, r in enumerate(again)])
+    other = _schema2(_results(methods=(("fca", {"alpha": 0.1}, 1.0),)), protocol={**_fca(1), "frame_skip": 2})
+    with pytest.raises(report.ReportError, match="its protocol differs .* \\(frame_skip 2 vs 1"):
+        report.merge([files[0], _loaded(tmp_path, other, "other.json")])
+    bad = _schema2(_results(), protocol={**_fca(1), "frame_skip": "1"})
+    with pytest.raises(SystemExit) as exc:
+        report.main([str(_write(tmp_path, "bad.json", bad))])
+    assert exc.value.code == 2 and "protocol field 'frame_skip' must be an int >= 1" in capsys.readouterr().err
+
+
+def test_the_fca_table_shows_the_papers_returns_beside_ours_on_one_scale(tmp_path):
+    text = report.report(_map_files(tmp_path))
+    table = text[text.index("The supplement's Table 5 beside it, on the same scale (rewards summed over 500 "
+                            "standard control steps"):text.index("### MuJoCo-State, Brax's")]
+    # absolute returns side by side, ours ± std over seeds; the ratio to BC-OH of each source in brackets
+    assert "| BC-SO | 275 (0.94×) | 600 ± 8 (0.98×) |" in table
+    assert "| BC-OH | 293 (1.00×) | 610 ± 8 (1.00×) |" in table
+    assert "| FCA | 1,086 (3.71×) | 1,200 ± 8 (1.97×) |" in table
+    assert "| Ours, step THR 10% W 5 | 641 (2.19×) | 1,000 ± 8 (1.64×) |" in table
+    assert "| expert | not published | 2,000 |" in table
+    # under brax only the ratios compare: no ±, no expert row
+    brax = text[text.index("Next to the supplement's Table 5"):text.index("### The copycat map")]
+    assert "| BC-SO | 275 (0.94×) | 300 (0.30×) |" in brax and "not published" not in brax
+
+
+def test_the_copycat_map_gives_each_frame_skip_its_row_and_gaps(tmp_path):
+    files = _map_files(tmp_path)
+    (cm,) = report.copycat_map(report.merge(files))
+    assert cm.title == "Hopper" and [(r.frame_skip, r.protocol) for r in cm.rows] == [
+        (1, "fca"), (2, "fca-fs2"), (4, "fca-fs4")]
+    # % of expert = return / 20; the frame-skip-1 file's softmax and FCA rows and its third seed are not the map's
+    assert [[c.mean for c in r.cells] for r in cm.rows] == [[30.0, 30.5, 50.0], [30.0, 50.0, 55.0],
+                                                            [20.0, 80.0, 75.0]]
+    assert [[c.n for c in r.cells] for r in cm.rows] == [[3, 3, 3], [2, 2, 2], [2, 2, 2]]
+    assert [r.history for r in cm.rows] == [0.5, 20.0, 60.0] and [r.ceiling for r in cm.rows] == [69.5, 50.0, 20.0]
+    # two seeds at ±0.5 points per arm: each arm's resampled mean is m − 0.5, m or m + 0.5
+    assert [(r.history_ci.low, r.history_ci.high) for r in cm.rows[1:]] == [(19.0, 21.0), (59.0, 61.0)]
+    assert cm.rows[0].history_ci == report.bootstrap_difference([30.0, 30.5, 31.0], [29.5, 30.0, 30.5])
+    text = report.report(files)
+    assert ("| Hopper | 2 | fca-fs2 | 30.0 ± 0.5 | 50.0 ± 0.5 | 55.0 ± 0.5 | 2 / 2 / 2 | +20.0 [+19.0, +21.0] | "
+            "50.0 |") in text
+    low, high = cm.rows[0].history_ci.low, cm.rows[0].history_ci.high
+    assert low < 0 < high
+    assert (f"- Hopper: at frame skip 4 the history lifts BC-OH 60.0 points of expert above BC-SO (95% CI [+59.0, "
+            f"+61.0]); at frame skip 2 it lifts it 20.0 points (95% CI [+19.0, +21.0]); at frame skip 1 it lifts it "
+            f"0.5 points (95% CI [{low:+.1f}, {high:+.1f}]). BC-OH is significantly above BC-SO at frame skip 2, 4, "
+            "not at 1. BC-OH's gap to the expert: 69.5 points at frame skip 1, 50.0 points at frame skip 2, 20.0 "
+            "points at frame skip 4.") in text
+    # one frame skip of the family is no map
+    assert report.copycat_map(report.merge([files[0], files[3]])) == []
+    assert "### The copycat map" not in report.report([files[0], files[3]])
+
+
+def test_figure_names_are_unique_per_protocol(tmp_path):
+    files = _map_files(tmp_path)
+    out = tmp_path / "B.md"
+    assert report.main([src.path for src in files] + ["--out", str(out)]) == 0
+    names = sorted(p.name for p in (tmp_path / "figures").iterdir())
+    assert names == ["copycat-map.png", "grid-hopper-fca-fs2.png", "grid-hopper-fca-fs4.png", "grid-hopper-fca.png",
+                     "grid-hopper.png", "returns.png"]
+    _check_png(tmp_path / "figures" / "copycat-map.png")
+    text = out.read_text()
+    assert "![The copycat map: % of expert per frame skip](figures/copycat-map.png)" in text
+    assert "![Hopper (fca, frame skip 2) grid search](figures/grid-hopper-fca-fs2.png)" in text
+    assert "![Hopper (brax) grid search](figures/grid-hopper.png)" in text     # brax keeps its name
+    fig = figures.copycat_map_figure(report.copycat_map(report.merge(files)))
+    ax = fig.axes[0]
+    assert [t.get_text() for t in ax.get_xticklabels()] == ["1", "2", "4"] and ax.get_xscale() == "log"
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["BC-SO", "BC-OH", "Ours, step THR 10% W 5"]
+
+
+def _ape_file(quantiles, normalization="none", scale=1.0, protocol=None):
+    r = _results(methods=(("bc-oh", {}, 1000.0), ("ours-softmax", {"tau": 0.1}, 1100.0)))
+    r["config"]["ape"] = {"normalization": normalization, "scale": scale, "val_mean": 1.0,
+                          "quantiles": list(quantiles)}
+    return _schema2(r, protocol=protocol or _fca(1))
+
+
+def test_the_weight_table_compares_raw_and_mean_normalised_ape(tmp_path):
+    # every sample's APE equal: softmax weights are uniform on both scales, like BC-OH's
+    flat = report.weight_shares(report.merge([_loaded(tmp_path, _ape_file([0.02] * 101), "flat.json")]))
+    (soft, step, uniform) = flat[0].series
+    for y in (soft[1], soft[2], uniform[1]):
+        np.testing.assert_allclose(y, np.arange(1, 129) / 128)
+    # raw APE spread evenly over [0, 0.02] (mean 0.01): at τ 0.1 the raw APE's weights stay within e^0.2 of each
+    # other, while ÷ its mean (× 100) they span e^20 and a few samples carry most of the batch
+    spread = _loaded(tmp_path, _ape_file(np.linspace(0, 0.02, 101)), "spread.json")
+    (w,) = report.weight_shares(report.merge([spread]))
+    assert w.trained == "none" and w.mean_ape == pytest.approx(0.01) and not w.mean_recorded
+    label, raw, by_mean = w.series[0]
+    assert label == "softmax τ 0.1" and raw[0] < np.exp(0.2) / 128 and by_mean[0] > 0.1 and by_mean[12] > 0.5
+    assert np.array_equal(w.series[1][1], w.series[1][2])             # the step weights depend on ranks only
+    text = report.report([spread])
+    row = (f"| Hopper (fca) | softmax τ 0.1 | 1% | {100 * raw[12]:.0f}% | {100 * by_mean[0]:.0f}% | "
+           f"{100 * by_mean[12]:.0f}% |")
+    assert row in text
+    assert ("- Hopper (fca): its softmax runs trained with `normalization: none`, on the raw APE (the official code, "
+            "our default); its raw training APE's mean, estimated from the recorded quantiles, is 0.01, so dividing "
+            "by it multiplies the APE by 100.") in text
+    # the same raw APE recorded as a mean-normalised run records it (÷ its mean 0.01): the same weights
+    by_scale = _loaded(tmp_path, _ape_file(np.linspace(0, 2, 101), "mean", 0.01), "mean.json")
+    (m,) = report.weight_shares(report.merge([by_scale]))
+    assert m.trained == "mean" and m.mean_recorded and m.mean_ape == 0.01
+    for (_, a_raw, a_mean), (_, b_raw, b_mean) in zip(w.series, m.series):
+        np.testing.assert_allclose(a_raw, b_raw)
+        np.testing.assert_allclose(a_mean, b_mean)
+
+
+def test_the_plain_reading_follows_the_numbers(tmp_path):
+    def reading(**fs):
+        text = report.report(_map_files(tmp_path, **fs))
+        return text[text.index("### Does keyframe weighting fix copycat"):text.index("### Hopper, `pos`")]
+
+    def ci(a, b):
+        return report.bootstrap_difference(a, b)
+
+    # BC-OH ≈ BC-SO under fca: copycat; Ours well above BC-OH
+    text = reading()
+    history = ci([600.0, 610.0, 620.0], [590.0, 600.0, 610.0])
+    assert (f"Under fca BC-OH is not significantly above BC-SO (+10 return, 95% CI [{history.low:+,.0f}, "
+            f"{history.high:+,.0f}]): the history adds nothing: copycat is present.") in text
+    assert "Ours at the paper's step setting (THR 10%, W 5) − BC-OH: +390 return" in text
+    assert ": keyframe weighting beats BC-OH." in text
+    assert "So where copycat is present, keyframe weighting at the paper's setting beats BC-OH on these seeds." in text
+    assert ("In % of expert: at frame skip 4 the history lifts BC-OH 60.0 points of expert above BC-SO (95% CI "
+            "[+59.0, +61.0]), against +0.5 at frame skip 1") in text
+    assert "under Brax's own frame skip (brax) it lifts BC-OH 35.0 points of expert above BC-SO" in text
+    # the history helping under fca, and Ours below BC-OH: every verdict flips
+    flipped = reading(fs1=(300.0, 1000.0, 900.0))
+    assert ("Under fca BC-OH is significantly above BC-SO (+700 return, 95% CI [+687, +713]): the history helps, "
+            "so copycat does not cancel its benefit here.") in flipped
+    assert "− BC-OH: -100 return (95% CI [-113, -87]): BC-OH beats it." in flipped
+    assert "copycat is present" not in flipped and "So where copycat" not in flipped
+    # the best of the grids is the softmax τ 0.2 row here, said to be optimistic
+    worse = reading(fs1=(600.0, 610.0, 500.0))
+    assert ("The best of our step and softmax grids, softmax τ 0.2 (selected after the fact on these evaluation "
+            "returns, so optimistic): +290 return (95% CI [+277, +303]): it beats BC-OH.") in worse
+    assert ("− BC-OH: -110 return (95% CI [-123, -97]): BC-OH beats it. " in worse
+            and "keyframe weighting at the paper's setting does worse than BC-OH on these seeds." in worse)
+    assert "does not detectably beat BC-OH on these seeds." in reading(fs1=(600.0, 610.0, 615.0))
+    # no fca results: nothing to read
+    assert "### Does keyframe weighting" not in report.report([_loaded(tmp_path, _results(), "brax.json")])
+
+
+def test_the_sensitivity_study_reads_the_brax_group_of_walker2d(tmp_path):
+    methods = [("ours-softmax", {"tau": t}, 700.0) for t in (0.1, 0.2, 0.5)]
+    brax = _loaded(tmp_path, _results(env="walker2d", methods=methods), "brax.json")
+    fca = _loaded(tmp_path, _schema2(_results(env="walker2d", methods=[("ours-softmax", {"tau": 0.2}, 1500.0)]),
+                                     protocol=_fca(1)), "fca.json")
+    table = report.report([fca, brax])
+    table = table[table.index("### Sensitivity"):]
+    assert "Walker2d (states, protocol brax)" in table and "| softmax τ 0.2 | 700 ± 10 | 35.0 |" in table

@@ -1,26 +1,43 @@
 """Tables and figures for BENCHMARKS.md: `python -m experiments.report RESULTS... [--out BENCHMARKS.md] [--figures DIR]`.
 
-Reads `results.json` files written by `experiments.sweep` (several per
-environment are merged, e.g. the main grid and a `--methods baselines` run),
-and prints, or with `--out` writes into the file's `report` section:
+Reads `results.json` files written by `experiments.sweep` and merges them per
+task, observation mode and protocol (several files of one group are joined,
+e.g. the main grid and a `--methods baselines` run; schema 1 files, which
+record no protocol, are `brax`). Results of one task under two protocols are
+different experiments and never mix. It prints, or with `--out` writes into
+the file's `report` section:
 
-- the MuJoCo-State table: every method per environment as return mean ± std
-  over seeds and as a percentage of our expert (normalised against a random
-  policy), with the supplement's Table 5 beside it, compared as each method's
-  ratio to BC-OH within its own source (the paper does not give its experts'
-  returns, so fractions of *its* expert cannot be computed);
-- per environment, the full grid (every configuration), the loss analysis
-  (the paper's Table 3) and where each number came from (command, preset,
-  seeds, commit, machine);
-- Ours − BC-OH per environment with a 95% bootstrap confidence interval over
-  seeds (the paper's step setting, and the best step and softmax settings,
-  which are selected after the fact and so optimistic), with a verdict;
-- figures (PNG): per environment the grid search as heatmaps (step THR × W,
-  softmax τ) with a sentence on whether the paper's choices are near the best,
-  and one figure of every method's return per environment (`returns.png`).
+- MuJoCo-State per protocol: first the paper's (`fca`: frame skip 1, 500
+  standard steps of simulated time), every method per task as return mean ±
+  std over seeds and as a percentage of our expert (normalised against a
+  random policy), with the supplement's Table 5 beside it on the same scale
+  (absolute returns, the ratio to BC-OH secondary); then Brax's own settings
+  (`brax`, the project's first results), compared with Table 5 by ratios to
+  BC-OH only. The fca family's other frame skips (`fca-fs2`, `fca-fs4`) get
+  no table of their own: they make the copycat map;
+- MuJoCo-Image and ToyCar's own metrics (the supplement's Table 4 protocol);
+- the copycat map: per task, BC-SO, BC-OH and Ours in % of expert per frame
+  skip of the fca family, what the history adds (BC-OH − BC-SO, with its CI)
+  and BC-OH's gap to the expert, with a generated sentence on where the gap opens;
+- per task and protocol, BC-OH − BC-SO and Ours − BC-OH with a 95% bootstrap
+  confidence interval over seeds (the paper's step setting, and the best step
+  and softmax settings, which are selected after the fact and so optimistic),
+  with a verdict; then a plain reading, built from those numbers, of whether
+  keyframe weighting fixes copycat where copycat exists (tasks with fca results);
+- the sensitivity study, training curves, and how concentrated a batch's
+  weights are on the raw APE (the official code's, our default) and on the APE
+  ÷ its mean (the old default), with what each group trained on;
+- per group, the full grid (every configuration), the loss analysis (the
+  paper's Table 3), copycat diagnostics, and where each number came from
+  (command, protocol, preset, seeds, commit, machine);
+- figures (PNG): per group the grid search as heatmaps (step THR × W, softmax
+  τ) with a sentence on whether the paper's choices are near the best, every
+  method's return per group (`returns.png`), the copycat map
+  (`copycat-map.png`), training curves and weights.
 
 Figures go to `--figures DIR`, by default the folder `figures/` next to `--out`
-(`BENCHMARKS.md` → `figures/grid-hopper.png`), and are linked with paths
+(`BENCHMARKS.md` → `figures/grid-hopper.png`; a group under a protocol other
+than `brax` appends it, `grid-hopper-fca-fs2.png`), and are linked with paths
 relative to `--out`; printed to stdout without `--figures`, the report draws
 none and says so. PNGs are written atomically, before the report section.
 
@@ -29,9 +46,10 @@ Method labels come from what each results file records of its methods (a
 plugin's too), then the method registry; tasks are told apart by their record
 (`ape_jax.tasks`): one judged by a rate is reported in %.
 
-The package: `analysis` (loading, merging, the rows each table picks, the
-bootstrap, the weights), `markdown` (the tables, provenance, `build`) and
-`figures` (drawing primitives and the report's figures).
+The package: `analysis` (loading, merging per protocol, the rows each table
+picks, the bootstrap, the copycat map, the weights), `markdown` (the tables,
+the generated sentences, provenance, `build`) and `figures` (drawing
+primitives and the report's figures).
 
 A results file that cannot be read, is not JSON, or lacks a field the tables
 use (or has it with the wrong type), and an `--out` that cannot be written, are
@@ -45,12 +63,13 @@ import pathlib
 import sys
 
 from experiments._cli import Parser, fail, unwritable, unwritable_file
-from experiments.report.analysis import ReportError, bootstrap_difference, load, merge, verdict, weight_shares
+from experiments.report.analysis import (ReportError, bootstrap_difference, bootstrap_rows, copycat_map, load, merge,
+                                         verdict, weight_shares)
 from experiments.report.figures import save_png
 from experiments.report.markdown import build, provenance
 
-__all__ = ["ReportError", "bootstrap_difference", "build", "load", "main", "merge", "provenance", "report", "verdict",
-           "weight_shares"]
+__all__ = ["ReportError", "bootstrap_difference", "bootstrap_rows", "build", "copycat_map", "load", "main", "merge",
+           "provenance", "report", "verdict", "weight_shares"]
 
 
 def report(files: list, figure_dir: pathlib.Path | None = None, base: pathlib.Path | None = None) -> str:

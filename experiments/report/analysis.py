@@ -4,13 +4,25 @@ Nothing here formats markdown or draws: `experiments.report.markdown` and
 `experiments.report.figures` do, from what these functions return.
 
 - `load` reads one results file (`ape_jax.pipeline.results.load`, the one
-  validator) and `merge` joins them per `(env, obs)`;
+  validator) and `merge` joins them per `Key(env, obs, protocol)`: results of
+  one task under two protocols (the paper's `fca`, Brax's own `brax`) are
+  different experiments, on different scales, and never mix;
 - `_rows`, `_best`, `headline`, `comparisons`, `extra_methods` pick the
   configurations the tables show; method labels come from what each file
   records of its methods (`label`), then the registry, then the name;
-- `bootstrap_difference`, `verdict`, `bootstrap_rows`: Ours − BC-OH over seeds;
+- `bootstrap_difference`, `verdict`, `bootstrap_rows`: Ours − BC-OH and
+  BC-OH − BC-SO (does the history help?) over seeds, per group;
+- `copycat_map`: BC-SO, BC-OH and Ours per frame skip of the fca family, and
+  the history's benefit at each (where copycat appears);
 - `choices`: the paper's settings against the best of the grid;
-- `weight_shares`: how concentrated each weighting is within a batch.
+- `weight_shares`: how concentrated each weighting is within a batch, on the
+  raw APE and on the APE divided by its mean.
+
+Protocols: a file's `protocol["name"]`; schema 1 files record none and ran
+Brax's own settings, so they are `brax`. The *fca family* is `fca` (the
+paper's MuJoCo-State setting, frame skip 1) and every protocol named
+`fca-...` (the same setting at another frame skip, e.g. `fca-fs4`), told
+apart by the `frame_skip` they record.
 
 Tasks are told apart by their record (`ape_jax.tasks`), never by name: a task
 judged by a rate (its main metric is not the return) is shown in %.
@@ -71,35 +83,92 @@ def main_metric(res: results_lib.Results) -> str:
     return res.main_metric if "metric" in res.config else tasks.get(res.env).metric
 
 
-def merge(files: Sequence[results_lib.Results]) -> dict[tuple[str, str], dict]:
-    """Results per `(env, obs)`: summary rows and runs of all files, with the files they came from.
+BRAX, FCA = "brax", "fca"  # the protocol of files that record none; the paper's MuJoCo-State protocol
 
-    Each value has `env`, `obs`, `expert`, `summary`, `runs`, `sources` (the
-    files), `methods` (what the files record of their methods, the first file
-    naming one wins), `metric` (the main metric) and `task_metrics`.
+
+class Key(NamedTuple):
+    """A merged group of results: one task, one observation mode, one protocol (its name)."""
+
+    env: str
+    obs: str
+    protocol: str
+
+
+def in_fca_family(name: str) -> bool:
+    """Whether protocol `name` is the paper's setting or a variant of it at another frame skip (`fca-...`)."""
+    return name == FCA or name.startswith(FCA + "-")
+
+
+def protocol_of(res: results_lib.Results, where: str = "") -> dict:
+    """The protocol `res` ran under, its `name` filled in: `brax` for a file that records none (schema 1).
 
     Raises:
-      ReportError: the same configuration in two files, or files of one
-        environment with different experts.
+      ReportError: a protocol whose name is not a non-empty string, or whose `frame_skip` is not a positive int.
     """
-    merged: dict[tuple[str, str], dict] = {}
+    p = {**(res.protocol or {})}
+    name = p.setdefault("name", BRAX)
+    if not isinstance(name, str) or not name:
+        raise ReportError(f"{where}: protocol field 'name' must be a non-empty string, got {name!r:.80}")
+    skip = p.get("frame_skip")
+    if skip is not None and not (isinstance(skip, int) and not isinstance(skip, bool) and skip >= 1):
+        raise ReportError(f"{where}: protocol field 'frame_skip' must be an int >= 1 or null, got {skip!r:.80}")
+    return p
+
+
+def protocol_words(p: dict) -> str:
+    """How titles name a protocol: `"fca"`, `"fca, frame skip 2"` (another of the fca family), else its name."""
+    name = p["name"]
+    if in_fca_family(name) and name != FCA and p.get("frame_skip") is not None:
+        return f"{FCA}, frame skip {p['frame_skip']}"
+    return name
+
+
+def merge(files: Sequence[results_lib.Results]) -> dict[Key, dict]:
+    """Results per `Key(env, obs, protocol name)`: summary rows and runs of all files, with the files they came from.
+
+    Each value has `env`, `obs`, `protocol` (the files' protocol settings,
+    `name` always set: `brax` for schema 1 files), `title` (how tables name
+    the group: the task, its observation mode unless a state task's `pos`,
+    and its protocol where `shows_protocol`: unless it is `brax` and the
+    only protocol of that task and mode), `expert`, `summary`, `runs`, `sources` (the files), `methods`
+    (what the files record of their methods, the first file naming one
+    wins), `metric` (the main metric) and `task_metrics`.
+
+    Raises:
+      ReportError: the same configuration in two files of one group, files of
+        one group with different experts or different protocol settings, or a
+        malformed protocol.
+    """
+    merged: dict[Key, dict] = {}
     for r in files:
         where = getattr(r, "path", "") or f"a {r.env} ({r.obs}) results file"
-        key = (r.env, r.obs)
-        m = merged.setdefault(key, {"env": r.env, "obs": r.obs, "expert": r.expert, "summary": [], "runs": [],
-                                    "sources": [], "methods": {}, "metric": main_metric(r),
+        protocol = protocol_of(r, where)
+        key = Key(r.env, r.obs, protocol["name"])
+        m = merged.setdefault(key, {"env": r.env, "obs": r.obs, "protocol": protocol, "expert": r.expert,
+                                    "summary": [], "runs": [], "sources": [], "methods": {}, "metric": main_metric(r),
                                     "task_metrics": tuple(r.config.get("task_metrics", tasks.get(r.env).metrics))})
+        group = f"{r.env} ({r.obs}, protocol {key.protocol})"
         if m["expert"] != r.expert:
-            raise ReportError(f"{where}: its expert differs from another {r.env} results file's")
+            raise ReportError(f"{where}: its expert differs from another {group} results file's")
+        differ = [k for k in protocol.keys() & m["protocol"].keys()
+                  if protocol[k] is not None and m["protocol"][k] is not None and protocol[k] != m["protocol"][k]]
+        if differ:
+            raise ReportError(f"{where}: its protocol differs from another {group} results file's (" + ", ".join(
+                f"{k} {protocol[k]!r} vs {m['protocol'][k]!r}" for k in sorted(differ)) + ")")
         seen = {_config_key(row) for row in m["summary"]}
         for row in r.summary:
             if _config_key(row) in seen:
                 raise ReportError(f"{where}: {row['method']} {row['hparams']} is also in another results "
-                                  f"file of {r.env} ({r.obs}); pass one of them")
+                                  f"file of {group}; pass one of them")
         m["summary"] += r.summary
         m["runs"] += r.runs
         m["sources"].append(r)
         m["methods"] = {**r.methods, **m["methods"]}
+        m["protocol"] = {**protocol, **{k: v for k, v in m["protocol"].items() if v is not None}}
+    for key, m in merged.items():
+        shared = any(k[:2] == key[:2] and k != key for k in merged)
+        m["shows_protocol"] = key.protocol != BRAX or shared
+        m["title"] = _title(key, m["protocol"], m["shows_protocol"])
     return merged
 
 
@@ -190,7 +259,7 @@ def _hp(row: dict | None) -> str:
 
 def headline(m: dict, extras: Sequence[str] = (), known: Mapping[str, dict] | None = None
              ) -> list[tuple[str, dict | None]]:
-    """The state table's rows of one environment: (label, summary row or None).
+    """The state table's rows of one group (task, observation mode, protocol): (label, summary row or None).
 
     BC-SO, BC-OH, Ours at the paper's step setting and the best step and
     softmax settings, then each of `extras` (`extra_methods`), labelled from
@@ -257,9 +326,16 @@ def copycat_groups(m: dict) -> dict[tuple, list[dict]]:
 
 
 def expert_ape(m: dict) -> float | None:
-    """The validation demonstrations' mean APE (÷ the training mean) that the first of `m`'s files records."""
+    """The validation demonstrations' mean APE ÷ the training mean (the scale of the policies' `rollout_ape`), from
+    the first of `m`'s files that records it on that scale.
+
+    `config["ape"]["val_mean"]` is the mean of the APE the file trained on: ÷ the training mean only where that is
+    `normalization: "mean"` (files without a normalization predate `"none"` and are). A `"none"` file records
+    it raw and not the raw training mean it would need dividing by, so it gives none.
+    """
     return next((src.config["ape"]["val_mean"] for src in m["sources"]
-                 if isinstance(src.config.get("ape"), dict) and "val_mean" in src.config["ape"]), None)
+                 if isinstance(src.config.get("ape"), dict) and "val_mean" in src.config["ape"]
+                 and src.config["ape"].get("normalization", "mean") == "mean"), None)
 
 
 def sensitivity(m: dict) -> tuple[list[tuple[float, dict | None]], list[tuple[float, dict | None]]]:
@@ -317,18 +393,158 @@ def verdict(ci: Interval, a: str = "Ours", b: str = "BC-OH") -> str:
     return "not significant (CI contains 0)"
 
 
-def bootstrap_rows(merged: dict) -> list[tuple[str, str, Interval, str]]:
-    """Per environment and configuration of Ours (`comparisons`): Ours − BC-OH with its CI, and the unit:
-    mean return, or for a task judged by a rate (whose reward is not its measure) that rate in % points."""
+def _unit(m: dict) -> tuple[str, str, float]:
+    """What the bootstrap compares in a group: `(eval key, unit, factor)`: the mean return, or for a task judged by a
+    rate (whose reward is not its measure) that rate in % points."""
+    return (m["metric"], f"{m['metric']}, % points", 100.0) if is_rate(m) else ("return_mean", "return", 1.0)
+
+
+class Difference(NamedTuple):
+    """One comparison over seeds in one group: `a − b` with its bootstrap interval (`bootstrap_rows`).
+
+    `kind` is `"history"` (BC-OH − BC-SO: does the history help?) or `"ours"` (a configuration of Ours −
+    BC-OH); `label` says what is compared, `a` and `b` name the arms for `verdict`, `unit` the numbers'.
+    """
+
+    key: Key
+    title: str
+    kind: str
+    label: str
+    a: str
+    b: str
+    ci: Interval
+    unit: str
+
+
+def history_difference(m: dict, key: str | None = None, factor: float | None = None) -> Interval | None:
+    """BC-OH − BC-SO over seeds in group `m` (each the best of its rows), by default in `_unit(m)`; None if either
+    has no seeds. With `key`/`factor`, of `eval[key] × factor` instead (`"normalized"`, 1: % of expert points)."""
+    default_key, _, default_factor = _unit(m)
+    key, factor = key or default_key, default_factor if factor is None else factor
+    bcoh = [factor * v for v in _seeds(m, _best(_rows(m, "bc-oh")), key)]
+    bcso = [factor * v for v in _seeds(m, _best(_rows(m, "bc-so")), key)]
+    return bootstrap_difference(bcoh, bcso) if bcoh and bcso else None
+
+
+def ours_differences(m: dict) -> list[tuple[str, dict, Interval]]:
+    """Ours − BC-OH over seeds in group `m`, in `_unit(m)`: `(label, Ours' summary row, interval)` per configuration
+    of `comparisons` that has seeds (none if BC-OH has none)."""
+    key, _, factor = _unit(m)
+    bcoh = [factor * v for v in _seeds(m, _best(_rows(m, "bc-oh")), key)]
     out = []
-    for (env, obs), m in _ordered(merged):
-        key, unit, scale = (m["metric"], f"{m['metric']}, % points", 100.0) if is_rate(m) else \
-            ("return_mean", "return", 1.0)
-        bcoh = [scale * v for v in _seeds(m, _best(_rows(m, "bc-oh")), key)]
-        for lab, row in comparisons(m) if bcoh else []:
-            ours = [scale * v for v in _seeds(m, row, key)]
-            if ours:
-                out.append((_env_title(env, obs), lab, bootstrap_difference(ours, bcoh), unit))
+    for lab, row in comparisons(m) if bcoh else []:
+        ours = [factor * v for v in _seeds(m, row, key)]
+        if ours:
+            out.append((lab, row, bootstrap_difference(ours, bcoh)))
+    return out
+
+
+def bootstrap_rows(merged: dict) -> list[Difference]:
+    """Per group (task, observation mode, protocol), in report order: BC-OH − BC-SO ("does the history help?"),
+    then Ours − BC-OH per configuration of `comparisons`, each with its 95% CI, in `_unit`."""
+    out = []
+    for key, m in _ordered(merged):
+        unit = _unit(m)[1]
+        history = history_difference(m)
+        if history is not None:
+            out.append(Difference(key, m["title"], "history", "BC-OH − BC-SO (does the history help?)", "BC-OH",
+                                  "BC-SO", history, unit))
+        out += [Difference(key, m["title"], "ours", f"{lab} − BC-OH", "Ours", "BC-OH", ci, unit)
+                for lab, _, ci in ours_differences(m)]
+    return out
+
+
+# -- the copycat map: the history's benefit per frame skip ---------------------------------------------------------
+
+# The map's methods, (label, method, hparams: None for the best of its rows).
+MAP_METHODS = (("BC-SO", "bc-so", None), ("BC-OH", "bc-oh", None), ("Ours, step THR 10% W 5", "ours-step", PAPER_STEP))
+
+
+class MapCell(NamedTuple):
+    """One method at one frame skip: % of expert, mean and std over seeds, the seeds, and each seed's value."""
+
+    mean: float
+    std: float
+    n: int
+    seeds: tuple[float, ...]
+
+
+class MapRow(NamedTuple):
+    """One frame skip of the copycat map.
+
+    `cells` are aligned with `MAP_METHODS` (None: not run there); `history` is
+    BC-OH − BC-SO in points of % of expert (means from the summary) and
+    `history_ci` its bootstrap interval over seeds; `ceiling` is BC-OH's gap to
+    the expert, 100 − BC-OH's % of expert. Each is None where its methods did not run.
+    """
+
+    frame_skip: int
+    protocol: str
+    cells: tuple[MapCell | None, ...]
+    history: float | None
+    history_ci: Interval | None
+    ceiling: float | None
+
+
+class CopycatMap(NamedTuple):
+    """One task's copycat map: a row per frame skip of the fca family, in increasing order."""
+
+    env: str
+    obs: str
+    title: str
+    rows: list[MapRow]
+
+    def at(self, frame_skip: int) -> MapRow | None:
+        return next((r for r in self.rows if r.frame_skip == frame_skip), None)
+
+
+def _map_cell(m: dict, method: str, hparams: dict | None) -> MapCell | None:
+    rows = _rows(m, method)
+    row = _best(rows) if hparams is None else next((r for r in rows if r["hparams"] == hparams), None)
+    if row is None or row.get("normalized_mean") is None:
+        return None
+    seeds = tuple(_seeds(m, row, "normalized"))
+    std = row.get("normalized_std")
+    return MapCell(float(row["normalized_mean"]), math.nan if std is None else float(std), int(row["n_seeds"]), seeds)
+
+
+def copycat_map(merged: dict) -> list[CopycatMap]:
+    """Where copycat appears: per task with fca-family results at ≥ 2 frame skips, BC-SO, BC-OH and Ours (step THR 10%
+    W 5) in % of expert per frame skip, with the history's benefit (BC-OH − BC-SO) and BC-OH's gap to the expert.
+
+    The fca family is one protocol at several frame skips (the same simulated horizon and training-set size),
+    so its rows differ only in how often the policy acts: copycat, a policy that repeats its last action
+    because its history predicts it, should grow with the frame rate. A group that holds more methods
+    or seeds than the map needs (the fca file's full grid) gives only the rows of those three methods.
+
+    Raises:
+      ReportError: two protocols of the fca family at one frame skip for one task.
+    """
+    by_task: dict[tuple[str, str], dict[int, dict]] = {}
+    for key, m in _ordered(merged):
+        skip = m["protocol"].get("frame_skip")
+        if not in_fca_family(key.protocol) or skip is None:
+            continue
+        skips = by_task.setdefault((key.env, key.obs), {})
+        if skip in skips:
+            raise ReportError(f"{key.env} ({key.obs}): protocols {skips[skip]['protocol']['name']} and "
+                              f"{key.protocol} both ran at frame skip {skip}; pass the files of one of them")
+        skips[skip] = m
+    out = []
+    for (env, obs), skips in by_task.items():
+        if len(skips) < 2:
+            continue
+        rows = []
+        for skip in sorted(skips):
+            m = skips[skip]
+            cells = tuple(_map_cell(m, method, hp) for _, method, hp in MAP_METHODS)
+            bcso, bcoh = cells[0], cells[1]
+            history = None if bcso is None or bcoh is None else bcoh.mean - bcso.mean
+            ci = (bootstrap_difference(bcoh.seeds, bcso.seeds)
+                  if bcso is not None and bcoh is not None and bcso.seeds and bcoh.seeds else None)
+            rows.append(MapRow(skip, m["protocol"]["name"], cells, history, ci,
+                               None if bcoh is None else 100.0 - bcoh.mean))
+        out.append(CopycatMap(env, obs, _title(Key(env, obs, FCA), {"name": FCA}, with_protocol=False), rows))
     return out
 
 
@@ -425,53 +641,156 @@ def choices(m: dict) -> list[Choice]:
 
 # -- weights within a batch ----------------------------------------------------------------------------------------
 
-def weight_shares(merged: dict, batch: int = 128, batches: int = 400) -> list[tuple[str, list[tuple]]]:
-    """How concentrated the weights are within a batch, per environment that records its APE quantiles.
+# The two APE scales a softmax weighting can act on (`config["ape"]["normalization"]`), as the report names them.
+APE_SCALES = {"none": "raw APE (the official code, our default)", "mean": "APE ÷ its mean (the old default)"}
 
-    Batches of `batch` are drawn from each environment's training APE distribution
-    (its quantiles) and weighted as the sweep does: softmax at every τ it ran,
-    the paper's step setting and uniform weights. Returns
-    `[(panel title, [(label, share), ...])]`, `share[k-1]` the mean over batches
-    of the share of the total weight the k heaviest samples carry.
+
+class WeightShares(NamedTuple):
+    """How concentrated a group's weights are within a batch, on both APE scales (`weight_shares`).
+
+    `trained` is the scale the group's softmax runs trained on (`"none"`: raw APE, `"mean"`: APE ÷ its training
+    mean), `mean_ape` the raw training APE's mean (`ape_mean`: the recorded one where the file trained on APE ÷
+    its mean, else estimated from its quantile function; `mean_recorded` says which), and `series`
+    `[(label, raw, by_mean)]`, `raw[k-1]` / `by_mean[k-1]` (`[batch]` float64) the mean over batches of the share
+    of the total weight the k heaviest samples carry with the weights computed on the raw APE / on the APE ÷
+    `mean_ape` (`by_mean` None when the mean is 0: every sample's APE is 0).
     """
-    rng = np.random.default_rng(0)
 
+    title: str
+    trained: str
+    mean_ape: float
+    mean_recorded: bool
+    series: list[tuple[str, np.ndarray, np.ndarray | None]]
+
+
+def _quantile_source(m: dict) -> results_lib.Results | None:
+    """The file of group `m` whose APE quantiles the weights are drawn from: one that ran the softmax weighting
+    (it trained on that file's APE), else the first that records them (with the scale they are on)."""
+    def usable(ape) -> bool:  # quantiles, and what they are the quantiles of
+        return (isinstance(ape, dict) and bool(ape.get("quantiles")) and ape.get("normalization") in APE_SCALES
+                and (ape["normalization"] == "none" or (_number(ape.get("scale")) and ape["scale"] > 0)))
+
+    recorded = [src for src in m["sources"] if usable(src.config.get("ape"))]
+    return next((src for src in recorded if any(r["method"] == "ours-softmax" for r in src.summary)),
+                recorded[0] if recorded else None)
+
+
+def raw_quantiles(ape: Mapping) -> np.ndarray:
+    """The raw training APE's quantiles `[Q]` from a file's `config["ape"]`: its `quantiles` are of the APE it
+    trained on, raw (`"none"`) or divided by its training mean, the recorded `scale` (`"mean"`)."""
+    q = np.asarray(ape["quantiles"], np.float64)
+    return q * float(ape["scale"]) if ape["normalization"] == "mean" else q
+
+
+def quantile_mean(q: np.ndarray) -> float:
+    """The mean of a distribution from its quantiles `[Q]` at evenly spaced levels 0..1: ∫₀¹ F⁻¹(p) dp, trapezoid.
+
+    Exactly the mean of the batches `weight_shares` draws (the quantile function interpolated linearly); of a
+    heavy-tailed APE it overstates the true mean, the last interval being a straight line up to the maximum
+    (on the committed files' APE, by 10-40%).
+    """
+    q = np.asarray(q, np.float64)
+    return float(((q[1:] + q[:-1]) / 2).mean())
+
+
+def ape_mean(ape: Mapping) -> tuple[float, bool]:
+    """The raw training APE's mean from a file's `config["ape"]`, and whether it was recorded: a file that trained on
+    APE ÷ its mean records that mean as its `scale`; otherwise it is estimated from the quantiles (`quantile_mean`)."""
+    if ape["normalization"] == "mean" and _number(ape.get("scale")) and ape["scale"] > 0:
+        return float(ape["scale"]), True
+    return quantile_mean(raw_quantiles(ape)), False
+
+
+def weight_shares(merged: dict, batch: int = 128, batches: int = 400) -> list[WeightShares]:
+    """How concentrated the weights are within a batch, per group that records its APE quantiles and ran softmax.
+
+    Batches of `batch` are drawn from the group's training APE distribution (its quantiles, `_quantile_source`)
+    and weighted as the sweep does, `batch·softmax(APE/τ)` at every τ the group ran, the paper's step setting
+    and uniform weights, once on the raw APE and once on the APE ÷ its mean (`ape_mean`). The step and
+    uniform weights depend only on the APE's ranks, so they are the same on both scales; the softmax's are not:
+    dividing the APE by a mean much below 1 multiplies it by much more than 1, and a τ ≤ 1 then gives one
+    sample nearly all of a batch's weight. Each group draws its batches with numpy seed 0.
+
+    Returns:
+      `WeightShares` per group, in report order.
+    """
     def share(w):  # [batches, batch] -> [batch]
         top = -np.sort(-w, axis=1)
         return (np.cumsum(top, axis=1) / top.sum(1, keepdims=True)).mean(0)
 
+    def softmax(z):
+        return np.exp(z - z.max(1, keepdims=True))
+
     out = []
-    for (env, obs), m in _ordered(merged):
-        q = next((src.config["ape"].get("quantiles") for src in m["sources"]
-                  if isinstance(src.config.get("ape"), dict) and src.config["ape"].get("quantiles")), None)
-        taus = sorted({r["hparams"]["tau"] for r in _rows(m, "ours-softmax")})
-        if q is None or not taus:
+    for _, m in _ordered(merged):
+        src = _quantile_source(m)
+        taus = sorted({r["hparams"]["tau"] for r in _rows(m, "ours-softmax") if r["hparams"].get("tau", 0) > 0})
+        if src is None or not taus:
             continue
+        q = raw_quantiles(src.config["ape"])
+        mean, recorded = ape_mean(src.config["ape"])
         levels = np.linspace(0, 1, len(q))
-        ape = np.interp(rng.uniform(size=(batches, batch)), levels, q)
-        series = []
-        for tau in taus:
-            z = ape / tau
-            series.append((f"softmax τ {tau:g}", share(np.exp(z - z.max(1, keepdims=True)))))
-        series.append(("step THR 10% W 5", share(np.where(ape >= np.interp(0.9, levels, q), 5.0, 1.0))))
-        series.append(("uniform (BC-OH)", np.arange(1, batch + 1) / batch))
-        out.append((_env_title(env, obs), series))
+        raw = np.interp(np.random.default_rng(0).uniform(size=(batches, batch)), levels, q)
+        by_mean = raw / mean if mean > 0 else None
+        step = np.interp(1 - PAPER_STEP["thr"], levels, q)
+        series = [(f"softmax τ {tau:g}", share(softmax(raw / tau)),
+                   None if by_mean is None else share(softmax(by_mean / tau))) for tau in taus]
+        weighted = share(np.where(raw >= step, PAPER_STEP["w"], 1.0))
+        series.append((f"step THR {_pct(PAPER_STEP['thr'])} W {PAPER_STEP['w']:g}", weighted,
+                       None if by_mean is None else weighted))
+        uniform = np.arange(1, batch + 1) / batch
+        series.append(("uniform (BC-OH)", uniform, uniform))
+        out.append(WeightShares(m["title"], src.config["ape"]["normalization"], mean, recorded, series))
     return out
 
 
-# -- environments: order and titles --------------------------------------------------------------------------------
+# -- groups: order, titles, file names ----------------------------------------------------------------------------
 
-def _ordered(merged: dict) -> list[tuple[tuple[str, str], dict]]:
-    """`merged`'s items, the sweepable tasks first in their order (`ape_jax.tasks.sweepable`), then by name."""
+def _protocol_rank(p: dict) -> tuple:
+    """Protocols in report order: the fca family by frame skip (the paper's first), then `brax`, then others."""
+    if in_fca_family(p["name"]):
+        return 0, p.get("frame_skip") or 0, p["name"]
+    return (1, 0, "") if p["name"] == BRAX else (2, 0, p["name"])
+
+
+def _ordered(merged: dict) -> list[tuple[Key, dict]]:
+    """`merged`'s items: the sweepable tasks first in their order (`ape_jax.tasks.sweepable`), then by name; within a
+    task by observation mode, then protocol (`_protocol_rank`)."""
     order = {e: i for i, e in enumerate(tasks.sweepable())}
-    return sorted(merged.items(), key=lambda kv: (order.get(kv[0][0], len(order)), kv[0]))
+    return sorted(merged.items(), key=lambda kv: (order.get(kv[0][0], len(order)), kv[0][0], kv[0][1],
+                                                  _protocol_rank(kv[1]["protocol"])))
 
 
-def _env_title(env: str, obs: str) -> str:
-    """The task's title, with its observation mode unless it is a state task's `pos`."""
-    return tasks.get(env).title + ("" if obs == "pos" and env in MUJOCO else f" ({obs})")
+def _title(key: Key, protocol: dict, with_protocol: bool, with_obs: bool | None = None) -> str:
+    """A group's title: `"Hopper"`, `"Hopper (image)"`, `"Hopper (fca, frame skip 2)"`, `"Hopper (image, brax)"`;
+    the observation mode unless `with_obs` is False (default: unless a state task's `pos`)."""
+    with_obs = not (key.obs == "pos" and key.env in MUJOCO) if with_obs is None else with_obs
+    parts = [key.obs] if with_obs else []
+    parts += [protocol_words(protocol)] if with_protocol else []
+    return tasks.get(key.env).title + (f" ({', '.join(parts)})" if parts else "")
 
 
-def envs_of(merged: dict, obs: str) -> list[str]:
-    """The state tasks (`MUJOCO`) `merged` has results of with observations `obs`, in order."""
-    return [e for e in MUJOCO if (e, obs) in merged]
+def file_stem(m: dict) -> str:
+    """A group's part of figure file names, unique per group: `hopper`, `hopper-image`, `hopper-fca-fs2`.
+
+    `brax` groups keep the names they had before protocols existed; other protocols append their name.
+    """
+    parts = [m["env"]] + ([] if m["obs"] == "pos" else [m["obs"]])
+    parts += [] if m["protocol"]["name"] == BRAX else [m["protocol"]["name"]]
+    return "-".join(parts)
+
+
+def groups_of(merged: dict, obs: str, protocol: str) -> list[dict]:
+    """The state tasks' (`MUJOCO`) groups with observations `obs` under `protocol`, in task order."""
+    return [merged[k] for e in MUJOCO if (k := Key(e, obs, protocol)) in merged]
+
+
+def protocols_of(merged: dict, obs: str) -> list[str]:
+    """The protocols of the state tasks' groups with observations `obs`, in report order (`_protocol_rank`)."""
+    found = {m["protocol"]["name"]: m["protocol"] for k, m in _ordered(merged) if k.env in MUJOCO and k.obs == obs}
+    return sorted(found, key=lambda n: _protocol_rank(found[n]))
+
+
+def envs_of(merged: dict, obs: str, protocol: str = BRAX) -> list[str]:
+    """The state tasks (`MUJOCO`) `merged` has results of with observations `obs` under `protocol`, in order."""
+    return [m["env"] for m in groups_of(merged, obs, protocol)]

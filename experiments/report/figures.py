@@ -13,13 +13,16 @@ writes atomically: a temporary file in the same folder, then `os.replace`.
   method (mean), error bar (std over seeds) and every seed as a dot.
 - `lines(panels)` — one panel per environment, a line per series (with a
   shaded ± band if given): training curves, weight distributions.
+- `bars` and `lines` wrap their panels into rows of at most `columns`.
 - `keyframes(ape, actions, threshold, frames, frame_t, ...)` — one episode's
   APE along time with its keyframes, the expert's actions, and rendered frames.
 
 The report's figures are built from merged results (`experiments.report.analysis`)
-with these: `grid_figure` (one environment's grid search), `returns_figure`
-(every method's return per environment), `curves_figure` (training curves)
-and `weights_figure` (how concentrated a batch's weights are).
+with these: `grid_figure` (one group's grid search), `returns_figure`
+(every method's return per group), `curves_figure` (training curves),
+`weights_figure` (how concentrated a batch's weights are, on the raw APE and
+on the APE ÷ its mean) and `copycat_map_figure` (% of expert against frame
+skip: where the history stops helping).
 """
 
 from __future__ import annotations
@@ -34,15 +37,16 @@ from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
-from experiments.report.analysis import (PAPER_STEP, PAPER_TAU, _best, _config_key, _env_title, _hp, _metric,
-                                         _ordered, _paper_step, _pct, _rows, _seeds, _value, extra_methods,
-                                         known_methods, label)
+from experiments.report.analysis import (FCA, MAP_METHODS, PAPER_STEP, PAPER_TAU, CopycatMap, WeightShares, _best,
+                                         _config_key, _hp, _metric, _ordered, _paper_step, _pct, _rows, _seeds,
+                                         _value, extra_methods, in_fca_family, known_methods, label)
 
 DPI = 120
 # Saved without the matplotlib version, so a regenerated figure is byte-identical across matplotlib upgrades
 # that do not change the drawing.
 _METADATA = {"Software": None}
 KEY_COLOR, ORDINARY_COLOR = "#d62728", "#1f77b4"
+COLUMNS = 4  # panels per row of the report's multi-panel figures
 
 
 class Grid(NamedTuple):
@@ -138,25 +142,38 @@ def heatmap(title: str, panels: Sequence[Grid], center: float | None, unit: str 
 
 
 class Lines(NamedTuple):
-    """One line panel: `series` of `(label, x, y, band)`, `band` the ± half-width around y or None."""
+    """One line panel: `series` of `(label, x, y, band)` or `(label, x, y, band, style)`, `band` the ± half-width
+    around y or None, `style` matplotlib line keywords (e.g. `{"ls": "--", "color": "C0"}`); a series whose
+    label is "" stays out of the legend."""
 
     title: str
     xlabel: str
     ylabel: str
-    series: Sequence[tuple[str, Sequence[float], Sequence[float], Sequence[float] | None]]
+    series: Sequence[tuple]
     log_x: bool = False
     log_y: bool = False
 
 
-def lines(panels: Sequence[Lines], title: str = "") -> Figure:
-    """Line plots, one panel per environment (a shared legend under each panel)."""
+def _grid_axes(fig: Figure, n: int, columns: int | None, **kw) -> list:
+    """`n` axes in rows of at most `columns` (None: one row), row-major; the unused cells of the last row removed."""
+    cols = n if columns is None else max(1, min(columns, n))
+    rows = math.ceil(n / cols)
+    axes = list(fig.subplots(rows, cols, squeeze=False, **kw).ravel())
+    for ax in axes[n:]:
+        ax.remove()
+    return axes[:n]
+
+
+def lines(panels: Sequence[Lines], title: str = "", columns: int | None = None) -> Figure:
+    """Line plots, one panel per environment (a legend in each panel), in rows of at most `columns` panels."""
     if not panels:
         raise ValueError("lines needs at least one panel")
-    fig = Figure(figsize=(4.2 * len(panels), 3.6), dpi=DPI, layout="constrained")
-    for ax, p in zip(fig.subplots(1, len(panels), squeeze=False)[0], panels):
-        for label, x, y, band in p.series:
+    cols = len(panels) if columns is None else max(1, min(columns, len(panels)))
+    fig = Figure(figsize=(4.2 * cols, 3.6 * math.ceil(len(panels) / cols)), dpi=DPI, layout="constrained")
+    for ax, p in zip(_grid_axes(fig, len(panels), cols), panels):
+        for label, x, y, band, *style in p.series:
             x, y = np.asarray(x, float), np.asarray(y, float)
-            (line,) = ax.plot(x, y, lw=1.3, label=label)
+            (line,) = ax.plot(x, y, lw=1.3, label=label or "_nolegend_", **(style[0] if style else {}))
             if band is not None:
                 b = np.asarray(band, float)
                 ax.fill_between(x, y - b, y + b, color=line.get_color(), alpha=0.2, lw=0)
@@ -173,13 +190,14 @@ def lines(panels: Sequence[Lines], title: str = "") -> Figure:
     return fig
 
 
-def bars(labels: Sequence[str], panels: Sequence[Bars], title: str = "") -> Figure:
+def bars(labels: Sequence[str], panels: Sequence[Bars], title: str = "", columns: int | None = None) -> Figure:
     """Horizontal bars, one panel per environment, methods on a shared vertical axis.
 
     Args:
       labels: the method names, top to bottom.
       panels: one per environment; each aligned with `labels`.
       title: the figure's title.
+      columns: panels per row (None: all in one row); the method names label each row's first panel.
 
     Returns:
       The figure (Agg canvas), about 120 dpi.
@@ -187,8 +205,10 @@ def bars(labels: Sequence[str], panels: Sequence[Bars], title: str = "") -> Figu
     if not panels:
         raise ValueError("bars needs at least one panel")
     n = len(labels)
-    fig = Figure(figsize=(3.3 * len(panels) + 1.9, 0.34 * n + 1.6), dpi=DPI)
-    axes = fig.subplots(1, len(panels), sharey=True, squeeze=False)[0]
+    cols = len(panels) if columns is None else max(1, min(columns, len(panels)))
+    rows = math.ceil(len(panels) / cols)
+    fig = Figure(figsize=(3.3 * cols + 1.9, (0.34 * n + 1.2) * rows + 0.4), dpi=DPI)
+    axes = _grid_axes(fig, len(panels), cols, sharey=True)
     y = np.arange(n)
     for ax, p in zip(axes, panels):
         present = [i for i in range(n) if p.mean[i] is not None]
@@ -222,6 +242,8 @@ def bars(labels: Sequence[str], panels: Sequence[Bars], title: str = "") -> Figu
         ax.tick_params(labelsize=8)
     axes[0].set_yticks(y, labels=list(labels))
     axes[0].set_ylim(n - 0.5, -1.0)
+    for ax in axes[cols::cols]:  # sharey hides the names on every panel but the first: show them on each row's
+        ax.tick_params(labelleft=True)
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
@@ -383,7 +405,7 @@ def save_png(fig: Figure, path: str | os.PathLike) -> int:
 # -- the report's figures -------------------------------------------------------------------------------------------
 
 def grid_figure(m: dict) -> Figure | None:
-    """The grid search of one environment as heatmaps (step THR × W, softmax τ), or None if neither was run."""
+    """The grid search of one group (task, observation mode, protocol) as heatmaps (step THR × W, softmax τ), or None if neither was run."""
     prefix, unit = _metric(m)
     panels = []
     step = {(r["hparams"]["thr"], r["hparams"]["w"]): r for r in _rows(m, "ours-step")
@@ -410,7 +432,7 @@ def grid_figure(m: dict) -> Figure | None:
     if bcoh is not None:
         center, std = _value(bcoh, prefix)
         ref = f"; BC-OH {center:.1f} ± {std:.1f}"
-    title = (f"{_env_title(m['env'], m['obs'])}: grid search, {unit} (mean ± std over {seeds} seeds){ref}")
+    title = (f"{m['title']}: grid search, {unit} (mean ± std over {seeds} seeds){ref}")
     return heatmap(title, panels, center, unit)
 
 
@@ -422,18 +444,20 @@ def _grid_panel(title, row_label, col_label, rows, cols, cells, prefix, marked) 
 
 
 def returns_figure(merged: dict) -> Figure | None:
-    """Every method's return per environment (bars: mean, error bars: std over seeds, dots: seeds), or None.
+    """Every method's return per group (bars: mean, error bars: std over seeds, dots: seeds), or None.
 
     BC-SO, BC-OH, Ours at the paper's step setting and the best softmax, then
     every baseline and plugin that ran (`analysis.extra_methods`), by its label.
+    The fca family's other frame skips are left to the copycat map
+    (`copycat_map_figure`). Panels wrap into rows of `COLUMNS`.
     """
-    envs = _ordered(merged)
+    envs = [(k, m) for k, m in _ordered(merged) if k.protocol == FCA or not in_fca_family(k.protocol)]
     known = known_methods(merged)
     baselines = [b for b in extra_methods(merged) if any(_rows(m, b) for _, m in envs)]
     labels = ["BC-SO", "BC-OH", "Ours, step THR 10% W 5", "Ours, best softmax",
               *(label(known, b, online=False) for b in baselines)]
     panels = []
-    for (env, obs), m in envs:
+    for _, m in envs:
         prefix, unit = _metric(m)
         soft = _best(_rows(m, "ours-softmax"))
         rows = [_best(_rows(m, "bc-so")), _best(_rows(m, "bc-oh")), _paper_step(m), soft,
@@ -445,20 +469,20 @@ def returns_figure(merged: dict) -> Figure | None:
         if soft is not None:
             notes[3] = f"τ {soft['hparams']['tau']:g}"
         panels.append(Bars(
-            _env_title(env, obs), unit, [None if r is None else _value(r, prefix)[0] for r in rows],
+            m["title"], unit, [None if r is None else _value(r, prefix)[0] for r in rows],
             [None if r is None else _value(r, prefix)[1] for r in rows], [_seeds(m, r, key) for r in rows], notes,
             100.0 if prefix == "normalized" else None, "expert"))
     if not panels:
         return None
     return bars(labels, panels, "Return per method: bars = mean over seeds, error bars = std, dots = seeds; "
-                                "best softmax selected after the fact")
+                                "best softmax selected after the fact", columns=COLUMNS)
 
 
 def curves_figure(merged: dict) -> Figure | None:
     """Training curves (the weighted loss of the sampled batches, mean ± std over seeds) of BC-OH, the paper's
-    step setting and the best softmax, one panel per environment; None if no run records its curve."""
+    step setting and the best softmax, one panel per group; None if no run records its curve."""
     panels = []
-    for (env, obs), m in _ordered(merged):
+    for _, m in _ordered(merged):
         series = []
         best_soft = _best(_rows(m, "ours-softmax"))
         for name, row in (("BC-OH", _best(_rows(m, "bc-oh"))), ("Ours, step THR 10% W 5", _paper_step(m)),
@@ -472,17 +496,58 @@ def curves_figure(merged: dict) -> Figure | None:
                 x = (np.arange(curve.shape[1]) + 1) * iters / curve.shape[1]
                 series.append((name, x, curve.mean(0), curve.std(0)))
         if series:
-            panels.append(Lines(_env_title(env, obs), "iteration", "weighted BC loss (window mean)",
-                                series, log_y=True))
-    return lines(panels, "Training curves (mean ± std over seeds)") if panels else None
+            panels.append(Lines(m["title"], "iteration", "weighted BC loss (window mean)", series, log_y=True))
+    return lines(panels, "Training curves (mean ± std over seeds)", COLUMNS) if panels else None
 
 
-def weights_figure(shares: list[tuple[str, list[tuple]]]) -> Figure | None:
-    """The share of a batch's weight carried by its k heaviest samples, against k (`analysis.weight_shares`)."""
+def weights_figure(shares: list[WeightShares]) -> Figure | None:
+    """The share of a batch's weight carried by its k heaviest samples, against k (`analysis.weight_shares`): per
+    group, each weighting's curve on the raw APE (solid) and on the APE ÷ its mean (dashed, same colour)."""
     if not shares:
         return None
-    batch = len(shares[0][1][0][1])
+    batch = len(shares[0].series[0][1])
     k = np.arange(1, batch + 1)
-    panels = [Lines(title, f"k heaviest samples of the batch of {batch}", "share of the batch's total weight",
-                    [(name, k, y, None) for name, y in series], log_x=True) for title, series in shares]
-    return lines(panels, "How much of a batch's weight its heaviest samples carry")
+    panels = []
+    for w in shares:
+        series = []
+        for i, (name, raw, by_mean) in enumerate(w.series):
+            color = f"C{i % 10}"
+            series.append((name, k, raw, None, {"color": color}))
+            if by_mean is not None:
+                series.append(("", k, by_mean, None, {"color": color, "ls": "--"}))
+        trained = "raw APE" if w.trained == "none" else "APE ÷ its mean"
+        panels.append(Lines(f"{w.title} (trained on {trained})", f"k heaviest samples of the batch of {batch}",
+                            "share of the batch's total weight", series, log_x=True))
+    return lines(panels, "How much of a batch's weight its heaviest samples carry: solid on the raw APE, dashed on "
+                         "the APE ÷ its mean", COLUMNS)
+
+
+def copycat_map_figure(maps: list[CopycatMap]) -> Figure | None:
+    """The copycat map (`analysis.copycat_map`): per task, % of expert against frame skip (log2 axis), a line per
+    method (mean over seeds, error bars: std over seeds), the expert's 100% dashed; None without a map."""
+    if not maps:
+        return None
+    cols = max(1, min(COLUMNS, len(maps)))
+    fig = Figure(figsize=(4.2 * cols, 3.6 * math.ceil(len(maps) / cols)), dpi=DPI, layout="constrained")
+    for ax, cm in zip(_grid_axes(fig, len(maps), cols), maps):
+        skips = [r.frame_skip for r in cm.rows]
+        for i, (name, _, _) in enumerate(MAP_METHODS):
+            points = [(r.frame_skip, r.cells[i]) for r in cm.rows if r.cells[i] is not None]
+            if points:
+                ax.errorbar([x for x, _ in points], [c.mean for _, c in points],
+                            yerr=[0.0 if math.isnan(c.std) else c.std for _, c in points], marker="o", ms=4,
+                            capsize=3, lw=1.3, label=name)
+        ax.axhline(100.0, color="0.4", ls="--", lw=1)
+        ax.text(skips[0], 100.0, " expert", va="bottom", fontsize=7, color="0.3")
+        ax.set_xscale("log", base=2)
+        ax.set_xticks(skips, labels=[str(x) for x in skips])
+        ax.minorticks_off()
+        ax.set_title(cm.title, fontsize=10)
+        ax.set_xlabel("frame skip (simulator steps per action)", fontsize=9)
+        ax.set_ylabel("% of expert", fontsize=9)
+        ax.grid(color="0.9")
+        ax.tick_params(labelsize=8)
+        ax.legend(fontsize=7, frameon=False, loc="best")
+    fig.suptitle("The copycat map: % of expert per frame skip\n(the paper's protocol at each; mean ± std over seeds)",
+                 fontsize=10)
+    return fig

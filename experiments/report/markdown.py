@@ -2,7 +2,9 @@
 
 The numbers come from `experiments.report.analysis`, the figures from
 `experiments.report.figures`; this module formats, and draws nothing itself
-(`build` asks the figure builders for the figures it links).
+(`build` asks the figure builders for the figures it links). Every sentence
+that states a result (the copycat map's, the plain reading's, the paper's
+choices') is built from those numbers, never typed.
 """
 
 from __future__ import annotations
@@ -18,12 +20,14 @@ from ape_jax import methods as methods_lib
 from ape_jax import tasks
 from ape_jax.pipeline import results as results_lib
 from experiments.report import figures
-from experiments.report.analysis import (BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, MUJOCO, PAPER_SENSITIVITY_TAU,
-                                         PAPER_SENSITIVITY_W, PAPER_TABLE5, Interval, _best, _env_title,
-                                         _metric, _ordered, _paper_step, _pct, _rows, bootstrap_rows, choices,
-                                         copycat_groups, envs_of, expert_ape, extra_methods, gap, headline,
-                                         is_rate, known_methods, label, loss_rows, merge, sensitivity,
-                                         task_metric_rows, verdict, weight_shares)
+from experiments.report.analysis import (APE_SCALES, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, BRAX, FCA, MAP_METHODS,
+                                         PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP, PAPER_TABLE5,
+                                         CopycatMap, Difference, Interval, Key, ReportError, WeightShares, _best,
+                                         _metric, _ordered, _paper_step, _pct, _rows, _title, _unit, bootstrap_rows,
+                                         choices, copycat_groups, copycat_map, expert_ape, extra_methods, file_stem,
+                                         gap, groups_of, headline, history_difference, in_fca_family, is_rate,
+                                         known_methods, label, loss_rows, merge, ours_differences, protocol_words,
+                                         protocols_of, sensitivity, task_metric_rows, verdict, weight_shares)
 
 # How the task-metrics table heads a task's own metrics, and the factor it shows them at (rates in %); a metric
 # not listed is headed by its name, and a task's main metric (a rate) is shown in %.
@@ -42,31 +46,87 @@ def _norm_cell(row: dict | None) -> str:
     return "—" if row is None or row.get("normalized_mean") is None else f"{row['normalized_mean']:.1f}"
 
 
-def state_table(merged: dict, obs: str = "pos") -> str:
-    """Every method per MuJoCo task with observations `obs` ("pos": MuJoCo-State, "image": MuJoCo-Image)."""
-    envs = envs_of(merged, obs)
-    if not envs:
+def state_table(merged: dict, obs: str = "pos", protocol: str = BRAX) -> str:
+    """Every method per MuJoCo task with observations `obs` ("pos": MuJoCo-State, "image": MuJoCo-Image) under
+    `protocol`: return mean ± std over seeds (% of expert), the methods besides ours those groups ran, our
+    expert and a random policy."""
+    groups = groups_of(merged, obs, protocol)
+    if not groups:
         return ""
-    extras, known = extra_methods(merged), known_methods(merged)
-    heads = {e: headline(merged[(e, obs)], extras, known) for e in envs}
-    lines = ["| method | " + " | ".join(tasks.get(e).title for e in envs) + " |", "|---|" + "---:|" * len(envs)]
-    for i, (lab, _) in enumerate(heads[envs[0]]):
+    extras = extra_methods({Key(m["env"], obs, protocol): m for m in groups})
+    known = known_methods(merged)
+    heads = [headline(m, extras, known) for m in groups]
+    lines = ["| method | " + " | ".join(tasks.get(m["env"]).title for m in groups) + " |",
+             "|---|" + "---:|" * len(groups)]
+    for i, (lab, _) in enumerate(heads[0]):
         generic = lab.split(" (")[0] if lab.startswith("Ours, best") else lab
         cells = []
-        for e in envs:
-            lab, row = heads[e][i]
+        for head in heads:
+            lab, row = head[i]
             cell = _cell(row)
             if lab.startswith("Ours, best") and row is not None:
                 cell += f" <br>{lab[len(generic) + 1:]}"
             cells.append(cell)
         lines.append(f"| {generic} | " + " | ".join(cells) + " |")
-    experts = [merged[(e, obs)]["expert"] for e in envs]
+    experts = [m["expert"] for m in groups]
     lines.append("| expert (ours) | " + " | ".join("—" if x["return_mean"] is None else
                                                    f"{x['return_mean']:,.0f} ± {x['return_std'] or 0:,.0f}"
                                                    for x in experts) + " |")
     lines.append("| random policy | " + " | ".join("—" if x["random_return_mean"] is None else
                                                    f"{x['random_return_mean']:,.0f}" for x in experts) + " |")
     return "\n".join(lines) + "\n"
+
+
+def _agreed(values) -> object | None:
+    """The one value all of `values` share (None if they differ, or any is None)."""
+    values = list(values)
+    return values[0] if values and values[0] is not None and all(v == values[0] for v in values) else None
+
+
+def _horizon(p: dict) -> float | None:
+    """Simulated time per episode in the environment's standard control steps (at its own frame skip), or None."""
+    need = ("episode_length", "frame_skip", "standard_frame_skip")
+    if any(not isinstance(p.get(k), (int, float)) or not p.get(k) for k in need):
+        return None
+    return p["episode_length"] * p["frame_skip"] / p["standard_frame_skip"]
+
+
+def protocol_heading(groups: list[dict]) -> str:
+    """The settings the groups' protocol dicts agree on, for a heading: `"frame skip 1, 500 standard steps of
+    simulated time, 20,000 training transitions"`; "" if none is recorded."""
+    ps = [m["protocol"] for m in groups]
+    parts = []
+    if (skip := _agreed(p.get("frame_skip") for p in ps)) is not None:
+        parts.append(f"frame skip {skip}")
+    if (h := _agreed(_horizon(p) for p in ps)) is not None:
+        parts.append(f"{h:,.0f} standard steps of simulated time")
+    if (n := _agreed(p.get("train_transitions") for p in ps)) is not None:
+        parts.append(f"{n:,} training transitions")
+    return ", ".join(parts)
+
+
+def protocol_details(groups: list[dict]) -> str:
+    """One sentence with every setting the groups' protocols record, per task where they differ ("" if none)."""
+    ps = {tasks.get(m["env"]).title: m["protocol"] for m in groups}
+
+    def each(fmt, key):
+        values = {t: p.get(key) for t, p in ps.items()}
+        if all(v is None for v in values.values()):
+            return None
+        if (v := _agreed(values.values())) is not None:
+            return fmt(v)
+        return ", ".join(f"{t} {fmt(v)}" for t, v in values.items() if v is not None)
+
+    parts = [("the environments' own frame skip", each(str, "standard_frame_skip")),
+             ("frame skip", each(str, "frame_skip")),
+             ("control steps per episode", each(lambda v: f"{v:,}", "episode_length")),
+             ("rewards scaled by", each(lambda v: f"{v:g}", "reward_scale")),
+             ("expert steps collected", each(lambda v: f"{v:,}", "collect_transitions")),
+             ("training transitions", each(lambda v: f"{v:,}", "train_transitions")),
+             ("validation transitions", each(lambda v: f"{v:,}", "val_transitions")),
+             ("history", each(str, "history"))]
+    parts = [f"{name} {value}" for name, value in parts if value is not None]
+    return ("Recorded settings: " + "; ".join(parts) + ".") if parts else ""
 
 
 def _metric_heading(m: dict, metric: str) -> tuple[str, float]:
@@ -99,27 +159,39 @@ def task_table(m: dict) -> str | None:
     return "\n".join(lines) + "\n"
 
 
-def paper_table(merged: dict) -> str:
-    """Ours next to the supplement's Table 5, each method as a ratio to BC-OH within its own source."""
-    envs = envs_of(merged, "pos")
-    if not envs:
+def paper_table(merged: dict, protocol: str = BRAX) -> str:
+    """Ours under `protocol` next to the supplement's Table 5 (BC-SO, BC-OH, FCA, Ours at step THR 10% W 5).
+
+    Under the fca family our returns are on the paper's scale (rewards summed over the same simulated time, in
+    standard control steps), so each cell is the absolute mean return, ours ± std over seeds, with the ratio
+    to BC-OH of the same source in brackets as a secondary number, and a row for the experts (the paper does
+    not publish its expert's return). Under other protocols the returns are on another scale, and only the
+    ratios to BC-OH compare.
+    """
+    groups = groups_of(merged, "pos", protocol)
+    if not groups:
         return ""
+    same_scale = in_fca_family(protocol)
     known = known_methods(merged)
-    lines = ["| method | " + " | ".join(f"{tasks.get(e).title}: paper | {tasks.get(e).title}: ours" for e in envs)
-             + " |", "|---|" + "---:|" * (2 * len(envs))]
-    ours = {e: {"bc-so": _best(_rows(merged[(e, "pos")], "bc-so")), "bc-oh": _best(_rows(merged[(e, "pos")], "bc-oh")),
-                "fca": _best(_rows(merged[(e, "pos")], "fca")), "ours": _paper_step(merged[(e, "pos")])}
-            for e in envs}
+    lines = ["| method | " + " | ".join(f"{tasks.get(m['env']).title}: paper | {tasks.get(m['env']).title}: ours"
+                                       for m in groups) + " |", "|---|" + "---:|" * (2 * len(groups))]
+    ours = [{"bc-so": _best(_rows(m, "bc-so")), "bc-oh": _best(_rows(m, "bc-oh")), "fca": _best(_rows(m, "fca")),
+             "ours": _paper_step(m)} for m in groups]
     for method in PAPER_TABLE5:
         cells = []
-        for e in envs:
-            paper, paper_bcoh = PAPER_TABLE5[method][e], PAPER_TABLE5["bc-oh"][e]
-            row, bcoh = ours[e][method], ours[e]["bc-oh"]
+        for m, mine in zip(groups, ours):
+            paper, paper_bcoh = PAPER_TABLE5[method][m["env"]], PAPER_TABLE5["bc-oh"][m["env"]]
+            row, bcoh = mine[method], mine["bc-oh"]
             cells.append(f"{paper:,} ({paper / paper_bcoh:.2f}×)")
+            spread = f" ± {row['return_std']:,.0f}" if same_scale and row is not None else ""
             cells.append("—" if row is None or bcoh is None else
-                         f"{row['return_mean']:,.0f} ({row['return_mean'] / bcoh['return_mean']:.2f}×)")
-        name = "Ours" if method == "ours" else label(known, method)
+                         f"{row['return_mean']:,.0f}{spread} ({row['return_mean'] / bcoh['return_mean']:.2f}×)")
+        name = "Ours, step THR 10% W 5" if method == "ours" else label(known, method)
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    if same_scale:
+        lines.append("| expert | " + " | ".join(
+            "not published | " + ("—" if m["expert"]["return_mean"] is None else f"{m['expert']['return_mean']:,.0f}")
+            for m in groups) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -185,9 +257,13 @@ def copycat_table(m: dict) -> str | None:
     return "\n".join(lines) + "\n"
 
 
+SENSITIVITY = Key("walker2d", "pos", BRAX)  # the group the sensitivity study ran in (its committed file is brax's)
+
+
 def sensitivity_table(merged: dict) -> str | None:
-    """The sensitivity study on Walker2d (states): τ ∈ {0.1, 0.2, 0.5} and W ∈ {4, 5, 6} at THR 10%, with the paper's."""
-    m = merged.get(("walker2d", "pos"))
+    """The sensitivity study on Walker2d (states, `SENSITIVITY`'s protocol): τ ∈ {0.1, 0.2, 0.5} and W ∈ {4, 5, 6}
+    at THR 10%, with the paper's."""
+    m = merged.get(SENSITIVITY)
     if m is None:
         return None
     tau, w = sensitivity(m)
@@ -210,22 +286,112 @@ def sensitivity_table(merged: dict) -> str | None:
     return "\n".join(lines) + "\n"
 
 
-def bootstrap_table(rows: list[tuple[str, str, Interval, str]]) -> str:
-    """The rows of `bootstrap_rows` as a table: difference of means, 95% CI, verdict."""
-    lines = ["| environment | Ours | seeds (Ours / BC-OH) | Ours − BC-OH | 95% CI | verdict |",
-             "|---|---|---:|---:|---:|---|"]
-    lines += [f"| {env} | {lab} | {ci.n_a} / {ci.n_b} | {ci.diff:+,.0f} ({unit}) | [{ci.low:+,.0f}, {ci.high:+,.0f}] | "
-              f"{verdict(ci)} |" for env, lab, ci, unit in rows]
+def bootstrap_table(rows: list[Difference]) -> str:
+    """The rows of `bootstrap_rows` as a table: per group and comparison, seeds, difference of means, 95% CI,
+    verdict."""
+    lines = ["| task | comparison | seeds | difference | 95% CI | verdict |", "|---|---|---:|---:|---:|---|"]
+    lines += [f"| {d.title} | {d.label} | {d.ci.n_a} / {d.ci.n_b} | {d.ci.diff:+,.0f} ({d.unit}) | "
+              f"[{d.ci.low:+,.0f}, {d.ci.high:+,.0f}] | {verdict(d.ci, d.a, d.b)} |" for d in rows]
     return "\n".join(lines) + "\n"
 
 
-def weights_table(shares: list[tuple[str, list[tuple]]]) -> str:
-    """The heaviest sample's and the heaviest 10%'s share of a batch's weight, per environment and setting."""
-    lines = ["| environment | weighting | heaviest sample's share | heaviest 10%'s share |", "|---|---|---:|---:|"]
-    for title, series in shares:
-        for lab, y in series:
-            lines.append(f"| {title} | {lab} | {100 * y[0]:.0f}% | {100 * y[max(1, round(0.1 * len(y))) - 1]:.0f}% |")
+def _top(y: np.ndarray | None, fraction: float = 0.0) -> str:
+    """The share of a batch's weight its heaviest sample (`fraction` 0) or heaviest `fraction` carry, in %."""
+    if y is None:
+        return "—"
+    return f"{100 * y[max(1, round(fraction * len(y))) - 1]:.0f}%"
+
+
+def weights_table(shares: list[WeightShares]) -> str:
+    """The heaviest sample's and the heaviest 10%'s share of a batch's weight, per group and setting, with the
+    weights computed on each APE scale (`analysis.APE_SCALES`)."""
+    raw, by_mean = APE_SCALES["none"], APE_SCALES["mean"]
+    lines = [f"| task | weighting | {raw}: heaviest sample's share | heaviest 10%'s | {by_mean}: heaviest sample's "
+             "share | heaviest 10%'s |", "|---|---|---:|---:|---:|---:|"]
+    for w in shares:
+        for lab, y_raw, y_mean in w.series:
+            lines.append(f"| {w.title} | {lab} | {_top(y_raw)} | {_top(y_raw, 0.1)} | {_top(y_mean)} | "
+                         f"{_top(y_mean, 0.1)} |")
     return "\n".join(lines) + "\n"
+
+
+def trained_on(w: WeightShares) -> str:
+    """Which APE scale a group's softmax runs trained on, and what dividing by the mean does to its APE."""
+    text = f"{w.title}: its softmax runs trained with `normalization: {w.trained}`, on the {APE_SCALES[w.trained]}"
+    if w.mean_ape > 0:
+        how = "recorded as its scale" if w.mean_recorded else "estimated from the recorded quantiles"
+        text += (f"; its raw training APE's mean, {how}, is {w.mean_ape:.3g}, so dividing by it multiplies the APE "
+                 f"by {1 / w.mean_ape:,.3g}")
+    return text + "."
+
+
+def _map_cell(cell) -> str:
+    return "—" if cell is None else f"{cell.mean:.1f} ± {cell.std:.1f}"
+
+
+def copycat_map_table(maps: list[CopycatMap]) -> str:
+    """The copycat map as one table: per task and frame skip, BC-SO, BC-OH and Ours (step THR 10% W 5) in % of
+    expert (mean ± std over seeds), the seeds, BC-OH − BC-SO with its 95% CI, and expert − BC-OH."""
+    names = [lab for lab, _, _ in MAP_METHODS]
+    lines = ["| task | frame skip | protocol | " + " | ".join(names) + " | seeds (" + " / ".join(
+        n.split(",")[0] for n in names) + ") | BC-OH − BC-SO [95% CI] | expert − BC-OH |",
+        "|---|---:|---|" + "---:|" * (len(names) + 3)]
+    for cm in maps:
+        for r in cm.rows:
+            history = "—" if r.history is None else f"{r.history:+.1f}"
+            if r.history_ci is not None:
+                history += f" [{r.history_ci.low:+.1f}, {r.history_ci.high:+.1f}]"
+            lines.append(f"| {cm.title} | {r.frame_skip} | {r.protocol} | " + " | ".join(map(_map_cell, r.cells))
+                         + " | " + " / ".join("—" if c is None else str(c.n) for c in r.cells) + f" | {history} | "
+                         + ("—" if r.ceiling is None else f"{r.ceiling:.1f}") + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _lift(points: float, unit: str = "points of expert") -> str:
+    """`"lifts BC-OH 12.3 points of expert above BC-SO"`, or `"leaves BC-OH 4.0 ... below BC-SO"` when negative."""
+    if points >= 0:
+        return f"lifts BC-OH {points:.1f} {unit} above BC-SO"
+    return f"leaves BC-OH {-points:.1f} {unit} below BC-SO"
+
+
+def _ci(ci: Interval, fmt: str = "+.1f") -> str:
+    return f"95% CI [{ci.low:{fmt}}, {ci.high:{fmt}}]"
+
+
+def _significant(ci: Interval | None) -> bool:
+    """Whether `ci` says its first arm is better: ≥ 2 seeds per arm and the interval above 0."""
+    return ci is not None and min(ci.n_a, ci.n_b) >= 2 and ci.low > 0
+
+
+def copycat_map_sentence(cm: CopycatMap) -> str:
+    """Where the history's benefit opens along the frame skips of one task's copycat map, from its numbers."""
+    rows = [r for r in cm.rows if r.history is not None]
+    if not rows:
+        return f"{cm.title}: BC-SO and BC-OH did not both run at any frame skip, so the map cannot say."
+    top, rest = rows[-1], rows[-2::-1]
+    text = f"{cm.title}: at frame skip {top.frame_skip} the history {_lift(top.history)}" + (
+        f" ({_ci(top.history_ci)})" if top.history_ci else "")
+    for r in rest:
+        words = f"lifts it {r.history:.1f} points" if r.history >= 0 else \
+            f"leaves it {-r.history:.1f} points below BC-SO"
+        text += f"; at frame skip {r.frame_skip} it {words}" + (f" ({_ci(r.history_ci)})" if r.history_ci else "")
+    text += "."
+    tested = [r for r in rows if r.history_ci is not None and min(r.history_ci.n_a, r.history_ci.n_b) >= 2]
+    if tested:
+        yes = [str(r.frame_skip) for r in tested if _significant(r.history_ci)]
+        no = [str(r.frame_skip) for r in tested if not _significant(r.history_ci)]
+        if not yes:
+            text += " At no frame skip is BC-OH significantly above BC-SO."
+        elif not no:
+            text += " BC-OH is significantly above BC-SO at every frame skip."
+        else:
+            text += (f" BC-OH is significantly above BC-SO at frame skip {', '.join(yes)}, not at "
+                     f"{', '.join(no)}.")
+    gaps = [r for r in cm.rows if r.ceiling is not None]
+    if gaps:
+        text += " BC-OH's gap to the expert: " + ", ".join(
+            f"{r.ceiling:.1f} points at frame skip {r.frame_skip}" for r in gaps) + "."
+    return text
 
 
 def _fmt(mean: float, std: float, prefix: str) -> str:
@@ -267,8 +433,117 @@ def paper_choices(m: dict) -> list[str]:
     return out
 
 
-def _grid_name(env: str, obs: str) -> str:
-    return f"grid-{env}.png" if obs == "pos" else f"grid-{env}-{obs}.png"
+def _words(ci: Interval, a: str, b: str, better: str, worse: str) -> str:
+    """A verdict (`analysis.verdict`) in the plain reading's words: `better` if `a` is, `worse` if `b` is."""
+    v = verdict(ci, a, b)
+    if v == f"{a} better":
+        return better
+    if v == f"{b} better":
+        return worse
+    return "not significant: these seeds cannot tell them apart" if v.startswith("not significant") else v
+
+
+def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
+    """Does keyframe weighting fix copycat where copycat exists? One paragraph per task with results under the
+    paper's protocol (`fca`; tasks without any get none), every number from the results:
+
+    - copycat: BC-OH − BC-SO under fca with its CI; BC-OH not significantly above BC-SO means the history
+      adds nothing these seeds can see, which is what copycat does to it;
+    - Ours − BC-OH at the paper's step setting, and at the best of our step and softmax grids (selected after
+      the fact on the evaluation returns, so optimistic), each with its CI's verdict;
+    - where the task has a copycat map or brax results, the history's benefit (in points of % of expert) at
+      the largest frame skip and under Brax's own settings, against the fca frame skip's.
+    """
+    maps_of = {(cm.env, cm.obs): cm for cm in maps}
+    out = []
+    for key, m in _ordered(merged):
+        if key.protocol != FCA:
+            continue
+        unit = _unit(m)[1]
+        number = ",.0f"
+        text = [f"**{_title(key, m['protocol'], with_protocol=False)}.**"]
+        history = history_difference(m)
+        copycat = None
+        if history is None:
+            text.append("BC-SO and BC-OH did not both run under fca, so these results cannot say whether copycat "
+                        "is present.")
+        elif min(history.n_a, history.n_b) < 2:
+            text.append(f"Under fca BC-OH − BC-SO is {history.diff:+{number}} ({unit}), with fewer than 2 seeds "
+                        "per arm: no verdict on copycat.")
+        else:
+            copycat = not _significant(history)
+            where = ("significantly above" if not copycat else
+                     "significantly below" if history.high < 0 else "not significantly above")
+            meaning = ("the history helps, so copycat does not cancel its benefit here" if not copycat else
+                       "the history hurts: copycat is present" if history.high < 0 else
+                       "the history adds nothing: copycat is present")
+            text.append(f"Under fca BC-OH is {where} BC-SO ({history.diff:+{number}} {unit}, {_ci(history, '+,.0f')}):"
+                        f" {meaning}.")
+        ours = ours_differences(m)
+        paper = next(((row, ci) for _, row, ci in ours if row["method"] == "ours-step"
+                      and row["hparams"] == PAPER_STEP), None)
+        if paper is None:
+            text.append(f"Ours at the paper's step setting (THR {_pct(PAPER_STEP['thr'])}, W {PAPER_STEP['w']:g}) "
+                        "did not run under fca, or BC-OH did not.")
+        else:
+            ci = paper[1]
+            text.append(f"Ours at the paper's step setting (THR {_pct(PAPER_STEP['thr'])}, W {PAPER_STEP['w']:g}) "
+                        f"− BC-OH: {ci.diff:+{number}} {unit} ({_ci(ci, '+,.0f')}): "
+                        f"{_words(ci, 'Ours', 'BC-OH', 'keyframe weighting beats BC-OH', 'BC-OH beats it')}.")
+        grids = [(row, ci) for lab, row, ci in ours[1:]]
+        best_row = _best([row for row, _ in grids])
+        if best_row is not None and paper is not None and best_row is paper[0]:
+            text.append("The best of our step and softmax grids is that same setting.")
+        elif best_row is not None:
+            ci = next(c for row, c in grids if row is best_row)
+            kind = "softmax" if best_row["method"] == "ours-softmax" else "step"
+            text.append(f"The best of our step and softmax grids, {kind} {_SETTING[kind](best_row['hparams'])} "
+                        f"(selected after the fact on these evaluation returns, so optimistic): "
+                        f"{ci.diff:+{number}} {unit} ({_ci(ci, '+,.0f')}): "
+                        f"{_words(ci, 'Ours', 'BC-OH', 'it beats BC-OH', 'BC-OH beats it')}.")
+        if copycat and paper is not None:
+            outcome = {"Ours better": "beats BC-OH", "BC-OH better": "does worse than BC-OH"}.get(
+                verdict(paper[1]), "does not detectably beat BC-OH")
+            text.append(f"So where copycat is present, keyframe weighting at the paper's setting {outcome} on these "
+                        "seeds.")
+        contrast = []
+        cm = maps_of.get((key.env, key.obs))
+        here = cm.at(m["protocol"].get("frame_skip")) if cm else None
+        top = next((r for r in reversed(cm.rows) if r.history is not None), None) if cm else None
+        if top is not None and here is not None and here.history is not None and top is not here:
+            contrast.append(f"at frame skip {top.frame_skip} the history {_lift(top.history)}"
+                            + (f" ({_ci(top.history_ci)})" if top.history_ci else "")
+                            + f", against {here.history:+.1f} at frame skip {here.frame_skip}"
+                            + (f" ({_ci(here.history_ci)})" if here.history_ci else ""))
+        brax = merged.get(Key(key.env, key.obs, BRAX))
+        brax_history = None if brax is None else history_difference(brax, "normalized", 1.0)
+        if brax_history is not None:
+            contrast.append(f"under Brax's own frame skip (brax) {'it' if contrast else 'the history'} "
+                            f"{_lift(brax_history.diff)} ({_ci(brax_history)})")
+        if contrast:
+            text.append("In % of expert: " + "; ".join(contrast) + ".")
+        out.append(" ".join(text))
+    return out
+
+
+def _grid_name(m: dict) -> str:
+    """A group's grid figure: `grid-hopper.png` (brax), `grid-hopper-image.png`, `grid-hopper-fca-fs2.png`."""
+    return f"grid-{file_stem(m)}.png"
+
+
+def _protocol_provenance(r: results_lib.Results) -> str:
+    """The protocol a results file ran under, as its provenance line says it."""
+    if not r.protocol:
+        return f"protocol {BRAX} (not recorded: results schema 1 predates protocols; Brax's own settings)"
+    p = r.protocol
+    skip, own = p.get("frame_skip"), p.get("standard_frame_skip")
+    parts = [] if skip is None else [f"frame skip {skip}" + (f" (the environment's own: {own})"
+                                                             if own is not None and own != skip else "")]
+    if p.get("episode_length"):
+        parts.append(f"{p['episode_length']:,}-step episodes")
+    if p.get("train_transitions"):
+        parts.append(f"{p['train_transitions']:,} training transitions")
+    return f"protocol {p.get('name') or BRAX}" + "".join(f", {x}" for x in parts)
 
 
 def _rebuilt_command(r: results_lib.Results) -> str:
@@ -291,7 +566,7 @@ def _rebuilt_command(r: results_lib.Results) -> str:
 
 
 def provenance(r: results_lib.Results) -> str:
-    """The command and setting one results file came from.
+    """The command, protocol and setting one results file came from.
 
     The command is the one the file records (schema 2), shell-quoted. A file
     that records none is given the command rebuilt from its settings, and says
@@ -311,8 +586,8 @@ def provenance(r: results_lib.Results) -> str:
     machine = s.get("machine") or "machine not recorded in the file"
     commit = f"`{s.get('commit')}`" + (" with uncommitted changes" if s.get("dirty") else "")
     line = (f"{cmd} — {cfg['iterations']:,} iterations, {cfg['seeds']} seeds, {cfg['eval_episodes']} evaluation "
-            f"episodes; commit {commit}, jax {s.get('jax')} ({s.get('backend')}, {s.get('devices')} "
-            f"device(s)), {machine}; {t.get('total_s', 0):,.0f} s in all"
+            f"episodes; {_protocol_provenance(r)}; commit {commit}, jax {s.get('jax')} ({s.get('backend')}, "
+            f"{s.get('devices')} device(s)), {machine}; {t.get('total_s', 0):,.0f} s in all"
             + (" (resumed after an interruption: the last process's time only)" if t.get("resumed") else ""))
     if t.get("peak_rss_mb"):
         line += f", peak resident memory {t['peak_rss_mb'] / 1024:.1f} GB"
@@ -344,29 +619,53 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
         if fig is None:
             return []
         path = pathlib.Path(figure_dir) / name
+        if path in drawn:  # one file per figure (`analysis.file_stem`): never let one group's overwrite another's
+            raise ReportError(f"two of the report's figures would be written to {path}; pass fewer results files")
         drawn[path] = fig
         return [f"![{alt}]({pathlib.Path(os.path.relpath(path.absolute(), base.absolute())).as_posix()})", ""]
 
     out = []
-    if any((e, "pos") in merged for e in MUJOCO):
-        out += ["### MuJoCo-State (velocities removed)", "",
-                "Return mean ± std over seeds (each seed's mean over the evaluation episodes), and in "
-                "brackets the percentage of our expert's return, normalised against a random policy. "
-                "\"Best\" rows pick the configuration with the highest return on the evaluation episodes "
-                "(selection on the test episodes, as the paper's grid search does; optimistic).", "",
-                state_table(merged),
-                "Next to the supplement's Table 5 (its own experts, whose returns it does not give): mean "
-                "returns, and in brackets each method's ratio to BC-OH of the same source.", "",
-                paper_table(merged)]
-    if any((e, "image") in merged for e in MUJOCO):
-        out += ["### MuJoCo-Image", "",
-                "As MuJoCo-State, from rendered frames (the image presets: see each file's provenance below).", "",
-                state_table(merged, "image")]
-    for (env, obs), m in _ordered(merged):
+    selection = ("\"Best\" rows pick the configuration with the highest return on the evaluation episodes "
+                 "(selection on the test episodes, as the paper's grid search does; optimistic).")
+    cells = ("Return mean ± std over seeds (each seed's mean over the evaluation episodes), and in brackets the "
+             "percentage of our expert's return, normalised against a random policy under the same protocol.")
+    for protocol in protocols_of(merged, "pos"):
+        groups = groups_of(merged, "pos", protocol)
+        heading, details = protocol_heading(groups), protocol_details(groups)
+        if protocol == FCA:
+            out += [f"### MuJoCo-State, the paper's protocol ({FCA})" + (f": {heading}" if heading else ""), "",
+                    "Positions only (velocities removed). " + cells + " " + selection
+                    + (f" {details}" if details else ""), "", state_table(merged, "pos", protocol)]
+            horizon = _agreed(_horizon(m["protocol"]) for m in groups)
+            scale = (f"rewards summed over {horizon:,.0f} standard control steps of simulated time, as the paper's"
+                     if horizon is not None else "rewards on the standard control step's scale, as the paper's")
+            out += ["The supplement's Table 5 beside it, on the same scale (" + scale + "): each cell the mean "
+                    "return, ours ± std over seeds, and in brackets the ratio to BC-OH of the same source. The "
+                    "experts differ (the paper does not publish its expert's return), so the ratio is the "
+                    "comparison that does not depend on them.", "", paper_table(merged, protocol)]
+        elif protocol == BRAX:
+            out += ["### MuJoCo-State, Brax's frame skip, where copycat is absent (the project's first results)", "",
+                    "Positions only (velocities removed), with the environments' own frame skip and episode length. "
+                    + cells + " " + selection + (f" {details}" if details else ""), "",
+                    state_table(merged, "pos", protocol),
+                    "Next to the supplement's Table 5 (its own experts, whose returns it does not give; its returns "
+                    "are on another scale than these): mean returns, and in brackets each method's ratio to BC-OH "
+                    "of the same source.", "", paper_table(merged, protocol)]
+        elif not in_fca_family(protocol):  # the fca family's other frame skips feed the copycat map instead
+            out += [f"### MuJoCo-State, protocol {protocol}" + (f": {heading}" if heading else ""), "",
+                    "Positions only (velocities removed). " + cells + " " + selection
+                    + (f" {details}" if details else ""), "", state_table(merged, "pos", protocol)]
+    for protocol in protocols_of(merged, "image"):
+        groups = groups_of(merged, "image", protocol)
+        details = protocol_details(groups)
+        out += ["### MuJoCo-Image" + ("" if protocol == BRAX else f", protocol {protocol}"), "",
+                "As MuJoCo-State, from rendered frames (the image presets: see each file's provenance below)."
+                + (f" {details}" if details else ""), "", state_table(merged, "image", protocol)]
+    for key, m in _ordered(merged):
         table = task_table(m)
         if table:
-            task = tasks.get(env)
-            title = task.title if obs == task.default_obs else _env_title(env, obs)
+            task = tasks.get(key.env)
+            title = _title(key, m["protocol"], m["shows_protocol"], with_obs=key.obs != task.default_obs)
             paper = (f"; the paper's {m['metric']} rates beside (its own {task.title}, not ours)" if task.paper
                      else "")
             out += [f"### {title} (the supplement's Table 4 protocol)", "",
@@ -375,45 +674,73 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
     if figure_dir is None:
         out += ["_Figures not drawn: the report was printed without `--figures DIR` (with `--out` they go to "
                 "`figures/` next to it)._", ""]
+    maps = copycat_map(merged)
+    if maps:
+        skips = sorted({r.frame_skip for cm in maps for r in cm.rows})
+        out += ["### The copycat map: the history's benefit per frame skip", "",
+                f"The paper's protocol ({FCA}) at frame skips {', '.join(map(str, skips))}: the same simulated time "
+                "per episode and the same numbers of training and validation transitions, so the policies differ "
+                "only in how often they act. Per frame skip, BC-SO, BC-OH and Ours (step THR "
+                f"{_pct(PAPER_STEP['thr'])} W {PAPER_STEP['w']:g}) in % of expert (mean ± std over seeds); BC-OH − "
+                "BC-SO is what the history adds, in points of % of expert, with a 95% bootstrap CI over seeds; "
+                "expert − BC-OH is how far BC-OH is from its ceiling (the expert, 100%). Copycat shows as a small or "
+                "negative BC-OH − BC-SO: the history then predicts the last action instead of helping.", ""]
+        out += figure("copycat-map.png", "The copycat map: % of expert per frame skip",
+                      lambda: figures.copycat_map_figure(maps))
+        out += [copycat_map_table(maps)] + [f"- {copycat_map_sentence(cm)}" for cm in maps] + [""]
     boot = bootstrap_rows(merged)
     returns = figure("returns.png", "Return per method and environment", lambda: figures.returns_figure(merged))
     if boot or returns:
-        out += ["### Ours vs BC-OH over seeds", ""] + returns
+        out += ["### Differences over seeds: Ours − BC-OH, and BC-OH − BC-SO", ""] + returns
     if boot:
-        seeds = min(min(ci.n_a, ci.n_b) for _, _, ci, _ in boot)
+        seeds = min(min(d.ci.n_a, d.ci.n_b) for d in boot)
         rates = list(dict.fromkeys(f"{tasks.get(m['env']).title}: in {m['metric']} rate"
                                    for _, m in _ordered(merged) if is_rate(m)))
-        out += ["Ours − BC-OH in mean return over seeds" + (f" ({'; '.join(rates)})" if rates else "") + ", with a "
-                "95% percentile bootstrap confidence interval "
-                f"(each arm's seeds resampled with replacement, independently, {BOOTSTRAP_RESAMPLES:,} times; "
-                f"numpy seed {BOOTSTRAP_SEED}). The best-step and best-softmax rows were selected after the fact "
-                "on these same evaluation returns, so their differences are optimistic.", "", bootstrap_table(boot),
+        out += ["Per task and protocol, BC-OH − BC-SO (does the history help? copycat is the history not helping) "
+                "and Ours − BC-OH, differences of mean return over seeds"
+                + (f" ({'; '.join(rates)})" if rates else "") + ", with a 95% percentile bootstrap confidence "
+                f"interval (each arm's seeds resampled with replacement, independently, {BOOTSTRAP_RESAMPLES:,} "
+                f"times; numpy seed {BOOTSTRAP_SEED}). The best-step and best-softmax rows were selected after the "
+                "fact on these same evaluation returns, so their differences are optimistic.", "",
+                bootstrap_table(boot),
                 f"Caveat: with {seeds} seed{'s' * (seeds != 1)} per arm each arm has only "
                 f"{math.comb(2 * seeds - 1, seeds)} distinct resamples, so the interval is coarse, and at so few "
                 "seeds the percentile bootstrap is too narrow (it under-covers): read \"better\" as a hint, and "
                 "\"not significant\" as \"these seeds cannot tell\", not as evidence of no effect.", ""]
+    reading = plain_reading(merged, maps)
+    if reading:
+        out += ["### Does keyframe weighting fix copycat where copycat exists?", "",
+                f"Read from the tables above, task by task, under the paper's protocol ({FCA}); differences of "
+                "mean return over seeds with their 95% bootstrap CIs.", ""]
+        out += [f"{paragraph}\n" for paragraph in reading]
     sens = sensitivity_table(merged)
     if sens:
         out += ["### Sensitivity (the supplement's §4)", "",
-                "Walker2d (states), softmax τ and the step weight W at THR 10%, next to the paper's numbers "
-                "(its W study was on CARLA driving, so only the pattern compares).", "", sens]
+                f"Walker2d (states, protocol {SENSITIVITY.protocol}), softmax τ and the step weight W at THR 10%, "
+                "next to the paper's numbers (its W study was on CARLA driving, so only the pattern compares).", "",
+                sens]
     shares = weight_shares(merged)
     extra = figure("curves.png", "Training curves", lambda: figures.curves_figure(merged)) + \
         figure("weights.png", "Weight concentration within a batch", lambda: figures.weights_figure(shares))
     if shares:
-        extra += [weights_table(shares)]
+        extra += [weights_table(shares)] + [f"- {trained_on(w)}" for w in shares] + [""]
     if extra:
         out += ["### Training curves and weights", "",
                 "From the results files that record them (runs since the training curve and the APE quantiles "
-                "were added to `results.json`). Weights: batches of 128 drawn from each task's training APE "
+                "were added to `results.json`). Weights: batches of 128 drawn from each group's training APE "
                 "distribution and weighted as the sweep does, `B·softmax(APE/τ)` or the step function; each curve "
                 "is the share of a batch's total weight its k heaviest samples carry (uniform weights: the "
-                "diagonal). A curve near 1 at k = 1 is a batch whose loss is one sample's.", ""] + extra
-    for (env, obs), m in _ordered(merged):
-        out += [f"### {tasks.get(env).title}, `{obs}` observations: every configuration", ""]
+                "diagonal). A curve near 1 at k = 1 is a batch whose loss is one sample's. The softmax acts on "
+                f"whichever APE a run trained on: the {APE_SCALES['none']}, or the {APE_SCALES['mean']}, which "
+                "multiplies it by one over its mean (usually far more than 1) and so makes a τ ≤ 1 put nearly all "
+                "of a batch's weight on one sample. Both are shown for every group, computed from its recorded "
+                "quantiles; the step and uniform weights depend only on ranks and are the same on both.", ""] + extra
+    for key, m in _ordered(merged):
+        protocol = f", protocol {protocol_words(m['protocol'])}" if m["shows_protocol"] else ""
+        out += [f"### {tasks.get(key.env).title}, `{key.obs}` observations{protocol}: every configuration", ""]
         out += [f"- {provenance(r)}" for r in m["sources"]]
         out += ["", grid_table(m)]
-        out += figure(_grid_name(env, obs), f"{_env_title(env, obs)} grid search", lambda: figures.grid_figure(m))
+        out += figure(_grid_name(m), f"{m['title']} grid search", lambda: figures.grid_figure(m))
         sentences = paper_choices(m)
         if sentences:
             unit = _metric(m)[1]
