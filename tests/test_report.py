@@ -601,3 +601,17 @@ def test_the_sensitivity_study_reads_the_brax_group_of_walker2d(tmp_path):
     table = report.report([fca, brax])
     table = table[table.index("### Sensitivity"):]
     assert "Walker2d (states, protocol brax)" in table and "| softmax τ 0.2 | 700 ± 10 | 35.0 |" in table
+
+
+def test_the_experts_rollout_ape_reference_is_put_on_the_raw_training_means_scale():
+    """`rollout_ape` is ÷ the raw training mean: a `"mean"` file's val_mean is on that scale already; a `"none"`
+    file's (raw) needs its recorded `raw_mean`, and without it gives no reference rather than a wrong one."""
+    from experiments.report import analysis
+
+    def group(ape):
+        return {"sources": [Results.from_json({**_results(), "config": {**_results()["config"], "ape": ape}})]}
+
+    assert analysis.expert_ape(group({"normalization": "mean", "scale": 0.02, "val_mean": 1.3})) == 1.3
+    assert analysis.expert_ape(group({"normalization": "none", "scale": 1.0, "val_mean": 0.026,
+                                      "raw_mean": 0.02})) == pytest.approx(1.3)
+    assert analysis.expert_ape(group({"normalization": "none", "scale": 1.0, "val_mean": 0.026})) is None

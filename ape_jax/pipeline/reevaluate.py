@@ -124,6 +124,9 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
     if "val_mean" not in ape_record:
         ape_record["val_mean"] = float(np.mean(ape.val))
         added.add("config.ape.val_mean")
+    if "raw_mean" not in ape_record:
+        ape_record["raw_mean"] = ape.raw_mean
+        added.add("config.ape.raw_mean")
     if "quantiles" not in ape_record:
         ape_record["quantiles"] = np.quantile(np.asarray(ape.train), np.linspace(0, 1, 101)).tolist()
         added.add("config.ape.quantiles")

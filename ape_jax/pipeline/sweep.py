@@ -643,8 +643,9 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
               "task_metrics": list(task.metrics),
               "ape": {"normalization": preset.ape_normalization, "scale": ape.scale,
                       "final_fit_mse": ape.final_fit_mse,
-                      # the expert's reference for the policies' rollout_ape (the training split's is 1)
-                      "val_mean": float(np.mean(ape.val)),
+                      # the validation split's mean, on the scale it trained on; × scale ÷ raw_mean it is the
+                      # expert's reference for the policies' rollout_ape (÷ the raw training mean)
+                      "val_mean": float(np.mean(ape.val)), "raw_mean": ape.raw_mean,
                       # the training split's normalised APE distribution, for the weights' histograms
                       "quantiles": np.quantile(np.asarray(ape.train), np.linspace(0, 1, 101)).tolist()},
               "ape_normalization": preset.ape_normalization,

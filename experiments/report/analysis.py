@@ -326,16 +326,23 @@ def copycat_groups(m: dict) -> dict[tuple, list[dict]]:
 
 
 def expert_ape(m: dict) -> float | None:
-    """The validation demonstrations' mean APE ÷ the training mean (the scale of the policies' `rollout_ape`), from
-    the first of `m`'s files that records it on that scale.
+    """The validation demonstrations' mean APE ÷ the raw training mean (the scale of the policies' `rollout_ape`),
+    from the first of `m`'s files that records enough to put it on that scale.
 
-    `config["ape"]["val_mean"]` is the mean of the APE the file trained on: ÷ the training mean only where that is
-    `normalization: "mean"` (files without a normalization predate `"none"` and are). A `"none"` file records
-    it raw and not the raw training mean it would need dividing by, so it gives none.
+    `config["ape"]["val_mean"]` is the mean of the APE the file trained on. Times `scale` ÷ `raw_mean` (the raw
+    training mean, recorded since the raw-APE default, or added by `experiments.evaluate`) it is on
+    `rollout_ape`'s scale; a file without `raw_mean` trained with `normalization: "mean"` (or none recorded: those
+    predate `"none"`) is already on it. A `"none"` file without `raw_mean` gives none.
     """
-    return next((src.config["ape"]["val_mean"] for src in m["sources"]
-                 if isinstance(src.config.get("ape"), dict) and "val_mean" in src.config["ape"]
-                 and src.config["ape"].get("normalization", "mean") == "mean"), None)
+    for src in m["sources"]:
+        ape = src.config.get("ape")
+        if not isinstance(ape, dict) or "val_mean" not in ape:
+            continue
+        if ape.get("raw_mean"):
+            return ape["val_mean"] * ape.get("scale", 1.0) / ape["raw_mean"]
+        if ape.get("normalization", "mean") == "mean":
+            return ape["val_mean"]
+    return None
 
 
 def sensitivity(m: dict) -> tuple[list[tuple[float, dict | None]], list[tuple[float, dict | None]]]:
@@ -695,7 +702,10 @@ def quantile_mean(q: np.ndarray) -> float:
 
 def ape_mean(ape: Mapping) -> tuple[float, bool]:
     """The raw training APE's mean from a file's `config["ape"]`, and whether it was recorded: a file that trained on
-    APE ÷ its mean records that mean as its `scale`; otherwise it is estimated from the quantiles (`quantile_mean`)."""
+    APE ÷ its mean records that mean as its `scale`, and sweeps since the raw-APE default record it as `raw_mean`;
+    otherwise it is estimated from the quantiles (`quantile_mean`)."""
+    if _number(ape.get("raw_mean")) and ape["raw_mean"] > 0:   # recorded by sweeps since the raw-APE default
+        return float(ape["raw_mean"]), True
     if ape["normalization"] == "mean" and _number(ape.get("scale")) and ape["scale"] > 0:
         return float(ape["scale"]), True
     return quantile_mean(raw_quantiles(ape)), False
