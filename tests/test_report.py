@@ -355,12 +355,14 @@ def test_training_curves_and_weight_histograms_are_drawn_from_files_that_record_
 
 def test_image_results_and_a_task_judged_by_a_rate_get_their_tables(tmp_path):
     image = {**_results(), "obs": "image"}
+    image["config"] = {**image["config"], "iterations": 5000}   # the image default preset's budget
     # the driving sandbox: judged by its success rate, its reward is 0 (found by its record, not by name)
     car = tasks.get(next(t for t in tasks.sweepable() if tasks.get(t).metric != "return"))
     assert car.metric == "success" and car.paper["bc-oh"] == (95.1, 4.5)
     sandbox = {**_results(env=car.name, methods=(("bc-so", {}, 0.0), ("bc-oh", {}, 0.0),
                                                   ("ours-step", {"thr": 0.1, "w": 5.0}, 0.0))), "obs": "image"}
     sandbox["expert"] = {"return_mean": None, "return_std": None, "random_return_mean": None}
+    sandbox["config"] = {**sandbox["config"], "iterations": 2000}   # its task's default preset budget
     for i, run in enumerate(sandbox["runs"]):
         run["eval"].update(success=0.9 + 0.05 * run["seed"], red_light_violations=0.0, progress=0.8,
                            avg_speed=0.5, stuck=0.1 * run["seed"])
@@ -428,8 +430,8 @@ def test_python_m_experiments_report_runs(tmp_path):
 def test_fca_and_brax_results_of_one_task_are_merged_apart_into_two_tables(tmp_path, capsys):
     files = _map_files(tmp_path)
     merged = report.merge(files)
-    assert sorted(merged) == sorted([("hopper", "pos", p) for p in ("fca", "fca-fs2", "fca-fs4", "brax")])
-    assert merged[("hopper", "pos", "brax")]["expert"]["return_mean"] == 3000.0   # each group keeps its expert
+    assert sorted(merged) == sorted([("hopper", "pos", p, None) for p in ("fca", "fca-fs2", "fca-fs4", "brax")])
+    assert merged[("hopper", "pos", "brax", None)]["expert"]["return_mean"] == 3000.0   # each group keeps its expert
     assert [m["title"] for m in merged.values()] == ["Hopper (fca)", "Hopper (fca, frame skip 2)",
                                                      "Hopper (fca, frame skip 4)", "Hopper (brax)"]
     text = report.report(files)
@@ -615,3 +617,23 @@ def test_the_experts_rollout_ape_reference_is_put_on_the_raw_training_means_scal
     assert analysis.expert_ape(group({"normalization": "none", "scale": 1.0, "val_mean": 0.026,
                                       "raw_mean": 0.02})) == pytest.approx(1.3)
     assert analysis.expert_ape(group({"normalization": "none", "scale": 1.0, "val_mean": 0.026})) is None
+
+
+def test_a_longer_run_is_its_own_group_compared_configuration_by_configuration(tmp_path):
+    """A sweep at more iterations than its preset's (`--iterations`) repeats configurations of the preset-budget
+    files without colliding with them: its own group, title and figure, and a "Training longer" row per
+    configuration both ran; the map and the state table keep reading the preset-budget group."""
+    files = _map_files(tmp_path)
+    long = _results("hopper", (("bc-oh", {}, 700.0), ("ours-step", {"thr": 0.1, "w": 5.0}, 1300.0)))
+    long["config"] = {**long["config"], "iterations": 100_000}
+    files.append(_loaded(tmp_path, _schema2(long, protocol=_fca(1)), "long.json"))
+    merged = report.merge(files)
+    key = ("hopper", "pos", "fca", 100_000)
+    assert key in merged and merged[key]["title"] == "Hopper (fca, 100,000 iterations)"
+    text = report.report(files, tmp_path / "figures")
+    section = text[text.index("### Training longer"):]
+    assert "| Hopper (fca, 100,000 iterations): configuration | 30,000 iterations | seeds | 100,000 iterations |" in section
+    assert "| BC-OH | 610 ± 8 (30%) | 3 | 700 ± 10 (35%) | 2 |" in section
+    assert "| Ours (step), THR 10% W 5 | 1,000 ± 8 (50%) | 3 | 1,300 ± 10 (65%) | 2 |" in section
+    assert (tmp_path / "figures" / "grid-hopper-fca-100000it.png").exists()
+    assert "| BC-OH | 610 ± 8 (30%) |" in text[text.index("### MuJoCo-State, the paper's protocol"):]

@@ -87,11 +87,27 @@ BRAX, FCA = "brax", "fca"  # the protocol of files that record none; the paper's
 
 
 class Key(NamedTuple):
-    """A merged group of results: one task, one observation mode, one protocol (its name)."""
+    """A merged group of results: one task, one observation mode, one protocol (its name), one training budget.
+
+    `budget` is None for files that trained their preset's iterations, else their iterations (a run with
+    `--iterations`, e.g. the long runs that ask whether more training changes a verdict): results at another
+    budget are another experiment, shown apart and compared in "Training longer" (`longer_runs`).
+    """
 
     env: str
     obs: str
     protocol: str
+    budget: int | None = None
+
+
+def budget_of(res: results_lib.Results) -> int | None:
+    """`res`'s iterations where they differ from its preset's (None: the preset's, or a preset this code lacks)."""
+    from ape_jax.pipeline.presets import PRESETS, preset_for
+
+    iterations = res.config.get("iterations")
+    if res.preset not in PRESETS or not isinstance(iterations, int):
+        return None
+    return None if iterations == preset_for(res.preset, res.env, res.obs).iterations else iterations
 
 
 def in_fca_family(name: str) -> bool:
@@ -143,11 +159,12 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, dict]:
     for r in files:
         where = getattr(r, "path", "") or f"a {r.env} ({r.obs}) results file"
         protocol = protocol_of(r, where)
-        key = Key(r.env, r.obs, protocol["name"])
-        m = merged.setdefault(key, {"env": r.env, "obs": r.obs, "protocol": protocol, "expert": r.expert,
+        key = Key(r.env, r.obs, protocol["name"], budget_of(r))
+        m = merged.setdefault(key, {"env": r.env, "obs": r.obs, "protocol": protocol, "budget": key.budget,
+                                    "expert": r.expert,
                                     "summary": [], "runs": [], "sources": [], "methods": {}, "metric": main_metric(r),
                                     "task_metrics": tuple(r.config.get("task_metrics", tasks.get(r.env).metrics))})
-        group = f"{r.env} ({r.obs}, protocol {key.protocol})"
+        group = f"{r.env} ({r.obs}, protocol {key.protocol}" + (f", {key.budget:,} iterations)" if key.budget else ")")
         if m["expert"] != r.expert:
             raise ReportError(f"{where}: its expert differs from another {group} results file's")
         differ = [k for k in protocol.keys() & m["protocol"].keys()
@@ -166,9 +183,12 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, dict]:
         m["methods"] = {**r.methods, **m["methods"]}
         m["protocol"] = {**protocol, **{k: v for k, v in m["protocol"].items() if v is not None}}
     for key, m in merged.items():
-        shared = any(k[:2] == key[:2] and k != key for k in merged)
+        shared = any(k[:2] == key[:2] and k.protocol != key.protocol for k in merged)
         m["shows_protocol"] = key.protocol != BRAX or shared
         m["title"] = _title(key, m["protocol"], m["shows_protocol"])
+        if key.budget:
+            m["title"] = m["title"][:-1] + f", {key.budget:,} iterations)" if m["title"].endswith(")") else \
+                m["title"] + f" ({key.budget:,} iterations)"
     return merged
 
 
@@ -530,7 +550,7 @@ def copycat_map(merged: dict) -> list[CopycatMap]:
     by_task: dict[tuple[str, str], dict[int, dict]] = {}
     for key, m in _ordered(merged):
         skip = m["protocol"].get("frame_skip")
-        if not in_fca_family(key.protocol) or skip is None:
+        if not in_fca_family(key.protocol) or skip is None or key.budget is not None:
             continue
         skips = by_task.setdefault((key.env, key.obs), {})
         if skip in skips:
@@ -768,7 +788,7 @@ def _ordered(merged: dict) -> list[tuple[Key, dict]]:
     task by observation mode, then protocol (`_protocol_rank`)."""
     order = {e: i for i, e in enumerate(tasks.sweepable())}
     return sorted(merged.items(), key=lambda kv: (order.get(kv[0][0], len(order)), kv[0][0], kv[0][1],
-                                                  _protocol_rank(kv[1]["protocol"])))
+                                                  _protocol_rank(kv[1]["protocol"]), kv[0].budget or 0))
 
 
 def _title(key: Key, protocol: dict, with_protocol: bool, with_obs: bool | None = None) -> str:
@@ -787,6 +807,7 @@ def file_stem(m: dict) -> str:
     """
     parts = [m["env"]] + ([] if m["obs"] == "pos" else [m["obs"]])
     parts += [] if m["protocol"]["name"] == BRAX else [m["protocol"]["name"]]
+    parts += [f"{m['budget']}it"] if m.get("budget") else []
     return "-".join(parts)
 
 
@@ -804,3 +825,39 @@ def protocols_of(merged: dict, obs: str) -> list[str]:
 def envs_of(merged: dict, obs: str, protocol: str = BRAX) -> list[str]:
     """The state tasks (`MUJOCO`) `merged` has results of with observations `obs` under `protocol`, in order."""
     return [m["env"] for m in groups_of(merged, obs, protocol)]
+
+
+# -- training longer -----------------------------------------------------------------------------------------------
+
+class LongerRow(NamedTuple):
+    """One configuration at its preset's budget and at a longer one: `base`, `longer` summary rows."""
+
+    label: str
+    base: dict
+    longer: dict
+
+
+def longer_runs(merged: dict) -> list[tuple[dict, dict, list[LongerRow]]]:
+    """Groups trained at another budget than their preset's (`Key.budget`), each beside its preset-budget group
+    (same task, observation mode and protocol): `[(longer group, base group, rows)]`, one row per configuration
+    both ran, in the longer group's order. Groups without a base group, or with no configuration in common,
+    are left out."""
+    out = []
+    for key, m in _ordered(merged):
+        base = merged.get(Key(key.env, key.obs, key.protocol)) if key.budget else None
+        if base is None:
+            continue
+        rows = {_config_key(r): r for r in base["summary"] if r["n_seeds"]}
+        pairs = [LongerRow(_row_label(m, r), rows[_config_key(r)], r) for r in m["summary"]
+                 if r["n_seeds"] and _config_key(r) in rows]
+        if pairs:
+            out.append((m, base, pairs))
+    return out
+
+
+def _row_label(m: dict, row: dict) -> str:
+    """`"BC-OH"`, `"Ours (step), THR 10% W 5"`, `"Ours (softmax), τ 0.2"`, `"FCA, alpha 0.1"`."""
+    hp = dict(row["hparams"])
+    words = ([f"THR {_pct(hp.pop('thr'))} W {hp.pop('w'):g}"] if {"thr", "w"} <= hp.keys() else []) + \
+        ([f"τ {hp.pop('tau'):g}"] if "tau" in hp else []) + [f"{k} {v:g}" for k, v in hp.items()]
+    return ", ".join([label(m["methods"], row["method"]), *words])

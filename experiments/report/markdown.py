@@ -26,7 +26,7 @@ from experiments.report.analysis import (APE_SCALES, BOOTSTRAP_RESAMPLES, BOOTST
                                          _metric, _ordered, _paper_step, _pct, _rows, _title, _unit, bootstrap_rows,
                                          choices, copycat_groups, copycat_map, expert_ape, extra_methods, file_stem,
                                          gap, groups_of, headline, history_difference, in_fca_family, is_rate,
-                                         known_methods, label, loss_rows, merge, ours_differences, protocol_words,
+                                         known_methods, label, longer_runs, loss_rows, merge, ours_differences, protocol_words,
                                          protocols_of, sensitivity, task_metric_rows, verdict, weight_shares)
 
 # How the task-metrics table heads a task's own metrics, and the factor it shows them at (rates in %); a metric
@@ -286,6 +286,17 @@ def sensitivity_table(merged: dict) -> str | None:
     return "\n".join(lines) + "\n"
 
 
+def longer_table(rows, base: dict, longer: dict) -> str:
+    """`analysis.longer_runs`' rows of one group: each configuration at the base budget and at the longer one."""
+    its = lambda m: f"{m['sources'][0].config['iterations']:,} iterations"  # noqa: E731
+    lines = [f"| {longer['title']}: configuration | {its(base)} | seeds | {its(longer)} | seeds |",
+             "|---|---:|---:|---:|---:|"]
+    for r in rows:
+        lines.append(f"| {r.label} | {_cell(r.base)} | {r.base['n_seeds']} | {_cell(r.longer)} | "
+                     f"{r.longer['n_seeds']} |")
+    return "\n".join(lines) + "\n"
+
+
 def bootstrap_table(rows: list[Difference]) -> str:
     """The rows of `bootstrap_rows` as a table: per group and comparison, seeds, difference of means, 95% CI,
     verdict."""
@@ -457,7 +468,7 @@ def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
     maps_of = {(cm.env, cm.obs): cm for cm in maps}
     out = []
     for key, m in _ordered(merged):
-        if key.protocol != FCA:
+        if key.protocol != FCA or key.budget is not None:
             continue
         unit = _unit(m)[1]
         number = ",.0f"
@@ -713,6 +724,13 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
                 f"Read from the tables above, task by task, under the paper's protocol ({FCA}); differences of "
                 "mean return over seeds with their 95% bootstrap CIs.", ""]
         out += [f"{paragraph}\n" for paragraph in reading]
+    longer = longer_runs(merged)
+    if longer:
+        out += ["### Training longer", "",
+                "Configurations trained again for more iterations than their preset's (with `--iterations`), "
+                "beside the same configuration at the preset's budget: mean ± std over seeds of each seed's mean "
+                "return, and % of expert. Their differences over seeds are in the bootstrap table above.", ""]
+        out += [longer_table(rows, base, m) for m, base, rows in longer]
     sens = sensitivity_table(merged)
     if sens:
         out += ["### Sensitivity (the supplement's §4)", "",
