@@ -152,8 +152,12 @@ def main(argv=None) -> int:
     n_key = int(key_ep.sum())
     title = (f"{args.env} expert ({args.setup.name} protocol, frame skip {args.setup.settings['frame_skip'] or '-'}), "
              f"episode {args.episode}: {n_key} of {len(rows)} steps ({n_key / len(rows):.0%}) are keyframes")
+    # how much of the actions' variance ψ explains from the previous actions: near 1 where consecutive actions are
+    # nearly equal (a high frame rate), and the keyframes are then the few steps it cannot extrapolate
+    explained = 1.0 - float(np.mean(ape_raw)) / float(np.sum(np.var(np.asarray(demos.action), axis=0)))
     note = (f"keyframes = top {args.thr:.0%} APE over all {len(demos):,} steps of the {demos.num_episodes} "
-            f"demonstrations (APE model fitted on all of them, {args.ape_steps} Adam steps; APE ÷ its mean {scale:.3g})")
+            f"demonstrations (APE model fitted on all of them, {args.ape_steps} Adam steps; APE ÷ its mean {scale:.3g}; "
+            f"ψ explains {explained:.1%} of the actions' variance)")
     fig = figures.keyframes(ape_ep, actions, threshold, frames, pick.steps, keyframe=key_ep, title=title, note=note,
                             action_names=keyframes.action_names(env), frame_is_key=pick.is_key, window=pick.window)
     try:
@@ -161,7 +165,10 @@ def main(argv=None) -> int:
     except OSError as e:
         return fail(None, f"--out {args.out}: cannot write ({e.strerror or e})")
     shown = ", ".join(f"t={t}{'*' if k else ''}" for t, k in zip(pick.steps, pick.is_key))
-    print(f"{args.out} ({size / 1024:.0f} KB)\n{args.env} episode {args.episode}: {n_key}/{len(rows)} keyframes "
+    print(f"{args.out} ({size / 1024:.0f} KB)\nψ fit: mean APE {scale:.4g}, {explained:.1%} of the actions' variance "
+          f"(Σ_d Var(a_d)) explained by the previous {ape_lib.K} actions; top-{args.thr:.0%} APE share of the total "
+          f"APE: {float(np.sort(ape_all)[::-1][:int(args.thr * len(ape_all))].sum() / ape_all.sum()):.1%}")
+    print(f"{args.env} episode {args.episode}: {n_key}/{len(rows)} keyframes "
           f"(threshold {threshold:.3g} x mean APE); frames at {shown} (* keyframe); "
           f"{'cached' if cached else 'collected'} demonstrations {path.name}; {time.perf_counter() - started:.0f} s")
     if n_key < args.frames:
