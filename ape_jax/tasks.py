@@ -34,6 +34,8 @@ class Protocol:
         size); None: split 80/20 by episode.
       history: observations the policies see (BC-SO: 1).
       doc: one line saying where the protocol comes from.
+      reference: the protocol whose expert references (`envs.experts.reference`) apply: one with the same
+        simulator settings (frame skip, episode length, reward scale); None: this one's own.
 
     Rewards are scaled by `frame_skip / standard frame skip`, so returns stay on the scale of the
     standard control step (the FCA code's 1/4 and 1/5).
@@ -47,6 +49,7 @@ class Protocol:
     val_transitions: int | None = None
     history: int = 2
     doc: str = ""
+    reference: str | None = None
 
     def settings(self, standard_frame_skip: int | None) -> dict[str, Any]:
         """Every field, resolved for an environment whose own frame skip is `standard_frame_skip` (None: not a
@@ -73,23 +76,34 @@ class Protocol:
         return out
 
 
-def _fca(frame_skip: int) -> Protocol:
-    """FCA's protocol at simulator frame skip `frame_skip`: the same 500 standard steps of simulated time, the same
-    expert steps and the same 20,000 / 4,000 training / validation transitions at any frame skip."""
-    name = "fca" if frame_skip == 1 else f"fca-fs{frame_skip}"
-    doc = ("the paper's MuJoCo-State setting (FCA's code): frame skip 1, 500 standard steps of simulated time, "
-           "rewards on the standard-step scale, 50,000 expert steps of which 20,000 train and 4,000 validate"
-           if frame_skip == 1 else
-           f"the copycat map's fca at frame skip {frame_skip}: fca's simulated time, rewards and data sizes, "
-           f"{frame_skip} simulator steps per control step")
-    return Protocol(name, frame_skip=frame_skip, horizon=500, collect_transitions=50_000, train_transitions=20_000,
-                    val_transitions=4_000, doc=doc)
+def _fca(frame_skip: int = 1, train: int = 20_000) -> Protocol:
+    """FCA's protocol at simulator frame skip `frame_skip` with `train` training transitions: the same 500 standard
+    steps of simulated time and 4,000 validation transitions at any frame skip; the expert steps collected are
+    fca's 50,000, or `train` + 10,000 where that is more."""
+    skip = "" if frame_skip == 1 else f"-fs{frame_skip}"
+    name = f"fca{skip}" + ("" if train == 20_000 else f"-train{train // 1000}k")
+    if name == "fca":
+        doc = ("the paper's MuJoCo-State setting (FCA's code): frame skip 1, 500 standard steps of simulated time, "
+               "rewards on the standard-step scale, 50,000 expert steps of which 20,000 train and 4,000 validate")
+    elif train == 20_000:
+        doc = (f"the copycat map's fca at frame skip {frame_skip}: fca's simulated time, rewards and data sizes, "
+               f"{frame_skip} simulator steps per control step")
+    else:
+        doc = (f"the copycat map's fca{skip} with {train:,} training transitions instead of 20,000: as much "
+               f"simulated time of demonstrations as {train * frame_skip // 4:,} frame-skip-4 steps")
+    return Protocol(name, frame_skip=frame_skip, horizon=500, collect_transitions=max(50_000, train + 10_000),
+                    train_transitions=train, val_transitions=4_000, doc=doc,
+                    reference=None if train == 20_000 else f"fca{skip}")
 
 
-# The copycat map (BENCHMARKS.md) compares fca at frame skips 1, 2 and 4: where does the history stop helping?
+# The copycat map (BENCHMARKS.md) compares fca at frame skips 1, 2 and 4 (where does the history stop helping?),
+# and at frame skip 1 with a quarter and four times the training transitions (80,000 at frame skip 1 cover the
+# simulated time 20,000 cover at frame skip 4: is it the frame rate, or how much of the task the data shows?).
 FCA_FRAME_SKIPS = (1, 2, 4)
+FCA_TRAIN_SIZES = (5_000, 80_000)
 PROTOCOLS: Mapping[str, Protocol] = MappingProxyType({p.name: p for p in (
     *(_fca(k) for k in FCA_FRAME_SKIPS),
+    *(_fca(1, n) for n in FCA_TRAIN_SIZES),
     Protocol("brax", doc="the environment's own settings: Brax's frame skip and 1,000-step episodes for MuJoCo"),
 )})
 

@@ -76,7 +76,7 @@ def test_split_sizes_gives_exact_sizes_from_disjoint_episodes():
 
 
 def test_an_unknown_protocol_or_one_the_task_cannot_take_is_refused(capsys):
-    for argv, message in ((["--protocol", "gym"], "unknown protocol 'gym' for hopper; valid: fca, fca-fs2, fca-fs4, brax"),
+    for argv, message in ((["--protocol", "gym"], "unknown protocol 'gym' for hopper; valid: fca, fca-fs2, fca-fs4, fca-train5k, fca-train80k, brax"),
                           (["--env", "toycar", "--protocol", "fca"], "unknown protocol 'fca' for toycar; valid: brax")):
         with pytest.raises(SystemExit) as exc:
             sweep.parse(argv)
@@ -151,3 +151,16 @@ def test_collect_refuses_a_protocol_the_task_cannot_take(capsys):
         with pytest.raises(SystemExit) as exc:
             collect_cli.parse(argv)
         assert exc.value.code == 2 and message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name,train,collected", [("fca-train5k", 5_000, 50_000), ("fca-train80k", 80_000, 90_000)])
+def test_the_maps_data_size_protocols_change_only_the_training_transitions(name, train, collected):
+    """fca with another training-set size: the simulator settings (and so the expert references) are fca's."""
+    p, fca = tasks.PROTOCOLS[name], tasks.PROTOCOLS["fca"]
+    assert (p.train_transitions, p.collect_transitions, p.val_transitions) == (train, collected, 4_000)
+    assert p.env_overrides(4) == fca.env_overrides(4) and p.reference == "fca"
+    s, f = p.settings(4), fca.settings(4)
+    assert {k: v for k, v in s.items() if k not in ("name", "train_transitions", "collect_transitions")} == \
+        {k: v for k, v in f.items() if k not in ("name", "train_transitions", "collect_transitions")}
+    spec = S.SweepSpec("hopper", "pos", "quick", preset_for("quick", "hopper", "pos"), ("bc-oh",), protocol=name)
+    assert spec.preset.episodes == collected // 2000

@@ -277,7 +277,7 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
         raise ValueError(f"the training split has {len(train)} transitions, fewer than the batch size "
                          f"{preset.batch_size}; collect more episodes")
     expert, _ = collect.expert_for(env)
-    card = experts.reference(spec.env, spec.protocol) if spec.task.has_card else None
+    card = experts.reference(spec.env, protocol.reference or protocol.name) if spec.task.has_card else None
     return Prepared(env=env, task=spec.task, train=train, val=val, normalizer=Normalizer.fit(train.obs),
                     expert=expert, card=card, data_path=str(path), source=source, settings=settings)
 
