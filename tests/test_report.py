@@ -56,13 +56,15 @@ def _schema2(obj, command=None, methods=None, protocol=None):
             "methods": methods or {}, "config": {**obj["config"], "metric": "return", "task_metrics": []}}
 
 
-def _fca(frame_skip=1, standard=4):
+def _fca(frame_skip=1, standard=4, train=20_000):
     """The fca family's protocol dict as `ape_jax.tasks.Protocol.settings` records it: `fca` at frame skip 1, else
-    `fca-fs<N>`, 500 standard steps of simulated time, 20,000 / 4,000 training / validation transitions."""
-    return {"name": "fca" if frame_skip == 1 else f"fca-fs{frame_skip}", "frame_skip": frame_skip,
+    `fca-fs<N>`, 500 standard steps of simulated time, `train` / 4,000 training / validation transitions
+    (`-train<N>k` in the name where `train` is not fca's 20,000)."""
+    name = ("fca" if frame_skip == 1 else f"fca-fs{frame_skip}") + ("" if train == 20_000 else f"-train{train // 1000}k")
+    return {"name": name, "frame_skip": frame_skip,
             "standard_frame_skip": standard, "episode_length": 500 * standard // frame_skip,
-            "reward_scale": frame_skip / standard, "collect_transitions": 50_000, "train_transitions": 20_000,
-            "val_transitions": 4_000, "history": 2}
+            "reward_scale": frame_skip / standard, "collect_transitions": max(50_000, train + 10_000),
+            "train_transitions": train, "val_transitions": 4_000, "history": 2}
 
 
 def _map_files(tmp_path, fs1=(600.0, 610.0, 1000.0), fs2=(600.0, 1000.0, 1100.0), fs4=(400.0, 1600.0, 1500.0),
@@ -490,8 +492,8 @@ def test_the_copycat_map_gives_each_frame_skip_its_row_and_gaps(tmp_path):
     assert [(r.history_ci.low, r.history_ci.high) for r in cm.rows[1:]] == [(19.0, 21.0), (59.0, 61.0)]
     assert cm.rows[0].history_ci == report.bootstrap_difference([30.0, 30.5, 31.0], [29.5, 30.0, 30.5])
     text = report.report(files)
-    assert ("| Hopper | 2 | fca-fs2 | 30.0 ± 0.5 | 50.0 ± 0.5 | 55.0 ± 0.5 | 2 / 2 / 2 | +20.0 [+19.0, +21.0] | "
-            "50.0 |") in text
+    assert ("| Hopper | 2 | 20,000 | fca-fs2 | 30.0 ± 0.5 | 50.0 ± 0.5 | 55.0 ± 0.5 | 2 / 2 / 2 | +20.0 [+19.0, "
+            "+21.0] | 50.0 |") in text
     low, high = cm.rows[0].history_ci.low, cm.rows[0].history_ci.high
     assert low < 0 < high
     assert (f"- Hopper: at frame skip 4 the history lifts BC-OH 60.0 points of expert above BC-SO (95% CI [+59.0, "
@@ -637,3 +639,26 @@ def test_a_longer_run_is_its_own_group_compared_configuration_by_configuration(t
     assert "| Ours (step), THR 10% W 5 | 1,000 ± 8 (50%) | 3 | 1,300 ± 10 (65%) | 2 |" in section
     assert (tmp_path / "figures" / "grid-hopper-fca-100000it.png").exists()
     assert "| BC-OH | 610 ± 8 (30%) |" in text[text.index("### MuJoCo-State, the paper's protocol"):]
+
+
+
+def test_the_copycat_map_adds_training_set_sizes_at_frame_skip_1(tmp_path):
+    """fca-train5k / fca-train80k files give the map rows at frame skip 1 by training-set size (fca's own 20,000
+    among them), apart from the frame-skip rows, in the table, a sentence and a second figure panel."""
+    files = _map_files(tmp_path)
+    for i, (train, rets) in enumerate(((5_000, (500.0, 480.0, 520.0)), (80_000, (700.0, 1500.0, 1600.0)))):
+        obj = _results("hopper", (("bc-so", {}, rets[0]), ("bc-oh", {}, rets[1]),
+                                  ("ours-step", {"thr": 0.1, "w": 5.0}, rets[2])))
+        files.append(_loaded(tmp_path, _schema2(obj, protocol=_fca(1, train=train)), f"data{i}.json"))
+    (cm,) = report.copycat_map(report.merge(files))
+    assert [r.frame_skip for r in cm.rows] == [1, 2, 4]                      # the frame-skip rows are unchanged
+    assert [(r.train_transitions, r.protocol) for r in cm.data_rows] == [
+        (5_000, "fca-train5k"), (20_000, "fca"), (80_000, "fca-train80k")]
+    assert [r.history for r in cm.data_rows] == [-1.0, 0.5, 40.0]
+    text = report.report(files, tmp_path / "figures")
+    assert "| Hopper | 1 | 80,000 | fca-train80k | 35.0 ± 0.5 | 75.0 ± 0.5 | 80.0 ± 0.5 |" in text
+    assert text.count("| Hopper | 1 | 20,000 | fca |") == 1                   # fca's row once
+    assert ("Hopper, frame skip 1: with 5,000 training transitions the history leaves BC-OH 1.0 points of expert "
+            "below BC-SO") in text
+    assert "BC-OH reaches 24.0% of expert with 5,000, 30.5% of expert with 20,000, 75.0% of expert with 80,000." in text
+    assert (tmp_path / "figures" / "copycat-map.png").exists()

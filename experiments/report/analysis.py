@@ -511,18 +511,25 @@ class MapRow(NamedTuple):
     history: float | None
     history_ci: Interval | None
     ceiling: float | None
+    train_transitions: int | None = None
 
 
 class CopycatMap(NamedTuple):
-    """One task's copycat map: a row per frame skip of the fca family, in increasing order."""
+    """One task's copycat map: `rows`, one per frame skip of the fca family at fca's training-set size, in
+    increasing order; `data_rows`, one per training-set size at frame skip 1 (fca's own size included) where the
+    files hold other sizes (`fca-train5k`, `fca-train80k`), in increasing order, else empty."""
 
     env: str
     obs: str
     title: str
     rows: list[MapRow]
+    data_rows: list[MapRow] = []
 
     def at(self, frame_skip: int) -> MapRow | None:
         return next((r for r in self.rows if r.frame_skip == frame_skip), None)
+
+
+FCA_TRAIN = 20_000  # fca's training transitions: the frame-skip rows of the map all have it
 
 
 def _map_cell(m: dict, method: str, hparams: dict | None) -> MapCell | None:
@@ -547,32 +554,36 @@ def copycat_map(merged: dict) -> list[CopycatMap]:
     Raises:
       ReportError: two protocols of the fca family at one frame skip for one task.
     """
-    by_task: dict[tuple[str, str], dict[int, dict]] = {}
+    by_task: dict[tuple[str, str], dict[tuple[int, int], dict]] = {}
     for key, m in _ordered(merged):
-        skip = m["protocol"].get("frame_skip")
+        skip, train = m["protocol"].get("frame_skip"), m["protocol"].get("train_transitions") or FCA_TRAIN
         if not in_fca_family(key.protocol) or skip is None or key.budget is not None:
             continue
-        skips = by_task.setdefault((key.env, key.obs), {})
-        if skip in skips:
-            raise ReportError(f"{key.env} ({key.obs}): protocols {skips[skip]['protocol']['name']} and "
-                              f"{key.protocol} both ran at frame skip {skip}; pass the files of one of them")
-        skips[skip] = m
+        cells = by_task.setdefault((key.env, key.obs), {})
+        if (skip, train) in cells:
+            raise ReportError(f"{key.env} ({key.obs}): protocols {cells[skip, train]['protocol']['name']} and "
+                              f"{key.protocol} both ran at frame skip {skip} with {train:,} training transitions; "
+                              "pass the files of one of them")
+        cells[skip, train] = m
     out = []
-    for (env, obs), skips in by_task.items():
-        if len(skips) < 2:
+    for (env, obs), cells in by_task.items():
+        rows = [_map_row(cells[k], *k) for k in sorted(cells) if k[1] == FCA_TRAIN]
+        data = [_map_row(cells[k], *k) for k in sorted(cells, key=lambda k: k[1]) if k[0] == 1]
+        data = data if any(r.train_transitions != FCA_TRAIN for r in data) else []
+        if len(rows) < 2 and not data:
             continue
-        rows = []
-        for skip in sorted(skips):
-            m = skips[skip]
-            cells = tuple(_map_cell(m, method, hp) for _, method, hp in MAP_METHODS)
-            bcso, bcoh = cells[0], cells[1]
-            history = None if bcso is None or bcoh is None else bcoh.mean - bcso.mean
-            ci = (bootstrap_difference(bcoh.seeds, bcso.seeds)
-                  if bcso is not None and bcoh is not None and bcso.seeds and bcoh.seeds else None)
-            rows.append(MapRow(skip, m["protocol"]["name"], cells, history, ci,
-                               None if bcoh is None else 100.0 - bcoh.mean))
-        out.append(CopycatMap(env, obs, _title(Key(env, obs, FCA), {"name": FCA}, with_protocol=False), rows))
+        out.append(CopycatMap(env, obs, _title(Key(env, obs, FCA), {"name": FCA}, with_protocol=False), rows, data))
     return out
+
+
+def _map_row(m: dict, skip: int, train: int) -> MapRow:
+    cells = tuple(_map_cell(m, method, hp) for _, method, hp in MAP_METHODS)
+    bcso, bcoh = cells[0], cells[1]
+    history = None if bcso is None or bcoh is None else bcoh.mean - bcso.mean
+    ci = (bootstrap_difference(bcoh.seeds, bcso.seeds)
+          if bcso is not None and bcoh is not None and bcso.seeds and bcoh.seeds else None)
+    return MapRow(skip, m["protocol"]["name"], cells, history, ci, None if bcoh is None else 100.0 - bcoh.mean,
+                  train)
 
 
 # -- grid search: the paper's choices ------------------------------------------------------------------------------

@@ -524,30 +524,35 @@ def weights_figure(shares: list[WeightShares]) -> Figure | None:
 
 def copycat_map_figure(maps: list[CopycatMap]) -> Figure | None:
     """The copycat map (`analysis.copycat_map`): per task, % of expert against frame skip (log2 axis), a line per
-    method (mean over seeds, error bars: std over seeds), the expert's 100% dashed; None without a map."""
+    method (mean over seeds, error bars: std over seeds), the expert's 100% dashed, and where the task has them a
+    second panel against the training transitions at frame skip 1; None without a map."""
     if not maps:
         return None
-    cols = max(1, min(COLUMNS, len(maps)))
-    fig = Figure(figsize=(4.2 * cols, 3.6 * math.ceil(len(maps) / cols)), dpi=DPI, layout="constrained")
-    for ax, cm in zip(_grid_axes(fig, len(maps), cols), maps):
-        skips = [r.frame_skip for r in cm.rows]
+    panels = [(cm, "frame skip (simulator steps per action)", cm.rows, lambda r: r.frame_skip, 2)
+              for cm in maps if len(cm.rows) >= 2]
+    panels += [(cm, "training transitions, frame skip 1", cm.data_rows, lambda r: r.train_transitions, 10)
+               for cm in maps if cm.data_rows]
+    cols = max(1, min(COLUMNS, len(panels)))
+    fig = Figure(figsize=(4.2 * cols, 3.6 * math.ceil(len(panels) / cols)), dpi=DPI, layout="constrained")
+    for ax, (cm, xlabel, rows, x_of, base) in zip(_grid_axes(fig, len(panels), cols), panels):
+        xs = [x_of(r) for r in rows]
         for i, (name, _, _) in enumerate(MAP_METHODS):
-            points = [(r.frame_skip, r.cells[i]) for r in cm.rows if r.cells[i] is not None]
+            points = [(x_of(r), r.cells[i]) for r in rows if r.cells[i] is not None]
             if points:
                 ax.errorbar([x for x, _ in points], [c.mean for _, c in points],
                             yerr=[0.0 if math.isnan(c.std) else c.std for _, c in points], marker="o", ms=4,
                             capsize=3, lw=1.3, label=name)
         ax.axhline(100.0, color="0.4", ls="--", lw=1)
-        ax.text(skips[0], 100.0, " expert", va="bottom", fontsize=7, color="0.3")
-        ax.set_xscale("log", base=2)
-        ax.set_xticks(skips, labels=[str(x) for x in skips])
+        ax.text(xs[0], 100.0, " expert", va="bottom", fontsize=7, color="0.3")
+        ax.set_xscale("log", base=base)
+        ax.set_xticks(xs, labels=[f"{x:,}" for x in xs])
         ax.minorticks_off()
         ax.set_title(cm.title, fontsize=10)
-        ax.set_xlabel("frame skip (simulator steps per action)", fontsize=9)
+        ax.set_xlabel(xlabel, fontsize=9)
         ax.set_ylabel("% of expert", fontsize=9)
         ax.grid(color="0.9")
         ax.tick_params(labelsize=8)
         ax.legend(fontsize=7, frameon=False, loc="best")
-    fig.suptitle("The copycat map: % of expert per frame skip\n(the paper's protocol at each; mean ± std over seeds)",
-                 fontsize=10)
+    fig.suptitle("The copycat map: % of expert per frame skip and per training-set size\n(the paper's protocol at "
+                 "each; mean ± std over seeds)", fontsize=10)
     return fig

@@ -344,15 +344,17 @@ def copycat_map_table(maps: list[CopycatMap]) -> str:
     """The copycat map as one table: per task and frame skip, BC-SO, BC-OH and Ours (step THR 10% W 5) in % of
     expert (mean ± std over seeds), the seeds, BC-OH − BC-SO with its 95% CI, and expert − BC-OH."""
     names = [lab for lab, _, _ in MAP_METHODS]
-    lines = ["| task | frame skip | protocol | " + " | ".join(names) + " | seeds (" + " / ".join(
-        n.split(",")[0] for n in names) + ") | BC-OH − BC-SO [95% CI] | expert − BC-OH |",
-        "|---|---:|---|" + "---:|" * (len(names) + 3)]
+    lines = ["| task | frame skip | training transitions | protocol | " + " | ".join(names) + " | seeds (" +
+             " / ".join(n.split(",")[0] for n in names) + ") | BC-OH − BC-SO [95% CI] | expert − BC-OH |",
+             "|---|---:|---:|---|" + "---:|" * (len(names) + 3)]
     for cm in maps:
-        for r in cm.rows:
+        shown = {(r.frame_skip, r.train_transitions) for r in cm.rows}
+        for r in cm.rows + [r for r in cm.data_rows if (r.frame_skip, r.train_transitions) not in shown]:
             history = "—" if r.history is None else f"{r.history:+.1f}"
             if r.history_ci is not None:
                 history += f" [{r.history_ci.low:+.1f}, {r.history_ci.high:+.1f}]"
-            lines.append(f"| {cm.title} | {r.frame_skip} | {r.protocol} | " + " | ".join(map(_map_cell, r.cells))
+            train = "—" if r.train_transitions is None else f"{r.train_transitions:,}"
+            lines.append(f"| {cm.title} | {r.frame_skip} | {train} | {r.protocol} | " + " | ".join(map(_map_cell, r.cells))
                          + " | " + " / ".join("—" if c is None else str(c.n) for c in r.cells) + f" | {history} | "
                          + ("—" if r.ceiling is None else f"{r.ceiling:.1f}") + " |")
     return "\n".join(lines) + "\n"
@@ -374,9 +376,26 @@ def _significant(ci: Interval | None) -> bool:
     return ci is not None and min(ci.n_a, ci.n_b) >= 2 and ci.low > 0
 
 
+def copycat_map_data_sentence(cm: CopycatMap) -> str | None:
+    """At frame skip 1, how the history's benefit and BC-OH change with the training-set size (None: one size)."""
+    rows = [r for r in cm.data_rows if r.history is not None]
+    if len(rows) < 2:
+        return None
+    parts = [f"with {r.train_transitions:,} training transitions the history {_lift(r.history)}"
+             + (f" ({_ci(r.history_ci)})" if r.history_ci else "") for r in rows]
+    bcoh = [r for r in cm.data_rows if r.cells[1] is not None]
+    text = f"{cm.title}, frame skip 1: " + "; ".join(parts) + "."
+    if bcoh:
+        text += " BC-OH reaches " + ", ".join(f"{r.cells[1].mean:.1f}% of expert with {r.train_transitions:,}"
+                                               for r in bcoh) + "."
+    return text
+
+
 def copycat_map_sentence(cm: CopycatMap) -> str:
     """Where the history's benefit opens along the frame skips of one task's copycat map, from its numbers."""
     rows = [r for r in cm.rows if r.history is not None]
+    if len(cm.rows) < 2:
+        return copycat_map_data_sentence(cm) or f"{cm.title}: the map has one frame skip."
     if not rows:
         return f"{cm.title}: BC-SO and BC-OH did not both run at any frame skip, so the map cannot say."
     top, rest = rows[-1], rows[-2::-1]
@@ -402,7 +421,8 @@ def copycat_map_sentence(cm: CopycatMap) -> str:
     if gaps:
         text += " BC-OH's gap to the expert: " + ", ".join(
             f"{r.ceiling:.1f} points at frame skip {r.frame_skip}" for r in gaps) + "."
-    return text
+    data = copycat_map_data_sentence(cm)
+    return text + (f" {data}" if data else "")
 
 
 def _fmt(mean: float, std: float, prefix: str) -> str:
@@ -695,7 +715,11 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
                 f"{_pct(PAPER_STEP['thr'])} W {PAPER_STEP['w']:g}) in % of expert (mean ± std over seeds); BC-OH − "
                 "BC-SO is what the history adds, in points of % of expert, with a 95% bootstrap CI over seeds; "
                 "expert − BC-OH is how far BC-OH is from its ceiling (the expert, 100%). Copycat shows as a small or "
-                "negative BC-OH − BC-SO: the history then predicts the last action instead of helping.", ""]
+                "negative BC-OH − BC-SO: the history then predicts the last action instead of helping."
+                + (" The rows at frame skip 1 with other training-set sizes (fca-train5k, fca-train80k) separate "
+                   "the frame rate from how much of the task the data shows: 20,000 transitions at frame skip 1 "
+                   "span a quarter of the simulated time 20,000 span at frame skip 4, and 80,000 span the same."
+                   if any(cm.data_rows for cm in maps) else ""), ""]
         out += figure("copycat-map.png", "The copycat map: % of expert per frame skip",
                       lambda: figures.copycat_map_figure(maps))
         out += [copycat_map_table(maps)] + [f"- {copycat_map_sentence(cm)}" for cm in maps] + [""]
