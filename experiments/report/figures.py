@@ -553,6 +553,5 @@ def copycat_map_figure(maps: list[CopycatMap]) -> Figure | None:
         ax.grid(color="0.9")
         ax.tick_params(labelsize=8)
         ax.legend(fontsize=7, frameon=False, loc="best")
-    fig.suptitle("The copycat map: % of expert per frame skip and per training-set size\n(the paper's protocol at "
-                 "each; mean ± std over seeds)", fontsize=10)
+    fig.suptitle("The copycat map: % of expert\n(the paper's protocol; mean ± std over seeds)", fontsize=10)
     return fig
