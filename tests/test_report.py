@@ -662,3 +662,5 @@ def test_the_copycat_map_adds_training_set_sizes_at_frame_skip_1(tmp_path):
             "below BC-SO") in text
     assert "BC-OH reaches 24.0% of expert with 5,000, 30.5% of expert with 20,000, 75.0% of expert with 80,000." in text
     assert (tmp_path / "figures" / "copycat-map.png").exists()
+    assert "### Hopper, `pos` observations, protocol fca, 80,000 training transitions: every configuration" in text
+    assert (tmp_path / "figures" / "grid-hopper-fca-train80k.png").exists()

@@ -132,11 +132,15 @@ def protocol_of(res: results_lib.Results, where: str = "") -> dict:
 
 
 def protocol_words(p: dict) -> str:
-    """How titles name a protocol: `"fca"`, `"fca, frame skip 2"` (another of the fca family), else its name."""
+    """How titles name a protocol: `"fca"`, `"fca, frame skip 2"`, `"fca, 80,000 training transitions"` (the rest
+    of the fca family, by what differs from fca), else its name."""
     name = p["name"]
-    if in_fca_family(name) and name != FCA and p.get("frame_skip") is not None:
-        return f"{FCA}, frame skip {p['frame_skip']}"
-    return name
+    if not in_fca_family(name) or name == FCA:
+        return name
+    differs = ([f"frame skip {p['frame_skip']}"] if p.get("frame_skip") not in (None, 1) else []) + \
+        ([f"{p['train_transitions']:,} training transitions"]
+         if p.get("train_transitions") not in (None, FCA_TRAIN) else [])
+    return ", ".join([FCA, *differs]) if differs else name
 
 
 def merge(files: Sequence[results_lib.Results]) -> dict[Key, dict]:
