@@ -1,11 +1,15 @@
 """Several processes, one grid (`jax.distributed`): the same numbers as one process, and only process 0 writes.
 
 Two CPU processes on 127.0.0.1 with two devices each train a grid sharded over
-all four devices; one process with four devices runs the same per-device
-program (a quarter of the grid on each device, and no communication inside
-it), so the parameters are compared bit for bit. The sweep's command line runs
-over two processes on the ToyCar sandbox (no MJX compile); its refusals of bad
-process flags are checked without starting JAX.
+all four devices, and one process with four devices trains the same grid: the
+same per-device program (two of the eight padded rows on each device, no
+communication inside it). On the 2-core AMD EPYC the parameters come out bit for
+bit the same, but XLA:CPU's rounding can depend on how many devices a process
+has (a one-device program in a process with four forced devices already
+differs in its last bits there), so they are compared as `tests/_compare.py`
+compares two trainings of one model. The sweep's command line runs over two
+processes on the ToyCar sandbox (no MJX compile); its refusals of bad process
+flags are checked without starting JAX.
 """
 
 import json
@@ -18,7 +22,9 @@ import sys
 import numpy as np
 import pytest
 
+from _compare import UPDATE_RTOL, update_mismatch
 from experiments import sweep
+from test_learner import LOSS_RTOL
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -31,6 +37,7 @@ import jax
 pid, count, port, out = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3], pathlib.Path(sys.argv[4])
 if count > 1:
     jax.distributed.initialize(f"127.0.0.1:{port}", num_processes=count, process_id=pid)
+import jax.numpy as jnp
 import numpy as np
 sys.path.insert(0, str(pathlib.Path.cwd() / "tests"))
 from test_learner import _dataset, GRID
@@ -70,7 +77,10 @@ assert got["f"].tobytes() == np.array([-0.0, np.nan, 1.5], np.float32).tobytes()
 assert differing_processes(data) == [] and differing_processes(mine) == ([1] if count > 1 else [])
 
 if writes:
-    flat = {f"params/{i}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(params))}
+    keys = jnp.stack([r.key for r in program.runs])
+    init = jax.jit(jax.vmap(lambda k: program.learner.init(k, GRID[0], data).params))(keys)
+    flat = {f"init/{i}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(init))}
+    flat |= {f"params/{i}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(params))}
     flat |= {f"resumed/{i}": np.asarray(x) for i, x in enumerate(jax.tree.leaves(resumed))}
     flat |= {f"metrics/{k}": np.asarray(v) for k, v in metrics.items()}
     flat |= {f"resumed_metrics/{k}": np.asarray(v) for k, v in resumed_metrics.items()}
@@ -105,7 +115,7 @@ def run_processes(commands: list[list[str]], env: dict, timeout: float = 300) ->
     return [subprocess.CompletedProcess(c, p.returncode, o, e) for c, p, (o, e) in zip(commands, procs, outs)]
 
 
-def test_two_processes_train_the_grid_bit_for_bit_like_one_process_and_resume_from_process_zero(tmp_path):
+def test_two_processes_train_the_grid_like_one_process_and_resume_from_process_zero(tmp_path):
     code = WORKER
     port = free_port()
     two = run_processes([[sys.executable, "-c", code, str(i), "2", str(port), str(tmp_path / "two")]
@@ -118,10 +128,18 @@ def test_two_processes_train_the_grid_bit_for_bit_like_one_process_and_resume_fr
 
     a, b = np.load(tmp_path / "two" / "trained.npz"), np.load(tmp_path / "one" / "trained.npz")
     assert sorted(a.files) == sorted(b.files) and a["metrics/loss"].shape == (6, 6)
-    for k in a.files:
-        assert a[k].dtype == b[k].dtype and a[k].tobytes() == b[k].tobytes(), k
-    # the second run resumed from the (halved) saved state: its first three iterations are the saved curves,
-    # the rest differ; that every row did, process 1's devices' too, is the comparison with one process above
+    for run in ("metrics", "resumed_metrics"):
+        for k in (k for k in a.files if k.startswith(f"{run}/")):
+            np.testing.assert_allclose(a[k], b[k], rtol=LOSS_RTOL, err_msg=k)
+    n = len([k for k in a.files if k.startswith("init/")])
+    for i in range(6):  # each row, process 1's devices' rows 4 and 5 included
+        init = [a[f"init/{j}"][i] for j in range(n)]
+        for run in ("params", "resumed"):
+            mine, reference = ([x[f"{run}/{j}"][i] for j in range(n)] for x in (a, b))
+            assert update_mismatch(mine, reference, init) < UPDATE_RTOL, (run, i)
+    # the second run resumed from the (halved) saved state: its first three iterations are the saved curves, the
+    # rest differ; a row that had not (on process 1's devices: the state comes from process 0) would differ from
+    # the one-process run's by about its whole update, a hundred times the tolerance above
     loss, resumed = a["metrics/loss"], a["resumed_metrics/loss"]
     assert np.array_equal(loss[:, :3], resumed[:, :3]) and np.all(loss[:, 3:] != resumed[:, 3:])
     assert np.all(np.isfinite(loss)) and len(set(loss[:, -1])) == 6  # six runs, each its own
