@@ -19,7 +19,8 @@ in the same order: each call is a collective.
 configurations one after another, reusing that one executable: on CPU the
 vmapped gradients of convolutions (grouped convolutions) train several times
 slower per model than one model at a time, so the sweep uses it for image
-policies on CPU. The grid is padded to a
+policies on CPU (with several processes, each runs every configuration on its
+own first device: nothing is shared, nothing is faster). The grid is padded to a
 multiple of the device count by repeating its last entry, and the padding is
 dropped from the outputs. The same code runs on one CPU, several GPUs, or
 several processes or hosts after `jax.distributed.initialize()`; on CPU,
