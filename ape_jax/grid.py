@@ -6,24 +6,36 @@
 The grid axis is laid out over a one-axis `Mesh` of all devices (or the ones
 given) with `NamedSharding`; data is replicated.
 
+Several processes (`jax.distributed.initialize()`, one per host, all running
+the same program): `jax.devices()` is then every process's devices, and the
+mesh spans them all. Every process holds the whole grid and the data on its
+host and gives its own devices their rows (`jax.make_array_from_callback`);
+the outputs come back to every process's host, whole, as NumPy arrays (the
+training program is the one a single process with as many devices compiles;
+the gather is a program of its own). Every process must make the same calls
+in the same order: each call is a collective.
+
 `vectorize=False` instead compiles `fn` for one configuration and runs the
 configurations one after another, reusing that one executable: on CPU the
 vmapped gradients of convolutions (grouped convolutions) train several times
 slower per model than one model at a time, so the sweep uses it for image
-policies on CPU. The grid is padded to a
+policies on CPU (with several processes, each runs every configuration on its
+own first device: nothing is shared, nothing is faster). The grid is padded to a
 multiple of the device count by repeating its last entry, and the padding is
 dropped from the outputs. The same code runs on one CPU, several GPUs, or
-several hosts after `jax.distributed.initialize()`; on CPU,
+several processes or hosts after `jax.distributed.initialize()`; on CPU,
 `XLA_FLAGS=--xla_force_host_platform_device_count=4` simulates four devices.
 """
 
 from __future__ import annotations
 
+import zlib
 from typing import Any, Callable, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.experimental import multihost_utils
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 AXIS = "grid"
@@ -45,6 +57,9 @@ def grid_runner(fn: Callable[[jax.Array, Any, Any], Any], devices: Sequence[jax.
       `G`, such as a batch of training states) and every `hparams` leaf
       `[G, ...]` are split over the devices; `data` is replicated; outputs have
       leading dim `G`. A second call with the same shapes does not recompile.
+      When `devices` span several processes, inputs may be NumPy or
+      process-local arrays (each process passes the whole grid) and outputs
+      are NumPy arrays, whole on every process.
     """
     if not vectorize:
         return _sequential_runner(fn)
@@ -54,14 +69,68 @@ def grid_runner(fn: Callable[[jax.Array, Any, Any], Any], devices: Sequence[jax.
     mapped = jax.jit(jax.vmap(fn, in_axes=(0, 0, None)), in_shardings=(split, split, replicated),
                      out_shardings=split)
 
+    several = len({d.process_index for d in devices}) > 1
+    # one program gathers the whole output tree (`process_allgather` compiles one per leaf)
+    gather = jax.jit(lambda tree: tree, out_shardings=replicated) if several else None
+
     def run(keys: Any, hparams: Any, data: Any) -> Any:
         g = int(jax.tree.leaves(keys)[0].shape[0])
         pad = -g % len(devices)
-        out = mapped(pad_grid(keys, pad), pad_grid(hparams, pad), data)
+        args = pad_grid(keys, pad), pad_grid(hparams, pad), data
+        if not several:
+            out = mapped(*args)
+        else:  # a jit refuses host arrays for a mesh of several processes: each process fills its own devices
+            out = jax.tree.map(np.asarray, gather(mapped(*(
+                global_array(a, s) for a, s in zip(args, (split, split, replicated))))))
         return jax.tree.map(lambda x: x[:g], out)
 
     run.devices = devices  # type: ignore[attr-defined]
     return run
+
+
+def global_array(tree: Any, sharding: NamedSharding) -> Any:
+    """`tree` (leaves the same on every process's host) as global arrays laid out by `sharding`.
+
+    Each process copies only the slices its own devices hold. Leaves keep their
+    shapes and dtypes; they must be the same on every process.
+    """
+    def one(x):
+        x = np.asarray(x)
+        return jax.make_array_from_callback(x.shape, sharding, lambda index: x[index])
+
+    return jax.tree.map(one, tree)
+
+
+def from_process_zero(tree: Any) -> Any:
+    """`tree` as process 0 holds it, on every process, bit for bit (NumPy leaves).
+
+    Every process must call it, with a tree of the same structure, shapes and
+    dtypes (the values of the others are ignored). One process: `tree` as it is.
+    """
+    if jax.process_count() == 1:
+        return tree
+    leaves, treedef = jax.tree.flatten(tree)
+    leaves = [np.asarray(x) for x in leaves]
+    # `broadcast_one_to_all` adds zeros from the other processes: done on the bytes, that is exact for every
+    # dtype (floats would lose the sign of -0.0) and keeps 64-bit values intact without jax_enable_x64
+    sent = multihost_utils.broadcast_one_to_all([np.ascontiguousarray(x).reshape(-1).view(np.uint8) for x in leaves])
+    return jax.tree.unflatten(treedef, [np.asarray(b).view(x.dtype).reshape(x.shape) for b, x in zip(sent, leaves)])
+
+
+def differing_processes(tree: Any) -> list[int]:
+    """The processes whose `tree` differs from process 0's; `[]` in a one-process run.
+
+    Compares one CRC-32 per process of the tree's structure, shapes, dtypes and
+    bytes. Every process must call it.
+    """
+    if jax.process_count() == 1:
+        return []
+    leaves, treedef = jax.tree.flatten(tree)
+    crc = zlib.crc32(str(treedef).encode())
+    for x in map(np.asarray, leaves):
+        crc = zlib.crc32(np.ascontiguousarray(x), zlib.crc32(f"{x.dtype}{x.shape}".encode(), crc))
+    every = np.asarray(multihost_utils.process_allgather(np.array([crc], np.uint32))).reshape(-1)
+    return [i for i, c in enumerate(every) if c != every[0]]
 
 
 def _sequential_runner(fn: Callable[[jax.Array, Any, Any], Any]) -> Callable[[jax.Array, Any, Any], Any]:

@@ -13,6 +13,11 @@ where it stopped, bit-identically on the same machine (`ape_jax.pipeline.checkpo
 Rerunning a finished sweep reports it; `--fresh` discards what `--out` holds.
 Per-iteration training curves go to `OUT/curves/*.csv` and TensorBoard event
 files to `OUT/tensorboard/` (`ape_jax.pipeline.logs`).
+
+Several processes (`--coordinator HOST:PORT --num-processes N --process-id I`,
+or JAX's own environment, `experiments._distributed`) train one grid sharded
+over all their devices; every process prepares and trains, and process 0
+alone evaluates and writes.
 """
 
 from __future__ import annotations
@@ -24,16 +29,20 @@ import pathlib
 import shutil
 import sys
 
+from experiments import _distributed
 from experiments._cli import Parser, fail, unwritable
 
+PROG = "python -m experiments.sweep"
 
-def parse(argv=None) -> argparse.Namespace:
+
+def parse(argv=None, writes: bool = True) -> argparse.Namespace:
+    """The command line, checked (one line and exit status 2 for bad input); `writes=False`: --out is not probed."""
     import envs
     from ape_jax import methods, tasks
     from ape_jax.pipeline import data
     from ape_jax.pipeline.presets import PRESETS, preset_for
 
-    p = Parser(prog="python -m experiments.sweep", description=__doc__.splitlines()[0])
+    p = Parser(prog=PROG, description=__doc__.splitlines()[0])
     p.add_argument("--env", default="hopper", help=f"{', '.join(tasks.sweepable())} (default: hopper)")
     p.add_argument("--obs", default=None, help="observation mode (default: the task's: pos, or image for the "
                                                "driving sandbox)")
@@ -71,6 +80,7 @@ def parse(argv=None) -> argparse.Namespace:
                         "NAME.npz, or a Minari dataset directory or id; it must fit --env/--obs")
     p.add_argument("--quiet", action="store_true", help="no progress bars (for CI logs); messages and the table only")
     p.add_argument("--data-dir", type=pathlib.Path, default=None, help=f"demonstration cache (default: {data.cache_dir()})")
+    _distributed.add_flags(p)
     args = p.parse_args(argv)
     if args.resume and args.fresh:
         fail(p, "--resume and --fresh contradict each other")
@@ -102,9 +112,11 @@ def parse(argv=None) -> argparse.Namespace:
     default_protocol = tasks.get(args.env).protocol(None, args.obs).name
     name = [args.env, args.obs, *([args.protocol] if args.protocol != default_protocol else []), args.preset]
     args.out = args.out or pathlib.Path("runs/sweep") / "-".join(name)
-    problem = "exists and is not a directory" if args.out.exists() and not args.out.is_dir() else unwritable(args.out)
-    if problem:
-        fail(p, f"--out {args.out}: {problem}")
+    if writes:  # only process 0 touches --out (a process on another machine may not even see it)
+        problem = ("exists and is not a directory" if args.out.exists() and not args.out.is_dir()
+                   else unwritable(args.out))
+        if problem:
+            fail(p, f"--out {args.out}: {problem}")
     if args.checkpoint_every:  # saves fall between chunks: a shorter interval makes the chunks shorter
         args.preset_cfg = dataclasses.replace(args.preset_cfg, chunk=min(args.preset_cfg.chunk, args.checkpoint_every))
     args.checkpoint_every = args.checkpoint_every or args.preset_cfg.chunk
@@ -197,28 +209,50 @@ OUTPUTS = ("results.json", "results.csv", "params", "curves", "tensorboard", "ch
 
 
 def main(argv=None) -> int:
-    args = parse(argv)
-    from tqdm import tqdm
-
-    from ape_jax.pipeline import checkpoint as ckpt_lib
-    from ape_jax.pipeline import logs
-    from ape_jax.pipeline import results as results_lib
-    from ape_jax.pipeline.checkpoint import CheckpointError, SweepCheckpoint, differences
-    from ape_jax.pipeline.data import DataError
-    from ape_jax.pipeline.sweep import Hooks, SweepSpec, run_sweep
-    from ape_jax.methods import PluginError
-    from envs.experts import ExpertError
-    from experiments._provenance import system
-
-    p = args.preset_cfg
-    started = system()  # at the start: the code that runs, not what is checked out when it ends
+    procs = _distributed.start(PROG, argv)  # first: JAX's distributed runtime must start before JAX computes
+    fp, opened, verdict = None, None, None
     try:
-        spec = SweepSpec(args.env, args.obs, args.preset, p, args.methods, dataset=args.dataset,
-                         data_dir=args.data_dir, protocol=args.protocol, command=("python", "-m", "experiments.sweep", *(
-                             sys.argv[1:] if argv is None else argv)))
+        args = parse(argv, writes=procs.writes)
+        spec, fp = _spec(args, argv)
+        created = procs.writes and not args.out.exists()
+        if procs.writes:  # the others never look at --out
+            opened = _open_out(args, fp)
+            verdict = opened if isinstance(opened, int) else None
+    except SystemExit as e:
+        if procs.count == 1:
+            raise
+        verdict = e.code if isinstance(e.code, int) else 0 if e.code is None else 2
+    # a refusal on any process, or a finished sweep, stops them all before any trains (the others would wait for it)
+    code = procs.agree(verdict, fp)
+    if code is not None:
+        return code
+    if not procs.writes:
+        return _train_share(spec, procs)
+    return _run(args, spec, opened, created)
+
+
+def _spec(args: argparse.Namespace, argv) -> tuple:
+    """The sweep's `SweepSpec` and its fingerprint (one line and exit status 2 if its expert or settings are
+    refused)."""
+    from ape_jax.pipeline.sweep import SweepSpec
+    from envs.experts import ExpertError
+
+    try:
+        spec = SweepSpec(args.env, args.obs, args.preset, args.preset_cfg, args.methods, dataset=args.dataset,
+                         data_dir=args.data_dir, protocol=args.protocol,
+                         command=("python", "-m", "experiments.sweep", *(sys.argv[1:] if argv is None else argv)))
         fp = spec.fingerprint()
     except (ExpertError, ValueError) as e:
-        return fail(None, str(e))
+        fail(None, str(e))
+    return spec, fp
+
+
+def _open_out(args: argparse.Namespace, fp: dict):
+    """--out made ready: its opened `SweepCheckpoint`, or exit status 0 when it holds this sweep finished
+    (reported). Refuses (exit 2) a finished sweep of other settings and a checkpoint it cannot resume."""
+    from ape_jax.pipeline import results as results_lib
+    from ape_jax.pipeline.checkpoint import CheckpointError, SweepCheckpoint, differences
+
     results_path = args.out / "results.json"
     if args.fresh:
         for name in OUTPUTS:
@@ -229,21 +263,56 @@ def main(argv=None) -> int:
             old = results_lib.load(results_path)
             diff = differences(old.fingerprint(), fp)
         except results_lib.ResultsError as e:
-            return fail(None, f"{e}; move it away, or pass --fresh to replace it")
+            fail(None, f"{e}; move it away, or pass --fresh to replace it")
         if diff:
-            return fail(None, f"{args.out} holds a finished sweep with other settings, differing in "
-                              f"{'; '.join(diff[:4])}; use another --out, or pass --fresh to replace it")
+            fail(None, f"{args.out} holds a finished sweep with other settings, differing in "
+                       f"{'; '.join(diff[:4])}; use another --out, or pass --fresh to replace it")
         print(f"{results_path} already holds this sweep; not rerunning (--fresh to train it again).\n")
         print(table(old))
         return 0
-    created = not args.out.exists()
     checkpoint = SweepCheckpoint(args.out / "checkpoints", fp, args.checkpoint_every)
     try:
         if checkpoint.open():
             print(f"resuming from {checkpoint.directory}")
     except CheckpointError as e:
-        return fail(None, str(e))
+        fail(None, str(e))
+    return checkpoint
 
+
+def _train_share(spec, procs: _distributed.Processes) -> int:
+    """A process other than process 0: prepares and trains (the grid's programs need every process), writes nothing."""
+    from ape_jax.pipeline.checkpoint import CheckpointError
+    from ape_jax.pipeline.data import DataError
+    from ape_jax.pipeline.sweep import Hooks, train_sweep
+    from ape_jax.methods import PluginError
+    from envs.experts import ExpertError
+
+    try:
+        train_sweep(spec, Hooks(log=lambda message: None))
+    except (ExpertError, CheckpointError, DataError, PluginError, ValueError) as e:  # as process 0 refuses them
+        return fail(None, f"process {procs.index}: {e}")
+    print(f"process {procs.index} of {procs.count}: trained its share of the grid; process 0 evaluates and writes "
+          "the results")
+    return 0
+
+
+def _run(args: argparse.Namespace, spec, checkpoint, created: bool) -> int:
+    """Process 0 (or the only one): the whole sweep, and every file it writes (`created`: --out was made for it)."""
+    from tqdm import tqdm
+
+    from ape_jax.pipeline import checkpoint as ckpt_lib
+    from ape_jax.pipeline import logs
+    from ape_jax.pipeline import results as results_lib
+    from ape_jax.pipeline.checkpoint import CheckpointError
+    from ape_jax.pipeline.data import DataError
+    from ape_jax.pipeline.sweep import Hooks, run_sweep
+    from ape_jax.methods import PluginError
+    from envs.experts import ExpertError
+    from experiments._provenance import system
+
+    p = args.preset_cfg
+    started = system()  # at the start: the code that runs, not what is checked out when it ends
+    results_path = args.out / "results.json"
     proto = spec.protocol_settings()
     print(f"sweep: {args.env} ({args.obs}), protocol {spec.protocol} (frame skip {proto['frame_skip'] or '-'}, "
           f"{proto['episode_length']:,}-step episodes), preset {args.preset}: {p.iterations:,} iterations, "

@@ -144,7 +144,11 @@ class ProgramCheckpoint:
     def _manager(self):
         import orbax.checkpoint as ocp
 
-        options = ocp.CheckpointManagerOptions(max_to_keep=1, enable_async_checkpointing=False, create=True)
+        alone = _alone()
+        if alone:  # orbax cannot create the directory for a subset of the processes
+            self.directory.mkdir(parents=True, exist_ok=True)
+        options = ocp.CheckpointManagerOptions(max_to_keep=1, enable_async_checkpointing=False, create=not alone,
+                                               **alone)
         return ocp.CheckpointManager(self.directory.absolute(), options=options)
 
     def restore(self, target: Any) -> tuple[int, Any, dict] | None:
@@ -181,6 +185,23 @@ class ProgramCheckpoint:
         self._last_saved = iteration
         if self.owner is not None:
             self.owner.save_s += time.perf_counter() - t0
+
+
+def _alone() -> dict:
+    """orbax's options for a process that saves alone: `{}` in a one-process run.
+
+    In a run of several JAX processes (`jax.distributed`) orbax waits at
+    barriers for all of them at every save, but only process 0 writes here:
+    the others never call in, and would never arrive.
+    """
+    import jax
+
+    if jax.process_count() == 1:
+        return {}
+    import orbax.checkpoint as ocp
+
+    me = jax.process_index()
+    return {"multiprocessing_options": ocp.options.MultiprocessingOptions(primary_host=me, active_processes={me})}
 
 
 # -- phase outputs with structure: the APE fit -----------------------------------------------------------------------
@@ -244,7 +265,7 @@ def save_policies(params_dir: os.PathLike, groups: dict[str, dict]) -> None:
     params_dir = pathlib.Path(params_dir)
     # orbax saves to a temporary name and renames when done: create the parent first.
     params_dir.mkdir(parents=True, exist_ok=True)
-    with ocp.StandardCheckpointer() as ckpt:
+    with ocp.StandardCheckpointer(**_alone()) as ckpt:
         for name, block in groups.items():
             target = (params_dir / name).absolute()
             if target.exists():

@@ -180,15 +180,24 @@ def settings(env_name: str, obs: str, episodes: int, seed: int = 0, noise_frac: 
             "env_overrides": overrides, "expert": expert_info, "format": data_lib.FORMAT}
 
 
-def collect_cached(cfg: dict, data_dir, force: bool = False, progress=None):
+def collect_cached(cfg: dict, data_dir, force: bool = False, progress=None, save: bool = True):
     """The dataset of settings `cfg` (from `settings`): loaded if cached, else collected and saved.
+
+    `save=False` (a sweep's processes other than process 0) writes nothing, and
+    collects rather than fail on a cached file it cannot read (another process
+    may be writing it).
 
     Returns:
       (demos, meta, path, cached): `cached` is True when nothing was collected.
     """
     path = data_lib.cache_path(data_dir, cfg)
     if path.exists() and not force:
-        demos, meta = data_lib.load(path)
+        try:
+            demos, meta = data_lib.load(path)
+        except data_lib.DataError:
+            if save:
+                raise
+            meta = {}
         if meta.get("settings") == json.loads(json.dumps(cfg)):
             return demos, meta, path, True
     env = envs.make(cfg["env"], obs=cfg["obs"], **{k: (tuple(v) if isinstance(v, list) else v)
@@ -209,5 +218,6 @@ def collect_cached(cfg: dict, data_dir, force: bool = False, progress=None):
         "collect_s": round(seconds, 2), "backend": jax.default_backend(),
         "versions": {p: version(p) for p in ("jax", "brax", "mujoco", "mujoco-mjx", "numpy")},
     }
-    meta = data_lib.save(path, demos, meta)
+    if save:
+        meta = data_lib.save(path, demos, meta)
     return demos, meta, path, False

@@ -43,7 +43,7 @@ from ape_jax import ape as ape_lib
 from ape_jax import evaluate as evaluate_lib
 from ape_jax import methods as methods_lib
 from ape_jax import tasks
-from ape_jax.grid import grid_runner, pad_grid
+from ape_jax.grid import differing_processes, from_process_zero, grid_runner, pad_grid
 from ape_jax.learner import Data, Learner, LearnerConfig, make_train
 from ape_jax.pipeline import checkpoint as ckpt_lib
 from ape_jax.pipeline import collect, minari_io
@@ -259,7 +259,8 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
     if spec.dataset is None:
         with hooks.bar(desc="collect", total=preset.episodes, unit="episode") as b:
             demos, _, path, cached = collect.collect_cached(settings, spec.data_dir,
-                                                            progress=lambda n: b.update(n - b.n))
+                                                            progress=lambda n: b.update(n - b.n),
+                                                            save=jax.process_index() == 0)
             b.update(preset.episodes - b.n)
         source = "cached" if cached else "collected"
     else:
@@ -462,7 +463,10 @@ def train_program(program: Program, hparams: Any, preset: Preset, data: Data, pr
     hps = pad_grid(hparams, pad)
     state = init(pad_grid(keys, pad), hps, data)
     start, metrics = 0, []
-    saved = checkpoint.restore(state) if checkpoint is not None else None
+    if jax.process_count() == 1:
+        saved = checkpoint.restore(state) if checkpoint is not None else None
+    else:
+        saved = _restore_on_every_process(checkpoint, state, learner, hps, data)
     if saved is not None:
         start, state, curves = saved
         metrics.append(curves)
@@ -492,6 +496,37 @@ def train_program(program: Program, hparams: Any, preset: Preset, data: Data, pr
     return jax.tree.map(lambda x: x[: len(runs)], learner.policy_params(state)), metrics
 
 
+def _restore_on_every_process(checkpoint: ProgramCheckpoint | None, state: Any, learner: Learner, hparams: Any,
+                               data: Data) -> tuple[int, Any, dict] | None:
+    """`checkpoint.restore(state)` as process 0 has it, on every process of a multi-process run.
+
+    Only process 0 reads checkpoints (the others get none), but every process
+    must run the same training chunks: the iteration it resumes from, the
+    state and the curves so far are sent from it to the others, bit for bit.
+    """
+    failure, saved = None, None
+    if checkpoint is not None:
+        try:
+            saved = checkpoint.restore(state)
+        except ckpt_lib.CheckpointError as e:  # told to the others before raising, or they would wait forever
+            failure = e
+    start = int(from_process_zero(np.int64(-1 if failure else saved[0] if saved else 0)))
+    if start < 0:
+        raise failure or ckpt_lib.CheckpointError("process 0 could not read its checkpoint of this program "
+                                                  "(its output says why)")
+    if start == 0:
+        return None
+    # the others know the curves' names and dtypes from the program's output, not from a file
+    shapes = jax.eval_shape(jax.vmap(lambda s, hp, d: learner.run(s, hp, d, 1), in_axes=(0, 0, None)),
+                            state, hparams, data)[1]
+    curves = {k: np.zeros((v.shape[0], start), v.dtype) for k, v in shapes.items()}
+    if saved is not None:
+        state = saved[1]
+        curves = {k: np.asarray(saved[2][k], v.dtype) for k, v in curves.items()}
+    state, curves = from_process_zero((jax.tree.map(np.asarray, state), curves))
+    return start, state, curves
+
+
 def _concat(metrics: list[dict]) -> dict:
     """Per-chunk metrics `[G, n]` joined along the iteration axis."""
     return jax.tree.map(lambda *xs: np.concatenate(xs, axis=1), *metrics)
@@ -507,6 +542,13 @@ def train(programs: Sequence[Program], spec: SweepSpec, prepared: Prepared, data
             hooks.log("warning: ResNet-18 trains about a hundred times slower than the small encoder on a CPU; "
                       "the paper preset's image protocol is meant for GPUs")
     rows = score_rows(spec.methods)
+    if jax.process_count() > 1:
+        # each process gives its devices their rows from its own copy: every copy must be the same
+        differ = differing_processes(data)
+        if differ:
+            raise ValueError(f"the training data of process(es) {', '.join(map(str, differ))} differ from process "
+                             "0's (other demonstrations, or another machine computing them differently): every "
+                             "process must train on the same data")
     out = []
     total = sum(p.learner.rounds * p.learner.round_iterations for p in programs)
     with hooks.bar(desc="train", total=total, unit="it") as b:
@@ -672,6 +714,22 @@ def policies(evaluated: Evaluated, prepared: Prepared) -> dict[str, dict]:
             for g in evaluated.groups}
 
 
+def train_sweep(spec: SweepSpec, hooks: Hooks = Hooks(),
+                checkpoint: SweepCheckpoint | None = None) -> tuple[Prepared, ApeFit, list[Trained]]:
+    """Phases 1-3: the demonstrations, the APE fit and every program trained.
+
+    All that a sweep's processes other than process 0 run after
+    `jax.distributed.initialize()`: the training programs are collectives every
+    process joins; evaluating and writing are process 0's (`run_sweep`).
+    """
+    prepared = prepare(spec, hooks)
+    programs = plan(spec, prepared)
+    scores = method_scores(spec.methods, prepared.train)  # a plugin's bad scores are refused before APE compiles
+    ape = fit_ape(prepared, spec.preset, hooks, checkpoint)
+    data = prepared.data(prepared.train, ape.train, score_table(ape.train, scores))
+    return prepared, ape, train(programs, spec, prepared, data, hooks, checkpoint)
+
+
 def run_sweep(spec: SweepSpec, hooks: Hooks = Hooks(),
               checkpoint: SweepCheckpoint | None = None) -> tuple[results_lib.Results, dict[str, dict]]:
     """Runs the whole sweep; returns its `Results` and its policies (`policies`).
@@ -680,12 +738,7 @@ def run_sweep(spec: SweepSpec, hooks: Hooks = Hooks(),
     states are saved there, and what it already holds is reused.
     """
     t_start = time.perf_counter()
-    prepared = prepare(spec, hooks)
-    programs = plan(spec, prepared)
-    scores = method_scores(spec.methods, prepared.train)  # a plugin's bad scores are refused before APE compiles
-    ape = fit_ape(prepared, spec.preset, hooks, checkpoint)
-    data = prepared.data(prepared.train, ape.train, score_table(ape.train, scores))
-    trained = train(programs, spec, prepared, data, hooks, checkpoint)
+    prepared, ape, trained = train_sweep(spec, hooks, checkpoint)
     evaluated = evaluate(trained, prepared, ape, spec.preset, hooks, checkpoint)
     timing = {"compile_s": sum(t.compile_s for t in trained), "train_s": sum(t.train_s for t in trained),
               "eval_s": evaluated.eval_s, "total_s": time.perf_counter() - t_start,
