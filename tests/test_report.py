@@ -664,3 +664,12 @@ def test_the_copycat_map_adds_training_set_sizes_at_frame_skip_1(tmp_path):
     assert (tmp_path / "figures" / "copycat-map.png").exists()
     assert "### Hopper, `pos` observations, protocol fca, 80,000 training transitions: every configuration" in text
     assert (tmp_path / "figures" / "grid-hopper-fca-train80k.png").exists()
+
+
+def test_the_plain_reading_names_no_best_of_a_grid_that_did_not_run(tmp_path):
+    """A sweep of BC-SO, BC-OH and the paper's step setting alone selected nothing: no "best of our grids"."""
+    only = _results("hopper", (("bc-so", {}, 600.0), ("bc-oh", {}, 610.0), ("ours-step", {"thr": 0.1, "w": 5.0}, 1000.0)))
+    text = report.report([_loaded(tmp_path, _schema2(only, protocol=_fca(1)), "only.json")])
+    reading = text[text.index("### Does keyframe weighting fix copycat"):]
+    assert "Ours at the paper's step setting (THR 10%, W 5) − BC-OH: +390 return" in reading
+    assert "best of our step and softmax grids" not in reading

@@ -523,6 +523,8 @@ def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
                         f"{_words(ci, 'Ours', 'BC-OH', 'keyframe weighting beats BC-OH', 'BC-OH beats it')}.")
         grids = [(row, ci) for lab, row, ci in ours[1:]]
         best_row = _best([row for row, _ in grids])
+        if len(_rows(m, "ours-step")) + len(_rows(m, "ours-softmax")) <= 1:
+            best_row = None   # no grid ran beside the paper's setting: nothing was selected
         if best_row is not None and paper is not None and best_row is paper[0]:
             text.append("The best of our step and softmax grids is that same setting.")
         elif best_row is not None:
