@@ -30,6 +30,7 @@ training curves); files are written by `ape_jax.pipeline.checkpoint` and
 from __future__ import annotations
 
 import dataclasses
+import functools
 import pathlib
 import resource
 import time
@@ -142,8 +143,9 @@ class SweepSpec:
             methods_lib.get(m)  # MethodError for an unknown name
         setup = self.setup  # ValueError for a protocol the task cannot take
         object.__setattr__(self, "protocol", setup.name)
-        preset = dataclasses.replace(self.preset, history=tasks.PROTOCOLS[setup.name].history)
-        if tasks.PROTOCOLS[setup.name].collect_transitions is not None:
+        protocol = tasks.PROTOCOLS[setup.name]
+        preset = dataclasses.replace(self.preset, history=protocol.history)
+        if protocol.collect_transitions is not None:
             preset = dataclasses.replace(preset, episodes=setup.episodes)
         object.__setattr__(self, "preset", resolved(preset, self.env))
 
@@ -151,14 +153,15 @@ class SweepSpec:
     def task(self) -> tasks.Task:
         return tasks.get(self.env)
 
-    @property
+    @functools.cached_property
     def setup(self) -> collect.ProtocolSetup:
-        """The protocol as it applies to this environment (`collect.protocol_setup`)."""
+        """The protocol as it applies to this environment (`collect.protocol_setup`), resolved once: a protocol
+        without an episode length of its own makes the environment to read it."""
         return collect.protocol_setup(self.env, self.obs, self.protocol)
 
     def protocol_settings(self) -> dict:
         """Every field of the protocol as it applies to this environment (results.json's `protocol`)."""
-        return self.setup.settings
+        return dict(self.setup.settings)
 
     def collection_overrides(self) -> dict:
         """The `envs.make` settings demonstrations are collected with: the protocol's, and the image size."""
