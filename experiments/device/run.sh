@@ -1,0 +1,89 @@
+#!/usr/bin/env bash
+# The prepared accelerator run (issue 18): the paper preset on Hopper `pos`, then as much of an
+# image run as fits, with the measurements that go beside them. Run from the repository root:
+#
+#   experiments/device/fetch_wheels.sh               # here, once: the packages the GPU image lacks, into .whl/
+#   experiments/device/run.sh                        # there (the device tool, carry [".whl"]): H200, ~8 min
+#   experiments/device/run.sh --smoke                # here: tiny sizes on the CPU, to check the script
+#
+# Everything it keeps goes under $OUT (default: runs/device, or runs/device-smoke): measure.json
+# (versions, devices, matmul peak, grid FLOP/s, MJX steps/s), nvidia-smi.txt, and per sweep its
+# results.json, results.csv, log and wall time (timings.json). Sweeps write their checkpoints
+# under $WORK (default /tmp/ape_device), not $OUT: those are large and need not travel back.
+#
+# The budget: BUDGET_S seconds in all (default 420, inside the 8 minutes of device time an issue
+# sizes this run to, the machine's start apart; --smoke: 1500, for a busy 2-core CPU); the paper
+# sweep may use PAPER_S of them (default 300); the image run gets what is left, less 20 s for
+# copying. A stage that runs out of time is stopped and says so.
+set -uo pipefail
+cd "$(dirname "$0")/../.."
+SMOKE=0
+for arg in "$@"; do
+  case "$arg" in
+    --smoke) SMOKE=1 ;;
+    -h|--help) sed -n '2,17p' "$0"; exit 0 ;;
+    *) echo "run.sh: error: unknown argument $arg (valid: --smoke)" >&2; exit 2 ;;
+  esac
+done
+START=$(date +%s)
+if [ "$SMOKE" = 1 ]; then BUDGET_S=${BUDGET_S:-1500}; else BUDGET_S=${BUDGET_S:-420}; fi
+PAPER_S=${PAPER_S:-300}
+if [ "$SMOKE" = 1 ]; then OUT=${OUT:-runs/device-smoke}; else OUT=${OUT:-runs/device}; fi
+WORK=${WORK:-/tmp/ape_device}
+mkdir -p "$OUT" "$WORK" || { echo "run.sh: error: cannot make $OUT or $WORK" >&2; exit 2; }
+PY=${PYTHON:-python3}
+export PYTHONUNBUFFERED=1
+
+# 1. The carried wheels (experiments/device/fetch_wheels.sh put them in .whl/), then the repository.
+PYVER=$($PY -c 'import sys; print(f"{sys.version_info[0]}.{sys.version_info[1]}")') \
+  || { echo "run.sh: error: no Python at $PY" >&2; exit 2; }
+if ls .whl/*.whl >/dev/null 2>&1 && [ "$PYVER" != 3.12 ]; then
+  echo "run.sh: .whl/ holds wheels for Python 3.12 (the GPU image's); $PY is $PYVER: using its own packages"
+elif ls .whl/*.whl >/dev/null 2>&1; then
+  $PY -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
+    || { echo "run.sh: error: installing the wheels in .whl/ failed" >&2; exit 1; }
+  export PYTHONPATH=/tmp/site:$PWD${PYTHONPATH:+:$PYTHONPATH}
+else
+  export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH}
+fi
+if command -v nvidia-smi >/dev/null 2>&1; then nvidia-smi > "$OUT/nvidia-smi.txt" 2>&1; fi
+
+left() { echo $(( BUDGET_S - ($(date +%s) - START) )); }
+
+# stage NAME LIMIT_S ARGS...: one sweep under a time limit; keeps results and the log under $OUT/NAME.
+stage() {
+  local name=$1 limit=$2; shift 2
+  if [ "$limit" -lt 10 ]; then echo "== $name: skipped (${limit} s of the budget left)"; return 0; fi
+  echo "== $name: up to ${limit} s: python -m experiments.sweep $*"
+  mkdir -p "$OUT/$name"
+  local t0=$(date +%s)
+  timeout --signal=INT --kill-after=15 "$limit" $PY -m experiments.sweep --quiet --out "$WORK/$name" "$@" \
+    > "$OUT/$name/log.txt" 2>&1
+  local rc=$? wall=$(( $(date +%s) - t0 ))
+  tail -n 30 "$OUT/$name/log.txt"
+  cp "$WORK/$name"/results.json "$WORK/$name"/results.csv "$OUT/$name/" 2>/dev/null
+  local done=false; [ -f "$OUT/$name/results.json" ] && done=true
+  printf '{"stage": "%s", "rc": %d, "wall_s": %d, "limit_s": %d, "finished": %s, "args": "%s"}\n' \
+    "$name" "$rc" "$wall" "$limit" "$done" "$*" > "$OUT/$name/timings.json"
+  if [ "$done" = true ]; then echo "== $name: finished in ${wall} s"
+  else echo "== $name: stopped after ${wall} s (rc $rc) before it finished; its progress is in $OUT/$name/log.txt"; fi
+}
+
+# 2. Versions, the device, the matmul peak, the grid's FLOP/s, MJX steps/s.
+if [ "$SMOKE" = 1 ]; then
+  $PY -m experiments.device.measure --out "$OUT" --smoke --repeats 1 || exit $?
+  stage hopper-pos-paper "$(( $(left) - 20 ))" --env hopper --obs pos --preset quick --iterations 20 --seeds 1 \
+    --eval-episodes 1 --methods bc-so,bc-oh,ours-step --step-grid 0.1:5
+  stage hopper-image-paper "$(( $(left) - 20 ))" --env hopper --obs image --preset quick --iterations 2 --seeds 1 \
+    --eval-episodes 1 --methods bc-oh
+else
+  $PY -m experiments.device.measure --out "$OUT" || exit $?
+  # 3. The paper preset on Hopper pos under the fca protocol: the default grid (14 configurations) x 5 seeds,
+  #    300k iterations, 100 evaluation episodes.
+  paper=$(left); [ "$paper" -gt "$PAPER_S" ] && paper=$PAPER_S
+  stage hopper-pos-paper "$paper" --env hopper --obs pos --preset paper
+  # 4. As much of the image protocol as fits: ResNet-18, batch 128, BC-OH and ours-step (10%, 5), one seed.
+  stage hopper-image-paper "$(( $(left) - 20 ))" --env hopper --obs image --preset paper --seeds 1 \
+    --methods bc-oh,ours-step --step-grid 0.1:5 --iterations "${IMAGE_ITERS:-20000}" --eval-episodes 10
+fi
+echo "== run.sh: $(( $(date +%s) - START )) s in all; files under $OUT"

@@ -1,0 +1,64 @@
+"""The prepared accelerator run (`experiments/device/`): its refusals, its measurements at tiny sizes, the smoke run."""
+
+import json
+import os
+import pathlib
+import subprocess
+import sys
+
+import pytest
+
+from experiments.device import measure
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+RUN = ROOT / "experiments" / "device" / "run.sh"
+
+
+def test_measure_refuses_a_cpu_without_smoke(tmp_path, capsys):
+    if measure.jax.default_backend() == "gpu":
+        pytest.skip("this machine has a GPU")
+    assert measure.main(["--out", str(tmp_path)]) == 2
+    assert "JAX sees no GPU" in capsys.readouterr().err
+    assert not (tmp_path / "measure.json").exists()
+
+
+@pytest.mark.parametrize("argv,message", [(["--seeds", "0"], ">= 1"), (["--out", "/proc/x"], "--out /proc/x")])
+def test_measure_refuses_bad_input_with_exit_code_2(argv, message, capsys):
+    argv = argv if "--out" in argv else [*argv, "--out", "somewhere"]
+    with pytest.raises(SystemExit) as exc:
+        measure.main([*argv, "--smoke"])
+    assert exc.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_grid_throughput_counts_the_paper_grid_and_its_flops():
+    g = measure.grid_throughput(iters=3, seeds=2, repeats=1)
+    assert g["models"] == 2 * 14  # BC-SO, BC-OH, 6 step, 6 softmax per seed
+    assert g["dense_weights"] == 2 * 5 * 300 + 300 * 300 * 2 + 300 * 100 + 100 * 300 + 300 * 3
+    assert g["model_updates_s"] > 0
+    assert g["flops_s"] == pytest.approx(6 * 128 * g["dense_weights"] * g["model_updates_s"])
+
+
+def test_the_wheels_list_pins_one_version_of_each_package():
+    lines = [ln for ln in (RUN.parent / "wheels.txt").read_text().splitlines() if ln and not ln.startswith("#")]
+    names = [ln.split("==")[0].lower().replace("_", "-") for ln in lines]
+    assert all("==" in ln for ln in lines) and len(names) == len(set(names))
+    assert {"brax", "mujoco", "mujoco-mjx"} <= set(names)
+
+
+def test_run_sh_refuses_an_unknown_argument():
+    out = subprocess.run(["bash", str(RUN), "--fast"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "unknown argument --fast" in out.stderr
+
+
+@pytest.mark.slow
+def test_run_sh_smoke_measures_and_finishes_both_sweeps(tmp_path):
+    env = {**os.environ, "OUT": str(tmp_path / "out"), "WORK": str(tmp_path / "work"), "PYTHON": sys.executable}
+    out = subprocess.run(["bash", str(RUN), "--smoke"], capture_output=True, text=True, timeout=1800, env=env)
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    m = json.loads((tmp_path / "out" / "measure.json").read_text())
+    assert m["smoke"] and m["grid"]["model_updates_s"] > 0 and m["mjx"][0]["steps_s"] > 0
+    for stage in ("hopper-pos-paper", "hopper-image-paper"):
+        timing = json.loads((tmp_path / "out" / stage / "timings.json").read_text())
+        assert timing["finished"] is True, out.stdout[-3000:]
+        results = json.loads((tmp_path / "out" / stage / "results.json").read_text())
+        assert all(r["status"] == "ok" for r in results["runs"])
