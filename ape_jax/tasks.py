@@ -183,8 +183,12 @@ TASKS: Mapping[str, Task] = MappingProxyType({t.name: t for t in (
     Task("toycar", "ToyCar", loss="l1", episodes=10, fca_alpha=0.2, metric="success", metrics=_TOYCAR_METRICS,
          default_obs="image", expert="rule-based", protocols=("brax",), default_protocols={}, presets={"image": {
              "quick": {"image_size": (32, 32)},
-             "default": {"iterations": 2_000, "seeds": 5, "eval_episodes": 20, "chunk": 250,
-                         "image_size": (64, 64), "softmax_grid": ()},
+             # a BC-SO policy that learns to stop on a 2-core CPU (issue 17): 32×32 frames keep the lamp
+             # (3×3 px) and the dashes that show speed; 40 demonstrations (~5k samples, the paper's 1k
+             # gave 87% for BC-SO); Adam at 1e-3 on batches of 64 for 5,000 updates; 200 evaluation
+             # episodes per policy, so a seed's success rate is known to ~2 points
+             "default": {"iterations": 5_000, "seeds": 5, "eval_episodes": 200, "chunk": 250, "episodes": 40,
+                         "lr": 1e-3, "batch_size": 64, "image_size": (32, 32), "softmax_grid": ()},
              "paper": {"seeds": 5, "softmax_grid": ()}}},
          # the supplement's Table 4: success %, mean ± std over 5 trials (ours-step: THR 10%, W 5)
          paper=MappingProxyType({"bc-so": (97.2, 0.7), "bc-oh": (95.1, 4.5), "ours-step": (97.8, 0.5)})),

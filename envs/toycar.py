@@ -3,7 +3,8 @@
 A car drives along a straight road with one traffic light that stays red or
 green for random lengths of time. The car is a point-mass double integrator
 with two actions, throttle and brake, each in [0, 1], applying fixed positive
-and negative accelerations; speed is clipped to [0, max_speed]. The episode
+and negative accelerations against a constant rolling resistance (a car off
+the pedals slows down); speed is clipped to [0, max_speed]. The episode
 ends when the car reaches the end of the road (or at the time limit, applied
 by the rollout). Success = reaching the end without crossing the light's stop
 line while it is red.
@@ -51,7 +52,14 @@ class ToyCarConfig:
       max_speed: speed limit, m/s.
       throttle_accel: acceleration at full throttle, m/s².
       brake_accel: deceleration at full brake, m/s².
+      rolling_resistance: deceleration of a moving car with no throttle, m/s² (rolling resistance and
+        engine braking, always on): a car that lets go of the pedals slows down, so a policy that
+        releases the brake a little early near the stop line does not creep over it.
       red_range, green_range: a status lasts uniformly this many seconds.
+      amber_seconds: the last this-many seconds of a green status show amber (yellow), as real
+        lights do: the light's colour then tells whether it is about to turn red, which the time
+        left (not in the image) otherwise decides alone. A car that can no longer stop goes on
+        amber; this must exceed the time to cross the longest stopping distance.
       stop_margin: the expert stops this many metres before the stop line.
       stuck_seconds: standing still this long while free to go counts as stuck.
       episode_length: control steps per episode (the time limit).
@@ -67,8 +75,10 @@ class ToyCarConfig:
     max_speed: float = 10.0
     throttle_accel: float = 3.0
     brake_accel: float = 6.0
+    rolling_resistance: float = 1.0
     red_range: tuple[float, float] = (2.0, 8.0)
     green_range: tuple[float, float] = (2.0, 8.0)
+    amber_seconds: float = 2.0
     stop_margin: float = 1.0
     stuck_seconds: float = 3.0
     episode_length: int = 300
@@ -83,10 +93,12 @@ class ToyCarConfig:
             "max_speed": self.max_speed > 0,
             "throttle_accel": self.throttle_accel > 0,
             "brake_accel": self.brake_accel > 0,
+            "rolling_resistance": 0 <= self.rolling_resistance < self.throttle_accel,
             "light_range": 0 < self.light_range[0] <= self.light_range[1] < self.road_length,
             "start_range": 0 <= self.start_range[0] <= self.start_range[1] < self.light_range[0],
             "red_range": 0 < self.red_range[0] <= self.red_range[1],
             "green_range": 0 < self.green_range[0] <= self.green_range[1],
+            "amber_seconds": self.amber_seconds >= 0,
             "episode_length": self.episode_length > 0,
             "image_size": len(self.image_size) == 2 and min(self.image_size) > 0,
         }
@@ -178,7 +190,8 @@ class ToyCar(Env):
         cfg = self.config
         sim = state.pipeline_state
         throttle, brake = jnp.clip(action, 0.0, 1.0)
-        v = jnp.clip(sim.v + (cfg.throttle_accel * throttle - cfg.brake_accel * brake) * cfg.dt, 0.0, cfg.max_speed)
+        accel = cfg.throttle_accel * throttle - cfg.brake_accel * brake - cfg.rolling_resistance
+        v = jnp.clip(sim.v + accel * cfg.dt, 0.0, cfg.max_speed)
         x = sim.x + v * cfg.dt
         violation = crossed_on_red(sim.x, x, sim.light_x, sim.green)
         key, k_dur = jax.random.split(sim.key)
@@ -220,39 +233,40 @@ def full_observation(sim: ToyCarSim) -> jax.Array:
     return jnp.stack([sim.x, sim.v, sim.light_x, sim.green, sim.remaining]).astype(jnp.float32)
 
 
-def _time_to_cover(distance: jax.Array, v: jax.Array, cfg: ToyCarConfig) -> jax.Array:
-    """Seconds to drive `distance` from speed `v` at full throttle (speed-limited)."""
-    a, vmax = cfg.throttle_accel, cfg.max_speed
-    t_acc = (vmax - v) / a
-    d_acc = v * t_acc + 0.5 * a * t_acc**2
-    t_short = (-v + jnp.sqrt(v**2 + 2 * a * jnp.maximum(distance, 0.0))) / a
-    t_long = t_acc + (distance - d_acc) / vmax
-    return jnp.where(distance <= d_acc, t_short, t_long)
-
-
 def _stop_distance(v: jax.Array, cfg: ToyCarConfig) -> jax.Array:
-    """A safe upper bound on the distance needed to stop from speed `v` (discrete braking)."""
+    """A safe upper bound on the distance needed to stop from speed `v` (discrete braking; the rolling
+    resistance, which only shortens it, left out)."""
     return v**2 / (2 * cfg.brake_accel) + v * cfg.dt
+
+
+def amber(sim_or_obs_green: jax.Array, remaining: jax.Array, cfg: ToyCarConfig = ToyCarConfig()) -> jax.Array:
+    """True where a green light shows amber: its last `cfg.amber_seconds`."""
+    return (sim_or_obs_green > 0) & (remaining <= cfg.amber_seconds)
 
 
 def expert_action(full_obs: jax.Array, cfg: ToyCarConfig = ToyCarConfig()) -> jax.Array:
     """The rule-based expert: `[5] full observation -> [2] (throttle, brake)`.
 
-    Drives at full throttle unless the light ahead forces a stop. It keeps the
-    invariant "either I can still stop before the line, or I will surely pass
-    it while green": if the light is green and full throttle passes the line
-    (with two steps of slack) before the status ends, it goes; otherwise it
-    throttles only while it could still stop after this step, coasts while
-    coasting keeps that true, and brakes when neither does. Deterministic,
-    pure, jit- and vmap-able; actions are always 0 or 1.
+    Drives at full throttle unless the light ahead asks it to stop, as a driver
+    does: on green it goes; on amber it stops if it still can and goes through
+    if it cannot (it then crosses before the red, see `ToyCarConfig.amber_seconds`);
+    on red it stops. Stopping keeps the invariant "I can still stop before the
+    line": it throttles only while it could still stop after this step, coasts
+    while coasting keeps that true, and brakes when neither does. Its decisions
+    read only what the image shows (the light's colour, the distance) and the
+    speed, never the time left in the light's status. Deterministic, pure, jit-
+    and vmap-able; actions are always 0 or 1.
     """
     x, v, light_x, green, remaining = full_obs
     before = x < light_x
     line = light_x - cfg.stop_margin
-    go = (green > 0) & (_time_to_cover(light_x - x + 0.1, v, cfg) + 2 * cfg.dt < remaining)
-    v_throttle = jnp.minimum(v + cfg.throttle_accel * cfg.dt, cfg.max_speed)
+    v_throttle = jnp.minimum(v + (cfg.throttle_accel - cfg.rolling_resistance) * cfg.dt, cfg.max_speed)
     can_stop_after_throttle = x + v_throttle * cfg.dt + _stop_distance(v_throttle, cfg) <= line
     can_stop_after_coast = x + v * cfg.dt + _stop_distance(v, cfg) <= line
+    # stopping keeps "can stop now" true after every step, so it is false on amber only for a car that was
+    # going (green) and is already inside its stopping distance: that car goes through
+    can_stop_now = x + _stop_distance(v, cfg) <= line
+    go = (green > 0) & (~amber(green, remaining, cfg) | ~can_stop_now)
     throttle = ~before | go | can_stop_after_throttle
     brake = ~throttle & ~can_stop_after_coast
     return jnp.stack([throttle, brake]).astype(jnp.float32)
@@ -308,6 +322,7 @@ _MARK = jnp.array([0.95, 0.95, 0.95])
 _CAR = jnp.array([0.10, 0.35, 0.85])
 _RED = jnp.array([0.90, 0.10, 0.10])
 _GREEN = jnp.array([0.10, 0.85, 0.20])
+_AMBER = jnp.array([0.98, 0.75, 0.05])
 _POLE = jnp.array([0.15, 0.15, 0.15])
 
 
@@ -338,7 +353,8 @@ def render(sim: ToyCarSim, cfg: ToyCarConfig = ToyCarConfig()) -> jax.Array:
     lamp = (jnp.abs(X - sim.light_x) <= 1.5) & (Y >= road_half + 0.8) & (Y <= road_half + 3.8)
     pole = (jnp.abs(X - sim.light_x) <= max(0.4, px_x)) & (Y > road_half) & (Y < road_half + 0.8)
     img = jnp.where(pole[..., None], _POLE, img)
-    img = jnp.where(lamp[..., None], jnp.where(sim.green > 0, _GREEN, _RED), img)
+    colour = jnp.where(amber(sim.green, sim.remaining, cfg), _AMBER, jnp.where(sim.green > 0, _GREEN, _RED))
+    img = jnp.where(lamp[..., None], colour, img)
     finish = on_road & (jnp.abs(X - cfg.road_length) <= 1.0)
     checker = ((jnp.floor(X) + jnp.floor(Y)) % 2) > 0
     img = jnp.where(finish[..., None], jnp.where(checker[..., None], _MARK, _POLE), img)

@@ -155,6 +155,11 @@ def test_cache_collects_once_and_keys_on_every_setting(tmp_path):
     other = collect.settings("toycar", "full", episodes=2, seed=4, noise_frac=0.1, noise_std=0.2)
     assert data_lib.cache_path(tmp_path, other) != path
     assert data_lib.cache_path(tmp_path, collect.settings("toycar", "full", episodes=3, seed=4)) != path
+    # a rule-based expert's settings (ToyCar's physics) are part of the key, so a changed default is new data
+    assert cfg["expert"]["config"]["rolling_resistance"] == envs.toycar.ToyCarConfig().rolling_resistance
+    changed = json.loads(json.dumps(cfg))
+    changed["expert"]["config"]["rolling_resistance"] = 0.0
+    assert data_lib.cache_path(tmp_path, changed) != path
 
 
 def test_demonstrations_is_a_pytree_that_jit_can_index(demos):
