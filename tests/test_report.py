@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from ape_jax import tasks
+from ape_jax.pipeline.presets import preset_for
 from ape_jax.pipeline.results import Results
 from experiments import report
 from experiments.report import figures
@@ -364,7 +365,8 @@ def test_image_results_and_a_task_judged_by_a_rate_get_their_tables(tmp_path):
     sandbox = {**_results(env=car.name, methods=(("bc-so", {}, 0.0), ("bc-oh", {}, 0.0),
                                                   ("ours-step", {"thr": 0.1, "w": 5.0}, 0.0))), "obs": "image"}
     sandbox["expert"] = {"return_mean": None, "return_std": None, "random_return_mean": None}
-    sandbox["config"] = {**sandbox["config"], "iterations": 2000}   # its task's default preset budget
+    sandbox["config"] = {**sandbox["config"],   # its task's default preset budget
+                         "iterations": preset_for("default", car.name, "image").iterations}
     for i, run in enumerate(sandbox["runs"]):
         run["eval"].update(success=0.9 + 0.05 * run["seed"], red_light_violations=0.0, progress=0.8,
                            avg_speed=0.5, stuck=0.1 * run["seed"])
@@ -376,7 +378,10 @@ def test_image_results_and_a_task_judged_by_a_rate_get_their_tables(tmp_path):
     table = text[text.index(f"### {car.title} (the supplement's Table 4 protocol)"):]
     assert ("| method | seeds | success % | red-light violations | progress | average speed | stuck % | "
             "paper: success % |") in table
-    assert "| BC-OH | 2 | 92.50 ± 2.50 | 0.00 ± 0.00 | 0.80 ± 0.00 | 0.50 ± 0.00 | 5.00 ± 5.00 | 95.1 ± 4.5 |" in table
+    # mean ± std over seeds, and the mean's bootstrap interval over the two seeds (their extremes)
+    assert ("| BC-OH | 2 | 92.50 ± 2.50 [90.00, 95.00] | 0.00 ± 0.00 [0.00, 0.00] | 0.80 ± 0.00 [0.80, 0.80] | "
+            "0.50 ± 0.00 [0.50, 0.50] | 5.00 ± 5.00 [0.00, 10.00] | 95.1 ± 4.5 |") in table
+    assert "Wall time of the run: 2 min (test CPU), compile included." in table
     assert "| Ours, step THR 10% W 5 | 2 |" in table and "97.8 ± 0.5" in table   # the paper's, from the task record
     # its measure is success, not its (zero) reward: in the grid table and the bootstrap
     assert "| method | hparams | seeds | success % |" in table
@@ -387,6 +392,37 @@ def test_image_results_and_a_task_judged_by_a_rate_get_their_tables(tmp_path):
             in text)
     assert f"({car.title}: in success rate)" in text
     assert "### MuJoCo-State" not in text
+
+
+def _sandbox(success, stuck, deltas=(0, 1, 2, 3, 4)):
+    """A driving-sandbox results file: per method, per-seed success rates and stuck rates."""
+    car = next(t for t in tasks.sweepable() if tasks.get(t).metric != "return")
+    methods = (("bc-so", {}, 0.0), ("bc-oh", {}, 0.0), ("ours-step", {"thr": 0.1, "w": 5.0}, 0.0))
+    f = {**_results(env=car, methods=methods, deltas=deltas), "obs": "image"}
+    f["expert"] = {"return_mean": None, "return_std": None, "random_return_mean": None}
+    f["config"] = {**f["config"], "iterations": preset_for("default", car, "image").iterations}
+    for run in f["runs"]:
+        run["eval"].update(episodes=200, success=success[run["method"]][run["seed"]], red_light_violations=0.0,
+                           progress=1.0, avg_speed=7.0, stuck=stuck[run["method"]][run["seed"]])
+    return f
+
+
+def test_the_sandbox_reading_says_whether_ours_beats_bc_oh_and_whether_inertia_appears(tmp_path):
+    success = {"bc-so": [0.92, 0.93, 0.91, 0.94, 0.92], "bc-oh": [0.80, 0.82, 0.79, 0.81, 0.80],
+               "ours-step": [0.88, 0.90, 0.89, 0.87, 0.91]}
+    stuck = {"bc-so": [0.0] * 5, "bc-oh": [0.05, 0.0, 0.1, 0.05, 0.0], "ours-step": [0.0] * 5}
+    text = report.report([_loaded(tmp_path, _sandbox(success, stuck))])
+    assert "BC-SO success: 92.4% [91.6, 93.2] over 5 seeds × 200 evaluation episodes — a plain BC-SO policy has " \
+           "learned the task." in text
+    assert "BC-OH − BC-SO: -12.0 points of success (95% CI [-13.2, -10.8]): BC-SO better." in text and "BC-SO better." in text
+    assert "Ours − BC-OH: +8.6 points of success (95% CI [" in text and "Ours better." in text
+    assert "BC-OH 4.0% of episodes [" in text and "(BC-SO 0.0%, Ours 0.0%) — it appears." in text
+    # the same seeds with no stuck episode, and an unlearned BC-SO: the reading follows
+    flat = {k: [0.0] * 5 for k in stuck}
+    low = {**success, "bc-so": [0.80] * 5}
+    text = report.report([_loaded(tmp_path, _sandbox(low, flat), "flat.json")])
+    assert "below 90%: the policies have not learned the task" in text
+    assert "— it does not appear in these episodes." in text
 
 
 def test_a_plugin_and_the_baselines_are_listed_by_their_recorded_labels(tmp_path):

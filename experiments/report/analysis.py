@@ -406,11 +406,29 @@ def bootstrap_difference(a: Sequence[float], b: Sequence[float], resamples: int 
     if a.ndim != 1 or b.ndim != 1 or not a.size or not b.size:
         raise ValueError(f"bootstrap_difference needs two non-empty 1-d arms, got shapes {a.shape} and {b.shape}")
     rng = np.random.default_rng(seed)
-    means_a = a[rng.integers(0, a.size, size=(resamples, a.size))].mean(1)
-    means_b = b[rng.integers(0, b.size, size=(resamples, b.size))].mean(1)
-    tail = 100 * (1 - level) / 2
-    low, high = np.percentile(means_a - means_b, [tail, 100 - tail])
+    low, high = _percentiles(_resampled_means(a, rng, resamples) - _resampled_means(b, rng, resamples), level)
     return Interval(float(a.mean() - b.mean()), float(low), float(high), int(a.size), int(b.size))
+
+
+def bootstrap_mean(values: Sequence[float], resamples: int = BOOTSTRAP_RESAMPLES, level: float = 0.95,
+                   seed: int = BOOTSTRAP_SEED) -> tuple[float, float, float]:
+    """`(mean, low, high)`: the mean of per-seed `values` with its percentile bootstrap interval (seeds resampled
+    with replacement; the same inputs always give the same interval)."""
+    x = np.asarray(values, np.float64)
+    if x.ndim != 1 or not x.size:
+        raise ValueError(f"bootstrap_mean needs a non-empty 1-d array, got shape {x.shape}")
+    low, high = _percentiles(_resampled_means(x, np.random.default_rng(seed), resamples), level)
+    return float(x.mean()), float(low), float(high)
+
+
+def _resampled_means(x: np.ndarray, rng: np.random.Generator, resamples: int) -> np.ndarray:
+    return x[rng.integers(0, x.size, size=(resamples, x.size))].mean(1)
+
+
+def _percentiles(replicates: np.ndarray, level: float) -> tuple[float, float]:
+    tail = 100 * (1 - level) / 2
+    low, high = np.percentile(replicates, [tail, 100 - tail])
+    return float(low), float(high)
 
 
 def verdict(ci: Interval, a: str = "Ours", b: str = "BC-OH") -> str:

@@ -27,7 +27,8 @@ from experiments.report.analysis import (APE_SCALES, BOOTSTRAP_RESAMPLES, BOOTST
                                          choices, copycat_groups, copycat_map, expert_ape, extra_methods, file_stem,
                                          gap, groups_of, headline, history_difference, in_fca_family, is_rate,
                                          known_methods, label, longer_runs, loss_rows, merge, ours_differences, protocol_words,
-                                         protocols_of, sensitivity, task_metric_rows, verdict, weight_shares)
+                                         protocols_of, sensitivity, task_metric_rows, verdict, weight_shares,
+                                         bootstrap_mean, bootstrap_difference)
 
 # How the task-metrics table heads a task's own metrics, and the factor it shows them at (rates in %); a metric
 # not listed is headed by its name, and a task's main metric (a rate) is shown in %.
@@ -137,8 +138,9 @@ def _metric_heading(m: dict, metric: str) -> tuple[str, float]:
 
 def task_table(m: dict) -> str | None:
     """A task's own per-episode metrics (its `metrics`; the supplement's Table 4 protocol): BC-SO, BC-OH and Ours
-    (THR 10%, W 5), every metric as mean ± std over seeds (of each seed's episode mean), and beside them the
-    paper's main metric where the task records it (`Task.paper`). None for a task without metrics."""
+    (THR 10%, W 5), every metric as mean ± std over seeds (of each seed's episode mean) with the mean's 95%
+    bootstrap interval over seeds, and beside them the paper's main metric where the task records it
+    (`Task.paper`). None for a task without metrics."""
     metrics = m["task_metrics"]
     rows = task_metric_rows(m)
     if not metrics or not rows:
@@ -151,12 +153,53 @@ def task_table(m: dict) -> str | None:
     for lab, method, runs in rows:
         cells = []
         for key, (_, scale) in zip(metrics, heads):
-            v = np.array([r["eval"][key] for r in runs if key in r["eval"]], float) * scale
-            cells.append(f"{v.mean():.2f} ± {v.std():.2f}" if len(v) else "—")
+            v = _per_seed(runs, key, scale)
+            if not len(v):
+                cells.append("—")
+                continue
+            _, low, high = bootstrap_mean(v)
+            cells.append(f"{v.mean():.2f} ± {v.std():.2f} [{low:.2f}, {high:.2f}]")
         if paper:
             cells.append(f"{paper[method][0]} ± {paper[method][1]}" if method in paper else "—")
         lines.append(f"| {lab} | {len(runs)} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def _per_seed(runs: list[dict], key: str, scale: float = 1.0) -> np.ndarray:
+    return np.array([r["eval"][key] for r in runs if key in r["eval"]], float) * scale
+
+
+def task_reading(m: dict) -> list[str]:
+    """Plain sentences under a rate-judged task's table (ToyCar): whether BC-SO learned the task, Ours − BC-OH
+    and BC-OH − BC-SO on the main rate with their bootstrap intervals and verdicts, and whether BC-OH's inertia
+    (`stuck`: standing still while free to go) appears; empty for a task judged by a return."""
+    if not is_rate(m):
+        return []
+    rows = {method: runs for _, method, runs in task_metric_rows(m)}
+    metric, out = m["metric"], []
+    episodes = sorted({int(r["eval"]["episodes"]) for runs in rows.values() for r in runs if "episodes" in r["eval"]})
+    if "bc-so" in rows:
+        mean, low, high = bootstrap_mean(_per_seed(rows["bc-so"], metric, 100.0))
+        out.append(f"BC-SO {metric}: {mean:.1f}% [{low:.1f}, {high:.1f}] over {len(rows['bc-so'])} seeds"
+                   + (f" × {episodes[0]:,} evaluation episodes" if len(episodes) == 1 else "")
+                   + (" — a plain BC-SO policy has learned the task." if low >= 90.0 else
+                      " — at least 90% on average." if mean >= 90.0 else " — below 90%: the policies have not "
+                      "learned the task at this budget, and the comparisons below say little."))
+    for a, b, name_a, name_b in (("bc-oh", "bc-so", "BC-OH", "BC-SO"), ("ours-step", "bc-oh", "Ours", "BC-OH")):
+        if a in rows and b in rows:
+            ci = bootstrap_difference(_per_seed(rows[a], metric, 100.0), _per_seed(rows[b], metric, 100.0))
+            out.append(f"{name_a} − {name_b}: {ci.diff:+.1f} points of {metric} ({_ci(ci)}): "
+                       f"{verdict(ci, name_a, name_b)}.")
+    stuck = {method: _per_seed(runs, "stuck", 100.0) for method, runs in rows.items()}
+    if "bc-oh" in stuck and len(stuck["bc-oh"]):
+        others = ", ".join(f"{lab} {stuck[k].mean():.1f}%" for lab, k in (("BC-SO", "bc-so"), ("Ours", "ours-step"))
+                           if k in stuck and len(stuck[k]))
+        oh = stuck["bc-oh"]
+        _, low, high = bootstrap_mean(oh)
+        out.append(f"Inertia (standing still for {tasks.get(m['env']).title}'s stuck time while free to go): BC-OH "
+                   f"{oh.mean():.1f}% of episodes [{low:.1f}, {high:.1f}]" + (f" ({others})" if others else "")
+                   + (" — it appears." if oh.mean() > 0 else " — it does not appear in these episodes."))
+    return out
 
 
 def paper_table(merged: dict, protocol: str = BRAX) -> str:
@@ -701,9 +744,17 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
             title = _title(key, m["protocol"], m["shows_protocol"], with_obs=key.obs != task.default_obs)
             paper = (f"; the paper's {m['metric']} rates beside (its own {task.title}, not ours)" if task.paper
                      else "")
+            walls = ", ".join(f"{src.timing['total_s'] / 60:,.0f} min" for src in m["sources"]
+                              if (src.timing or {}).get("total_s"))
+            machine = next(((src.system or {}).get("machine") for src in m["sources"] if src.system), None)
             out += [f"### {title} (the supplement's Table 4 protocol)", "",
                     f"{task.title}'s own metrics per policy, mean ± std over seeds of each seed's mean over "
-                    f"evaluation episodes{paper}.", "", table]
+                    f"evaluation episodes, and in brackets the mean's 95% bootstrap interval over seeds{paper}."
+                    + (f" Wall time of the run{'s' if ',' in walls else ''}: {walls}" + (f" ({machine})" if machine
+                       else "") + ", compile included." if walls else ""), "", table]
+            reading = task_reading(m)
+            if reading:
+                out += [" ".join(reading), ""]
     if figure_dir is None:
         out += ["_Figures not drawn: the report was printed without `--figures DIR` (with `--out` they go to "
                 "`figures/` next to it)._", ""]
