@@ -15,7 +15,7 @@ from ape_jax.learner import Data, Hparams, LearnerConfig, make_train, stack_hpar
 from _compare import UPDATE_RTOL, update_mismatch
 
 # a short road, so episodes end both at the goal and at the time limit
-ENV_KW = dict(episode_length=40, road_length=30.0, light_range=(12.0, 20.0))
+ENV_KW = dict(episode_length=50, road_length=30.0, light_range=(12.0, 20.0))
 CFG = LearnerConfig(obs_shape=(5,), action_dim=2, history=2, iterations=6, batch_size=16, loss="l1")
 BUDGET, ROUNDS, NUM_ENVS = 97, 3, 4   # 48 rows before round 1, 49 before round 2; 2 iterations a round
 
@@ -99,7 +99,8 @@ def _next_speed(env, rec, actions):
     """ToyCar's speed after each recorded step had `actions` executed: `[M]`."""
     cfg, a = env.config, np.clip(np.asarray(actions), 0.0, 1.0)
     v = np.asarray(rec.expert_obs[:, 1])
-    return np.clip(v + (cfg.throttle_accel * a[:, 0] - cfg.brake_accel * a[:, 1]) * cfg.dt, 0.0, cfg.max_speed)
+    accel = cfg.throttle_accel * a[:, 0] - cfg.brake_accel * a[:, 1] - cfg.rolling_resistance
+    return np.clip(v + accel * cfg.dt, 0.0, cfg.max_speed)
 
 
 def _check_speed_updates(env, rec, actions, same_episode):
