@@ -17,8 +17,9 @@ Observations:
     default 128×128. The supplement's imitators see 3×128×128 (channels-first,
     PyTorch); we keep JAX's channels-last layout for every image in the
     project. A dashed centre line scrolls past, so speed is visible in a stack
-    of frames but not in one frame; the light's colour is visible, the time
-    left in its status is not.
+    of frames but not in one frame; the light's colour is visible (green,
+    amber in the last `amber_seconds` of green, red), the time left in its
+    status is not.
 
 Per-episode metrics (`episode_metrics`) follow the driving protocol:
 `success`, `red_light_violations`, `progress`, `avg_speed` and `stuck` (the car
@@ -59,7 +60,8 @@ class ToyCarConfig:
       amber_seconds: the last this-many seconds of a green status show amber (yellow), as real
         lights do: the light's colour then tells whether it is about to turn red, which the time
         left (not in the image) otherwise decides alone. A car that can no longer stop goes on
-        amber; this must exceed the time to cross the longest stopping distance.
+        amber, so this must exceed the time such a car needs to reach the line (at most ~1.1 s
+        with the other defaults; the expert's test checks the defaults run no red light).
       stop_margin: the expert stops this many metres before the stop line.
       stuck_seconds: standing still this long while free to go counts as stuck.
       episode_length: control steps per episode (the time limit).
@@ -239,9 +241,10 @@ def _stop_distance(v: jax.Array, cfg: ToyCarConfig) -> jax.Array:
     return v**2 / (2 * cfg.brake_accel) + v * cfg.dt
 
 
-def amber(sim_or_obs_green: jax.Array, remaining: jax.Array, cfg: ToyCarConfig = ToyCarConfig()) -> jax.Array:
-    """True where a green light shows amber: its last `cfg.amber_seconds`."""
-    return (sim_or_obs_green > 0) & (remaining <= cfg.amber_seconds)
+def amber(green: jax.Array, remaining: jax.Array, cfg: ToyCarConfig = ToyCarConfig()) -> jax.Array:
+    """True where a green light (`green` > 0, `remaining` seconds left in its status) shows amber: its last
+    `cfg.amber_seconds`."""
+    return (green > 0) & (remaining <= cfg.amber_seconds)
 
 
 def expert_action(full_obs: jax.Array, cfg: ToyCarConfig = ToyCarConfig()) -> jax.Array:

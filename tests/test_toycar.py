@@ -126,6 +126,12 @@ def test_image_observation_shows_the_light_colour():
     assert np.all(redness[~green] > 0) and np.all(redness[green] == 0)
     assert np.all(greenness[green] > 0) and np.all(greenness[~green] == 0)
     assert img.shape[1:] == (32, 32, 3) and states.obs.dtype == jnp.uint8
+    # in the last `amber_seconds` of green the lamp is amber: neither green nor red
+    for seconds, want in ((1.5, "amber"), (2.5, "green")):
+        img = np.asarray(_held(red_env, 5.0, 0.0, 20.0, 1.0, seconds).obs).astype(int)
+        amber = ((img[..., 0] > 200) & (img[..., 1] > 150) & (img[..., 1] < 220) & (img[..., 2] < 80)).sum()
+        greenish = ((img[..., 1] > 200) & (img[..., 0] < 80)).sum()
+        assert (amber > 0, greenish > 0) == ((True, False) if want == "amber" else (False, True)), seconds
 
 
 def _held(env, x, v, light_x, green, seconds=60.0):
