@@ -184,8 +184,8 @@ TASKS: Mapping[str, Task] = MappingProxyType({t.name: t for t in (
          default_obs="image", expert="rule-based", protocols=("brax",), default_protocols={}, presets={"image": {
              "quick": {"image_size": (32, 32)},
              # a BC-SO policy that learns to stop on a 2-core CPU (issue 17): 32×32 frames keep the lamp
-             # (3×3 px) and the dashes that show speed; 100 demonstrations (~12k training samples: with the
-             # paper's 1k BC-SO reached 87%, with 4.7k 89%, and longer training overfits them); Adam at 1e-3
+             # (3×3 px) and the dashes that show speed; 100 demonstrations (~12k training samples, against the
+             # paper's 1k: with 4.7k BC-SO reached 89%, and longer training overfit them); Adam at 1e-3
              # on batches of 64 for 5,000 updates; 200 evaluation episodes per policy, so a seed's success
              # rate is known to ~2 points
              "default": {"iterations": 5_000, "seeds": 5, "eval_episodes": 200, "chunk": 250, "episodes": 100,

@@ -77,7 +77,8 @@ def expert_for(env: envs.Env) -> tuple[Callable[[jax.Array], jax.Array], dict]:
     if tasks.get(env.name).expert == "rule-based":
         # the rule and the physics it drives are code: their settings name the data (a changed default,
         # e.g. ToyCar's rolling resistance, must not reuse demonstrations cached before it)
-        config = json.loads(json.dumps(dataclasses.asdict(env.config))) if dataclasses.is_dataclass(env.config) else None
+        config = getattr(env, "config", None)
+        config = json.loads(json.dumps(dataclasses.asdict(config))) if dataclasses.is_dataclass(config) else None
         return env.expert, {"kind": "rule-based", "function": f"{type(env).__module__}.expert_action",
                             "config": config}
     policy = experts.load(env.name)

@@ -34,6 +34,7 @@ import jax.numpy as jnp
 
 from experiments._cli import Parser, unwritable
 from experiments._timing import rollout_throughput, time_jitted
+from experiments.bench_train import ACT, BATCH, H, OBS, _data, macs_per_sample, matmul_peak
 
 PACKAGES = ("jax", "jaxlib", "flax", "optax", "orbax-checkpoint", "brax", "mujoco", "mujoco-mjx", "numpy")
 # (matmul n, grid iterations per timed run, MJX batches, MJX steps per timed rollout)
@@ -51,19 +52,11 @@ def versions() -> dict[str, str]:
     return out
 
 
-def matmul_peak(n: int, dtype, repeats: int) -> float:
-    """FLOP/s of one `n×n @ n×n` product in `dtype` (2n³ operations)."""
-    a = jax.random.normal(jax.random.PRNGKey(0), (n, n), jnp.float32).astype(dtype)
-    _, steady, _ = time_jitted(jax.jit(lambda x: x @ x), a, repeats=repeats)
-    return 2 * n**3 / steady
-
-
 def grid_throughput(iters: int, seeds: int, repeats: int) -> dict:
     """The paper preset's default grid (BC-SO, BC-OH, 6 step, 6 softmax) × `seeds` as one vmapped scan."""
     from ape_jax import methods
     from ape_jax.learner import LearnerConfig, make_train, stack_hparams
     from ape_jax.pipeline.presets import SOFTMAX_GRID, STEP_GRID
-    from experiments.bench_train import ACT, BATCH, H, OBS, _data, macs_per_sample
 
     runs = [("bc-so", {}), ("bc-oh", {})] + [("ours-step", {"thr": t, "w": w}) for t, w in STEP_GRID] + \
            [("ours-softmax", {"tau": tau}) for tau in SOFTMAX_GRID]
@@ -118,8 +111,8 @@ def main(argv=None) -> int:
         return 2
     n = sizes["matmul"]
     info["matmul_n"] = n
-    info["matmul_peak_flops_s"] = {"float32": matmul_peak(n, jnp.float32, args.repeats),
-                                   "bfloat16": matmul_peak(n, jnp.bfloat16, args.repeats)}
+    info["matmul_peak_flops_s"] = {name: matmul_peak(args.repeats, (n,), dtype)[n]
+                                   for name, dtype in (("float32", jnp.float32), ("bfloat16", jnp.bfloat16))}
     print(f"matmul {n}×{n}: " + ", ".join(f"{k} {v / 1e12:,.2f} TFLOP/s" for k, v in info["matmul_peak_flops_s"].items()),
           flush=True)
     grid = grid_throughput(sizes["iters"], 1 if args.smoke else args.seeds, args.repeats)

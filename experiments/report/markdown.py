@@ -744,14 +744,15 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
             title = _title(key, m["protocol"], m["shows_protocol"], with_obs=key.obs != task.default_obs)
             paper = (f"; the paper's {m['metric']} rates beside (its own {task.title}, not ours)" if task.paper
                      else "")
-            walls = ", ".join(f"{src.timing['total_s'] / 60:,.0f} min" for src in m["sources"]
-                              if (src.timing or {}).get("total_s"))
+            walls = [f"{src.timing['total_s'] / 60:,.0f} min" for src in m["sources"]
+                     if (src.timing or {}).get("total_s")]
             machine = next(((src.system or {}).get("machine") for src in m["sources"] if src.system), None)
+            wall = (f" Wall time of the run{'s' if len(walls) > 1 else ''}: {', '.join(walls)}"
+                    + (f" ({machine})" if machine else "") + ", compile included." if walls else "")
             out += [f"### {title} (the supplement's Table 4 protocol)", "",
                     f"{task.title}'s own metrics per policy, mean ± std over seeds of each seed's mean over "
-                    f"evaluation episodes, and in brackets the mean's 95% bootstrap interval over seeds{paper}."
-                    + (f" Wall time of the run{'s' if ',' in walls else ''}: {walls}" + (f" ({machine})" if machine
-                       else "") + ", compile included." if walls else ""), "", table]
+                    f"evaluation episodes, and in brackets the mean's 95% bootstrap interval over seeds{paper}." + wall,
+                    "", table]
             reading = task_reading(m)
             if reading:
                 out += [" ".join(reading), ""]
