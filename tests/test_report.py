@@ -709,3 +709,31 @@ def test_the_plain_reading_names_no_best_of_a_grid_that_did_not_run(tmp_path):
     reading = text[text.index("### Does keyframe weighting fix copycat"):]
     assert "Ours at the paper's step setting (THR 10%, W 5) − BC-OH: +390 return" in reading
     assert "best of our step and softmax grids" not in reading
+
+
+def test_every_method_is_compared_with_bc_oh_under_fca_in_a_table_and_in_the_reading(tmp_path):
+    """Under fca each row of the state table but BC-OH gets `row − BC-OH` with its bootstrap CI (bold when the
+    interval excludes 0), and the plain reading sorts the other methods by verdict; a method BC-OH never ran
+    beside gets a dash."""
+    base = _results("hopper", (("bc-so", {}, 600.0), ("bc-oh", {}, 610.0),
+                               ("ours-step", {"thr": 0.1, "w": 5.0}, 615.0),
+                               ("fca", {"alpha": 0.1}, 900.0), ("kmeans", {"k": 6}, 300.0),
+                               ("actfreq", {"bins": 5}, 612.0)), deltas=(-10.0, 0.0, 10.0))
+    cheetah = _results("halfcheetah", (("bc-so", {}, 600.0), ("fca", {"alpha": 0.5}, 700.0)))
+    files = [_loaded(tmp_path, _schema2(base, protocol=_fca(1)), "hopper.json"),
+             _loaded(tmp_path, _schema2(cheetah, protocol=_fca(1)), "cheetah.json")]
+    text = report.report(files)
+    table = text[text.index("| method − BC-OH |"):]
+    table = table[:table.index("\n\n")]
+    fca, kmeans, actfreq = (report.bootstrap_difference([v + d for d in (-10.0, 0.0, 10.0)],
+                                                        [600.0, 610.0, 620.0]) for v in (900.0, 300.0, 612.0))
+    assert f"| FCA | **{fca.diff:+,.0f} [{fca.low:+,.0f}, {fca.high:+,.0f}]** | — |" in table
+    assert f"| k-means | **{kmeans.diff:+,.0f} [{kmeans.low:+,.0f}, {kmeans.high:+,.0f}]** | — |" in table
+    assert f"| ActFreq | {actfreq.diff:+,.0f} [{actfreq.low:+,.0f}, {actfreq.high:+,.0f}] | — |" in table
+    assert "| BC-OH |" not in table
+    reading = text[text.index("**Hopper.**"):]
+    assert (f"The other methods under fca against BC-OH (in return): significantly above: FCA (+290, 95% CI "
+            f"[{fca.low:+,.0f}, {fca.high:+,.0f}]); significantly below: k-means (-310, 95% CI "
+            f"[{kmeans.low:+,.0f}, {kmeans.high:+,.0f}]); not significantly different: ActFreq.") in reading
+    # no BC-OH under a protocol: no table for it
+    assert "| method − BC-OH |" not in report.report([files[1]])

@@ -488,6 +488,21 @@ def ours_differences(m: dict) -> list[tuple[str, dict, Interval]]:
     return out
 
 
+def versus_bcoh(m: dict, extras: Sequence[str] = (), known: Mapping[str, dict] | None = None
+                ) -> list[tuple[str, dict | None, Interval | None]]:
+    """Every row of the state table of group `m` (`headline`) but BC-OH, against BC-OH: `(label, summary row,
+    row − BC-OH over seeds in `_unit(m)`, or None where either arm has no seeds)`."""
+    key, _, factor = _unit(m)
+    bcoh = [factor * v for v in _seeds(m, _best(_rows(m, "bc-oh")), key)]
+    out = []
+    for lab, row in headline(m, extras, known):
+        if lab == "BC-OH":
+            continue
+        values = [factor * v for v in _seeds(m, row, key)]
+        out.append((lab, row, bootstrap_difference(values, bcoh) if values and bcoh else None))
+    return out
+
+
 def bootstrap_rows(merged: dict) -> list[Difference]:
     """Per group (task, observation mode, protocol), in report order: BC-OH − BC-SO ("does the history help?"),
     then Ours − BC-OH per configuration of `comparisons`, each with its 95% CI, in `_unit`."""

@@ -22,13 +22,13 @@ from ape_jax.pipeline import results as results_lib
 from experiments.report import figures
 from experiments.report.analysis import (APE_SCALES, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, BRAX, FCA, MAP_METHODS,
                                          PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP, PAPER_TABLE5,
-                                         CopycatMap, Difference, Interval, Key, ReportError, WeightShares, _best,
+                                         CopycatMap, Difference, Interval, Key, ReportError, WeightShares, _best, _hp,
                                          _metric, _ordered, _paper_step, _pct, _rows, _title, _unit, bootstrap_rows,
                                          choices, copycat_groups, copycat_map, expert_ape, extra_methods, file_stem,
                                          gap, groups_of, headline, history_difference, in_fca_family, is_rate,
                                          known_methods, label, longer_runs, loss_rows, merge, ours_differences, protocol_words,
-                                         protocols_of, sensitivity, task_metric_rows, verdict, weight_shares,
-                                         bootstrap_mean, bootstrap_difference)
+                                         protocols_of, sensitivity, task_metric_rows, verdict, versus_bcoh,
+                                         weight_shares, bootstrap_mean, bootstrap_difference)
 
 # How the task-metrics table heads a task's own metrics, and the factor it shows them at (rates in %); a metric
 # not listed is headed by its name, and a task's main metric (a rate) is shown in %.
@@ -76,6 +76,45 @@ def state_table(merged: dict, obs: str = "pos", protocol: str = BRAX) -> str:
     lines.append("| random policy | " + " | ".join("—" if x["random_return_mean"] is None else
                                                    f"{x['random_return_mean']:,.0f}" for x in experts) + " |")
     return "\n".join(lines) + "\n"
+
+
+def versus_table(merged: dict, obs: str = "pos", protocol: str = BRAX) -> str:
+    """The state table's rows against BC-OH, per task: each method's mean − BC-OH's over seeds (in `_unit`), its
+    95% bootstrap CI, bold where the interval excludes 0 with ≥ 2 seeds per arm; "" if no group has BC-OH."""
+    groups = groups_of(merged, obs, protocol)
+    extras = extra_methods({Key(m["env"], obs, protocol): m for m in groups})
+    known = known_methods(merged)
+    columns = [versus_bcoh(m, extras, known) for m in groups]
+    if not any(ci is not None for col in columns for _, _, ci in col):
+        return ""
+    lines = ["| method − BC-OH | " + " | ".join(tasks.get(m["env"]).title for m in groups) + " |",
+             "|---|" + "---:|" * len(groups)]
+    for i, (lab, _, _) in enumerate(columns[0]):
+        cells = []
+        for col in columns:
+            _, row, ci = col[i]
+            if ci is None:
+                cells.append("—")
+                continue
+            text = f"{ci.diff:+,.0f} [{ci.low:+,.0f}, {ci.high:+,.0f}]"
+            bold = min(ci.n_a, ci.n_b) >= 2 and (ci.low > 0 or ci.high < 0)
+            cells.append((f"**{text}**" if bold else text) + (f" <br>{_hp(row)[1:]}" if lab.startswith("Ours, best")
+                                                               else ""))
+        generic = lab.split(" (")[0] if lab.startswith("Ours, best") else lab
+        lines.append(f"| {generic} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def versus_section(merged: dict, protocol: str) -> list[str]:
+    """`versus_table` of the MuJoCo-State groups under `protocol` with its caption, or nothing."""
+    table = versus_table(merged, "pos", protocol)
+    if not table:
+        return []
+    return ["The same rows against BC-OH: each one's mean return − BC-OH's, over seeds, with a 95% percentile "
+            f"bootstrap interval (each arm's seeds resampled independently, {BOOTSTRAP_RESAMPLES:,} times; numpy "
+            f"seed {BOOTSTRAP_SEED}); **bold** where the interval excludes 0 (≥ 2 seeds per arm). Each arm keeps "
+            "its own seeds (each task's \"every configuration\" table below gives them); the \"best\" rows were "
+            "selected after the fact, so theirs are optimistic.", "", table]
 
 
 def _agreed(values) -> object | None:
@@ -582,6 +621,21 @@ def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
                 verdict(paper[1]), "does not detectably beat BC-OH")
             text.append(f"So where copycat is present, keyframe weighting at the paper's setting {outcome} on these "
                         "seeds.")
+        others = [(lab, ci) for lab, _, ci in versus_bcoh(m, extra_methods({key: m}), known_methods(merged))
+                  if not lab.startswith(("BC-SO", "Ours")) and ci is not None and min(ci.n_a, ci.n_b) >= 2]
+        if others:
+            def listed(pairs):
+                return "; ".join(f"{lab} ({ci.diff:+{number}}, {_ci(ci, '+,.0f')})" for lab, ci in pairs)
+
+            above = [(lab, ci) for lab, ci in others if ci.low > 0]
+            below = [(lab, ci) for lab, ci in others if ci.high < 0]
+            level = [lab for lab, ci in others if ci.low <= 0 <= ci.high]
+            parts = [f"significantly above: {listed(above) if above else 'none'}"]
+            if below:
+                parts.append(f"significantly below: {listed(below)}")
+            if level:
+                parts.append(f"not significantly different: {', '.join(level)}")
+            text.append(f"The other methods under fca against BC-OH (in {unit}): " + "; ".join(parts) + ".")
         contrast = []
         cm = maps_of.get((key.env, key.obs))
         here = cm.at(m["protocol"].get("frame_skip")) if cm else None
@@ -712,6 +766,7 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
             out += [f"### MuJoCo-State, the paper's protocol ({FCA})" + (f": {heading}" if heading else ""), "",
                     "Positions only (velocities removed). " + cells + " " + selection
                     + (f" {details}" if details else ""), "", state_table(merged, "pos", protocol)]
+            out += versus_section(merged, protocol)
             horizon = _agreed(_horizon(m["protocol"]) for m in groups)
             scale = (f"rewards summed over {horizon:,.0f} standard control steps of simulated time, as the paper's"
                      if horizon is not None else "rewards on the standard control step's scale, as the paper's")
@@ -723,7 +778,7 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
             out += ["### MuJoCo-State, Brax's frame skip, where copycat is absent (the project's first results)", "",
                     "Positions only (velocities removed), with the environments' own frame skip and episode length. "
                     + cells + " " + selection + (f" {details}" if details else ""), "",
-                    state_table(merged, "pos", protocol),
+                    state_table(merged, "pos", protocol)] + versus_section(merged, protocol) + [
                     "Next to the supplement's Table 5 (its own experts, whose returns it does not give; its returns "
                     "are on another scale than these): mean returns, and in brackets each method's ratio to BC-OH "
                     "of the same source.", "", paper_table(merged, protocol)]
