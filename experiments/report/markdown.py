@@ -625,7 +625,7 @@ def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
                   if not lab.startswith(("BC-SO", "Ours")) and ci is not None and min(ci.n_a, ci.n_b) >= 2]
         if others:
             def listed(pairs):
-                return "; ".join(f"{lab} ({ci.diff:+{number}}, {_ci(ci, '+,.0f')})" for lab, ci in pairs)
+                return ", ".join(f"{lab} ({ci.diff:+{number}}, {_ci(ci, '+,.0f')})" for lab, ci in pairs)
 
             above = [(lab, ci) for lab, ci in others if ci.low > 0]
             below = [(lab, ci) for lab, ci in others if ci.high < 0]
