@@ -24,8 +24,8 @@ A run's PRNG key comes from its identity (`methods.run_key(seed, method,
 hparams)`), so a configuration gets the same initialisation, batches and evaluation
 episodes whatever else runs beside it (the same numbers up to float rounding: a
 program vmapped over more runs may round differently, which long training and
-chaotic rollouts amplify). Host concerns come in through `Hooks` (progress bars, messages,
-training curves); files are written by `ape_jax.pipeline.checkpoint` and
+chaotic rollouts amplify). Host concerns come in through `Hooks` (progress bars,
+messages, training curves); files are written by `ape_jax.pipeline.checkpoint` and
 `ape_jax.pipeline.results`, not here.
 """
 
