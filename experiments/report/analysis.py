@@ -465,24 +465,28 @@ class Difference(NamedTuple):
     unit: str
 
 
+def _unit_seeds(m: dict, row: dict | None, key: str | None = None, factor: float | None = None) -> list[float]:
+    """`_seeds` of summary row `row` in `_unit(m)` (or of `eval[key] × factor`), what the bootstrap compares."""
+    default_key, _, default_factor = _unit(m)
+    factor = default_factor if factor is None else factor
+    return [factor * v for v in _seeds(m, row, key or default_key)]
+
+
 def history_difference(m: dict, key: str | None = None, factor: float | None = None) -> Interval | None:
     """BC-OH − BC-SO over seeds in group `m` (each the best of its rows), by default in `_unit(m)`; None if either
     has no seeds. With `key`/`factor`, of `eval[key] × factor` instead (`"normalized"`, 1: % of expert points)."""
-    default_key, _, default_factor = _unit(m)
-    key, factor = key or default_key, default_factor if factor is None else factor
-    bcoh = [factor * v for v in _seeds(m, _best(_rows(m, "bc-oh")), key)]
-    bcso = [factor * v for v in _seeds(m, _best(_rows(m, "bc-so")), key)]
+    bcoh = _unit_seeds(m, _best(_rows(m, "bc-oh")), key, factor)
+    bcso = _unit_seeds(m, _best(_rows(m, "bc-so")), key, factor)
     return bootstrap_difference(bcoh, bcso) if bcoh and bcso else None
 
 
 def ours_differences(m: dict) -> list[tuple[str, dict, Interval]]:
     """Ours − BC-OH over seeds in group `m`, in `_unit(m)`: `(label, Ours' summary row, interval)` per configuration
     of `comparisons` that has seeds (none if BC-OH has none)."""
-    key, _, factor = _unit(m)
-    bcoh = [factor * v for v in _seeds(m, _best(_rows(m, "bc-oh")), key)]
+    bcoh = _unit_seeds(m, _best(_rows(m, "bc-oh")))
     out = []
     for lab, row in comparisons(m) if bcoh else []:
-        ours = [factor * v for v in _seeds(m, row, key)]
+        ours = _unit_seeds(m, row)
         if ours:
             out.append((lab, row, bootstrap_difference(ours, bcoh)))
     return out
@@ -492,13 +496,12 @@ def versus_bcoh(m: dict, extras: Sequence[str] = (), known: Mapping[str, dict] |
                 ) -> list[tuple[str, dict | None, Interval | None]]:
     """Every row of the state table of group `m` (`headline`) but BC-OH, against BC-OH: `(label, summary row,
     row − BC-OH over seeds in `_unit(m)`, or None where either arm has no seeds)`."""
-    key, _, factor = _unit(m)
-    bcoh = [factor * v for v in _seeds(m, _best(_rows(m, "bc-oh")), key)]
+    bcoh = _unit_seeds(m, _best(_rows(m, "bc-oh")))
     out = []
     for lab, row in headline(m, extras, known):
         if lab == "BC-OH":
             continue
-        values = [factor * v for v in _seeds(m, row, key)]
+        values = _unit_seeds(m, row)
         out.append((lab, row, bootstrap_difference(values, bcoh) if values and bcoh else None))
     return out
 

@@ -47,6 +47,17 @@ def _norm_cell(row: dict | None) -> str:
     return "—" if row is None or row.get("normalized_mean") is None else f"{row['normalized_mean']:.1f}"
 
 
+def _generic(lab: str) -> str:
+    """A headline label without the configuration a "best" row names (`"Ours, best step (thr 0.2, w 3)"` →
+    `"Ours, best step"`): the row's name in a table with one column per task."""
+    return lab.split(" (")[0] if lab.startswith("Ours, best") else lab
+
+
+def _selected(lab: str, row: dict | None) -> str:
+    """What a "best" row's cell adds on its own line: the configuration selected in that task; "" otherwise."""
+    return f" <br>{_hp(row)[1:]}" if lab.startswith("Ours, best") and row is not None else ""
+
+
 def state_table(merged: dict, obs: str = "pos", protocol: str = BRAX) -> str:
     """Every method per MuJoCo task with observations `obs` ("pos": MuJoCo-State, "image": MuJoCo-Image) under
     `protocol`: return mean ± std over seeds (% of expert), the methods besides ours those groups ran, our
@@ -60,15 +71,11 @@ def state_table(merged: dict, obs: str = "pos", protocol: str = BRAX) -> str:
     lines = ["| method | " + " | ".join(tasks.get(m["env"]).title for m in groups) + " |",
              "|---|" + "---:|" * len(groups)]
     for i, (lab, _) in enumerate(heads[0]):
-        generic = lab.split(" (")[0] if lab.startswith("Ours, best") else lab
         cells = []
         for head in heads:
             lab, row = head[i]
-            cell = _cell(row)
-            if lab.startswith("Ours, best") and row is not None:
-                cell += f" <br>{lab[len(generic) + 1:]}"
-            cells.append(cell)
-        lines.append(f"| {generic} | " + " | ".join(cells) + " |")
+            cells.append(_cell(row) + _selected(lab, row))
+        lines.append(f"| {_generic(lab)} | " + " | ".join(cells) + " |")
     experts = [m["expert"] for m in groups]
     lines.append("| expert (ours) | " + " | ".join("—" if x["return_mean"] is None else
                                                    f"{x['return_mean']:,.0f} ± {x['return_std'] or 0:,.0f}"
@@ -98,10 +105,8 @@ def versus_table(merged: dict, obs: str = "pos", protocol: str = BRAX) -> str:
                 continue
             text = f"{ci.diff:+,.0f} [{ci.low:+,.0f}, {ci.high:+,.0f}]"
             bold = min(ci.n_a, ci.n_b) >= 2 and (ci.low > 0 or ci.high < 0)
-            cells.append((f"**{text}**" if bold else text) + (f" <br>{_hp(row)[1:]}" if lab.startswith("Ours, best")
-                                                               else ""))
-        generic = lab.split(" (")[0] if lab.startswith("Ours, best") else lab
-        lines.append(f"| {generic} | " + " | ".join(cells) + " |")
+            cells.append((f"**{text}**" if bold else text) + _selected(lab, row))
+        lines.append(f"| {_generic(lab)} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -621,8 +626,9 @@ def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
                 verdict(paper[1]), "does not detectably beat BC-OH")
             text.append(f"So where copycat is present, keyframe weighting at the paper's setting {outcome} on these "
                         "seeds.")
-        others = [(lab, ci) for lab, _, ci in versus_bcoh(m, extra_methods({key: m}), known_methods(merged))
-                  if not lab.startswith(("BC-SO", "Ours")) and ci is not None and min(ci.n_a, ci.n_b) >= 2]
+        extras = extra_methods({key: m})
+        others = [(lab, ci) for lab, row, ci in versus_bcoh(m, extras, known_methods(merged))
+                  if row is not None and row["method"] in extras and ci is not None and min(ci.n_a, ci.n_b) >= 2]
         if others:
             def listed(pairs):
                 return ", ".join(f"{lab} ({ci.diff:+{number}}, {_ci(ci, '+,.0f')})" for lab, ci in pairs)
