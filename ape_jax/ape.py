@@ -51,7 +51,7 @@ def past_actions(actions: jax.Array, t: jax.Array, idx: jax.Array, k: int = K) -
 
 
 def fit(key: jax.Array, actions: jax.Array, t: jax.Array, steps: int, batch: int = 512,
-        lr: float = 1e-3, k: int = K) -> tuple[dict, jax.Array]:
+        lr: float = 1e-3, k: int = K, rows: jax.Array | None = None) -> tuple[dict, jax.Array]:
     """Fits ψ on a training split with MSE (jit-able; the loop is a `lax.scan`).
 
     Args:
@@ -62,12 +62,15 @@ def fit(key: jax.Array, actions: jax.Array, t: jax.Array, steps: int, batch: int
       batch: minibatch size (sampled uniformly with replacement).
       lr: Adam learning rate.
       k: past actions per input.
+      rows: `[N'] int32`, the training rows among `actions` (a split by rows: the past actions still come from
+        the whole episodes); None: every row.
 
     Returns:
       (params, losses): ψ's parameters and the per-step minibatch MSE `[steps]`.
     """
     actions = jnp.asarray(actions, jnp.float32)
-    n, a = actions.shape
+    a = actions.shape[1]
+    n = actions.shape[0] if rows is None else rows.shape[0]
     model = ActionPredictor(a)
     key_init, key_batches = jax.random.split(key)
     params = model.init(key_init, jnp.zeros((1, k * a)))
@@ -80,6 +83,7 @@ def fit(key: jax.Array, actions: jax.Array, t: jax.Array, steps: int, batch: int
     def update(carry, step):
         p, s = carry
         idx = jax.random.randint(jax.random.fold_in(key_batches, step), (batch,), 0, n)
+        idx = idx if rows is None else rows[idx]
         loss, grads = jax.value_and_grad(loss_fn)(p, idx)
         updates, s = opt.update(grads, s, p)
         return (optax.apply_updates(p, updates), s), loss

@@ -12,8 +12,22 @@ Per minibatch (uniform sampling with replacement) the loss is
 `mean_i(w_i · ℓ_i)` with `ℓ` the squared error summed over action dimensions
 (`"l2"`, MuJoCo) or the absolute error (`"l1"`, ToyCar), and `w` from
 `ape_jax.weighting` (stop-gradient). The policy sees the last `H` observations,
-padded at episode starts by repeating the first one. Adam with learning rate
-`lr · 0.1^⌊step / lr_decay_every⌋`.
+padded at episode starts by repeating the first one. Adam (β1, β2 of the
+config) with learning rate `lr · 0.1^k`, `k` the number of `cfg.lr_boundaries`
+passed (the paper: ×0.1 at 100k and 200k of 300k iterations).
+
+**Rows.** A split may be rows drawn from whole episodes (the FCA code's split):
+`Data.rows` names the rows a minibatch is drawn from, while histories (and ψ's
+past actions) read the whole episodes the arrays hold. Per-sample arrays
+(`ape`, `scores`, the weights) are indexed by *position* in `rows`; `rows=None`
+means every row.
+
+**BatchNorm.** A policy's parameters are its Flax variables: `{"params": …}`,
+plus `{"batch_stats": …}` for a network with BatchNorm (`LearnerConfig.network
+= "bn-mlp"`, the FCA code's). Training applies it on batch statistics and
+updates the running ones (`policy_apply(..., train=True)`); every other use
+(evaluation, the loss analysis, the probes) applies it as it is, on the running
+statistics. Under `vmap` every configuration keeps its own statistics.
 
 HistoryDropout (Bansal et al., 2018) is a traced knob of the same learner:
 with `Hparams.history_dropout = p > 0` each *past* observation of a training
@@ -31,6 +45,7 @@ so evaluation and the loss analysis treat every method alike.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any, Callable, NamedTuple
 
 import flax.linen as nn
@@ -41,10 +56,11 @@ from flax import struct
 
 from ape_jax import weighting
 from ape_jax.history import history_index
-from ape_jax.models import IMAGE_ENCODERS, StatePolicy
+from ape_jax.models import IMAGE_ENCODERS, INITS, StatePolicy
 from ape_jax.weighting import Weighting
 
 LOSSES = ("l2", "l1")
+NETWORKS = ("mlp", "bn-mlp")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,7 +72,12 @@ class LearnerConfig:
     history: int = 2             # H: 1 for BC-SO
     iterations: int = 300_000
     batch_size: int = 128
-    lr_decay_every: int = 100_000
+    lr_boundaries: tuple[int, ...] = (100_000, 200_000)  # steps at which the learning rate drops ×0.1
+    beta1: float = 0.9           # Adam's moment decays (the FCA code: 0.5, 0.999)
+    beta2: float = 0.999
+    network: str = "mlp"         # state policies: "mlp", or "bn-mlp" (the FCA code's, BatchNorm in the encoder)
+    init: str = "lecun"          # Dense kernels: "lecun" (Flax's default) or "xavier" (the FCA code's)
+    bn_momentum: float = 0.1     # BatchNorm's running statistics: new = (1 − m) · old + m · batch (PyTorch's m)
     loss: str = "l2"
     unroll: bool = False         # unroll `run`'s scan: XLA:CPU runs convolutions in loop bodies ~50x slower
     # Image encoder: "small" (`ImagePolicy`, 3 convs, CPU-sized) or "resnet18" (`ResNet18Policy`, the
@@ -74,16 +95,37 @@ class LearnerConfig:
         if self.encoder != "small" and not self.images:
             raise ValueError(f"encoder {self.encoder!r} is for image observations; state observations "
                              f"(obs_shape {self.obs_shape}) use the MLP StatePolicy: leave encoder='small'")
-        for name in ("action_dim", "history", "iterations", "batch_size", "lr_decay_every"):
+        for name in ("action_dim", "history", "iterations", "batch_size"):
             if getattr(self, name) < 1:
                 raise ValueError(f"LearnerConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if self.network not in NETWORKS:
+            raise ValueError(f"unknown network {self.network!r}; valid: {list(NETWORKS)}")
+        if self.network != "mlp" and self.images:
+            raise ValueError(f"network {self.network!r} is for state observations; image policies use "
+                             f"the encoder ({list(IMAGE_ENCODERS)})")
+        if self.init not in INITS:
+            raise ValueError(f"unknown init {self.init!r}; valid: {list(INITS)}")
+        if list(self.lr_boundaries) != sorted(self.lr_boundaries) or any(b < 1 for b in self.lr_boundaries):
+            raise ValueError(f"lr_boundaries must be increasing steps >= 1, got {self.lr_boundaries}")
+        for name in ("beta1", "beta2"):
+            if not 0.0 <= getattr(self, name) < 1.0:
+                raise ValueError(f"LearnerConfig.{name} must be in [0, 1), got {getattr(self, name)}")
+        if not 0.0 < self.bn_momentum <= 1.0:
+            raise ValueError(f"LearnerConfig.bn_momentum must be in (0, 1], got {self.bn_momentum}")
 
     @property
     def images(self) -> bool:
         return len(self.obs_shape) == 3
 
     def model(self) -> nn.Module:
-        return IMAGE_ENCODERS[self.encoder](self.action_dim) if self.images else StatePolicy(self.action_dim)
+        if self.images:
+            return IMAGE_ENCODERS[self.encoder](self.action_dim)
+        return StatePolicy(self.action_dim, batchnorm=self.network == "bn-mlp", weights_init=self.init,
+                           bn_momentum=self.bn_momentum)
+
+    def optimizer(self) -> optax.GradientTransformation:
+        """Adam's moment estimates; the learning rate is applied by hand (`adam_step`), so it can be traced."""
+        return optax.scale_by_adam(b1=self.beta1, b2=self.beta2)
 
 
 @struct.dataclass
@@ -108,8 +150,9 @@ class Hparams:
 class Data:
     """A training split on device; observations already standardised (states) or uint8 (images).
 
-    obs `[N, *obs_shape]`, action `[N, A] float32`, t `[N] int32`, ape `[N] float32`;
-    `scores` `[S, N] float32` is the table the weightings read (`None`: just the APE).
+    obs `[M, *obs_shape]`, action `[M, A] float32`, t `[M] int32`: whole episodes; `rows` `[N] int32`: the
+    split's rows among them (`None`: all `M`). ape `[N] float32` and `scores` `[S, N] float32` (the table the
+    weightings read; `None`: just the APE) are per split row, by position in `rows`.
     """
 
     obs: jax.Array
@@ -117,9 +160,24 @@ class Data:
     t: jax.Array
     ape: jax.Array
     scores: jax.Array | None = None
+    rows: jax.Array | None = None
 
     def score_table(self) -> jax.Array:
         return self.ape[None] if self.scores is None else self.scores
+
+    @property
+    def size(self) -> int:
+        """`N`, the rows a minibatch is drawn from."""
+        return int(self.obs.shape[0] if self.rows is None else self.rows.shape[0])
+
+    def index(self, pos: jax.Array) -> jax.Array:
+        """Row indices into `obs`/`action`/`t` of split positions `pos`."""
+        return pos if self.rows is None else self.rows[pos]
+
+    def sample(self, key: jax.Array, batch: int) -> tuple[jax.Array, jax.Array]:
+        """`batch` positions drawn uniformly with replacement, and their rows: `([B], [B]) int32`."""
+        pos = jax.random.randint(key, (batch,), 0, self.size)
+        return pos, self.index(pos)
 
 
 @struct.dataclass
@@ -143,6 +201,7 @@ class Learner(NamedTuple):
     rounds: int = 1
     round_iterations: int = 0  # iterations per round; total = rounds * round_iterations
     next_round: Callable[[Any, Any, Data], Any] | None = None  # between rounds
+    init_policy: Callable[[jax.Array, Data], Any] | None = None  # fresh `cfg.model()` variables (`make_train`'s)
 
 
 def train_in_rounds(learner: Learner, key: jax.Array, hp: Any, data: Data) -> tuple[Any, dict]:
@@ -172,25 +231,34 @@ def drop_history(key: jax.Array, history: jax.Array, p: jax.Array | float) -> ja
 
 
 def dataset_losses(learner: Learner, params: Any, data: Data, chunk: int | None = None) -> jax.Array:
-    """`[N]` unweighted loss of every sample of `data` under policy `params`, `chunk` rows at a time.
+    """`[N]` unweighted loss of every split row of `data` under policy `params`, `chunk` rows at a time.
 
     The chunks run in a `lax.map`, so memory holds one chunk's activations
     whatever `N` is, and the program's size does not grow with `N`. Default
     chunk: 256 frames for images (a CNN's activations are large), 4,096 rows
     of states.
     """
-    n = data.obs.shape[0]
+    n = data.size
     chunk = chunk or (256 if data.obs.ndim >= 4 else 4096)
     chunk = max(1, min(chunk, n))
     rounds = -(-n // chunk)
-    idx = jnp.arange(rounds * chunk).reshape(rounds, chunk) % n  # the last chunk wraps around; cut off below
-    losses = jax.lax.map(lambda i: learner.per_sample_loss(params, data, i), idx)
+    pos = jnp.arange(rounds * chunk).reshape(rounds, chunk) % n  # the last chunk wraps around; cut off below
+    losses = jax.lax.map(lambda p: learner.per_sample_loss(params, data, data.index(p)), pos)
     return losses.reshape(-1)[:n]
 
 
 def learning_rate(cfg: LearnerConfig, lr: jax.Array, step: jax.Array) -> jax.Array:
-    """The schedule every learner uses: `lr · 0.1^⌊step / cfg.lr_decay_every⌋` (traced `lr` and `step`)."""
-    return lr * 0.1 ** (step // cfg.lr_decay_every).astype(jnp.float32)
+    """The schedule every learner uses: `lr · 0.1^k`, `k` the boundaries of `cfg.lr_boundaries` that `step` has
+    reached (traced `lr` and `step`)."""
+    passed = sum((step >= b).astype(jnp.float32) for b in cfg.lr_boundaries) if cfg.lr_boundaries else 0.0
+    return lr * 0.1 ** jnp.asarray(passed, jnp.float32)
+
+
+def lr_boundaries(iterations: int, fractions: tuple[float, ...]) -> tuple[int, ...]:
+    """Steps at which a run of `iterations` drops its learning rate: `ceil(f · iterations)` for each fraction
+    `f` (the paper's 1/3 and 2/3: 100k and 200k of 300k); boundaries at or past the end are dropped."""
+    steps = sorted({max(1, math.ceil(f * iterations - 1e-9)) for f in fractions})
+    return tuple(b for b in steps if b < iterations)
 
 
 def adam_step(adam: optax.GradientTransformation, params: Any, grads: Any, opt_state: Any, lr: jax.Array
@@ -200,10 +268,43 @@ def adam_step(adam: optax.GradientTransformation, params: Any, grads: Any, opt_s
     return jax.tree.map(lambda p, u: p - lr * u, params, updates), opt_state
 
 
+def trainable(variables: Any) -> dict:
+    """The part of a policy's variables the optimiser moves: `{"params": ...}` (BatchNorm's statistics are not)."""
+    return {"params": variables["params"]}
+
+
+def policy_apply(model: nn.Module, variables: Any, x: jax.Array, train: bool = False, **kw) -> tuple[Any, Any]:
+    """`model` applied to `x`: `(output, variables)`.
+
+    `train=True` on a network with BatchNorm normalises by the batch's statistics and returns the variables
+    with the running statistics updated; otherwise the running statistics are used and `variables` come back
+    unchanged.
+    """
+    if train and "batch_stats" in variables:
+        out, updated = model.apply(variables, x, train=True, mutable=["batch_stats"], **kw)
+        return out, {**variables, **updated}
+    return model.apply(variables, x, **kw), variables
+
+
+def gradient_step(adam: optax.GradientTransformation, variables: Any, opt_state: Any, lr: jax.Array,
+                  loss_fn: Callable[[Any], tuple[jax.Array, tuple[Any, Any]]]) -> tuple[Any, Any, jax.Array, Any]:
+    """One Adam step of a policy on `loss_fn(variables) -> (loss, (aux, variables after the forward pass))`.
+
+    Returns `(variables, opt_state, loss, aux)`: the parameters moved, BatchNorm's running statistics as the
+    forward pass left them.
+    """
+    def objective(params):
+        return loss_fn({**variables, **params})
+
+    (loss, (aux, after)), grads = jax.value_and_grad(objective, has_aux=True)(trainable(variables))
+    params, opt_state = adam_step(adam, trainable(variables), grads, opt_state, lr)
+    return {**after, **params}, opt_state, loss, aux
+
+
 def make_train(cfg: LearnerConfig) -> Learner:
     """The pure functions of one learner setup (see the module docstring)."""
     model = cfg.model()
-    adam = optax.scale_by_adam()
+    adam = cfg.optimizer()
 
     def policy_input(history_obs: jax.Array) -> jax.Array:
         """`[..., H, *obs_shape]` -> the model's input (flattened states, or frames on channels in [0, 1])."""
@@ -218,33 +319,41 @@ def make_train(cfg: LearnerConfig) -> Learner:
             obs = drop_history(dropout_key, obs, dropout)
         return policy_input(obs)
 
-    def per_sample_loss(params, data: Data, idx: jax.Array, dropout_key=None, dropout=0.0) -> jax.Array:
-        err = model.apply(params, batch(data, idx, dropout_key, dropout)) - data.action[idx]
+    def errors(predicted: jax.Array, target: jax.Array) -> jax.Array:
+        err = predicted - target
         return jnp.sum(err**2 if cfg.loss == "l2" else jnp.abs(err), axis=-1)
 
-    def init(key: jax.Array, hp: Hparams, data: Data) -> TrainState:
-        if data.obs.shape[0] < cfg.batch_size:
-            raise ValueError(f"the training set has {data.obs.shape[0]} samples, fewer than the batch size "
+    def per_sample_loss(params, data: Data, idx: jax.Array, dropout_key=None, dropout=0.0) -> jax.Array:
+        """`[B]` loss of rows `idx` (indices into `data.obs`, not split positions), running statistics."""
+        return errors(model.apply(params, batch(data, idx, dropout_key, dropout)), data.action[idx])
+
+    def init_policy(key: jax.Array, data: Data) -> Any:
+        """Fresh policy variables (`init` of every learner that trains `cfg.model()`)."""
+        if data.size < cfg.batch_size:
+            raise ValueError(f"the training set has {data.size} samples, fewer than the batch size "
                              f"{cfg.batch_size}")
+        return model.init(key, policy_input(jnp.zeros((1, cfg.history, *cfg.obs_shape), data.obs.dtype)))
+
+    def init(key: jax.Array, hp: Hparams, data: Data) -> TrainState:
         key_init, key_run = jax.random.split(key)
-        dummy = policy_input(jnp.zeros((1, cfg.history, *cfg.obs_shape), data.obs.dtype))
-        params = model.init(key_init, dummy)
-        return TrainState(params=params, opt_state=adam.init(params), step=jnp.zeros((), jnp.int32),
+        params = init_policy(key_init, data)
+        return TrainState(params=params, opt_state=adam.init(trainable(params)), step=jnp.zeros((), jnp.int32),
                           key=key_run, static_weights=weighting.dataset_weights(data.score_table(), hp.weighting))
 
     def update(state: TrainState, hp: Hparams, data: Data):
         key_step = jax.random.fold_in(state.key, state.step)
-        idx = jax.random.randint(key_step, (cfg.batch_size,), 0, data.obs.shape[0])
+        pos, idx = data.sample(key_step, cfg.batch_size)
         key_drop = jax.random.fold_in(key_step, 1)
-        w = weighting.batch_weights(data.score_table(), state.static_weights, idx, hp.weighting)
+        w = weighting.batch_weights(data.score_table(), state.static_weights, pos, hp.weighting)
+        x = batch(data, idx, key_drop, hp.history_dropout)
 
-        def loss_fn(params):
-            ell = per_sample_loss(params, data, idx, key_drop, hp.history_dropout)
-            return jnp.mean(w * ell), jnp.mean(ell)
+        def loss_fn(variables):
+            predicted, variables = policy_apply(model, variables, x, train=True)
+            ell = errors(predicted, data.action[idx])
+            return jnp.mean(w * ell), (jnp.mean(ell), variables)
 
-        (weighted, unweighted), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params)
-        params, opt_state = adam_step(adam, state.params, grads, state.opt_state,
-                                      learning_rate(cfg, hp.lr, state.step))
+        params, opt_state, weighted, unweighted = gradient_step(
+            adam, state.params, state.opt_state, learning_rate(cfg, hp.lr, state.step), loss_fn)
         state = state.replace(params=params, opt_state=opt_state, step=state.step + 1)
         return state, {"loss": weighted, "unweighted_loss": unweighted}
 
@@ -259,4 +368,4 @@ def make_train(cfg: LearnerConfig) -> Learner:
         return state.params, metrics
 
     return Learner(init=init, run=run, train=train, policy_input=policy_input, per_sample_loss=per_sample_loss,
-                   round_iterations=cfg.iterations)
+                   round_iterations=cfg.iterations, init_policy=init_policy)

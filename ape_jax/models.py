@@ -3,6 +3,10 @@
 - `StatePolicy` — for state observations, in the style of the copycat paper's
   network: three hidden layers of 300, a 100-unit embedding, a 300-unit head,
   LeakyReLU(0.2). Input: the last `H` observations, flattened `[..., H * D]`.
+  With `batchnorm=True` it is the FCA code's network (`gan_mlp.py`): each
+  encoder layer is a bias-free Dense → BatchNorm → LeakyReLU, and the head
+  applies LeakyReLU to the embedding before its 300 units; `init="xavier"`
+  gives its xavier-uniform kernels (biases zero, BatchNorm's scale ~ N(1, 0.02)).
 - `ImagePolicy` — for images: a small conv encoder (CPU-sized) to the same
   100-unit embedding and head. Input: the last `H` frames stacked on channels,
   `[..., height, width, 3 * H]`, already scaled to [0, 1].
@@ -22,38 +26,75 @@ from typing import Sequence
 
 import flax.linen as nn
 import jax
+import jax.numpy as jnp
 
 
 def _lrelu(x: jax.Array) -> jax.Array:
     return nn.leaky_relu(x, negative_slope=0.2)
 
 
+# Dense kernel initialisers by name: Flax's default (LeCun normal) and the FCA code's (xavier uniform).
+INITS = {"lecun": nn.initializers.lecun_normal(), "xavier": nn.initializers.xavier_uniform()}
+
+
+def _bn_scale_init(key: jax.Array, shape, dtype=jnp.float32) -> jax.Array:
+    """BatchNorm's scale ~ N(1, 0.02), as the FCA code (and DCGAN) initialise it."""
+    return 1.0 + 0.02 * jax.random.normal(key, shape, dtype)
+
+
 class Head(nn.Module):
-    """Embedding (100) -> 300 -> action."""
+    """Embedding (100) -> 300 -> action; `activate_embedding`: LeakyReLU on the embedding first (FCA's head)."""
 
     action_dim: int
     embed: int = 100
     hidden: int = 300
+    weights_init: str = "lecun"
+    activate_embedding: bool = False
 
     @nn.compact
-    def __call__(self, features: jax.Array, return_embedding: bool = False) -> jax.Array | tuple[jax.Array, jax.Array]:
-        z = nn.Dense(self.embed, name="embedding")(features)
-        action = nn.Dense(self.action_dim, name="action")(_lrelu(nn.Dense(self.hidden, name="head")(z)))
+    def __call__(self, features: jax.Array, return_embedding: bool = False,
+                 embedding_noise: jax.Array | None = None) -> jax.Array | tuple[jax.Array, jax.Array]:
+        """`embedding_noise` (`[..., embed]`, FCA-IB's bottleneck sample) is added to the embedding before the
+        head reads it; the embedding returned is the layer's output without it."""
+        dense = lambda n, name: nn.Dense(n, kernel_init=INITS[self.weights_init], name=name)  # noqa: E731
+        z = dense(self.embed, "embedding")(features)
+        h = z if embedding_noise is None else z + embedding_noise
+        h = _lrelu(h) if self.activate_embedding else h
+        action = dense(self.action_dim, "action")(_lrelu(dense(self.hidden, "head")(h)))
         return (action, z) if return_embedding else action
 
 
 class StatePolicy(nn.Module):
-    """`[..., H * D]` stacked state observations -> `[..., A]` action."""
+    """`[..., H * D]` stacked state observations -> `[..., A]` action.
+
+    `batchnorm=True`: the FCA code's network (module docstring). `train=True` normalises each encoder layer by
+    the batch's statistics and updates the running ones (`mutable=["batch_stats"]`); `train=False` (every use
+    but a training step) uses the running statistics. Without BatchNorm `train` changes nothing. Leading
+    dimensions are flattened for BatchNorm, whose statistics are over all of them.
+    """
 
     action_dim: int
     hidden: Sequence[int] = (300, 300, 300)
+    batchnorm: bool = False
+    weights_init: str = "lecun"
+    bn_momentum: float = 0.1
 
     @nn.compact
-    def __call__(self, obs: jax.Array, return_embedding: bool = False) -> jax.Array | tuple[jax.Array, jax.Array]:
-        x = obs
+    def __call__(self, obs: jax.Array, return_embedding: bool = False, train: bool = False,
+                 embedding_noise: jax.Array | None = None) -> jax.Array | tuple[jax.Array, jax.Array]:
+        lead = obs.shape[:-1]
+        x = obs.reshape((-1, obs.shape[-1])) if self.batchnorm else obs
         for i, width in enumerate(self.hidden):
-            x = _lrelu(nn.Dense(width, name=f"encoder_{i}")(x))
-        return Head(self.action_dim)(x, return_embedding)
+            x = nn.Dense(width, use_bias=not self.batchnorm, kernel_init=INITS[self.weights_init], name=f"encoder_{i}")(x)
+            if self.batchnorm:
+                # Flax's momentum is the old statistics' share: PyTorch's 0.1 is Flax's 0.9
+                x = nn.BatchNorm(use_running_average=not train, momentum=1.0 - self.bn_momentum, epsilon=1e-5,
+                                 scale_init=_bn_scale_init, name=f"norm_{i}")(x)
+            x = _lrelu(x)
+        if self.batchnorm:
+            x = x.reshape(lead + x.shape[-1:])
+        return Head(self.action_dim, weights_init=self.weights_init, activate_embedding=self.batchnorm)(
+            x, return_embedding, embedding_noise)
 
 
 class ImagePolicy(nn.Module):
@@ -63,11 +104,12 @@ class ImagePolicy(nn.Module):
     channels: Sequence[int] = (32, 64, 64)
 
     @nn.compact
-    def __call__(self, frames: jax.Array, return_embedding: bool = False) -> jax.Array | tuple[jax.Array, jax.Array]:
+    def __call__(self, frames: jax.Array, return_embedding: bool = False,
+                 embedding_noise: jax.Array | None = None) -> jax.Array | tuple[jax.Array, jax.Array]:
         x = frames
         for i, c in enumerate(self.channels):
             x = _lrelu(nn.Conv(c, (5, 5) if i == 0 else (3, 3), strides=2, name=f"conv_{i}")(x))
-        return Head(self.action_dim)(x.reshape(x.shape[:-3] + (-1,)), return_embedding)
+        return Head(self.action_dim)(x.reshape(x.shape[:-3] + (-1,)), return_embedding, embedding_noise)
 
 
 # He (Kaiming) normal init, fan-out, as is usual for ReLU ResNets; the convolutions
@@ -172,12 +214,13 @@ class ResNet18Policy(nn.Module):
     hidden: int = 300
 
     @nn.compact
-    def __call__(self, frames: jax.Array, return_embedding: bool = False) -> jax.Array | tuple[jax.Array, jax.Array]:
+    def __call__(self, frames: jax.Array, return_embedding: bool = False,
+                 embedding_noise: jax.Array | None = None) -> jax.Array | tuple[jax.Array, jax.Array]:
         lead = frames.shape[:-3]
         features = ResNet18Encoder(name="encoder")(frames.reshape((-1,) + frames.shape[-3:]))
         features = features.reshape(lead + features.shape[-1:])
         return Head(self.action_dim, hidden=self.hidden)(_lrelu(nn.Dense(self.hidden, name="mlp")(features)),
-                                                         return_embedding)
+                                                         return_embedding, embedding_noise)
 
 
 # `LearnerConfig.encoder` -> the image policy it builds.

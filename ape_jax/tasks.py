@@ -1,6 +1,6 @@
 """One record per task: what the sweep, the evaluation and the report need to know of an environment.
 
-    task = tasks.get("hopper")      # Task(loss="l2", episodes=25, fca_alpha=0.1, metric="return", ...)
+    task = tasks.get("hopper")      # Task(loss="l2", episodes=25, fca_alpha=2.0, metric="return", ...)
 
 Everything that differs between tasks lives in its `Task`, so no other module
 asks which environment it is running: the BC loss (L2 for MuJoCo, L1 for the
@@ -19,6 +19,9 @@ from types import MappingProxyType
 from typing import Any, Mapping
 
 
+SPLITS = ("rows", "episodes")
+
+
 @dataclasses.dataclass(frozen=True)
 class Protocol:
     """How a task's demonstrations and evaluation are set up, apart from the compute preset.
@@ -30,9 +33,16 @@ class Protocol:
         frame skip); None: its own episode length. At frame skip 1 an episode of `horizon` standard steps
         is `horizon × standard frame skip` control steps.
       collect_transitions: expert steps collected (whole episodes, rounded up); None: the task's episodes.
-      train_transitions, val_transitions: the demonstrations' split sizes (whole episodes apart, cut to
-        size); None: split 80/20 by episode.
+      train_transitions, val_transitions: the demonstrations' split sizes; None: split by episode, `val_frac`
+        of the episodes validating.
+      split: how the split is drawn: `"rows"` (the FCA code's: a fixed random permutation of all collected rows
+        gives the training and the validation rows; histories still read whole episodes) or `"episodes"`
+        (whole episodes apart, cut to size).
+      val_frac: the validation share of episodes, where no sizes are given.
       history: observations the policies see (BC-SO: 1).
+      episodes: expert episodes collected where `collect_transitions` is None; None: the task's.
+      eval_steps: steps of an evaluation episode; None: the protocol's episode length.
+      image_size: rendered frames' (height, width) for image observations; None: the environment's default.
       doc: one line saying where the protocol comes from.
       reference: the protocol whose expert references (`envs.experts.reference`) apply: one with the same
         simulator settings (frame skip, episode length, reward scale); None: this one's own.
@@ -50,6 +60,28 @@ class Protocol:
     history: int = 2
     doc: str = ""
     reference: str | None = None
+    split: str = "episodes"
+    val_frac: float = 0.2
+    episodes: int | None = None
+    eval_steps: int | None = None
+    image_size: tuple[int, int] | None = None
+
+    def __post_init__(self):
+        if self.split not in SPLITS:
+            raise ValueError(f"protocol.split {self.split!r} is not one of {', '.join(SPLITS)}")
+        if self.split == "rows" and (self.train_transitions is None or self.val_transitions is None):
+            raise ValueError("protocol.split 'rows' needs train_transitions and val_transitions")
+        if not 0.0 <= self.val_frac < 1.0:
+            raise ValueError(f"protocol.val_frac must be in [0, 1), got {self.val_frac!r}")
+        for name in ("frame_skip", "horizon", "collect_transitions", "train_transitions", "val_transitions",
+                     "episodes", "eval_steps"):
+            value = getattr(self, name)
+            if value is not None and value < 1:
+                raise ValueError(f"protocol.{name} must be >= 1 or none, got {value!r}")
+        if self.history < 1:
+            raise ValueError(f"protocol.history must be >= 1, got {self.history!r}")
+        if self.image_size is not None and min(self.image_size) < 1:
+            raise ValueError(f"protocol.image_size must be positive, got {self.image_size!r}")
 
     def settings(self, standard_frame_skip: int | None) -> dict[str, Any]:
         """Every field, resolved for an environment whose own frame skip is `standard_frame_skip` (None: not a
@@ -58,7 +90,8 @@ class Protocol:
         out = {"name": self.name, "frame_skip": skip, "standard_frame_skip": standard_frame_skip,
                "episode_length": None, "reward_scale": 1.0, "collect_transitions": self.collect_transitions,
                "train_transitions": self.train_transitions,
-               "val_transitions": self.val_transitions, "history": self.history}
+               "val_transitions": self.val_transitions, "history": self.history, "split": self.split,
+               "eval_steps": self.eval_steps}
         if standard_frame_skip is not None and self.frame_skip is not None:
             out["reward_scale"] = self.frame_skip / standard_frame_skip
         if self.horizon is not None and standard_frame_skip is not None:
@@ -84,7 +117,8 @@ def _fca(frame_skip: int = 1, train: int = 20_000) -> Protocol:
     name = f"fca{skip}" + ("" if train == 20_000 else f"-train{train // 1000}k")
     if name == "fca":
         doc = ("the paper's MuJoCo-State setting (FCA's code): frame skip 1, 500 standard steps of simulated time, "
-               "rewards on the standard-step scale, 50,000 expert steps of which 20,000 train and 4,000 validate")
+               "rewards on the standard-step scale, 50,000 expert steps of which 20,000 train and 4,000 validate, rows "
+               "drawn by a fixed permutation")
     elif train == 20_000:
         doc = (f"the copycat map's fca at frame skip {frame_skip}: fca's simulated time, rewards and data sizes, "
                f"{frame_skip} simulator steps per control step")
@@ -92,7 +126,7 @@ def _fca(frame_skip: int = 1, train: int = 20_000) -> Protocol:
         doc = (f"the copycat map's fca{skip} with {train:,} training transitions instead of 20,000: as much "
                f"simulated time of demonstrations as {train * frame_skip // 4:,} frame-skip-4 steps")
     return Protocol(name, frame_skip=frame_skip, horizon=500, collect_transitions=max(50_000, train + 10_000),
-                    train_transitions=train, val_transitions=4_000, doc=doc,
+                    train_transitions=train, val_transitions=4_000, doc=doc, split="rows",
                     reference=None if train == 20_000 else f"fca{skip}")
 
 
@@ -117,7 +151,9 @@ class Task:
       title: how tables and figures name it.
       loss: the BC loss, `"l2"` or `"l1"`.
       episodes: expert episodes collected for a sweep (80% train, 20% validation).
-      fca_alpha: FCA's adversarial weight α for this task (the paper's supplement).
+      fca_alpha: FCA's adversarial weight α for this task, as the FCA code runs it (its README: Hopper 2.0; its
+        default, 1.0, where it gives none).
+      fca_adversary_lr: the learning rate of FCA's adversary (its README: Hopper 4e-4; its default, 2e-4).
       metric: the main evaluation metric: `"return"`, or one of `metrics`
         (a rate in [0, 1], reported in %).
       metrics: the environment's per-episode metrics (`env.episode_metrics`),
@@ -137,7 +173,8 @@ class Task:
     title: str
     loss: str = "l2"
     episodes: int = 25
-    fca_alpha: float = 0.1
+    fca_alpha: float = 1.0
+    fca_adversary_lr: float = 2e-4
     metric: str = "return"
     metrics: tuple[str, ...] = ()
     default_obs: str = "pos"
@@ -177,9 +214,12 @@ class Task:
 # W 5); its reward is 0, so it is judged by its driving metrics. FCA's α as for the MuJoCo tasks' range.
 _TOYCAR_METRICS = ("success", "red_light_violations", "progress", "avg_speed", "stuck")
 TASKS: Mapping[str, Task] = MappingProxyType({t.name: t for t in (
-    Task("hopper", "Hopper", fca_alpha=0.1),
-    Task("halfcheetah", "HalfCheetah", fca_alpha=0.5),
-    Task("walker2d", "Walker2d", fca_alpha=0.5),
+    # FCA's α and adversary lr: the FCA code's README runs Hopper at α 2.0 and 4e-4; it gives nothing for
+    # Walker2d and HalfCheetah, whose α and lr are its defaults (`factory.py`: 1.0 and 2e-4). The keyframe
+    # paper's supplement ran its own FCA at α 0.1 (Hopper) and 0.5 (the others): `--set recipe.fca_alphas=...`.
+    Task("hopper", "Hopper", fca_alpha=2.0, fca_adversary_lr=4e-4),
+    Task("halfcheetah", "HalfCheetah", fca_alpha=1.0),
+    Task("walker2d", "Walker2d", fca_alpha=1.0),
     Task("toycar", "ToyCar", loss="l1", episodes=10, fca_alpha=0.2, metric="success", metrics=_TOYCAR_METRICS,
          default_obs="image", expert="rule-based", protocols=("brax",), default_protocols={}, presets={"image": {
              "quick": {"image_size": (32, 32)},

@@ -4,7 +4,12 @@ Collects (or reuses) the shipped expert's demonstrations, fits APE, trains
 BC-SO, BC-OH, the paper's step and softmax weighting grids and any baselines
 asked for (`--methods`) × seeds as compiled programs, evaluates every policy, and writes `results.json` (the
 schema in `DESIGN.md`), `results.csv` and the trained parameters (orbax) into
-`--out`. No arguments: hopper, `pos` observations, the `quick` preset.
+`--out`. No arguments: hopper, `pos` observations, the `fca` protocol, the `quick` preset (the budget), the
+protocol's recipe (`fca`: the FCA code's BatchNorm network and optimiser).
+
+Settings come as three records (`ape_jax.pipeline.presets`): `--protocol` (the task's setting), `--preset`
+(the budget) and `--recipe` (network and optimisation); `--set SECTION.FIELD=VALUE` changes any field of
+them, e.g. `--set recipe.batch_size=64 --set protocol.split=episodes`.
 
 Interrupted sweeps resume: the training states (every configuration × seed)
 are checkpointed in `OUT/checkpoints/` every `--checkpoint-every` iterations
@@ -23,7 +28,6 @@ alone evaluates and writes.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import math
 import pathlib
 import shutil
@@ -40,7 +44,7 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
     import envs
     from ape_jax import methods, tasks
     from ape_jax.pipeline import data
-    from ape_jax.pipeline.presets import PRESETS, preset_for
+    from ape_jax.pipeline import presets
 
     p = Parser(prog=PROG, description=__doc__.splitlines()[0])
     p.add_argument("--env", default="hopper", help=f"{', '.join(tasks.sweepable())} (default: hopper)")
@@ -49,8 +53,16 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
     p.add_argument("--protocol", default=None,
                    help=f"how demonstrations and evaluation are set up: {', '.join(tasks.PROTOCOLS)} (default: the "
                         "task's: fca, the paper's frame skip 1, for state observations; brax for images)")
-    p.add_argument("--preset", default="quick", choices=sorted(PRESETS),
-                   help="quick: <= 5 min on a 2-core CPU; default: the CPU numbers we report; paper: for GPUs")
+    p.add_argument("--preset", default="quick", choices=sorted(presets.BUDGETS),
+                   help="the budget: quick: <= 5 min on a 2-core CPU; default: the CPU numbers we report; paper: "
+                        "for GPUs")
+    p.add_argument("--recipe", default=None,
+                   help=f"how policies are built and trained: {', '.join(presets.RECIPES)} (default: fca under the "
+                        "fca protocols for state observations, the FCA code's BatchNorm network, Adam beta1 0.5, "
+                        "batch 64; mlp otherwise)")
+    p.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="sets",
+                   help="change one field of the protocol, budget or recipe (repeatable), e.g. "
+                        "recipe.batch_size=64, protocol.split=episodes, recipe.fca_alphas=0.1,0.5,1,2")
     p.add_argument("--plugins", default="", metavar="MODULE,...",
                    help="import these modules (from PYTHONPATH) first: each registers methods with "
                         "@ape_jax.methods.weighting(NAME), which --methods can then name")
@@ -102,24 +114,35 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
     for name in ("seeds", "iterations", "eval_episodes", "checkpoint_every"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             fail(p, f"--{name.replace('_', '-')} must be >= 1")
-    overrides = {k: v for k, v in (("seeds", args.seeds), ("iterations", args.iterations),
-                                   ("eval_episodes", args.eval_episodes)) if v is not None}
+    # the shortcuts are --set's of the budget and the recipe, applied before the --set's given
+    sets = [f"budget.{k}={v}" for k, v in (("seeds", args.seeds), ("iterations", args.iterations),
+                                           ("eval_episodes", args.eval_episodes)) if v is not None]
     if args.step_grid is not None:
-        overrides["step_grid"] = _grid(p, "--step-grid", args.step_grid, _step_setting)
+        grid = _grid(p, "--step-grid", args.step_grid, _step_setting)
+        sets.append("recipe.step_grid=" + ",".join(f"{thr!r}:{w!r}" for thr, w in grid))
     if args.softmax_grid is not None:
-        overrides["softmax_grid"] = _grid(p, "--softmax-grid", args.softmax_grid, _temperature)
-    args.preset_cfg = dataclasses.replace(preset_for(args.preset, args.env, args.obs), **overrides)
+        sets.append("recipe.softmax_grid=" + ",".join(map(repr, _grid(p, "--softmax-grid", args.softmax_grid,
+                                                                       _temperature))))
+    try:
+        args.settings = presets.resolve(args.env, args.obs, args.protocol, args.preset, args.recipe, sets + args.sets)
+        if args.checkpoint_every and args.checkpoint_every < args.settings.budget.chunk:
+            # saves fall between chunks: a shorter interval makes the chunks shorter
+            args.settings = presets.resolve(args.env, args.obs, args.protocol, args.preset, args.recipe,
+                                            [*sets, *args.sets, f"budget.chunk={args.checkpoint_every}"])
+    except presets.SettingsError as e:
+        fail(p, str(e))
+    args.checkpoint_every = args.checkpoint_every or args.settings.budget.chunk
     default_protocol = tasks.get(args.env).protocol(None, args.obs).name
-    name = [args.env, args.obs, *([args.protocol] if args.protocol != default_protocol else []), args.preset]
+    default_recipe = presets.default_recipe(tasks.PROTOCOLS[args.protocol], args.obs)
+    name = [args.env, args.obs, *([args.protocol] if args.protocol != default_protocol else []),
+            *([f"recipe-{args.settings.recipe.name}"] if args.settings.recipe.name != default_recipe else []),
+            args.preset]
     args.out = args.out or pathlib.Path("runs/sweep") / "-".join(name)
     if writes:  # only process 0 touches --out (a process on another machine may not even see it)
         problem = ("exists and is not a directory" if args.out.exists() and not args.out.is_dir()
                    else unwritable(args.out))
         if problem:
             fail(p, f"--out {args.out}: {problem}")
-    if args.checkpoint_every:  # saves fall between chunks: a shorter interval makes the chunks shorter
-        args.preset_cfg = dataclasses.replace(args.preset_cfg, chunk=min(args.preset_cfg.chunk, args.checkpoint_every))
-    args.checkpoint_every = args.checkpoint_every or args.preset_cfg.chunk
     args.data_dir = args.data_dir or data.cache_dir()
     return args
 
@@ -238,8 +261,7 @@ def _spec(args: argparse.Namespace, argv) -> tuple:
     from envs.experts import ExpertError
 
     try:
-        spec = SweepSpec(args.env, args.obs, args.preset, args.preset_cfg, args.methods, dataset=args.dataset,
-                         data_dir=args.data_dir, protocol=args.protocol,
+        spec = SweepSpec(args.env, args.obs, args.settings, args.methods, dataset=args.dataset, data_dir=args.data_dir,
                          command=("python", "-m", "experiments.sweep", *(sys.argv[1:] if argv is None else argv)))
         fp = spec.fingerprint()
     except (ExpertError, ValueError) as e:
@@ -310,13 +332,14 @@ def _run(args: argparse.Namespace, spec, checkpoint, created: bool) -> int:
     from envs.experts import ExpertError
     from experiments._provenance import system
 
-    p = args.preset_cfg
+    b, r = spec.budget, spec.recipe
     started = system()  # at the start: the code that runs, not what is checked out when it ends
     results_path = args.out / "results.json"
     proto = spec.protocol_settings()
-    print(f"sweep: {args.env} ({args.obs}), protocol {spec.protocol} (frame skip {proto['frame_skip'] or '-'}, "
-          f"{proto['episode_length']:,}-step episodes), preset {args.preset}: {p.iterations:,} iterations, "
-          f"{p.seeds} seed(s), {p.eval_episodes} evaluation episodes, methods {', '.join(args.methods)}")
+    print(f"sweep: {args.env} ({args.obs}), protocol {spec.protocol.name} (frame skip {proto['frame_skip'] or '-'}, "
+          f"{proto['episode_length']:,}-step episodes, split by {spec.protocol.split}), preset {args.preset}: "
+          f"{b.iterations:,} iterations, {b.seeds} seed(s), {b.eval_episodes} evaluation episodes; recipe {r.name} "
+          f"({r.network}, Adam {r.lr:g} β1 {r.beta1:g}, batch {r.batch_size}); methods {', '.join(args.methods)}")
     bar = (lambda **kw: tqdm(disable=True, **kw)) if args.quiet else (lambda **kw: tqdm(dynamic_ncols=True, **kw))
     hooks = Hooks(bar=bar, log=tqdm.write, curves=lambda *a: logs.write_curves(args.out, *a))
     try:

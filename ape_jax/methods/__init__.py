@@ -68,12 +68,16 @@ class GridContext:
       step_grid: the preset's (THR, W) settings of step weightings.
       softmax_grid: the preset's temperatures of softmax weightings.
       n_train: transitions in the training split (e.g. DAgger's query budget).
+      fca_alphas: FCA's adversarial weights α to run (the recipe's); empty: the task's one.
+      ib_weights: the information bottleneck's KL weights of FCA-IB (the recipe's).
     """
 
     task: Any
     step_grid: tuple[tuple[float, float], ...]
     softmax_grid: tuple[float, ...]
     n_train: int
+    fca_alphas: tuple[float, ...] = ()
+    ib_weights: tuple[float, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)

@@ -52,16 +52,21 @@ class ProtocolSetup:
     episodes: int
 
 
-def protocol_setup(env_name: str, obs: str, protocol: str | None = None) -> ProtocolSetup:
-    """Protocol `protocol` (None: the task's default for `obs`) for `env_name`; `ValueError` for one it cannot take."""
-    proto = tasks.get(env_name).protocol(protocol, obs)
+def protocol_setup(env_name: str, obs: str, protocol: str | tasks.Protocol | None = None) -> ProtocolSetup:
+    """Protocol `protocol` (a name, None: the task's default for `obs`, or a record, e.g. with `--set` changes) for
+    `env_name`; `ValueError` for one the task cannot take."""
+    if isinstance(protocol, tasks.Protocol):
+        tasks.get(env_name).protocol(protocol.name, obs)  # ValueError for a protocol the task cannot take
+        proto = protocol
+    else:
+        proto = tasks.get(env_name).protocol(protocol, obs)
     brax = env_name in envs.brax_env.brax_names()
     standard = envs.brax_env.default_frame_skip(env_name) if brax else None
     settings = proto.settings(standard)
     if settings["episode_length"] is None:
         settings["episode_length"] = envs.make(env_name, obs="full" if brax else None).episode_length
     episodes = (-(-proto.collect_transitions // settings["episode_length"]) if proto.collect_transitions is not None
-                else default_episodes(env_name))
+                else proto.episodes or default_episodes(env_name))
     return ProtocolSetup(proto.name, settings, proto.env_overrides(standard), episodes)
 
 

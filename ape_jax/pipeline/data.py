@@ -22,6 +22,8 @@ lengths, non-finite values, or broken episode structure.
 
 from __future__ import annotations
 
+import dataclasses
+
 import hashlib
 import json
 import os
@@ -47,6 +49,59 @@ class Split(NamedTuple):
 
     train: "Demonstrations"
     val: "Demonstrations"
+
+
+@dataclasses.dataclass(frozen=True)
+class Part:
+    """One part of a split: rows of whole episodes.
+
+    `demos` holds whole episodes (the context histories and ψ's past actions read); `rows` `[N] int64` are the
+    part's own rows in it, or None for all of them. A split by episode has `rows=None` (its episodes are the
+    part); a split by rows (the FCA code's) keeps every collected episode and names its rows.
+    """
+
+    demos: "Demonstrations"
+    rows: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.demos) if self.rows is None else int(len(self.rows))
+
+    def own(self, x) -> np.ndarray:
+        """A per-row array of `demos` (e.g. `demos.obs`) at the part's rows."""
+        return np.asarray(x) if self.rows is None else np.asarray(x)[self.rows]
+
+    @property
+    def obs(self) -> np.ndarray:
+        return self.own(self.demos.obs)
+
+    @property
+    def action(self) -> np.ndarray:
+        return self.own(self.demos.action)
+
+    @property
+    def num_episodes(self) -> int:
+        """Episodes the part's rows come from."""
+        return int(len(np.unique(self.own(self.demos.episode))))
+
+
+def split_parts(demos: "Demonstrations", kind: str, train: int | None, val: int | None, val_frac: float = 0.2,
+                seed: int = 0) -> tuple[Part, Part]:
+    """The training and validation `Part`s of `demos`, as a protocol says.
+
+    `kind="rows"`: a fixed random permutation (seed `seed`) of all rows; its first `train` rows train and the
+    next `val` validate (the FCA code's `random_split`). `kind="episodes"`: `demos.split_sizes(train, val)`, or
+    `demos.split(val_frac)` when no sizes are given. Raises `ValueError` for too few rows.
+    """
+    if kind == "rows":
+        if len(demos) < train + val:
+            raise ValueError(f"{len(demos):,} transitions, fewer than the {train:,} + {val:,} the split needs; "
+                             "collect more episodes")
+        perm = np.random.default_rng(seed).permutation(len(demos))
+        return Part(demos, np.sort(perm[:train])), Part(demos, np.sort(perm[train:train + val]))
+    if kind != "episodes":
+        raise ValueError(f"unknown split {kind!r}; valid: rows, episodes")
+    parts = demos.split(val_frac, seed) if train is None else demos.split_sizes(train, val, seed)
+    return Part(parts.train), Part(parts.val)
 
 
 @struct.dataclass

@@ -1,89 +1,152 @@
-"""Compute presets: everything a sweep sets that is not the task (recorded in results.json).
+"""A sweep's settings as three records, and the one function that resolves them.
 
-    preset = preset_for("default", "hopper", "pos")   # Preset(iterations=30_000, seeds=3, ...)
+    s = resolve("hopper", "pos", preset="default", recipe="fca", sets=["recipe.batch_size=32"])
+    s.protocol.split, s.budget.iterations, s.recipe.beta1      # "rows", 30_000, 0.5
 
-`PRESETS` are the state-observation budgets; image observations change them
-(`IMAGE_PRESETS`), and a task may override settings for an observation mode
-(`ape_jax.tasks.Task.presets`, e.g. ToyCar's Table 4 protocol). A preset is
-frozen: derive a variant with `dataclasses.replace`.
+- `Protocol` (`ape_jax.tasks`): the task's setting — how demonstrations are collected and split and how
+  policies are evaluated (frame skip, horizon, reward scale, data sizes, split, history, evaluation steps).
+- `Budget` (`--preset`, whose names it keeps: `quick`, `default`, `paper`): how much compute — iterations,
+  seeds, evaluation episodes, APE fit steps, the chunk of iterations per compiled call.
+- `Recipe` (`--recipe`): how a policy is built and trained — the network and its initialisation, the
+  optimiser, batch size, the learning rate's decay points, the loss, the APE normalisation, the weighting
+  grids and FCA's knobs. `mlp` is the project's first recipe; `fca` is the FCA code's (BatchNorm network,
+  Adam β1 0.5, batch 64), the default under the fca protocols for state observations.
+
+`resolve` starts from the named records, applies the image observations' budget (`IMAGE_PRESETS`), the
+task's own overrides (`Task.presets`, e.g. ToyCar's) and the `--set SECTION.FIELD=VALUE` overrides, in that
+order, and validates the result; nothing rewrites a record after it is built. A bad name, field or value is a
+one-line `SettingsError`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Mapping
+import types
+import typing
+from typing import Any, Iterable, Mapping
 
 from ape_jax import tasks
-from ape_jax.learner import LearnerConfig
+from ape_jax.ape import NORMALIZATIONS
+from ape_jax.learner import LOSSES, NETWORKS, LearnerConfig, lr_boundaries
+from ape_jax.models import IMAGE_ENCODERS, INITS
+from ape_jax.tasks import Protocol
 
 STEP_GRID = tuple((thr, w) for thr in (0.1, 0.2) for w in (3.0, 5.0, 10.0))
 SOFTMAX_GRID = (0.1, 0.2, 0.5, 1.0, 5.0, 10.0)
 
 
+class SettingsError(ValueError):
+    """An unknown preset, recipe or field, or a value a field cannot take (one line)."""
+
+
+def _check(ok: bool, message: str) -> None:
+    if not ok:
+        raise SettingsError(message)
+
+
+def _one_of(name: str, value: Any, valid: tuple) -> None:
+    _check(value in valid, f"{name} {value!r} is not one of {', '.join(map(str, valid))}")
+
+
 @dataclasses.dataclass(frozen=True)
-class Preset:
-    """Every setting of a sweep that is not the environment."""
+class Budget:
+    """How much compute a sweep spends (`--preset`): nothing here changes what a run computes per step."""
 
     iterations: int
     seeds: int
     eval_episodes: int
     ape_steps: int
-    episodes: int | None = None   # demonstrations collected (80% train, 20% validation); None: the task's
-    batch_size: int = 128
+    chunk: int = 500              # iterations per compiled call (progress and checkpoint granularity)
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            _check(isinstance(getattr(self, f.name), int) and getattr(self, f.name) >= 1,
+                   f"budget.{f.name} must be an integer >= 1, got {getattr(self, f.name)!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class Recipe:
+    """How a policy is built and trained (`--recipe`).
+
+    Attributes:
+      name: the recipe it started from (`RECIPES`); `--set` keeps the name, results record every field.
+      network: state policies: `"mlp"` (no normalisation) or `"bn-mlp"` (the FCA code's: BatchNorm after each
+        encoder layer, LeakyReLU on the embedding; `ape_jax.models.StatePolicy`).
+      init: Dense kernels: `"lecun"` (Flax's default) or `"xavier"` (xavier-uniform, the FCA code's).
+      encoder: image policies: `"small"` (CPU) or `"resnet18"` (the supplement's, for GPUs).
+      lr, beta1, beta2: Adam's learning rate and moment decays, for every method that trains a policy.
+      batch_size: minibatch rows per update.
+      lr_decay_at: fractions of the run at which the learning rate drops ×0.1 (the paper: 100k and 200k of 300k).
+      bn_momentum: BatchNorm's running statistics' update, PyTorch's convention (0.1).
+      loss: `"l2"` or `"l1"`; None: the task's (L2 for MuJoCo, L1 for the driving sandbox).
+      ape_normalization: `"none"` (the raw APE, as the official code) or `"mean"`.
+      step_grid, softmax_grid: the weightings' (THR, W) and τ settings.
+      fca_alphas: FCA's adversarial weights to run; empty: the task's (`Task.fca_alpha`).
+      ib_weights: FCA-IB's KL weights to run; empty: its default.
+    """
+
+    name: str = "mlp"
+    network: str = "mlp"
+    init: str = "lecun"
+    encoder: str = "small"
     lr: float = 2e-4
-    lr_decay_every: int | None = None  # default: a third of the iterations (the paper: 100k of 300k)
-    history: int = 2
-    eval_steps: int | None = None  # default: the environment's episode length (1000 for MuJoCo)
-    chunk: int = 500              # iterations per compiled chunk (progress granularity)
-    ape_normalization: str = "none"   # the official code's softmax reads the raw APE; "mean": ÷ its training mean
-    val_frac: float = 0.2
-    step_grid: tuple[tuple[float, float], ...] = STEP_GRID  # (THR, W) of step weightings
-    softmax_grid: tuple[float, ...] = SOFTMAX_GRID            # τ of softmax weightings
-    image_size: tuple[int, int] | None = None  # image observations: (height, width); None: the env's default
-    encoder: str = "small"                     # image policies: "small" (CPU) or "resnet18" (the paper's, GPU)
+    beta1: float = 0.9
+    beta2: float = 0.999
+    batch_size: int = 128
+    lr_decay_at: tuple[float, ...] = (1 / 3, 2 / 3)
+    bn_momentum: float = 0.1
+    loss: str | None = None
+    ape_normalization: str = "none"
+    step_grid: tuple[tuple[float, float], ...] = STEP_GRID
+    softmax_grid: tuple[float, ...] = SOFTMAX_GRID
+    fca_alphas: tuple[float, ...] = ()
+    ib_weights: tuple[float, ...] = ()
 
-    def learner_config(self, obs_shape, action_dim, history, loss, unroll: bool = False) -> LearnerConfig:
-        return LearnerConfig(obs_shape=tuple(obs_shape), action_dim=action_dim, history=history,
-                             iterations=self.iterations, batch_size=self.batch_size,
-                             lr_decay_every=self.lr_decay_every or max(1, math.ceil(self.iterations / 3)),
-                             loss=loss, unroll=unroll, encoder=self.encoder if len(obs_shape) == 3 else "small")
-
-    def env_overrides(self, obs: str) -> dict[str, Any]:
-        """The `envs.make` settings this preset fixes for observations `obs` (image size, episode length)."""
-        out: dict[str, Any] = {}
-        if obs == "image" and self.image_size is not None:
-            out["image_size"] = self.image_size
-        if self.eval_steps is not None:
-            out["episode_length"] = self.eval_steps
-        return out
-
-    def to_json(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_json(cls, config: Mapping[str, Any]) -> "Preset":
-        """The preset a results file's `config` records (JSON lists back to tuples; fields it predates: defaults)."""
-        fields = {f.name for f in dataclasses.fields(cls)}
-        values = {k: v for k, v in config.items() if k in fields}
-        if values.get("step_grid") is not None:
-            values["step_grid"] = tuple(tuple(x) for x in values["step_grid"])
-        if values.get("image_size") is not None:
-            values["image_size"] = tuple(values["image_size"])
-        if "softmax_grid" in values:
-            values["softmax_grid"] = tuple(values["softmax_grid"])
-        return cls(**values)
+    def __post_init__(self):
+        _one_of("recipe.network", self.network, NETWORKS)
+        _one_of("recipe.init", self.init, tuple(INITS))
+        _one_of("recipe.encoder", self.encoder, tuple(IMAGE_ENCODERS))
+        _one_of("recipe.loss", self.loss, (None, *LOSSES))
+        _one_of("recipe.ape_normalization", self.ape_normalization, NORMALIZATIONS)
+        _check(self.lr > 0 and math.isfinite(self.lr), f"recipe.lr must be a finite number > 0, got {self.lr!r}")
+        for name in ("beta1", "beta2"):
+            _check(0.0 <= getattr(self, name) < 1.0, f"recipe.{name} must be in [0, 1), got {getattr(self, name)!r}")
+        _check(0.0 < self.bn_momentum <= 1.0, f"recipe.bn_momentum must be in (0, 1], got {self.bn_momentum!r}")
+        _check(isinstance(self.batch_size, int) and self.batch_size >= 1,
+               f"recipe.batch_size must be an integer >= 1, got {self.batch_size!r}")
+        _check(all(0.0 < f < 1.0 for f in self.lr_decay_at) and list(self.lr_decay_at) == sorted(set(self.lr_decay_at)),
+               f"recipe.lr_decay_at must be increasing fractions in (0, 1), got {self.lr_decay_at!r}")
+        for thr, w in self.step_grid:
+            _check(0.0 < thr < 1.0 and 1.0 <= w < math.inf,
+                   f"recipe.step_grid: THR must be in (0, 1) and W a finite number >= 1, got {thr:g}:{w:g}")
+        for name in ("softmax_grid",):
+            _check(all(0.0 < v < math.inf for v in getattr(self, name)),
+                   f"recipe.{name}: every value must be a finite number > 0, got {getattr(self, name)!r}")
+        for name in ("fca_alphas", "ib_weights"):
+            _check(all(0.0 <= v < math.inf for v in getattr(self, name)),
+                   f"recipe.{name}: every value must be a finite number >= 0, got {getattr(self, name)!r}")
+        for name in ("step_grid", "softmax_grid", "fca_alphas", "ib_weights"):
+            _check(len(set(getattr(self, name))) == len(getattr(self, name)), f"recipe.{name} lists a setting twice")
 
 
-PRESETS = {
-    "quick": Preset(iterations=3_000, seeds=1, eval_episodes=5, ape_steps=1_000, chunk=500),
-    "default": Preset(iterations=30_000, seeds=3, eval_episodes=20, ape_steps=5_000, chunk=2_000),
-    "paper": Preset(iterations=300_000, seeds=5, eval_episodes=100, ape_steps=20_000, chunk=10_000),
+# The project's first recipe, and the FCA code's (AlvinWen428/fighting-copycat-agents: `gan_mlp.py`,
+# `factory.py`, `utils/misc.py`): its network, xavier-uniform init, Adam(2e-4, β1 0.5, β2 0.999) and batch 64;
+# both drop the learning rate ×0.1 at a third and two thirds of the run (the FCA code: 100k and 200k of 300k).
+RECIPES: Mapping[str, Recipe] = {
+    "mlp": Recipe("mlp"),
+    "fca": Recipe("fca", network="bn-mlp", init="xavier", beta1=0.5, batch_size=64),
 }
+BUDGETS: Mapping[str, Budget] = {
+    "quick": Budget(iterations=3_000, seeds=1, eval_episodes=5, ape_steps=1_000, chunk=500),
+    "default": Budget(iterations=30_000, seeds=3, eval_episodes=20, ape_steps=5_000, chunk=2_000),
+    "paper": Budget(iterations=300_000, seeds=5, eval_episodes=100, ape_steps=20_000, chunk=10_000),
+}
+PRESETS = BUDGETS  # the preset names are the budgets'
 # Image observations. A conv policy trains tens of times slower per iteration than the state MLP on a
 # 2-core CPU, so there `quick` and `default` shrink the images, the iterations and the grid to the
 # paper's step setting and the softmax τ that was best on states; `paper` keeps the supplement's
-# protocol with its ResNet-18, for GPUs.
+# protocol with its ResNet-18, for GPUs. Keys are fields of any of the three records.
 IMAGE_PRESETS = {
     "quick": dict(iterations=300, eval_episodes=3, chunk=100, image_size=(32, 32),
                   step_grid=((0.1, 5.0),), softmax_grid=()),
@@ -91,21 +154,207 @@ IMAGE_PRESETS = {
                     step_grid=((0.1, 5.0),), softmax_grid=(10.0,)),
     "paper": dict(encoder="resnet18"),
 }
+SECTIONS = ("protocol", "budget", "recipe")
+_RECORDS = {"protocol": Protocol, "budget": Budget, "recipe": Recipe}
 
 
-def preset_for(name: str, env_name: str, obs: str) -> Preset:
-    """Preset `name` as it applies to task `env_name` with observations `obs`, the task's episode count filled in."""
-    if name not in PRESETS:
-        raise ValueError(f"unknown preset {name!r}; valid: {', '.join(PRESETS)}")
-    task = tasks.get(env_name)
-    preset = PRESETS[name]
-    if obs == "image":
-        preset = dataclasses.replace(preset, **IMAGE_PRESETS[name])
-    return dataclasses.replace(preset, **{"episodes": task.episodes, **task.preset_overrides(obs, name)})
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """A sweep's three records, resolved for one task and observation mode (`resolve`)."""
+
+    protocol: Protocol
+    budget: Budget
+    recipe: Recipe
+    preset: str = "quick"   # the budget's name
+
+    def learner_config(self, obs_shape, action_dim: int, history: int, task_loss: str,
+                       unroll: bool = False) -> LearnerConfig:
+        """The static learner settings of a program whose policies see `history` observations."""
+        r, iterations = self.recipe, self.budget.iterations
+        images = len(obs_shape) == 3
+        return LearnerConfig(obs_shape=tuple(obs_shape), action_dim=action_dim, history=history,
+                             iterations=iterations, batch_size=r.batch_size,
+                             lr_boundaries=lr_boundaries(iterations, r.lr_decay_at), beta1=r.beta1, beta2=r.beta2,
+                             network="mlp" if images else r.network, init=r.init, bn_momentum=r.bn_momentum,
+                             loss=r.loss or task_loss, unroll=unroll, encoder=r.encoder if images else "small")
+
+    def to_json(self) -> dict[str, dict]:
+        """`{"protocol": ..., "budget": ..., "recipe": ...}`, every field (results.json's blocks)."""
+        return {name: _jsonable(dataclasses.asdict(getattr(self, name))) for name in SECTIONS}
+
+    @classmethod
+    def from_json(cls, blocks: Mapping[str, Mapping[str, Any]], preset: str = "quick") -> "Settings":
+        """The settings results.json's three blocks record (fields a block predates: the defaults)."""
+        return cls(*(_record(name, blocks.get(name) or {}) for name in SECTIONS), preset=preset)
 
 
-def resolved(preset: Preset, env_name: str) -> Preset:
-    """`preset` with the settings it leaves to the task (`episodes`) filled in from task `env_name`."""
-    if preset.episodes is None:
-        return dataclasses.replace(preset, episodes=tasks.get(env_name).episodes)
-    return preset
+def default_recipe(protocol: Protocol, obs: str) -> str:
+    """The recipe a sweep uses unless told: the FCA code's under the fca protocols for states, else `mlp`."""
+    return "fca" if protocol.name.startswith("fca") and obs != "image" else "mlp"
+
+
+def resolve(env: str, obs: str, protocol: str | None = None, preset: str = "quick", recipe: str | None = None,
+            sets: Iterable[str] = ()) -> Settings:
+    """The settings of a sweep of task `env` with observations `obs` (the module docstring says how).
+
+    Args:
+      protocol: `ape_jax.tasks.PROTOCOLS` name; None: the task's default for `obs`.
+      preset: the budget's name (`BUDGETS`).
+      recipe: `RECIPES` name; None: `default_recipe`.
+      sets: `"SECTION.FIELD=VALUE"` overrides, applied last, in order.
+
+    Raises:
+      SettingsError: an unknown preset, recipe, protocol, section or field, or a value a field cannot take.
+    """
+    task = tasks.get(env)
+    try:
+        proto = task.protocol(protocol, obs)
+    except ValueError as e:
+        raise SettingsError(str(e)) from None
+    if preset not in BUDGETS:
+        raise SettingsError(f"unknown preset {preset!r}; valid: {', '.join(BUDGETS)}")
+    recipe = recipe or default_recipe(proto, obs)
+    if recipe not in RECIPES:
+        raise SettingsError(f"unknown recipe {recipe!r}; valid: {', '.join(RECIPES)}")
+    values = {"protocol": dataclasses.asdict(proto), "budget": dataclasses.asdict(BUDGETS[preset]),
+              "recipe": dataclasses.asdict(RECIPES[recipe])}
+    for layer in ((IMAGE_PRESETS[preset] if obs == "image" else {}), task.preset_overrides(obs, preset)):
+        for key, value in layer.items():
+            values[_section_of(key)][key] = value
+    for item in sets:
+        section, field, value = parse_set(item)
+        values[section][field] = value
+    return Settings(*(_record(name, values[name]) for name in SECTIONS), preset=preset)
+
+
+def fields(section: str) -> tuple[str, ...]:
+    """The fields `--set` can change in `section` (every field but the record's name and description)."""
+    return tuple(f.name for f in dataclasses.fields(_RECORDS[section]) if f.name not in ("name", "doc", "reference"))
+
+
+def parse_set(item: str) -> tuple[str, str, Any]:
+    """`"SECTION.FIELD=VALUE"` -> `(section, field, value)`, the value parsed by the field's type.
+
+    Values: numbers as written; `none` for an optional field; lists comma-separated (`0.1,0.2`), the step
+    grid's settings as `THR:W` (`0.1:5,0.2:3`), an image size as `HxW` or `H,W`.
+    """
+    key, sep, text = item.partition("=")
+    section, dot, field = key.strip().partition(".")
+    if not sep or not dot:
+        raise SettingsError(f"--set {item!r} is not SECTION.FIELD=VALUE (e.g. recipe.batch_size=64)")
+    if section not in _RECORDS:
+        raise SettingsError(f"--set {item!r}: unknown section {section!r}; valid: {', '.join(SECTIONS)}")
+    if field not in fields(section):
+        raise SettingsError(f"--set {item!r}: unknown field {section}.{field}; valid: "
+                            + ", ".join(f"{section}.{f}" for f in fields(section)))
+    hint = typing.get_type_hints(_RECORDS[section])[field]
+    try:
+        return section, field, _parse(hint, text.strip())
+    except (TypeError, ValueError) as e:
+        raise SettingsError(f"--set {item!r}: {section}.{field} takes {_describe(hint)}: {e}") from None
+
+
+# -- internals ------------------------------------------------------------------------------------------------------
+
+def _section_of(key: str) -> str:
+    for section in SECTIONS:
+        if key in {f.name for f in dataclasses.fields(_RECORDS[section])}:
+            return section
+    raise SettingsError(f"an override names {key!r}, a field of none of {', '.join(SECTIONS)}")
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, (tuple, list)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    return value
+
+
+def _record(section: str, values: Mapping[str, Any]):
+    """`values` as the section's record: unknown keys dropped, lists back to tuples, types checked."""
+    cls = _RECORDS[section]
+    hints = typing.get_type_hints(cls)
+    known = {f.name for f in dataclasses.fields(cls)}
+    out = {}
+    for k, v in values.items():
+        if k in known:
+            out[k] = _coerce(hints[k], v, f"{section}.{k}")
+    if section == "protocol" and "name" not in out:
+        out["name"] = "brax"
+    try:
+        return cls(**out)
+    except SettingsError:
+        raise
+    except (TypeError, ValueError) as e:  # a required field missing; a protocol's own check
+        raise SettingsError(str(e) if str(e).startswith(section) else f"{section}: {e}") from None
+
+
+def _coerce(hint: Any, value: Any, name: str) -> Any:
+    """`value` (from Python or JSON) as type `hint`: lists to tuples; a wrong type is a `SettingsError`."""
+    args = [a for a in typing.get_args(hint) if a is not type(None)]
+    if value is None:
+        _check(type(None) in typing.get_args(hint), f"{name} cannot be none")
+        return None
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        return _coerce(args[0], value, name)
+    if origin is tuple:
+        _check(isinstance(value, (list, tuple)), f"{name} must be a list, got {value!r}")
+        inner = typing.get_args(hint)
+        if len(inner) == 2 and inner[1] is Ellipsis:
+            return tuple(_coerce(inner[0], v, name) for v in value)
+        _check(len(value) == len(inner), f"{name} must have {len(inner)} entries, got {value!r}")
+        return tuple(_coerce(h, v, name) for h, v in zip(inner, value))
+    if hint is bool:
+        _check(isinstance(value, bool), f"{name} must be true or false, got {value!r}")
+    elif hint is int:
+        _check(isinstance(value, int) and not isinstance(value, bool), f"{name} must be an integer, got {value!r}")
+    elif hint is float:
+        _check(isinstance(value, (int, float)) and not isinstance(value, bool), f"{name} must be a number, got {value!r}")
+        value = float(value)
+    elif hint is str:
+        _check(isinstance(value, str), f"{name} must be a string, got {value!r}")
+    return value
+
+
+def _parse(hint: Any, text: str) -> Any:
+    """Command-line text as type `hint` (`parse_set`)."""
+    args = [a for a in typing.get_args(hint) if a is not type(None)]
+    if text.lower() in ("none", "null") and type(None) in typing.get_args(hint):
+        return None
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        return _parse(args[0], text)
+    if origin is tuple:
+        inner = typing.get_args(hint)
+        if len(inner) == 2 and inner[1] is Ellipsis:
+            items = [t.strip() for t in text.split(",") if t.strip()]
+            if typing.get_origin(inner[0]) is tuple:  # pairs: THR:W
+                return tuple(tuple(_parse(h, p) for h, p in zip(typing.get_args(inner[0]), _pair(t)))
+                             for t in items)
+            return tuple(_parse(inner[0], t) for t in items)
+        parts = [t.strip() for t in text.replace("x", ",").split(",")]
+        if len(parts) != len(inner):
+            raise ValueError(f"{text!r} has {len(parts)} entries, not {len(inner)}")
+        return tuple(_parse(h, p) for h, p in zip(inner, parts))
+    if hint is bool:
+        if text.lower() not in ("true", "false"):
+            raise ValueError(f"{text!r} is not true or false")
+        return text.lower() == "true"
+    if hint is int:
+        return int(text)
+    if hint is float:
+        return float(text)
+    return text
+
+
+def _pair(text: str) -> list[str]:
+    parts = text.split(":")
+    if len(parts) != 2:
+        raise ValueError(f"{text!r} is not THR:W (e.g. 0.1:5)")
+    return parts
+
+
+def _describe(hint: Any) -> str:
+    return str(hint).replace("typing.", "").replace("<class '", "").replace("'>", "")

@@ -43,9 +43,8 @@ def _key(run: dict) -> tuple:
 def spec_of(results: Results, data_dir=None) -> sweep_lib.SweepSpec:
     """The `SweepSpec` that produced `results` (its methods need not be registered: only evaluated here)."""
     settings = results.config["data"]["settings"]
-    return sweep_lib.SweepSpec(results.env, results.obs, results.preset, results.preset_settings(), (),
-                               dataset=settings.get("dataset"), data_dir=data_dir,
-                               protocol=results.protocol.get("name") or "brax")  # schema 1: Brax's setting
+    return sweep_lib.SweepSpec(results.env, results.obs, results.records(), (), dataset=settings.get("dataset"),
+                               data_dir=data_dir)
 
 
 def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, log: Callable[[str], None] = print,
@@ -70,7 +69,7 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
     """
     config = results.config
     spec = spec_of(results, data_dir)
-    preset = spec.preset
+    episodes = spec.budget.eval_episodes
     try:
         policies = ckpt_lib.load_policies(params_dir)
     except ckpt_lib.PolicyError as e:
@@ -79,7 +78,7 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
     if len(prepared.train) != config["data"]["train_transitions"]:
         raise ReevaluationError(f"the demonstrations have {len(prepared.train)} training transitions, the sweep had "
                                 f"{config['data']['train_transitions']}: they are not the sweep's")
-    ape = sweep_lib.fit_ape(prepared, preset)
+    ape = sweep_lib.fit_ape(prepared, spec.settings)
     recorded_scale = config["ape"]["scale"]
     if not np.isclose(ape.scale, recorded_scale, rtol=1e-4):
         raise ReevaluationError(f"ψ fitted again gives a mean APE of {ape.scale:.6g}, the sweep recorded "
@@ -97,9 +96,9 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
             raise ReevaluationError(f"the saved policies' observation statistics ({name}) are not those of the "
                                     "demonstrations: they were trained on other data")
         runs = tuple(sweep_lib.Run(r["method"], r["hparams"], r["seed"]) for r in saved["runs"])
-        group = sweep_lib.PolicyGroup(history, prepared.learner_config(preset, history), runs, saved["params"])
-        log(f"evaluating {len(runs)} saved policies with history {history} ({preset.eval_episodes} episodes each)")
-        out, _ = sweep_lib.evaluate_group(prepared, ape, preset, group)
+        group = sweep_lib.PolicyGroup(history, prepared.learner_config(spec.settings, history), runs, saved["params"])
+        log(f"evaluating {len(runs)} saved policies with history {history} ({episodes} episodes each)")
+        out, _ = sweep_lib.evaluate_group(prepared, ape, episodes, group)
         for j, run in enumerate(saved["runs"]):
             key = _key(run)
             if key not in records:

@@ -1,7 +1,7 @@
 """`results.json`: the one reader, writer and validator of a sweep's results.
 
     res = results.load("runs/sweep/hopper-pos-quick/results.json")   # validated, schema 1 upgraded
-    res.label("ours-step"), res.preset(), res.fingerprint()
+    res.label("ours-step"), res.records(), res.fingerprint()
     results.save(path, res)                                           # atomic
 
 The layout is `DESIGN.md`'s. Schema 2 (written since the method registry)
@@ -15,8 +15,17 @@ adds, beside schema 1's fields:
 - summary rows' `metrics`: mean and std over seeds of the task's own
   per-episode metrics (ToyCar's success, violations, …).
 
-Schema 1 files still load: `from_json` fills `methods` from the registry (or
-the name), and leaves `command` and `protocol` empty. Anything else that is not
+Schema 3 (written since the recipe records) adds `settings`, the sweep's three
+records as they were resolved (`ape_jax.pipeline.presets.Settings`): `protocol`
+(the record's own fields; the top-level `protocol` stays its resolved view, with
+the frame skip, episode length and reward scale the environment gives it, and the
+split), `budget` and `recipe`; and each run's `train_final`, the mean of every
+training metric over the run's last 1%.
+
+Schema 1 and 2 files still load: `settings` is rebuilt from their flat `config`
+(recipe `mlp`, a split by episode: what every sweep ran before schema 3), and a
+schema 1 file's `methods` come from the registry (or the name), its `command`
+and `protocol` empty. Anything else that is not
 a complete, well-typed results file is refused with a one-line `ResultsError`
 naming the file and the field.
 """
@@ -34,10 +43,10 @@ from typing import Any, Sequence
 import numpy as np
 
 from ape_jax.pipeline.data import write_atomic
-from ape_jax.pipeline.presets import Preset
+from ape_jax.pipeline.presets import SECTIONS, Settings
 
-SCHEMA = 2
-READS = (1, 2)
+SCHEMA = 3
+READS = (1, 2, 3)
 
 
 class ResultsError(ValueError):
@@ -59,6 +68,7 @@ class Results:
     system: dict | None = None
     command: list[str] | None = None
     protocol: dict = dataclasses.field(default_factory=dict)
+    settings: dict = dataclasses.field(default_factory=dict)
     methods: dict[str, dict] = dataclasses.field(default_factory=dict)
     reevaluated: dict | None = None
     schema: int = SCHEMA
@@ -78,7 +88,11 @@ class Results:
         validate(obj, where)
         obj = json.loads(json.dumps(obj))  # a copy: the caller's object is left as it was
         if obj["schema"] == 1:
-            obj.update(schema=SCHEMA, command=None, protocol={}, methods={})
+            obj.update(command=None, protocol={}, methods={})
+        if obj["schema"] < 3:
+            obj.update(schema=SCHEMA, settings=legacy_settings(obj))
+            if obj["protocol"]:
+                obj["protocol"].setdefault("split", "episodes")
         names = dict.fromkeys([*obj["config"].get("methods", []), *(r["method"] for r in obj["runs"])])
         known = {**{m: method_info(m) for m in names if m not in obj.get("methods", {})}, **obj.get("methods", {})}
         fields = {f.name for f in dataclasses.fields(cls)}
@@ -86,7 +100,7 @@ class Results:
 
     def to_json(self) -> dict:
         out = {"schema": self.schema, "env": self.env, "obs": self.obs, "preset": self.preset,
-               "command": self.command, "protocol": self.protocol, "methods": self.methods,
+               "command": self.command, "protocol": self.protocol, "settings": self.settings, "methods": self.methods,
                "config": self.config, "expert": self.expert, "runs": self.runs, "summary": self.summary,
                "timing": self.timing, "system": self.system}
         if self.reevaluated is not None:
@@ -102,16 +116,24 @@ class Results:
     def role(self, method: str) -> str:
         return self.methods.get(method, {}).get("role") or "plugin"
 
-    def preset_settings(self) -> Preset:
-        """The `Preset` this sweep ran with."""
-        return Preset.from_json(self.config)
+    def records(self) -> Settings:
+        """The protocol, budget and recipe this sweep ran with."""
+        return Settings.from_json(self.settings, preset=self.preset)
+
+    @property
+    def recipe_name(self) -> str:
+        return (self.settings.get("recipe") or {}).get("name") or "mlp"
+
+    @property
+    def split(self) -> str:
+        """How the demonstrations were split: `"rows"` or `"episodes"`."""
+        return (self.settings.get("protocol") or {}).get("split") or "episodes"
 
     def fingerprint(self) -> dict:
         """The settings that identify the sweep (what `ape_jax.pipeline.sweep.SweepSpec.fingerprint` gives)."""
-        fields = [f.name for f in dataclasses.fields(Preset)]
-        return {"env": self.env, "obs": self.obs, "preset": self.preset,
-                "settings": {k: self.config.get(k) for k in fields}, "methods": self.config.get("methods"),
-                "data": self.config.get("data", {}).get("settings"), "protocol": self.protocol}
+        return {"env": self.env, "obs": self.obs, "preset": self.preset, "settings": self.settings,
+                "methods": self.config.get("methods"), "data": self.config.get("data", {}).get("settings"),
+                "protocol": self.protocol}
 
     @property
     def main_metric(self) -> str:
@@ -120,6 +142,24 @@ class Results:
 
 
 _REQUIRED = ("schema", "env", "obs", "preset", "config", "expert", "runs", "summary", "system")
+
+# A schema 1/2 `config`'s fields, by the record they belong to now.
+_LEGACY = {"budget": ("iterations", "seeds", "eval_episodes", "ape_steps", "chunk"),
+           "recipe": ("lr", "batch_size", "ape_normalization", "step_grid", "softmax_grid", "encoder"),
+           "protocol": ("history", "eval_steps", "val_frac", "image_size", "episodes")}
+
+
+def legacy_settings(obj: dict) -> dict:
+    """The three records of a schema 1/2 file, from its flat `config`: the `mlp` recipe (with the file's own
+    learning rate, batch and grids) and its protocol split by episode, as every sweep before schema 3 ran."""
+    from ape_jax import tasks
+
+    config, name = obj["config"], (obj.get("protocol") or {}).get("name") or "brax"
+    base = dataclasses.asdict(tasks.PROTOCOLS[name]) if name in tasks.PROTOCOLS else {"name": name}
+    out = {"protocol": {**base, "split": "episodes"}, "budget": {}, "recipe": {"name": "mlp"}}
+    for section, keys in _LEGACY.items():
+        out[section].update({k: config[k] for k in keys if config.get(k) is not None})
+    return out
 
 
 def method_info(name: str) -> dict:
@@ -255,9 +295,12 @@ def validate(obj: dict, where: str = "results") -> None:
                             "runs": (lambda v: isinstance(v, list), "a list"),
                             "summary": (lambda v: isinstance(v, list), "a list"),
                             "system": (_optional(lambda v: isinstance(v, dict)), "an object or null")})
-    if obj.get("schema") == 2:
+    if obj.get("schema") in (2, 3):
         _row(f"{where}:", obj, {"command": (_optional(lambda v: isinstance(v, list) and all(
             isinstance(x, str) for x in v)), "a list of strings or null"), "protocol": _OBJECT, "methods": _OBJECT})
+    if obj.get("schema") == 3:
+        _row(f"{where}:", obj, {"settings": _OBJECT})
+        _row(f"{where}: settings", obj["settings"], {k: _OBJECT for k in SECTIONS})
     _row(f"{where}: config", obj["config"], {k: (_count, "an int >= 0") for k in ("iterations", "seeds", "eval_episodes")})
     _row(f"{where}: expert", obj["expert"], {k: (_optional(_number), "a number or null")
                                              for k in ("return_mean", "return_std", "random_return_mean")})

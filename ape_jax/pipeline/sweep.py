@@ -1,12 +1,15 @@
 """The main job as a library: a sweep is five phases, each with a named output.
 
-    spec = SweepSpec("hopper", "pos", "quick", preset_for("quick", "hopper", "pos"), methods.default())
+    spec = SweepSpec.make("hopper", methods=("bc-so", "bc-oh"), preset="quick", recipe="fca")
     results, policies = run_sweep(spec)
+
+A spec holds the task, the observation mode, the methods and the three records that
+fix everything else (`ape_jax.pipeline.presets.Settings`: protocol, budget, recipe).
 
 1. `prepare` → `Prepared`: the environment, its task record and expert, the
    demonstrations (the expert's, collected once and cached, or `--dataset`)
-   split 80/20 by episode, and the observation `Normalizer` fitted on the
-   training split;
+   split as the protocol says (by rows or by episode), and the observation
+   `Normalizer` fitted on the training rows;
 2. `fit_ape` → `ApeFit`: ψ fitted on the training split's actions, and both
    splits' APE (`ape_jax.ape`);
 3. `plan` → `[Program]`: every (method, hparams, seed) of the sweep, grouped
@@ -52,8 +55,9 @@ from ape_jax.pipeline import checkpoint as ckpt_lib
 from ape_jax.pipeline import collect, minari_io
 from ape_jax.pipeline import results as results_lib
 from ape_jax.pipeline.checkpoint import ProgramCheckpoint, SweepCheckpoint
-from ape_jax.pipeline.data import Demonstrations
-from ape_jax.pipeline.presets import PRESETS, Preset, preset_for, resolved  # noqa: F401  (re-exported)
+from ape_jax.pipeline import data as data_lib
+from ape_jax.pipeline.data import Demonstrations, Part
+from ape_jax.pipeline.presets import Settings, resolve
 
 # Image policies on CPU: XLA:CPU runs convolution gradients inside a loop ~50x slower than
 # outside one, and vmapped (grouped) ones ~3x slower per model, so there every
@@ -119,41 +123,55 @@ class SweepSpec:
 
     Attributes:
       env, obs: the task and observation mode.
-      preset_name, preset: the compute preset's name and resolved settings
-        (`preset_for`; settings it leaves to the task or the protocol are filled in here: the episodes
-        collected, the history).
+      settings: the protocol, budget and recipe (`presets.resolve(env, obs, ...)`).
       methods: registered method names (`ape_jax.methods`).
       dataset: train from this dataset (`minari_io.load_dataset`) instead of
         the shipped expert's demonstrations; it must fit `env`/`obs`.
-      data_dir: the demonstration cache (default `ape_jax.pipeline.data.cache_dir()`).
+      data_dir: the demonstration cache (None: `ape_jax.pipeline.data.cache_dir()`).
       command: the command line, recorded in results.json.
-      protocol: `ape_jax.tasks.PROTOCOLS` name (None: the task's default for `obs`: `fca` for states).
     """
 
     env: str
     obs: str
-    preset_name: str
-    preset: Preset
+    settings: Settings
     methods: tuple[str, ...]
     dataset: str | None = None
     data_dir: pathlib.Path | None = None
     command: tuple[str, ...] | None = None
-    protocol: str | None = None
 
     def __post_init__(self):
         for m in self.methods:
             methods_lib.get(m)  # MethodError for an unknown name
-        setup = self.setup  # ValueError for a protocol the task cannot take
-        object.__setattr__(self, "protocol", setup.name)
-        protocol = tasks.PROTOCOLS[setup.name]
-        preset = dataclasses.replace(self.preset, history=protocol.history)
-        if protocol.collect_transitions is not None:
-            preset = dataclasses.replace(preset, episodes=setup.episodes)
-        object.__setattr__(self, "preset", resolved(preset, self.env))
+        self.setup  # ValueError for a protocol the task cannot take
+
+    @classmethod
+    def make(cls, env: str, obs: str | None = None, methods: Sequence[str] | None = None, protocol: str | None = None,
+             preset: str = "quick", recipe: str | None = None, sets: Sequence[str] = (), **kw) -> "SweepSpec":
+        """A spec from names, as the command line gives them (defaults: the task's observation mode and protocol,
+        the default methods, the protocol's recipe); `kw`: `dataset`, `data_dir`, `command`."""
+        obs = obs or tasks.get(env).default_obs
+        settings = resolve(env, obs, protocol=protocol, preset=preset, recipe=recipe, sets=sets)
+        return cls(env, obs, settings, tuple(methods if methods is not None else methods_lib.default()), **kw)
 
     @property
     def task(self) -> tasks.Task:
         return tasks.get(self.env)
+
+    @property
+    def protocol(self) -> tasks.Protocol:
+        return self.settings.protocol
+
+    @property
+    def budget(self):
+        return self.settings.budget
+
+    @property
+    def recipe(self):
+        return self.settings.recipe
+
+    @property
+    def preset_name(self) -> str:
+        return self.settings.preset
 
     @functools.cached_property
     def setup(self) -> collect.ProtocolSetup:
@@ -161,23 +179,30 @@ class SweepSpec:
         without an episode length of its own makes the environment to read it."""
         return collect.protocol_setup(self.env, self.obs, self.protocol)
 
+    @property
+    def episodes(self) -> int:
+        """Expert episodes collected: as many as the protocol's expert steps take, else its or the task's count."""
+        return self.setup.episodes
+
     def protocol_settings(self) -> dict:
         """Every field of the protocol as it applies to this environment (results.json's `protocol`)."""
         return dict(self.setup.settings)
 
     def collection_overrides(self) -> dict:
         """The `envs.make` settings demonstrations are collected with: the protocol's, and the image size."""
-        image = {"image_size": self.preset.image_size} if self.obs == "image" and self.preset.image_size else {}
+        size = self.protocol.image_size
+        image = {"image_size": size} if self.obs == "image" and size else {}
         return {**self.setup.env_overrides, **image}
 
     def env_overrides(self) -> dict:
-        """The `envs.make` settings policies are evaluated with: the collection's, and the preset's `eval_steps`."""
-        return {**self.collection_overrides(), **self.preset.env_overrides(self.obs)}
+        """The `envs.make` settings policies are evaluated with: the collection's, and the protocol's `eval_steps`."""
+        steps = self.protocol.eval_steps
+        return {**self.collection_overrides(), **({"episode_length": steps} if steps is not None else {})}
 
     def data_settings(self) -> dict:
         """What names the demonstrations: the collection settings, or the dataset file's path and size."""
         if self.dataset is None:
-            return collect.settings(self.env, self.obs, self.preset.episodes, seed=0, **self.collection_overrides())
+            return collect.settings(self.env, self.obs, self.episodes, seed=0, **self.collection_overrides())
         path = pathlib.Path(self.dataset)
         files = ([path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
                  if path.is_dir() else [])
@@ -185,7 +210,7 @@ class SweepSpec:
 
     def fingerprint(self) -> dict:
         """Everything that determines the results (`checkpoint.SweepCheckpoint` compares these)."""
-        return {"env": self.env, "obs": self.obs, "preset": self.preset_name, "settings": self.preset.to_json(),
+        return {"env": self.env, "obs": self.obs, "preset": self.preset_name, "settings": self.settings.to_json(),
                 "methods": list(self.methods), "data": self.data_settings(), "protocol": self.protocol_settings()}
 
 
@@ -217,8 +242,8 @@ class Prepared:
     Attributes:
       env: the environment the policies are evaluated in.
       task: its task record.
-      train, val: the demonstrations split by episode.
-      normalizer: fitted on `train`.
+      train, val: the demonstrations' training and validation rows (`data.Part`: rows of whole episodes).
+      normalizer: fitted on the training rows.
       expert: the expert as `full observation -> action`.
       card: the expert's card (returns to normalise by), None for a rule-based expert.
       data_path: where the demonstrations came from; `source`: "cached", "collected" or "from".
@@ -227,8 +252,8 @@ class Prepared:
 
     env: Any
     task: tasks.Task
-    train: Demonstrations
-    val: Demonstrations
+    train: Part
+    val: Part
     normalizer: Normalizer
     expert: Callable[[jax.Array], jax.Array]
     card: dict | None
@@ -241,14 +266,17 @@ class Prepared:
         """Image policies on a CPU train one configuration after another (see `CPU_IMAGE_CHUNK`)."""
         return len(self.env.observation_shape) == 3 and jax.default_backend() == "cpu"
 
-    def data(self, split: Demonstrations, ape: jax.Array, scores: jax.Array | None = None) -> Data:
-        """`split` on device with its APE (and score table), observations standardised."""
-        return Data(obs=self.normalizer(split.obs), action=jnp.asarray(split.action), t=jnp.asarray(split.t),
-                    ape=jnp.asarray(ape), scores=scores)
+    def data(self, part: Part, ape: jax.Array, scores: jax.Array | None = None) -> Data:
+        """`part` on device with its APE (and score table), observations standardised: the whole episodes, and
+        the part's rows among them."""
+        d = part.demos
+        return Data(obs=self.normalizer(d.obs), action=jnp.asarray(d.action), t=jnp.asarray(d.t),
+                    ape=jnp.asarray(ape), scores=scores,
+                    rows=None if part.rows is None else jnp.asarray(part.rows, jnp.int32))
 
-    def learner_config(self, preset: Preset, history: int) -> LearnerConfig:
-        return preset.learner_config(self.env.observation_shape, self.env.action_size, history, self.task.loss,
-                                     unroll=self.sequential)
+    def learner_config(self, settings: Settings, history: int) -> LearnerConfig:
+        return settings.learner_config(self.env.observation_shape, self.env.action_size, history, self.task.loss,
+                                       unroll=self.sequential)
 
 
 def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
@@ -258,15 +286,14 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
     import envs
     from envs import experts
 
-    preset = spec.preset
     env = envs.make(spec.env, obs=spec.obs, **spec.env_overrides())
     settings = spec.data_settings()
     if spec.dataset is None:
-        with hooks.bar(desc="collect", total=preset.episodes, unit="episode") as b:
-            demos, _, path, cached = collect.collect_cached(settings, spec.data_dir,
+        with hooks.bar(desc="collect", total=spec.episodes, unit="episode") as b:
+            demos, _, path, cached = collect.collect_cached(settings, spec.data_dir or data_lib.cache_dir(),
                                                             progress=lambda n: b.update(n - b.n),
                                                             save=jax.process_index() == 0)
-            b.update(preset.episodes - b.n)
+            b.update(spec.episodes - b.n)
         source = "cached" if cached else "collected"
     else:
         check_protocol(minari_io.dataset_settings(spec.dataset), spec, str(spec.dataset))
@@ -274,14 +301,12 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
         source = "from"
     check_fits(demos, env, str(path))
     hooks.log(f"demonstrations: {len(demos):,} transitions in {demos.num_episodes} episodes ({source}: {path})")
-    protocol = tasks.PROTOCOLS[spec.protocol]
-    if protocol.train_transitions is None:
-        train, val = demos.split(preset.val_frac, seed=0)
-    else:
-        train, val = demos.split_sizes(protocol.train_transitions, protocol.val_transitions, seed=0)
-    if len(train) < preset.batch_size:
+    protocol = spec.protocol
+    train, val = data_lib.split_parts(demos, protocol.split, protocol.train_transitions, protocol.val_transitions,
+                                      protocol.val_frac, seed=0)
+    if len(train) < spec.recipe.batch_size:
         raise ValueError(f"the training split has {len(train)} transitions, fewer than the batch size "
-                         f"{preset.batch_size}; collect more episodes")
+                         f"{spec.recipe.batch_size}; collect more episodes")
     expert, _ = collect.expert_for(env)
     card = experts.reference(spec.env, protocol.reference or protocol.name) if spec.task.has_card else None
     return Prepared(env=env, task=spec.task, train=train, val=val, normalizer=Normalizer.fit(train.obs),
@@ -303,7 +328,7 @@ def check_protocol(recorded: dict | None, spec: SweepSpec, where: str) -> None:
     want = {k: v for k, v in spec.collection_overrides().items() if k in PROTOCOL_KEYS}
     if had != want:
         raise ValueError(f"{where} was collected with {had or 'the environment defaults'}, not under the "
-                         f"{spec.protocol!r} protocol's {want or 'environment defaults'}; pass the --protocol it "
+                         f"{spec.protocol.name!r} protocol's {want or 'environment defaults'}; pass the --protocol it "
                          "was collected under, or collect it again")
 
 
@@ -343,22 +368,30 @@ class ApeFit:
         return float(self.scale * np.mean(self.train))
 
 
-def fit_ape(prepared: Prepared, preset: Preset, hooks: Hooks = Hooks(),
+def part_errors(params: Any, part: Part) -> np.ndarray:
+    """`[len(part)]` APE of a part's rows, ψ reading the past actions of their whole episodes."""
+    d = part.demos
+    return part.own(ape_lib.errors(params, jnp.asarray(d.action), jnp.asarray(d.t)))
+
+
+def fit_ape(prepared: Prepared, settings: Settings, hooks: Hooks = Hooks(),
             checkpoint: SweepCheckpoint | None = None) -> ApeFit:
-    """Phase 2: ψ fitted on the training split's actions (key 0, deterministic), reused from `checkpoint`."""
-    with hooks.bar(desc="fit APE", total=preset.ape_steps, unit="step") as b:
+    """Phase 2: ψ fitted on the training rows' actions (key 0, deterministic), reused from `checkpoint`."""
+    steps = settings.budget.ape_steps
+    with hooks.bar(desc="fit APE", total=steps, unit="step") as b:
         fit = ckpt_lib.load_ape(checkpoint, ApeFit)
         if fit is None:
-            train, val = prepared.train, prepared.val
-            run = jax.jit(lambda k, a, t: ape_lib.fit(k, a, t, steps=preset.ape_steps))
-            params, losses = run(jax.random.PRNGKey(0), jnp.asarray(train.action), jnp.asarray(train.t))
-            ape_train = ape_lib.errors(params, jnp.asarray(train.action), jnp.asarray(train.t))
-            ape_val = ape_lib.errors(params, jnp.asarray(val.action), jnp.asarray(val.t))
-            ape_train, ape_val, scale = ape_lib.normalize(ape_train, ape_val, preset.ape_normalization)
+            train = prepared.train
+            rows = None if train.rows is None else jnp.asarray(train.rows, jnp.int32)
+            run = jax.jit(lambda k, a, t, r: ape_lib.fit(k, a, t, steps=steps, rows=r))
+            params, losses = run(jax.random.PRNGKey(0), jnp.asarray(train.demos.action), jnp.asarray(train.demos.t),
+                                 rows)
+            ape_train, ape_val = part_errors(params, train), part_errors(params, prepared.val)
+            ape_train, ape_val, scale = ape_lib.normalize(ape_train, ape_val, settings.recipe.ape_normalization)
             fit = ApeFit(params=params, train=np.asarray(ape_train), val=np.asarray(ape_val), scale=float(scale),
                          final_fit_mse=float(np.mean(np.asarray(losses)[-50:])))
             ckpt_lib.save_ape(checkpoint, fit)
-        b.update(preset.ape_steps)
+        b.update(steps)
     return fit
 
 
@@ -386,14 +419,16 @@ def score_rows(names: Sequence[str]) -> tuple[str, ...]:
     return ("ape", *(m for m in methods_lib.names() if m in names and methods_lib.get(m).score is not None))
 
 
-def method_scores(names: Sequence[str], train: Demonstrations) -> jax.Array:
-    """`[len(score_rows(names)) - 1, N] float32`: each weighting method's scores on `train` (the rows after the APE).
+def method_scores(names: Sequence[str], train: Part | Demonstrations) -> jax.Array:
+    """`[len(score_rows(names)) - 1, N] float32`: each weighting method's scores of the training rows (the rows
+    after the APE). A method scores the whole episodes (its `t` and actions in order), read at the part's rows.
 
-    Raises `methods.PluginError` for scores that are not `[N]` finite float32.
+    Raises `methods.PluginError` for scores that are not `[M]` finite float32.
     """
-    action, t = jnp.asarray(train.action), jnp.asarray(train.t)
-    rows = [methods_lib.get(m).score(methods_lib.score_key(m), action, t) for m in score_rows(names)[1:]]
-    return jnp.stack(rows) if rows else jnp.zeros((0, len(train)), jnp.float32)
+    part = train if isinstance(train, Part) else Part(train)
+    action, t = jnp.asarray(part.demos.action), jnp.asarray(part.demos.t)
+    rows = [part.own(methods_lib.get(m).score(methods_lib.score_key(m), action, t)) for m in score_rows(names)[1:]]
+    return jnp.asarray(np.stack(rows)) if rows else jnp.zeros((0, len(part)), jnp.float32)
 
 
 def score_table(ape: jax.Array, scores: jax.Array) -> jax.Array:
@@ -403,17 +438,18 @@ def score_table(ape: jax.Array, scores: jax.Array) -> jax.Array:
 
 def plan(spec: SweepSpec, prepared: Prepared) -> list[Program]:
     """Phase 3a: the sweep's runs, grouped by the program they train in (in registry order)."""
-    preset = spec.preset
-    ctx = methods_lib.GridContext(task=prepared.task, step_grid=preset.step_grid, softmax_grid=preset.softmax_grid,
-                                  n_train=len(prepared.train))
-    runs = grid_runs(spec.methods, preset.seeds, ctx)
+    recipe = spec.recipe
+    ctx = methods_lib.GridContext(task=prepared.task, step_grid=recipe.step_grid, softmax_grid=recipe.softmax_grid,
+                                  n_train=len(prepared.train), fca_alphas=recipe.fca_alphas,
+                                  ib_weights=recipe.ib_weights)
+    runs = grid_runs(spec.methods, spec.budget.seeds, ctx)
     if not runs:
-        raise ValueError(f"nothing to train: the preset's grids are empty for {', '.join(spec.methods)}")
+        raise ValueError(f"nothing to train: the recipe's grids are empty for {', '.join(spec.methods)}")
     programs = []
     for name in dict.fromkeys(methods_lib.get(r.method).program for r in runs):
         mine = tuple(r for r in runs if methods_lib.get(r.method).program == name)
         method = methods_lib.get(mine[0].method)
-        cfg = prepared.learner_config(preset, method.history or preset.history)
+        cfg = prepared.learner_config(spec.settings, method.history or spec.protocol.history)
         if method.learner is None:
             learner = make_train(cfg)
         else:
@@ -444,13 +480,13 @@ class Trained:
     train_s: float
 
 
-def train_program(program: Program, hparams: Any, preset: Preset, data: Data, progress: Callable[[int], None],
+def train_program(program: Program, hparams: Any, budget, data: Data, progress: Callable[[int], None],
                   chunk: int | None = None, vectorize: bool = True,
                   checkpoint: ProgramCheckpoint | None = None) -> tuple[Any, dict]:
     """Trains a program's runs vmapped and sharded over devices, in chunks of iterations.
 
     Round-based learners (boosting, DAgger) get `next_round` between rounds.
-    `chunk` overrides the preset's iterations per compiled call; `vectorize=False`
+    `chunk` overrides the budget's iterations per compiled call; `vectorize=False`
     trains the runs one after another instead of vmapped (`grid.grid_runner`).
     With a `checkpoint`, training continues from its latest save and saves
     the state and curves after every chunk that passes a multiple of its
@@ -462,7 +498,7 @@ def train_program(program: Program, hparams: Any, preset: Preset, data: Data, pr
     """
     learner, runs = program.learner, program.runs
     keys = jnp.stack([r.key for r in runs])
-    chunk = chunk or preset.chunk
+    chunk = chunk or budget.chunk
     init = grid_runner(learner.init, vectorize=vectorize)
     pad = -len(runs) % len(init.devices)  # padded once, so the chunk runners never pad or trim
     hps = pad_grid(hparams, pad)
@@ -543,7 +579,7 @@ def train(programs: Sequence[Program], spec: SweepSpec, prepared: Prepared, data
     if prepared.sequential:
         hooks.log(f"image policies on CPU: configurations train one after another, {CPU_IMAGE_CHUNK} unrolled "
                   "iterations per call (XLA:CPU is slow at convolution gradients in loops and under vmap)")
-        if spec.preset.encoder == "resnet18":
+        if spec.recipe.encoder == "resnet18":
             hooks.log("warning: ResNet-18 trains about a hundred times slower than the small encoder on a CPU; "
                       "the paper preset's image protocol is meant for GPUs")
     rows = score_rows(spec.methods)
@@ -566,7 +602,7 @@ def train(programs: Sequence[Program], spec: SweepSpec, prepared: Prepared, data
 
             t0 = time.perf_counter()
             params, metrics = train_program(
-                program, traced_hparams(program.runs, spec.preset.lr, rows), spec.preset, data, tick,
+                program, traced_hparams(program.runs, spec.recipe.lr, rows), spec.budget, data, tick,
                 chunk=CPU_IMAGE_CHUNK if prepared.sequential else None, vectorize=not prepared.sequential,
                 checkpoint=None if checkpoint is None else checkpoint.program(program.name))
             jax.block_until_ready(params)
@@ -605,11 +641,11 @@ class Evaluated:
     eval_s: float
 
 
-def evaluate_group(prepared: Prepared, ape: ApeFit, preset: Preset, group: PolicyGroup) -> tuple[dict, dict]:
+def evaluate_group(prepared: Prepared, ape: ApeFit, episodes: int, group: PolicyGroup) -> tuple[dict, dict]:
     """Evaluation outputs `{"return": [P, E], metric: [P, E], ...}` (copycat diagnostics included) and the loss
     analysis `{"train": {...: [P]}, "val": {...}}` of one group."""
     evaluator = evaluate_lib.make_evaluator(prepared.env, group.cfg, prepared.normalizer.mean, prepared.normalizer.std,
-                                            preset.eval_episodes, expert=prepared.expert, ape_params=ape.params,
+                                            episodes, expert=prepared.expert, ape_params=ape.params,
                                             ape_scale=ape.raw_mean)
     out = jax.device_get(evaluator(group.params, jax.random.PRNGKey(EVAL_SEED)))
     losses = {split: jax.device_get(evaluate_lib.loss_analysis(group.cfg, group.params, prepared.data(s, a)))
@@ -617,11 +653,12 @@ def evaluate_group(prepared: Prepared, ape: ApeFit, preset: Preset, group: Polic
     return out, losses
 
 
-def evaluate(trained: Sequence[Trained], prepared: Prepared, ape: ApeFit, preset: Preset, hooks: Hooks = Hooks(),
+def evaluate(trained: Sequence[Trained], prepared: Prepared, ape: ApeFit, episodes: int, hooks: Hooks = Hooks(),
              checkpoint: SweepCheckpoint | None = None) -> Evaluated:
-    """Phase 4: every policy on the same episodes, one program per history (groups saved in `checkpoint` reused)."""
+    """Phase 4: every policy on the same `episodes` episodes, one program per history (groups saved in
+    `checkpoint` reused)."""
     eval_s, groups, outputs, losses = 0.0, [], [], []
-    total = sum(len(t.program.runs) for t in trained) * preset.eval_episodes
+    total = sum(len(t.program.runs) for t in trained) * episodes
     with hooks.bar(desc="evaluate", total=total, unit="episode") as b:
         for history in dict.fromkeys(t.program.cfg.history for t in trained):
             mine = [t for t in trained if t.program.cfg.history == history]
@@ -630,18 +667,20 @@ def evaluate(trained: Sequence[Trained], prepared: Prepared, ape: ApeFit, preset
             saved = ckpt_lib.load_evaluation(checkpoint, f"eval-{group.name}")
             if saved is None:
                 t0 = time.perf_counter()
-                saved = evaluate_group(prepared, ape, preset, group)
+                saved = evaluate_group(prepared, ape, episodes, group)
                 eval_s += time.perf_counter() - t0
                 ckpt_lib.save_evaluation(checkpoint, f"eval-{group.name}", *saved)
             groups.append(group), outputs.append(saved[0]), losses.append(saved[1])
-            b.update(len(group.runs) * preset.eval_episodes)
+            b.update(len(group.runs) * episodes)
     return Evaluated(tuple(groups), tuple(outputs), tuple(losses), eval_s)
 
 
 # -- 5. assemble ----------------------------------------------------------------------------------------------------
 
-def run_record(run: Run, j: int, out: dict, losses: dict, loss_curve: np.ndarray, prepared: Prepared) -> dict:
-    """Run `run`'s record in results.json; `j` is its row in the evaluation outputs `out` and `losses`."""
+def run_record(run: Run, j: int, out: dict, losses: dict, curves: dict, prepared: Prepared) -> dict:
+    """Run `run`'s record in results.json; `j` is its row in the evaluation outputs `out` and `losses`; `curves`
+    its per-iteration training metrics (`"loss"` and the learner's others, e.g. FCA's `adversary_loss`)."""
+    loss_curve = curves["loss"]
     returns = np.asarray(out["return"][j], np.float64)
     record = {"method": run.method, "hparams": run.hparams, "seed": run.seed, "status": "ok", "error": None,
               "online": methods_lib.get(run.method).online}
@@ -663,6 +702,10 @@ def run_record(run: Run, j: int, out: dict, losses: dict, loss_curve: np.ndarray
     record["eval"] = ev
     record["losses"] = {split: {k: float(v[j]) for k, v in losses[split].items()} for split in losses}
     record["train_loss_final"] = float(np.mean(loss_curve[-100:]))
+    # every training metric over the last 1% of the run (at least 100 minibatches): e.g. FCA's adversary against
+    # its reference predictor of a_{t-1} from a_t alone
+    tail = max(100, len(loss_curve) // 100)
+    record["train_final"] = {k: float(np.mean(np.asarray(v)[-tail:])) for k, v in curves.items()}
     record["train_curve"] = window_means(loss_curve, CURVE_POINTS)
     return record
 
@@ -678,27 +721,33 @@ def window_means(values: np.ndarray, points: int) -> list[float]:
 def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence[Trained], evaluated: Evaluated,
              timing: dict) -> results_lib.Results:
     """Phase 5: the sweep's `Results` (records in plan order)."""
-    curves = {r.ident: t.metrics["loss"][i] for t in trained for i, r in enumerate(t.program.runs)}
+    curves = {r.ident: {k: v[i] for k, v in t.metrics.items()} for t in trained for i, r in enumerate(t.program.runs)}
     records = {}
     for group, out, losses in zip(evaluated.groups, evaluated.outputs, evaluated.losses):
         for j, r in enumerate(group.runs):
             records[r.ident] = run_record(r, j, out, losses, curves[r.ident], prepared)
     order = {m: i for i, m in enumerate(methods_lib.names())}  # the plan's order: methods, settings, seeds
     runs = sorted((records[r.ident] for t in trained for r in t.program.runs), key=lambda rec: order[rec["method"]])
-    task, preset = prepared.task, spec.preset
-    config = {**preset.to_json(), "methods": list(spec.methods), "loss": task.loss, "metric": task.metric,
+    task, blocks = prepared.task, spec.settings.to_json()
+    # the flat view readers of schemas 1 and 2 know (the records are stored apart, as `protocol`, `budget`, `recipe`)
+    flat = {**blocks["budget"], **{k: v for k, v in blocks["recipe"].items() if k != "name"},
+            **{k: blocks["protocol"][k] for k in ("history", "eval_steps", "val_frac", "image_size")},
+            "episodes": spec.episodes, "recipe": spec.recipe.name}
+    config = {**flat, "methods": list(spec.methods), "loss": spec.recipe.loss or task.loss, "metric": task.metric,
               "task_metrics": list(task.metrics),
-              "ape": {"normalization": preset.ape_normalization, "scale": ape.scale,
+              "ape": {"normalization": spec.recipe.ape_normalization, "scale": ape.scale,
                       "final_fit_mse": ape.final_fit_mse,
                       # the validation split's mean, on the scale it trained on; × scale ÷ raw_mean it is the
                       # expert's reference for the policies' rollout_ape (÷ the raw training mean)
                       "val_mean": float(np.mean(ape.val)), "raw_mean": ape.raw_mean,
                       # the training split's normalised APE distribution, for the weights' histograms
                       "quantiles": np.quantile(np.asarray(ape.train), np.linspace(0, 1, 101)).tolist()},
-              "ape_normalization": preset.ape_normalization,
+              "ape_normalization": spec.recipe.ape_normalization,
               "score_rows": list(score_rows(spec.methods)),
               "data": {"path": prepared.data_path, "train_transitions": len(prepared.train),
-                       "val_transitions": len(prepared.val), "settings": prepared.settings}}
+                       "val_transitions": len(prepared.val), "split": spec.protocol.split,
+                       "episodes": prepared.train.demos.num_episodes if prepared.train.rows is not None else
+                       prepared.train.num_episodes, "settings": prepared.settings}}
     card = prepared.card
     expert = ({"return_mean": card["return_mean"], "return_std": card["return_std"],
                "random_return_mean": card["random_return_mean"]} if card is not None else
@@ -708,7 +757,8 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
     return results_lib.Results(
         env=spec.env, obs=spec.obs, preset=spec.preset_name, config=config, expert=expert, runs=runs,
         summary=results_lib.summarize(runs, task.metrics), timing=timing,
-        command=list(spec.command) if spec.command is not None else None, protocol=spec.protocol_settings(),
+        command=list(spec.command) if spec.command is not None else None,
+        protocol=spec.protocol_settings(), settings=blocks,
         methods={m: results_lib.method_info(m) for m in dict.fromkeys(r["method"] for r in runs)})
 
 
@@ -730,7 +780,7 @@ def train_sweep(spec: SweepSpec, hooks: Hooks = Hooks(),
     prepared = prepare(spec, hooks)
     programs = plan(spec, prepared)
     scores = method_scores(spec.methods, prepared.train)  # a plugin's bad scores are refused before APE compiles
-    ape = fit_ape(prepared, spec.preset, hooks, checkpoint)
+    ape = fit_ape(prepared, spec.settings, hooks, checkpoint)
     data = prepared.data(prepared.train, ape.train, score_table(ape.train, scores))
     return prepared, ape, train(programs, spec, prepared, data, hooks, checkpoint)
 
@@ -744,7 +794,7 @@ def run_sweep(spec: SweepSpec, hooks: Hooks = Hooks(),
     """
     t_start = time.perf_counter()
     prepared, ape, trained = train_sweep(spec, hooks, checkpoint)
-    evaluated = evaluate(trained, prepared, ape, spec.preset, hooks, checkpoint)
+    evaluated = evaluate(trained, prepared, ape, spec.budget.eval_episodes, hooks, checkpoint)
     timing = {"compile_s": sum(t.compile_s for t in trained), "train_s": sum(t.train_s for t in trained),
               "eval_s": evaluated.eval_s, "total_s": time.perf_counter() - t_start,
               "resumed": bool(checkpoint is not None and checkpoint.resumed),
