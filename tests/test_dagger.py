@@ -1,4 +1,5 @@
-"""DAgger on ToyCar: the aggregated dataset grows by the query budget, labels are the expert's, seeds vmap."""
+"""DAgger on ToyCar: the aggregated dataset grows by the query budget, labels are the expert's, seeds vmap,
+minibatches come from the split's rows and the appended ones."""
 
 import dataclasses
 
@@ -61,19 +62,20 @@ def test_the_aggregated_dataset_grows_by_the_budget_round_by_round(setup, rounds
     n = data.obs.shape[0]
     assert dagger.round_sizes(BUDGET, ROUNDS) == (0, 48, 49)
     states, trained = rounds
-    assert [int(s.buffer.size) for s in states] == [n, n + 48, n + 97]
+    assert [int(s.buffer.count) for s in states] == [n, n + 48, n + 97]
     assert [int(s.round) for s in states] == [0, 1, 2]
     buf = states[-1].buffer
     assert buf.obs.shape == (n + BUDGET, 5) and buf.obs.dtype == data.obs.dtype
     np.testing.assert_array_equal(buf.obs[:n], data.obs)          # the demonstrations stay
     np.testing.assert_array_equal(buf.action[:n], data.action)
+    np.testing.assert_array_equal(buf.rows, np.arange(n + BUDGET))  # every row: the sampling table is the identity
     # appended rows: every round's rollout starts an episode, and time runs on or restarts at 0
     t = np.asarray(buf.t[n:])
     assert t[0] == 0 and t[48] == 0
     assert np.all((t[1:] == t[:-1] + 1) | (t[1:] == 0))
     # another call past the last round adds nothing
     hp = Hparams.make(lr=1e-3)
-    assert int(jax.jit(learner.next_round)(states[-1], hp, data).buffer.size) == n + BUDGET
+    assert int(jax.jit(learner.next_round)(states[-1], hp, data).buffer.count) == n + BUDGET
 
 
 def test_appended_labels_are_the_experts_actions_on_the_recorded_states(setup, rounds):
@@ -186,12 +188,12 @@ def test_budget_zero_is_bc_in_rounds(setup):
     """
     env, data, mean, std, _ = setup
     # the learning rate decays within the run (after step 4, in the last round): the schedule must carry over
-    cfg = dataclasses.replace(CFG, lr_decay_every=4)
+    cfg = dataclasses.replace(CFG, lr_boundaries=(4, 8))
     learner = dagger.make_dagger(cfg, env, env.expert, mean, std, budget=0, rounds=ROUNDS, num_envs=NUM_ENVS)
     key, hp = jax.random.PRNGKey(3), Hparams.make(lr=1e-3)  # `_rounds`'s key and learning rate
     states, trained = _rounds(learner, data, key)
     n = data.obs.shape[0]
-    assert [int(s.buffer.size) for s in states] == [n] * ROUNDS       # no row is ever added
+    assert [int(s.buffer.count) for s in states] == [n] * ROUNDS       # no row is ever added
     final = trained[-1][0]
     assert int(final.step) == cfg.iterations == ROUNDS * learner.round_iterations
     np.testing.assert_array_equal(final.buffer.obs, data.obs)        # the buffer is the demonstrations
@@ -217,6 +219,29 @@ def test_budget_zero_is_bc_in_rounds(setup):
         assert update_mismatch(getattr(adam, moment), getattr(bc_adam, moment), zeros) < UPDATE_RTOL, moment
 
 
+def test_minibatches_come_from_the_split_rows_and_the_appended_rows(setup):
+    """Episodes 1 and 3 are outside the split, with actions of 1e3: one drawn row of them would blow the loss up."""
+    env, data, mean, std, learner = setup
+    n, t = data.obs.shape[0], np.asarray(data.t)
+    episode = np.cumsum(t == 0) - 1
+    assert episode[-1] == 3
+    rows = np.random.default_rng(0).permutation(np.flatnonzero(np.isin(episode, [0, 2]))).astype(np.int32)
+    action = np.where(np.isin(episode, [0, 2])[:, None], np.asarray(data.action), 1e3).astype(np.float32)
+    split = Data(obs=data.obs, action=jnp.asarray(action), t=data.t, ape=jnp.zeros(len(rows), jnp.float32),
+                 rows=jnp.asarray(rows))
+    states, trained = _rounds(learner, split)
+    k = len(rows)
+    assert [int(s.buffer.count) for s in states] == [k, k + 48, k + 97]
+    buf = states[-1].buffer
+    np.testing.assert_array_equal(buf.obs[:n], data.obs)             # whole episodes: histories read them
+    np.testing.assert_array_equal(buf.rows[:k], rows)                # the split's rows, then the appended ones
+    np.testing.assert_array_equal(buf.rows[k:], n + np.arange(BUDGET))
+    np.testing.assert_array_equal(states[1].buffer.rows[k:k + 48], n + np.arange(48))
+    assert int(buf.t[n]) == 0 and int(buf.t[n + 48]) == 0            # each round's rollout starts an episode
+    loss = np.concatenate([np.asarray(metrics["loss"]) for _, metrics in trained])
+    assert loss.shape == (CFG.iterations,) and np.all(loss < 10.0), loss
+
+
 def test_image_observations_are_recorded_raw():
     env = envs.make("toycar", obs="image", image_size=(16, 16), **ENV_KW)
     cfg = LearnerConfig(obs_shape=(16, 16, 3), action_dim=2, history=2, iterations=4, batch_size=4, loss="l1")
@@ -226,7 +251,7 @@ def test_image_observations_are_recorded_raw():
     hp = Hparams.make()
     state = jax.jit(lambda k: learner.next_round(learner.init(k, hp, data), hp, data))(jax.random.PRNGKey(0))
     buf = state.buffer
-    assert buf.obs.dtype == jnp.uint8 and int(buf.size) == 18
+    assert buf.obs.dtype == jnp.uint8 and int(buf.count) == 18
     assert int(buf.obs[8:].astype(jnp.int32).sum()) > 0
     rec = jax.jit(lambda p, k: dagger.label_rollout(cfg, env, env.expert, None, None, p, k, 0.5, 1, 5))(
         state.params, jax.random.PRNGKey(0))

@@ -27,7 +27,7 @@ def test_the_small_cnn_learner_loss_falls_on_a_tiny_image_dataset():
                 ape=jnp.ones(n))
     # trained as the sweep trains images on a CPU: unrolled chunks of 10 iterations (convolution gradients
     # inside a scan are ~50x slower on XLA:CPU); the loss falls to ~15% of its start within 80 iterations
-    cfg = _image_cfg(iterations=80, lr_decay_every=10_000, unroll=True)
+    cfg = _image_cfg(iterations=80, lr_boundaries=(10_000,), unroll=True)
     assert cfg.encoder == "small"
     learner, hp = make_train(cfg), Hparams.make(lr=1e-3)
     state = jax.jit(learner.init)(jax.random.PRNGKey(0), hp, data)

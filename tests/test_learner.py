@@ -25,7 +25,7 @@ def _dataset(n_episodes=6, length=40, obs_dim=4, action_dim=2, seed=0):
     return Data(obs=jnp.asarray(obs), action=jnp.asarray(action), t=jnp.asarray(t), ape=jnp.asarray(ape))
 
 
-CFG = LearnerConfig(obs_shape=(4,), action_dim=2, history=2, iterations=300, batch_size=32, lr_decay_every=200)
+CFG = LearnerConfig(obs_shape=(4,), action_dim=2, history=2, iterations=300, batch_size=32, lr_boundaries=(200,))
 GRID = [Hparams.make("uniform", lr=1e-3), Hparams.make("step", lr=1e-3, thr=0.2, w=5.0),
         Hparams.make("softmax", lr=1e-3, tau=0.5)]
 

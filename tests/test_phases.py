@@ -9,16 +9,16 @@ import pytest
 
 from ape_jax import methods, tasks
 from ape_jax.pipeline import sweep as S
-from ape_jax.pipeline.presets import PRESETS, preset_for
+from ape_jax.pipeline.presets import resolve
 
-PRESET = dataclasses.replace(PRESETS["quick"], iterations=40, eval_episodes=2, chunk=20, seeds=2,
-                             step_grid=((0.1, 5.0), (0.2, 3.0)), softmax_grid=(1.0,))
+SETS = ("budget.iterations=40", "budget.eval_episodes=2", "budget.chunk=20", "budget.seeds=2",
+        "recipe.step_grid=0.1:5,0.2:3", "recipe.softmax_grid=1")
 
 
 def _train(spec):
     prepared = S.prepare(spec)
     programs = S.plan(spec, prepared)
-    ape = S.fit_ape(prepared, spec.preset)
+    ape = S.fit_ape(prepared, spec.settings)
     data = prepared.data(prepared.train, ape.train, S.score_table(ape.train, S.method_scores(spec.methods,
                                                                                              prepared.train)))
     return prepared, programs, ape, S.train(programs, spec, prepared, data)
@@ -27,22 +27,25 @@ def _train(spec):
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
     data_dir = tmp_path_factory.mktemp("data")
-    spec = S.SweepSpec("toycar", "full", "quick", PRESET, ("bc-so", "bc-oh", "ours-step"), data_dir=data_dir)
+    spec = S.SweepSpec.make("toycar", "full", ("bc-so", "bc-oh", "ours-step"), recipe="mlp", sets=SETS,
+                            data_dir=data_dir)
     return (spec, *_train(spec))
 
 
-def test_a_spec_fills_in_what_the_preset_leaves_to_the_task():
-    spec = S.SweepSpec("toycar", "full", "quick", PRESETS["quick"], ("bc-oh",))   # the state preset, episodes unset
-    assert PRESETS["quick"].episodes is None and spec.preset.episodes == tasks.get("toycar").episodes == 10
-    assert S.SweepSpec("hopper", "pos", "quick", PRESETS["quick"], ("bc-oh",)).preset.episodes == 25
-    assert preset_for("default", "toycar", "image").seeds == 5 and preset_for("default", "hopper", "image").seeds == 3
+def test_a_spec_fills_in_what_the_protocol_leaves_to_the_task():
+    spec = S.SweepSpec.make("toycar", "full", ("bc-oh",))
+    assert spec.protocol.episodes is None and spec.episodes == tasks.get("toycar").episodes == 10
+    assert S.SweepSpec.make("hopper", "pos", ("bc-oh",)).episodes == 25   # fca's 50,000 steps, 2,000 per episode
+    assert resolve("toycar", "image", preset="default").budget.seeds == 5
+    assert resolve("hopper", "image", preset="default").budget.seeds == 3
     with pytest.raises(methods.MethodError, match="unknown method 'nope'"):
-        S.SweepSpec("hopper", "pos", "quick", PRESETS["quick"], ("nope",))
+        S.SweepSpec.make("hopper", "pos", ("nope",))
 
 
 def test_prepare_splits_by_episode_and_standardises_with_training_statistics(small):
     spec, prepared, *_ = small
-    train, val = prepared.train, prepared.val
+    train, val = prepared.train.demos, prepared.val.demos
+    assert prepared.train.rows is None and prepared.val.rows is None   # the brax protocol: split by episode
     assert not set(np.asarray(train.episode)) & set(np.asarray(val.episode))
     assert len(set(np.asarray(train.episode))) == 8 and len(set(np.asarray(val.episode))) == 2  # 10 episodes
     obs = np.asarray(prepared.normalizer(train.obs))
@@ -67,11 +70,11 @@ def test_fit_ape_gives_the_raw_ape_by_default_and_divides_by_its_mean_on_request
     from ape_jax import ape as ape_lib
 
     spec, prepared, _, ape, _ = small
-    raw = ape_lib.errors(ape.params, jnp.asarray(prepared.train.action), jnp.asarray(prepared.train.t))
-    assert spec.preset.ape_normalization == "none" and ape.scale == 1.0
+    raw = ape_lib.errors(ape.params, jnp.asarray(prepared.train.action), jnp.asarray(prepared.train.demos.t))
+    assert spec.recipe.ape_normalization == "none" and ape.scale == 1.0
     np.testing.assert_array_equal(ape.train, np.asarray(raw))   # no rescaling: the paper's τ means what it meant
     assert np.isclose(ape.raw_mean, float(np.mean(raw)), rtol=1e-6)
-    mean = S.fit_ape(prepared, dataclasses.replace(spec.preset, ape_normalization="mean"))
+    mean = S.fit_ape(prepared, resolve("toycar", "full", recipe="mlp", sets=[*SETS, "recipe.ape_normalization=mean"]))
     assert np.isclose(np.mean(mean.train), 1.0, rtol=1e-4) and np.isclose(mean.scale, float(np.mean(raw)), rtol=1e-5)
     assert np.isclose(mean.raw_mean, ape.raw_mean, rtol=1e-5)
 
@@ -95,7 +98,7 @@ def test_the_softmax_weights_a_batch_by_b_softmax_of_the_raw_ape_over_tau(small)
 
 def test_evaluate_and_assemble_give_one_record_per_run_in_plan_order(small):
     spec, prepared, programs, ape, trained = small
-    evaluated = S.evaluate(trained, prepared, ape, spec.preset)
+    evaluated = S.evaluate(trained, prepared, ape, spec.budget.eval_episodes)
     assert [g.name for g in evaluated.groups] == ["h1", "h2"]
     res = S.assemble(spec, prepared, ape, trained, evaluated, timing={})
     assert [(r["method"], r["seed"]) for r in res.runs] == [(r.method, r.seed) for p in programs for r in p.runs]

@@ -13,24 +13,25 @@ from ape_jax import tasks
 from ape_jax.pipeline import sweep as S
 from ape_jax.pipeline.checkpoint import CheckpointError, SweepCheckpoint
 from ape_jax.pipeline.data import Demonstrations
-from ape_jax.pipeline.presets import preset_for
 from envs import experts
 from experiments import sweep
 
 
 def test_the_fca_protocol_resolves_per_task_from_brax_frame_skips():
-    hopper = S.SweepSpec("hopper", "pos", "quick", preset_for("quick", "hopper", "pos"), ("bc-oh",))
+    hopper = S.SweepSpec.make("hopper", "pos", ("bc-oh",))
     p = hopper.protocol_settings()
-    assert hopper.protocol == "fca" and (p["frame_skip"], p["standard_frame_skip"]) == (1, 4)
+    assert hopper.protocol.name == "fca" and p["split"] == "rows" and (p["frame_skip"], p["standard_frame_skip"]) == (1, 4)
     assert (p["episode_length"], p["reward_scale"], p["train_transitions"], p["val_transitions"]) == \
         (2000, 0.25, 20_000, 4_000)
-    assert hopper.preset.episodes == 25   # 50,000 expert steps
-    cheetah = S.SweepSpec("halfcheetah", "pos", "quick", preset_for("quick", "halfcheetah", "pos"), ("bc-oh",))
-    assert cheetah.protocol_settings()["episode_length"] == 2500 and cheetah.preset.episodes == 20
+    assert hopper.episodes == 25   # 50,000 expert steps
+    cheetah = S.SweepSpec.make("halfcheetah", "pos", ("bc-oh",))
+    assert cheetah.protocol_settings()["episode_length"] == 2500 and cheetah.episodes == 20
     assert cheetah.protocol_settings()["reward_scale"] == pytest.approx(0.2)
-    image = S.SweepSpec("hopper", "image", "quick", preset_for("quick", "hopper", "image"), ("bc-oh",))
-    assert image.protocol == "brax" and image.protocol_settings()["frame_skip"] == 4   # images keep Brax's
-    brax = S.SweepSpec("hopper", "pos", "quick", preset_for("quick", "hopper", "pos"), ("bc-oh",), protocol="brax")
+    image = S.SweepSpec.make("hopper", "image", ("bc-oh",))
+    assert image.protocol.name == "brax" and image.protocol_settings()["frame_skip"] == 4   # images keep Brax's
+    assert image.recipe.name == "mlp" and hopper.recipe.name == "fca"   # the fca protocols' default recipe
+    brax = S.SweepSpec.make("hopper", "pos", ("bc-oh",), protocol="brax")
+    assert brax.recipe.name == "mlp" and brax.protocol.split == "episodes"
     assert brax.collection_overrides() == {} and brax.protocol_settings()["episode_length"] == 1000
 
 
@@ -94,9 +95,8 @@ def test_a_dataset_of_another_protocol_is_refused(tmp_path, capsys):
 
 
 def test_a_checkpoint_of_another_protocol_is_not_resumed(tmp_path):
-    preset = preset_for("quick", "hopper", "pos")
-    fca = S.SweepSpec("hopper", "pos", "quick", preset, ("bc-oh",))
-    brax = S.SweepSpec("hopper", "pos", "quick", preset, ("bc-oh",), protocol="brax")
+    fca = S.SweepSpec.make("hopper", "pos", ("bc-oh",))
+    brax = S.SweepSpec.make("hopper", "pos", ("bc-oh",), protocol="brax", recipe="fca")
     SweepCheckpoint(tmp_path / "ck", fca.fingerprint(), 100).open()
     with pytest.raises(CheckpointError, match="protocol"):
         SweepCheckpoint(tmp_path / "ck", brax.fingerprint(), 100).open()
@@ -136,9 +136,9 @@ def test_collect_names_the_dataset_the_sweep_of_the_same_protocol_uses(protocol,
 
     flags = [] if protocol is None else ["--protocol", protocol]
     args = collect_cli.parse(["--env", "hopper", "--obs", "pos", "--data-dir", str(tmp_path), *flags])
-    spec = S.SweepSpec("hopper", "pos", "quick", preset_for("quick", "hopper", "pos"), ("bc-oh",), protocol=protocol)
-    assert args.setup.name == spec.protocol == (protocol or "fca")
-    assert args.episodes == spec.preset.episodes
+    spec = S.SweepSpec.make("hopper", "pos", ("bc-oh",), protocol=protocol)
+    assert args.setup.name == spec.protocol.name == (protocol or "fca")
+    assert args.episodes == spec.episodes
     mine = S.collect.settings("hopper", "pos", args.episodes, args.seed, **args.overrides)
     assert mine == spec.data_settings()   # the same settings: the same cached file
 
@@ -162,5 +162,5 @@ def test_the_maps_data_size_protocols_change_only_the_training_transitions(name,
     s, f = p.settings(4), fca.settings(4)
     assert {k: v for k, v in s.items() if k not in ("name", "train_transitions", "collect_transitions")} == \
         {k: v for k, v in f.items() if k not in ("name", "train_transitions", "collect_transitions")}
-    spec = S.SweepSpec("hopper", "pos", "quick", preset_for("quick", "hopper", "pos"), ("bc-oh",), protocol=name)
-    assert spec.preset.episodes == collected // 2000
+    spec = S.SweepSpec.make("hopper", "pos", ("bc-oh",), protocol=name)
+    assert spec.episodes == collected // 2000

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ape_jax import tasks
-from ape_jax.pipeline.presets import preset_for
+from ape_jax.pipeline.presets import resolve
 from ape_jax.pipeline.results import Results
 from experiments import report
 from experiments.report import figures
@@ -366,7 +366,7 @@ def test_image_results_and_a_task_judged_by_a_rate_get_their_tables(tmp_path):
                                                   ("ours-step", {"thr": 0.1, "w": 5.0}, 0.0))), "obs": "image"}
     sandbox["expert"] = {"return_mean": None, "return_std": None, "random_return_mean": None}
     sandbox["config"] = {**sandbox["config"],   # its task's default preset budget
-                         "iterations": preset_for("default", car.name, "image").iterations}
+                         "iterations": resolve(car.name, "image", preset="default").budget.iterations}
     for i, run in enumerate(sandbox["runs"]):
         run["eval"].update(success=0.9 + 0.05 * run["seed"], red_light_violations=0.0, progress=0.8,
                            avg_speed=0.5, stuck=0.1 * run["seed"])
@@ -400,7 +400,7 @@ def _sandbox(success, stuck, deltas=(0, 1, 2, 3, 4)):
     methods = (("bc-so", {}, 0.0), ("bc-oh", {}, 0.0), ("ours-step", {"thr": 0.1, "w": 5.0}, 0.0))
     f = {**_results(env=car, methods=methods, deltas=deltas), "obs": "image"}
     f["expert"] = {"return_mean": None, "return_std": None, "random_return_mean": None}
-    f["config"] = {**f["config"], "iterations": preset_for("default", car, "image").iterations}
+    f["config"] = {**f["config"], "iterations": resolve(car, "image", preset="default").budget.iterations}
     for run in f["runs"]:
         run["eval"].update(episodes=200, success=success[run["method"]][run["seed"]], red_light_violations=0.0,
                            progress=1.0, avg_speed=7.0, stuck=stuck[run["method"]][run["seed"]])

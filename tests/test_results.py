@@ -6,7 +6,7 @@ import pathlib
 import pytest
 
 from ape_jax.pipeline import results
-from ape_jax.pipeline.presets import Preset
+from ape_jax.pipeline.presets import Settings
 
 COMMITTED = sorted((pathlib.Path(__file__).resolve().parent.parent / "results").glob("*.json"))
 
@@ -24,7 +24,10 @@ def test_every_committed_results_file_loads_and_round_trips(path):
     assert all(info["label"] for info in res.methods.values())
     if raw["schema"] == 1:
         assert res.command is None and res.protocol == {}
-    assert isinstance(res.preset_settings(), Preset) and res.preset_settings().iterations == raw["config"]["iterations"]
+    settings = res.records()   # schema 1/2: rebuilt from the flat config, the mlp recipe split by episode
+    assert isinstance(settings, Settings) and settings.budget.iterations == raw["config"]["iterations"]
+    if raw["schema"] < 3:
+        assert settings.recipe.name == "mlp" and settings.protocol.split == "episodes" and res.split == "episodes"
     again = results.Results.from_json(res.to_json(), "again")
     assert again.to_json() == res.to_json()
     assert res.fingerprint()["methods"] == raw["config"]["methods"]
@@ -41,7 +44,8 @@ def test_labels_of_methods_the_registry_does_not_know_come_from_the_file():
 
 
 @pytest.mark.parametrize("change, problem", [
-    (lambda r: r.update(schema=3), "results schema 3; this version reads schemas 1, 2"),
+    (lambda r: r.update(schema=4), "results schema 4; this version reads schemas 1, 2, 3"),
+    (lambda r: r.update(settings={"budget": {}}), "settings has no field 'protocol'"),
     (lambda r: r.pop("runs"), "missing runs"),
     (lambda r: r["runs"][0].update(hparams={"thr": "a"}), "runs[0] field 'hparams' must be an object of numbers"),
     (lambda r: r["summary"][0].update(n_seeds=-1), "summary[0] field 'n_seeds' must be an int >= 0"),

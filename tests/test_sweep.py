@@ -29,11 +29,20 @@ def finished(tmp_path_factory):
 def test_sweep_writes_results_matching_the_schema_with_every_configuration_and_seed(finished):
     out, argv, _ = finished
     r = json.loads((out / "results.json").read_text())
-    assert r["schema"] == 2 and (r["env"], r["obs"], r["preset"]) == ("toycar", "full", "quick")
+    assert r["schema"] == 3 and (r["env"], r["obs"], r["preset"]) == ("toycar", "full", "quick")
     assert r["command"] == ["python", "-m", "experiments.sweep", *argv]
     assert r["protocol"] == {"name": "brax", "frame_skip": None, "standard_frame_skip": None, "episode_length": 300,
                              "reward_scale": 1.0, "collect_transitions": None, "train_transitions": None,
-                             "val_transitions": None, "history": 2}   # the sandbox takes its own settings only
+                             "val_transitions": None, "history": 2, "split": "episodes",
+                             "eval_steps": None}   # the sandbox takes its own settings only
+    # the three records, apart and whole: they resolve back to what ran
+    assert set(r["settings"]) == {"protocol", "budget", "recipe"} and r["settings"]["recipe"]["name"] == "mlp"
+    assert r["settings"]["budget"]["iterations"] == 30 and r["settings"]["protocol"]["split"] == "episodes"
+    from ape_jax.pipeline import results as results_lib
+    from ape_jax.pipeline.presets import resolve
+    again = results_lib.load(out / "results.json").records()
+    assert again == resolve("toycar", "full", sets=["budget.iterations=30", "budget.eval_episodes=2",
+                                                      "budget.seeds=2"])
     assert r["config"]["env"]["episode_length"] == 300 and r["config"]["env"]["dt"] == pytest.approx(0.1)
     expected = {("bc-so", ()), ("bc-oh", ())} | {("ours-step", (("thr", t), ("w", w))) for t, w in STEP_GRID} | \
                {("ours-softmax", (("tau", tau),)) for tau in SOFTMAX_GRID}
@@ -96,7 +105,9 @@ def test_every_baseline_runs_from_the_sweep_under_its_design_name(tmp_path):
     assert [run["method"] for run in r["runs"]] == list(methods.names("baseline"))
     assert all(run["status"] == "ok" and run["eval"]["episodes"] == 2 for run in r["runs"]), r["runs"]
     hp = {run["method"]: run["hparams"] for run in r["runs"]}
-    assert hp["fca"] == {"alpha": tasks.get("toycar").fca_alpha} and hp["bcpd"] == {"thr": 0.1, "w": 5.0}
+    car = tasks.get("toycar")
+    assert hp["fca"] == {"alpha": car.fca_alpha, "adversary_lr": car.fca_adversary_lr}
+    assert hp["bcpd"] == {"thr": 0.1, "w": 5.0}
     assert hp["history-dropout"] == {"p": 0.5} and hp["dagger"]["budget"] == r["config"]["data"]["train_transitions"]
     assert [run["method"] for run in r["runs"] if run["online"]] == ["dagger"]
     assert r["config"]["score_rows"] == ["ape", "actfreq", "bcpd", "kmeans"]
@@ -160,7 +171,7 @@ def test_custom_grids_replace_the_presets_and_name_the_runs():
 
     args = sweep.parse(["--env", "walker2d", "--preset", "default", "--step-grid", "0.1:4,0.1:5,0.1:6",
                         "--softmax-grid", "0.1,0.2,0.5"])
-    p = args.preset_cfg
+    p = args.settings.recipe
     assert p.step_grid == ((0.1, 4.0), (0.1, 5.0), (0.1, 6.0)) and p.softmax_grid == (0.1, 0.2, 0.5)
     ctx = methods.GridContext(task=tasks.get("walker2d"), step_grid=p.step_grid, softmax_grid=p.softmax_grid,
                               n_train=100)

@@ -175,7 +175,7 @@ def test_a_small_bc_so_trained_on_a_few_hundred_samples_stops_for_a_red_light_an
     data = Data(obs=(obs - mean) / std, action=actions, t=jnp.tile(jnp.arange(STEPS), len(scenes)),
                 ape=jnp.ones(len(obs)))
     cfg = LearnerConfig(obs_shape=(5,), action_dim=2, history=1, iterations=ITERS, batch_size=64,
-                        lr_decay_every=ITERS // 2, loss="l1")
+                        lr_boundaries=(ITERS // 2,), loss="l1")
     learner = make_train(cfg)
     params, _ = jax.jit(learner.train)(jax.random.PRNGKey(0), methods.get("bc-so").hparams({}, 1e-3, 0), data)
     model = cfg.model()

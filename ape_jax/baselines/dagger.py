@@ -16,9 +16,10 @@ Our reading of the algorithm (the paper of the benchmark gives no details):
   `r = 1 .. R−1` the current policy is rolled out and the expert labels the
   visited states; the labelled rows are added to the aggregated dataset and
   training continues on all of it.
-- **Warm start.** Training continues across rounds: parameters, Adam moments,
-  the step counter and with it the learning-rate schedule
-  (`lr · 0.1^⌊step / lr_decay_every⌋`, as in `make_train`) carry over. The
+- **Warm start.** Training continues across rounds: the policy's variables
+  (with BatchNorm's running statistics), Adam moments, the step counter and
+  with it the learning-rate schedule (×0.1 at each of `cfg.lr_boundaries`, as
+  in `make_train`) carry over. The
   original algorithm retrains from scratch each round; warm starting spends
   the same number of gradient steps in total and does not discard what the
   earlier rounds learnt.
@@ -51,20 +52,25 @@ Our reading of the algorithm (the paper of the benchmark gives no details):
   lose their tails). Every round rolls out the same number of steps (enough
   for the largest round), so one compiled rollout serves all rounds.
 - **Training.** Minibatches of `cfg.batch_size` rows are drawn uniformly with
-  replacement from the valid rows of the aggregated dataset (demonstrations
-  and expert-labelled rollouts alike, no weighting); the loss is `make_train`'s
-  per-sample loss (L2 or L1). Of `Hparams` only `lr` is used (the weighting
-  and history dropout are ignored), so the grid's `Hparams` vmap as usual.
+  replacement from the aggregated dataset's sampling table (the split's rows,
+  `Data.rows` or every row, and the expert-labelled rollouts' rows alike, no
+  weighting); histories read whole episodes, the demonstrations' and the
+  rollouts' (which have their own `t`). The loss is `make_train`'s (L2 or L1,
+  mean over the batch), the step the recipe's (`cfg.optimizer()`, the policy
+  applied in training mode: BatchNorm on batch statistics). Of `Hparams` only
+  `lr` is used (the weighting and history dropout are ignored), so the grid's
+  `Hparams` vmap as usual.
 - **Randomness.** `init` splits its key into the network's initialisation
   key, the minibatch key (`fold_in(key, step)` per step) and the rollout key
   (`fold_in(key, r)` for round r's rollout), so runs are reproducible and
   seeds independent.
 
-Each seed carries its own aggregated dataset in its state: a buffer of
-`N_demo + budget` rows allocated at `init`, the demonstrations in the first
-`N_demo` rows and `size` the number of valid rows, so `vmap` over seeds (or
-learning rates) keeps every run's data apart (for images that is
-`(N_demo + budget) × H × W × 3` bytes per run). Everything is jit-able; all
+Each seed carries its own aggregated dataset in its state (`Buffer`): the
+demonstrations' `M` rows of whole episodes followed by room for `budget`
+rollout rows, allocated at `init`, and a sampling table of `N + budget` row
+indices (the split's `N` rows, then the appended rows') of which the first
+`count` are valid, so `vmap` over seeds (or learning rates) keeps every run's
+data apart (for images that is `(M + budget) × H × W × 3` bytes per run). Everything is jit-able; all
 rounds run in one compiled `train`, or round by round with `next_round`
 (`init`, `run`, `next_round`, `run`, ...), which computes the same.
 """
@@ -75,13 +81,13 @@ from typing import Any, Callable
 
 import jax
 import jax.numpy as jnp
-import optax
 from flax import struct
 
 import envs
 from ape_jax.evaluate import history_policy
-from ape_jax.learner import (Data, Hparams, Learner, LearnerConfig, adam_step, learning_rate, make_train,
-                             train_in_rounds)
+from ape_jax.history import history_index
+from ape_jax.learner import (Data, Hparams, Learner, LearnerConfig, gradient_step, learning_rate, make_train,
+                             policy_apply, train_in_rounds, trainable)
 from ape_jax import methods
 
 ROUNDS = 4
@@ -110,15 +116,26 @@ class Labelled:
 
 @struct.dataclass
 class Buffer:
-    """The aggregated dataset of one run: `cap = N_demo + budget` rows, the first `size` valid."""
+    """The aggregated dataset of one run: rows of whole episodes, and the table of the rows minibatches draw.
 
-    obs: jax.Array     # [cap, *obs_shape], the dtype of the demonstrations' obs
-    action: jax.Array  # [cap, A] float32
-    t: jax.Array       # [cap] int32
-    size: jax.Array    # [] int32
+    `obs`, `action` and `t` hold the demonstrations' `M` rows (whole episodes), then room for `budget` rollout
+    rows; `rows` holds the split's `N` row indices (`Data.rows`, or `0 .. M − 1`), then the appended rows'.
+    """
 
-    def as_data(self) -> Data:
-        return Data(obs=self.obs, action=self.action, t=self.t, ape=jnp.zeros(self.t.shape, jnp.float32))
+    obs: jax.Array     # [M + budget, *obs_shape], the dtype of the demonstrations' obs
+    action: jax.Array  # [M + budget, A] float32
+    t: jax.Array       # [M + budget] int32
+    rows: jax.Array    # [N + budget] int32, indices into obs/action/t; the first `count` valid
+    count: jax.Array   # [] int32, N + the rows appended so far
+
+    @property
+    def end(self) -> jax.Array:
+        """`[] int32`: rows of `obs` in use, where the next rollout is appended (`M` + those appended)."""
+        return self.count + (self.t.shape[0] - self.rows.shape[0])
+
+    def sample(self, key: jax.Array, batch: int) -> jax.Array:
+        """`[batch] int32` rows (indices into `obs`), uniformly with replacement from the valid table entries."""
+        return self.rows[jax.random.randint(key, (batch,), 0, self.count)]
 
 
 @struct.dataclass
@@ -222,35 +239,36 @@ def make_dagger(cfg: LearnerConfig, env: envs.Env, expert: Callable[[jax.Array],
         raise ValueError(f"env {env.name!r} observes {env.observation_shape} and acts in {env.action_size} dims, "
                          f"the learner expects {cfg.obs_shape} and {cfg.action_dim}")
     base = make_train(cfg)
-    adam = optax.scale_by_adam()
+    model, adam = cfg.model(), cfg.optimizer()
     widest = max(sizes)                        # one rollout shape serves every round
     steps = -(-widest // num_envs)
 
     def init(key: jax.Array, hp: Hparams, data: Data) -> DaggerState:
-        n = data.obs.shape[0]
-        if n < cfg.batch_size:
-            raise ValueError(f"the training set has {n} samples, fewer than the batch size {cfg.batch_size}")
         if tuple(data.obs.shape[1:]) != tuple(cfg.obs_shape):
             raise ValueError(f"data.obs has rows of shape {data.obs.shape[1:]}, the learner expects {cfg.obs_shape}")
         key_init, key_train, key_rollout = jax.random.split(key, 3)
-        dummy = base.policy_input(jnp.zeros((1, cfg.history, *cfg.obs_shape), data.obs.dtype))
-        params = cfg.model().init(key_init, dummy)
+        params = base.init_policy(key_init, data)
+        split = jnp.arange(data.obs.shape[0], dtype=jnp.int32) if data.rows is None else data.rows
         pad = lambda x: jnp.concatenate([x, jnp.zeros((budget,) + x.shape[1:], x.dtype)])  # noqa: E731
         buffer = Buffer(obs=pad(data.obs), action=pad(jnp.asarray(data.action, jnp.float32)),
-                        t=pad(jnp.asarray(data.t, jnp.int32)), size=jnp.asarray(n, jnp.int32))
-        return DaggerState(params=params, opt_state=adam.init(params), step=jnp.zeros((), jnp.int32),
+                        t=pad(jnp.asarray(data.t, jnp.int32)), rows=pad(jnp.asarray(split, jnp.int32)),
+                        count=jnp.asarray(data.size, jnp.int32))
+        return DaggerState(params=params, opt_state=adam.init(trainable(params)), step=jnp.zeros((), jnp.int32),
                            key=key_train, rollout_key=key_rollout, round=jnp.zeros((), jnp.int32), buffer=buffer)
 
     def update(state: DaggerState, hp: Hparams):
-        idx = jax.random.randint(jax.random.fold_in(state.key, state.step), (cfg.batch_size,), 0, state.buffer.size)
-        data = state.buffer.as_data()
+        buf = state.buffer
+        idx = buf.sample(jax.random.fold_in(state.key, state.step), cfg.batch_size)
+        x = base.policy_input(buf.obs[history_index(buf.t, idx, cfg.history)])
 
-        def loss_fn(params):
-            return jnp.mean(base.per_sample_loss(params, data, idx))
+        def loss_fn(variables):
+            predicted, variables = policy_apply(model, variables, x, train=True)
+            err = predicted - buf.action[idx]
+            loss = jnp.mean(jnp.sum(err**2 if cfg.loss == "l2" else jnp.abs(err), axis=-1))
+            return loss, (loss, variables)
 
-        loss, grads = jax.value_and_grad(loss_fn)(state.params)
-        params, opt_state = adam_step(adam, state.params, grads, state.opt_state,
-                                      learning_rate(cfg, hp.lr, state.step))
+        params, opt_state, loss, _ = gradient_step(adam, state.params, state.opt_state,
+                                                   learning_rate(cfg, hp.lr, state.step), loss_fn)
         state = state.replace(params=params, opt_state=opt_state, step=state.step + 1)
         return state, {"loss": loss, "unweighted_loss": loss}
 
@@ -261,15 +279,18 @@ def make_dagger(cfg: LearnerConfig, env: envs.Env, expert: Callable[[jax.Array],
         r = state.round + 1
         if widest == 0:
             return state.replace(round=r)
-        count = jnp.asarray(sizes + (0,), jnp.int32)[jnp.minimum(r, rounds)]  # no rows past the last round
+        queries = jnp.asarray(sizes + (0,), jnp.int32)[jnp.minimum(r, rounds)]  # no rows past the last round
         records = label_rollout(cfg, env, expert, obs_mean, obs_std, state.params,
                                 jax.random.fold_in(state.rollout_key, r), jnp.float32(beta) ** r, num_envs, steps)
         buf = state.buffer
         offset = jnp.arange(widest)
-        rows = jnp.where(offset < count, buf.size + offset, buf.t.shape[0])  # out of range: dropped
-        put = lambda dst, src: dst.at[rows].set(src[:widest].astype(dst.dtype), mode="drop")  # noqa: E731
+        added = offset < queries
+        at = jnp.where(added, buf.end + offset, buf.t.shape[0])  # out of range: dropped
+        put = lambda dst, src: dst.at[at].set(src[:widest].astype(dst.dtype), mode="drop")  # noqa: E731
+        entries = jnp.where(added, buf.count + offset, buf.rows.shape[0])
         buf = Buffer(obs=put(buf.obs, records.obs), action=put(buf.action, records.action),
-                     t=put(buf.t, records.t), size=buf.size + count)
+                     t=put(buf.t, records.t), rows=buf.rows.at[entries].set(buf.end + offset, mode="drop"),
+                     count=buf.count + queries)
         return state.replace(round=r, buffer=buf)
 
     learner = Learner(init=init, run=run, train=None, policy_input=base.policy_input,

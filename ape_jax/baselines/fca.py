@@ -1,74 +1,141 @@
-"""Fighting Copycat Agents (FCA; Wen et al., NeurIPS 2020) as a pure-functional `Learner`.
+"""Fighting Copycat Agents (FCA; Wen et al., NeurIPS 2020) as a pure-functional `Learner`: TCA, and TCA + IB.
 
-The policy is the project's own `cfg.model()` (`StatePolicy` or `ImagePolicy`),
-read as an encoder E, the observation history up to the Head's 100-unit
-`embedding` layer (`e`), and a policy head F, the rest (`F(e) -> a_t`). An
-adversary D reads `[e, a_t]` and predicts the previous action `a_{t−1}`. Each
-iteration, on one minibatch,
+The policy is the project's own `cfg.model()` (`StatePolicy`, FCA's BatchNorm
+MLP under `network="bn-mlp"`, or an image policy), read as an encoder E, the
+observation history up to the Head's 100-unit `embedding` layer (`μ`), and a
+policy head F, the rest. F reads `z = μ + σ ⊙ ε`: `σ = 0` for TCA, the
+information bottleneck's sample for FCA-IB (below). An adversary D reads
+`[z, a_t]` and predicts the previous action `a_{t−1}`. Each iteration, on one
+minibatch,
 
-1. D takes one step on its loss `L_D = mean_i ‖D([sg(e_i), a_t,i]) − a_{t−1,i}‖²`
+1. D takes one step on `L_D = mean_i ‖D([sg(z_i), a_t,i]) − a_{t−1,i}‖²`
    (`sg`: stop-gradient, so this step moves D only);
-2. E and F take one step on `L_BC − α · L_D`, with the D just updated held fixed,
+2. E, F (and σ) take one step on `L_BC − α · L_D + β · KL`, with the D just
+   updated held fixed (`β = ib_weight`; `KL = 0` for TCA),
 
 so E keeps what predicts `a_t` and drops what reveals `a_{t−1}` beyond what `a_t`
-already does (the conditional mutual information `I(e; a_{t−1} | a_t)` that D
-estimates). The trained policy is plain `cfg.model()` parameters: evaluation and
-the loss analysis treat FCA like every other method.
+already does (the conditional mutual information `I(z; a_{t−1} | a_t)` that D
+estimates). The trained policy is plain `cfg.model()` variables (evaluation reads
+`μ`, no noise): evaluation and the loss analysis treat FCA like every other method.
 
     learner = make_fca(cfg)
-    params, metrics = learner.train(key, FcaHparams.make(alpha=0.1), data)
+    params, metrics = learner.train(key, FcaHparams.make(alpha=1.0, ib_weight=1e-4), data)
     params, metrics = jax.jit(jax.vmap(learner.train, (0, 0, None)))(keys, stacked_hparams, data)
 
-`α` per task is the paper's supplement's (`ape_jax.tasks`, `Task.fca_alpha`):
-Hopper 0.1, HalfCheetah and Walker2d 0.5, and 0.2 for the driving sandbox.
+Two registered methods share one compiled program (`program="fca"`), so a sweep
+of both is one `vmap`:
+
+- `fca`, "FCA (TCA)": `ib_weight = 0`, what the authors' code
+  (github.com/AlvinWen428/fighting-copycat-agents) ships: its temporally
+  correlated adversary without a bottleneck.
+- `fca-ib`, "FCA (TCA + IB)": the paper's FCA, TCA plus a variational
+  information bottleneck, at the KL weights of `GridContext.ib_weights`
+  (default `DEFAULT_IB_WEIGHT`).
+
+Both run at each α of `GridContext.fca_alphas`, by default the task's
+(`ape_jax.tasks`, `Task.fca_alpha`: the FCA code's README and defaults, Hopper
+2.0 and 1.0 elsewhere; 0.2 for the driving sandbox), with D's learning rate
+`Task.fca_adversary_lr` (Hopper 4e-4, 2e-4 elsewhere).
+
+**The information bottleneck** (FCA-IB). The embedding is a Gaussian
+`N(μ(history), diag σ²)`: `μ` the `embedding` layer's output, `log σ²` a learned
+per-dimension vector that does not depend on the state, kept in FCA's state
+(`FcaState.log_var`), not in the policy's variables, so the policy's parameter
+tree is every other method's. Training samples `z = μ + σ ⊙ ε`, `ε ~ N(0, I)`,
+fed to F (`embedding_noise` of the policy's `__call__`) and to D (the paper's D
+reads the bottleneck's sample), and adds
+`β · mean_i KL(N(μ_i, σ²) ‖ N(0, I))`, the KL summed over the 100 dimensions.
+`log σ²` starts at `LOG_VAR_INIT` (σ ≈ 0.05, small beside the embedding's
+unit-scale entries at initialisation), so FCA-IB starts close to TCA and the
+KL opens the bottleneck (VIB implementations start σ small for the same
+reason; Alemi et al.'s demonstration code takes `softplus(x − 5)`). With `β = 0` the noise and the KL are
+multiplied out exactly (`jnp.where`): TCA computes bit for bit what it would
+without the bottleneck, whatever `log σ²` holds, in the same program.
+
+**`DEFAULT_IB_WEIGHT` = 1e-4.** Neither the authors' code (no bottleneck) nor
+the text available to us gives a KL weight; ours comes from the scales. The BC
+loss of a trained policy on these tasks is ~0.005–0.01 (squared error summed
+over action dimensions). An embedding that predicts the actions to that
+precision carries some tens of nats (`½ ln(1 + SNR)` per informative
+dimension, the KL summed over 100 dimensions; signal-to-noise ratios of
+10²–10³ in ten to twenty dimensions give 25–70 nats). At β = 1e-4 the KL term
+is then worth ~0.003–0.007, comparable to the BC loss: the bottleneck binds
+without swamping it (each nat kept must pay 1e-4 of loss). β = 1e-3 would
+weigh the KL ten times the BC loss, 1e-5 a tenth of it: sweep
+`GridContext.ib_weights` around 1e-4 where it matters. (At the start the KL is
+mostly σ's own term, ~250 nats at `LOG_VAR_INIT`: what raises σ until the
+noise costs BC loss.)
+
+**The reference predictor** R (a diagnostic, not part of the method): the
+`Adversary`'s architecture fed a zero-width embedding, so it reads `a_t`
+alone, trained each iteration on the same batch to predict `a_{t−1}`, with D's
+optimiser and learning rate. `"reference_loss"` is what `a_t` alone says of
+`a_{t−1}`; `"adversary_loss"` what `[z, a_t]` say: equal losses mean the
+embedding adds nothing about the previous action beyond the current one (what
+FCA aims at), `adversary_loss` below `reference_loss` means D still reads
+`a_{t−1}` from the embedding.
+
+**The recipe** decides the optimiser and the network: Adam with
+`(cfg.beta1, cfg.beta2)` for every player (the FCA recipe's (0.5, 0.999), the
+authors' code's), each with its own moments, learning rates `lr` (E, F and σ)
+and `adversary_lr` (D and R), both on the schedule of every learner
+(`ape_jax.learner.learning_rate`: ×0.1 at each of `cfg.lr_boundaries`; the
+authors' code defaults to 2e-4). Under `network="bn-mlp"` training applies the
+policy on batch statistics (`policy_apply(train=True)`) in both forward passes,
+and the running statistics move once per iteration, as the policy objective's
+pass left them.
 
 Our readings where the paper leaves details open (or where we follow the
-authors' code, github.com/AlvinWen428/fighting-copycat-agents, over the text):
+authors' code over the text):
 
-- **`a_t` fed to D is the expert's action**, not the policy's prediction `F(e)`,
-  as in the authors' code. The quantity to remove is `I(e; a_{t−1} | a_t)` of the
-  *expert's* actions; with `F(e)` instead, the adversarial gradient would also
+- **`a_t` fed to D is the expert's action**, not the policy's prediction `F(z)`,
+  as in the authors' code. The quantity to remove is `I(z; a_{t−1} | a_t)` of the
+  *expert's* actions; with `F(z)` instead, the adversarial gradient would also
   reach F through D's input and push its predictions away from the expert's
   (which do carry information about `a_{t−1}`), fighting the BC loss itself.
-- **The previous action** is `data.action[history_index(data.t, idx, 1, offset=1)]`;
-  at an episode start (`t = 0`) it repeats the first action, so there `a_{t−1} = a_t`,
-  which D reads from its input: those samples (one per episode) are easy for D
-  and carry no adversarial signal.
-- **D** is an MLP on `concat([e, a_t])`: two hidden layers of 300 with
+- **Sampling**: `cfg.batch_size` rows per iteration, uniform with replacement
+  over the split's rows (`Data.sample`: `Data.rows`, or every row), the
+  observation history built by index exactly as in
+  `ape_jax.learner.make_train`, reading whole episodes.
+- **The previous action** is `data.action[history_index(data.t, idx, 1, offset=1)]`
+  of the sampled rows `idx`, read from the whole episode (a split row's
+  predecessor need not be in the split); at an episode start (`t = 0`) it
+  repeats the first action, so there `a_{t−1} = a_t`, which D reads from its
+  input: those samples (one per episode) are easy for D and carry no
+  adversarial signal.
+- **D** is an MLP on `concat([z, a_t])`: two hidden layers of 300 with
   LeakyReLU(0.2) (`ADVERSARY_HIDDEN`), then a linear output of `A` units; the
   same width and nonlinearity as the policy. (The authors' code uses one hidden
   layer of 300 with a LeakyReLU also on D's input; we use the two-layer MLP the
   project's spec asks for, a slightly stronger adversary.)
 - **Losses**: `L_BC` is the project's BC loss (squared error summed over action
   dimensions for `"l2"`, absolute error for `"l1"`, mean over the batch, uniform
-  weights); `L_D` is always the squared error summed over action dimensions,
-  mean over the batch (the spec's `‖D − a_{t−1}‖²`), also for ToyCar's L1 policy
-  loss. The authors' code averages both over action dimensions instead of summing;
-  as both losses are summed here alike, `α` keeps its meaning for L2.
-- **Optimisers**: Adam with betas (0.5, 0.999) for both players, each with its
-  own moments, and the same learning rate `lr · 0.1^⌊step / cfg.lr_decay_every⌋`
-  (the authors' code defaults to 2e-4 for both). E and F share one optimiser
-  (the policy's parameter tree).
-- **Step order**: D first (on the embedding of the current E), then E and F
-  against the updated D, both on the same minibatch, as in the authors' code.
-- **Not reproduced**: the authors' BatchNorm in E (the project's policies have
-  none, so all methods share one architecture) and their optional Gaussian noise
-  on `e` (off by default there).
-- **Sampling**: uniform with replacement, `cfg.batch_size` rows per iteration,
-  the observation history built by index exactly as in `ape_jax.learner.make_train`.
+  weights); `L_D` is the squared error summed over action dimensions, mean over
+  the batch, also for ToyCar's L1 policy loss. Both sums are the authors' code's
+  (summed over action dimensions, averaged over the batch), so `α` means what it
+  means there.
+- **Step order**: D (and R) first, on the embedding of the current E, then E
+  and F against the updated D, both on the same minibatch and the same `ε`, as
+  in the authors' code.
+- **Not reproduced**: the authors' optional Gaussian noise on the embedding
+  (off by default there; the IB's learned noise is another thing).
 
 What the game does, on toy data like that of `tests/test_fca.py` (the history
-shows `a_{t−1}`, which says nothing about `a_t`; lr 1e-3): with α = 0.5 or 1 the
-co-trained D stays at chance while the policy still learns, but a fresh D fit
-afterwards on the frozen embeddings predicts `a_{t−1}` of held-out episodes
-almost as well as for α = 0 (MSE 1–2% of chance against 1%, after 400 or 2000
-iterations): E keeps its D fooled rather than erasing the information.
-`−α · L_D` is unbounded below; there α = 2 degraded the BC loss (0.66 against
-0.001 at α = 0) and α = 5 made it diverge, E inflating the embedding.
+shows `a_{t−1}`, which says nothing about `a_t`; TCA, lr 1e-3, Adam (0.5,
+0.999), 400 or 2000 iterations): with α = 0.5 or 1 the co-trained D stays at
+chance (its loss about R's, which reads `a_t` alone) while the policy still learns
+(BC loss 0.005–0.03, against 0.005–0.02 at α = 0), but a fresh D fit afterwards
+on the frozen embeddings of 64 new episodes predicts `a_{t−1}` of held-out
+episodes as well as for α = 0 (MSE 0.2–0.5% of chance, against 0.2–0.4%): E
+keeps its D fooled rather than erasing the information. `−α · L_D` is
+unbounded below: there α = 2 degraded the BC loss (0.2–0.3) and α = 5 made it
+diverge.
 
-Metrics (`[n]` per `run` of `n` iterations): `"loss"` the objective of E and F
-(`L_BC − α · L_D`, D after its step), `"unweighted_loss"` `L_BC`, and
-`"adversary_loss"` `L_D` in D's step (before its update).
+Metrics (`[n]` float32 per `run` of `n` iterations): `"loss"` the objective of
+E and F (`L_BC − α · L_D + β · KL`, D after its step), `"unweighted_loss"`
+`L_BC`, `"adversary_loss"` `L_D` in D's step (before its update),
+`"reference_loss"` R's loss in its step (before its update), and `"kl"` the
+bottleneck's KL (0 for TCA).
 """
 
 from __future__ import annotations
@@ -78,18 +145,23 @@ from typing import Any, Sequence
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
-import optax
 from flax import struct
 
 from ape_jax.history import history_index
-from ape_jax.learner import Data, Learner, LearnerConfig, adam_step, learning_rate, make_train
+from ape_jax.learner import (Data, Learner, LearnerConfig, adam_step, learning_rate, make_train, policy_apply,
+                             trainable)
 from ape_jax import methods
 
 ADVERSARY_HIDDEN = (300, 300)
+LOG_VAR_INIT = -6.0       # the bottleneck's initial log σ² in every dimension: σ ≈ 0.05
+DEFAULT_IB_WEIGHT = 1e-4  # FCA-IB's KL weight β where `GridContext.ib_weights` gives none (module docstring)
 
 
 class Adversary(nn.Module):
-    """D: `[..., E]` embedding and `[..., A]` current action -> `[..., A]` predicted previous action."""
+    """D: `[..., E]` embedding and `[..., A]` current action -> `[..., A]` predicted previous action.
+
+    With a zero-width embedding (`E = 0`) it is the reference predictor R, reading the current action alone.
+    """
 
     action_dim: int
     hidden: Sequence[int] = ADVERSARY_HIDDEN
@@ -104,93 +176,124 @@ class Adversary(nn.Module):
 
 @struct.dataclass
 class FcaHparams:
-    """Traced knobs of one FCA run (stack them along a leading axis for seeds × alphas)."""
+    """Traced knobs of one FCA run (stack them along a leading axis for seeds × alphas × KL weights)."""
 
-    alpha: jax.Array  # [] float32, weight of the adversary's loss in E and F's objective
-    lr: jax.Array     # [] float32, learning rate of both players
+    alpha: jax.Array         # [] float32, weight of the adversary's loss in E and F's objective
+    lr: jax.Array            # [] float32, learning rate of E, F and the bottleneck's σ
+    adversary_lr: jax.Array  # [] float32, learning rate of D (and of the reference predictor R)
+    ib_weight: jax.Array     # [] float32, β: weight of the bottleneck's KL; 0 = TCA, no bottleneck
 
     @classmethod
-    def make(cls, alpha: float, lr: float = 2e-4) -> "FcaHparams":
-        if not alpha >= 0.0:
-            raise ValueError(f"FCA alpha must be >= 0, got {alpha}")
-        if not lr > 0.0:
+    def make(cls, alpha: float, lr: float = 2e-4, adversary_lr: float | None = None,
+             ib_weight: float = 0.0) -> "FcaHparams":
+        """Validated hyperparameters; `adversary_lr=None` takes `lr`."""
+        adversary_lr = lr if adversary_lr is None else adversary_lr
+        if not 0.0 <= alpha < float("inf"):
+            raise ValueError(f"FCA alpha must be >= 0 and finite, got {alpha}")
+        if not 0.0 < lr < float("inf"):
             raise ValueError(f"learning rate must be > 0, got {lr}")
-        return cls(alpha=jnp.float32(alpha), lr=jnp.float32(lr))
+        if not 0.0 < adversary_lr < float("inf"):
+            raise ValueError(f"FCA adversary learning rate must be > 0, got {adversary_lr}")
+        if not 0.0 <= ib_weight < float("inf"):
+            raise ValueError(f"FCA ib_weight must be >= 0 and finite, got {ib_weight}")
+        return cls(alpha=jnp.float32(alpha), lr=jnp.float32(lr), adversary_lr=jnp.float32(adversary_lr),
+                   ib_weight=jnp.float32(ib_weight))
 
 
 @struct.dataclass
 class FcaState:
-    """The scan carry: both players' parameters and Adam moments."""
+    """The scan carry: every player's parameters and Adam moments."""
 
-    policy: Any          # cfg.model() parameters (E and F)
+    policy: Any          # cfg.model() variables (E and F; with BatchNorm's running statistics)
     adversary: Any       # Adversary parameters (D)
-    policy_opt: Any
+    reference: Any       # Adversary parameters with a zero-width embedding (R)
+    log_var: jax.Array   # [E] float32, the bottleneck's log σ² (moves only when ib_weight > 0)
+    policy_opt: Any      # on trainable(policy)
     adversary_opt: Any
+    reference_opt: Any
+    log_var_opt: Any
     step: jax.Array      # [] int32
     key: jax.Array
 
 
 def make_fca(cfg: LearnerConfig) -> Learner:
-    """The pure functions of FCA for one static setup (see the module docstring).
+    """The pure functions of FCA (TCA, and TCA + IB) for one static setup (see the module docstring).
 
     Args:
-      cfg: shapes and counts; `cfg.model()` is the policy (E and F), `cfg.loss`
-        the BC loss, `cfg.iterations` the length of `train`.
+      cfg: shapes, counts and the recipe; `cfg.model()` is the policy (E and F),
+        `cfg.loss` the BC loss, `cfg.optimizer()` every player's Adam,
+        `cfg.iterations` the length of `train`.
 
     Returns:
       A `Learner`: `init(key, FcaHparams, Data) -> FcaState`,
       `run(state, hp, data, n) -> (state, metrics of [n] float32)`,
-      `train(key, hp, data) -> (policy params, metrics of [cfg.iterations])`,
-      and `policy_input`, `per_sample_loss` of `make_train(cfg)`.
+      `train(key, hp, data) -> (policy variables, metrics of [cfg.iterations])`,
+      and `policy_input`, `per_sample_loss`, `init_policy` of `make_train(cfg)`.
     """
     base = make_train(cfg)
     model, adversary = cfg.model(), Adversary(cfg.action_dim)
-    adam = optax.scale_by_adam(b1=0.5, b2=0.999)
+    adam = cfg.optimizer()
 
     def init(key: jax.Array, hp: FcaHparams, data: Data) -> FcaState:
-        if data.obs.shape[0] < cfg.batch_size:
-            raise ValueError(f"the training set has {data.obs.shape[0]} samples, fewer than the batch size "
-                             f"{cfg.batch_size}")
-        key_policy, key_adversary, key_run = jax.random.split(key, 3)
+        key_policy, key_adversary, key_run, key_reference = jax.random.split(key, 4)
+        policy = base.init_policy(key_policy, data)
         dummy = base.policy_input(jnp.zeros((1, cfg.history, *cfg.obs_shape), data.obs.dtype))
-        policy = model.init(key_policy, dummy)
-        _, embedding = model.apply(policy, dummy, return_embedding=True)
-        adv = adversary.init(key_adversary, embedding, jnp.zeros((1, cfg.action_dim), jnp.float32))
-        return FcaState(policy=policy, adversary=adv, policy_opt=adam.init(policy), adversary_opt=adam.init(adv),
+        (_, embedding), _ = policy_apply(model, policy, dummy, return_embedding=True)
+        no_action = jnp.zeros((1, cfg.action_dim), jnp.float32)
+        adv = adversary.init(key_adversary, embedding, no_action)
+        ref = adversary.init(key_reference, embedding[:, :0], no_action)
+        log_var = jnp.full(embedding.shape[-1:], LOG_VAR_INIT, jnp.float32)
+        return FcaState(policy=policy, adversary=adv, reference=ref, log_var=log_var,
+                        policy_opt=adam.init(trainable(policy)), adversary_opt=adam.init(adv),
+                        reference_opt=adam.init(ref), log_var_opt=adam.init(log_var),
                         step=jnp.zeros((), jnp.int32), key=key_run)
 
     def update(state: FcaState, hp: FcaHparams, data: Data):
         key_step = jax.random.fold_in(state.key, state.step)
-        idx = jax.random.randint(key_step, (cfg.batch_size,), 0, data.obs.shape[0])
+        _, idx = data.sample(key_step, cfg.batch_size)
         x = base.policy_input(data.obs[history_index(data.t, idx, cfg.history)])
         action = data.action[idx]
         previous = data.action[history_index(data.t, idx, 1, offset=1)[:, 0]]
-        lr = learning_rate(cfg, hp.lr, state.step)
+        eps = jax.random.normal(jax.random.fold_in(key_step, 1), (cfg.batch_size,) + state.log_var.shape)
+        lr, adversary_lr = learning_rate(cfg, hp.lr, state.step), learning_rate(cfg, hp.adversary_lr, state.step)
+        bottleneck = hp.ib_weight > 0
 
-        def adversary_loss(adv_params, embedding):
-            err = adversary.apply(adv_params, embedding, action) - previous
+        def forward(variables, log_var):
+            """`(action, z, KL, variables)`; TCA: exactly no noise and no KL, whatever `log_var` holds."""
+            noise = jnp.where(bottleneck, jnp.exp(0.5 * log_var) * eps, 0.0)
+            (predicted, mu), variables = policy_apply(model, variables, x, train=True, return_embedding=True,
+                                                      embedding_noise=noise)
+            kl = 0.5 * jnp.mean(jnp.sum(mu**2 + jnp.exp(log_var) - log_var - 1.0, axis=-1))
+            return predicted, mu + noise, jnp.where(bottleneck, kl, 0.0), variables
+
+        def previous_loss(params, embedding):
+            err = adversary.apply(params, embedding, action) - previous
             return jnp.mean(jnp.sum(err**2, axis=-1))
 
-        def step(params, grads, opt_state):
-            return adam_step(adam, params, grads, opt_state, lr)
+        # D's and R's steps, on the embedding of the current E (no gradient into E).
+        _, z, _, _ = forward(state.policy, state.log_var)
+        z = jax.lax.stop_gradient(z)
+        d_loss, d_grads = jax.value_and_grad(previous_loss)(state.adversary, z)
+        r_loss, r_grads = jax.value_and_grad(previous_loss)(state.reference, z[:, :0])
+        adv_params, adversary_opt = adam_step(adam, state.adversary, d_grads, state.adversary_opt, adversary_lr)
+        ref_params, reference_opt = adam_step(adam, state.reference, r_grads, state.reference_opt, adversary_lr)
 
-        # D's step, on the embedding of the current E (no gradient into E).
-        _, embedding = model.apply(state.policy, x, return_embedding=True)
-        d_loss, d_grads = jax.value_and_grad(adversary_loss)(state.adversary, jax.lax.stop_gradient(embedding))
-        adv_params, adversary_opt = step(state.adversary, d_grads, state.adversary_opt)
-
-        # E and F's step against the updated D, held fixed.
-        def objective(params):
-            predicted, embedding = model.apply(params, x, return_embedding=True)
+        # E, F and σ's step against the updated D, held fixed.
+        def objective(params, log_var):
+            predicted, z, kl, variables = forward({**state.policy, **params}, log_var)
             err = predicted - action
             bc = jnp.mean(jnp.sum(err**2 if cfg.loss == "l2" else jnp.abs(err), axis=-1))
-            return bc - hp.alpha * adversary_loss(adv_params, embedding), bc
+            return bc - hp.alpha * previous_loss(adv_params, z) + hp.ib_weight * kl, (bc, kl, variables)
 
-        (loss, bc), grads = jax.value_and_grad(objective, has_aux=True)(state.policy)
-        policy, policy_opt = step(state.policy, grads, state.policy_opt)
-        state = state.replace(policy=policy, adversary=adv_params, policy_opt=policy_opt,
-                              adversary_opt=adversary_opt, step=state.step + 1)
-        return state, {"loss": loss, "unweighted_loss": bc, "adversary_loss": d_loss}
+        (loss, (bc, kl, after)), (grads, log_var_grads) = jax.value_and_grad(objective, (0, 1), has_aux=True)(
+            trainable(state.policy), state.log_var)
+        params, policy_opt = adam_step(adam, trainable(state.policy), grads, state.policy_opt, lr)
+        log_var, log_var_opt = adam_step(adam, state.log_var, log_var_grads, state.log_var_opt, lr)
+        state = state.replace(policy={**after, **params}, adversary=adv_params, reference=ref_params,
+                              log_var=log_var, policy_opt=policy_opt, adversary_opt=adversary_opt,
+                              reference_opt=reference_opt, log_var_opt=log_var_opt, step=state.step + 1)
+        return state, {"loss": loss, "unweighted_loss": bc, "adversary_loss": d_loss, "reference_loss": r_loss,
+                       "kl": kl}
 
     def run(state: FcaState, hp: FcaHparams, data: Data, n: int):
         return jax.lax.scan(lambda s, _: update(s, hp, data), state, None, length=n, unroll=cfg.unroll)
@@ -201,14 +304,28 @@ def make_fca(cfg: LearnerConfig) -> Learner:
 
     return Learner(init=init, run=run, train=train, policy_input=base.policy_input,
                    per_sample_loss=base.per_sample_loss, policy_params=lambda state: state.policy,
-                   round_iterations=cfg.iterations)
+                   round_iterations=cfg.iterations, init_policy=base.init_policy)
 
 
 def _learner(ctx) -> Learner:
     return make_fca(ctx.cfg)
 
 
+def _hparams(settings, lr: float, row: int) -> FcaHparams:
+    return FcaHparams.make(alpha=settings["alpha"], lr=lr, adversary_lr=settings.get("adversary_lr"),
+                           ib_weight=settings.get("ib_weight", 0.0))
+
+
+def _alphas(ctx) -> tuple[float, ...]:
+    return ctx.fca_alphas or (ctx.task.fca_alpha,)
+
+
 methods.register(methods.Method(
-    "fca", "FCA", grid=lambda ctx: [{"alpha": ctx.task.fca_alpha}],
-    hparams=lambda settings, lr, row: FcaHparams.make(alpha=settings["alpha"], lr=lr), program="fca",
-    learner=_learner, module=__name__))
+    "fca", "FCA (TCA)",
+    grid=lambda ctx: [{"alpha": a, "adversary_lr": ctx.task.fca_adversary_lr} for a in _alphas(ctx)],
+    hparams=_hparams, program="fca", learner=_learner, module=__name__))
+methods.register(methods.Method(
+    "fca-ib", "FCA (TCA + IB)",
+    grid=lambda ctx: [{"alpha": a, "adversary_lr": ctx.task.fca_adversary_lr, "ib_weight": b}
+                      for a in _alphas(ctx) for b in (ctx.ib_weights or (DEFAULT_IB_WEIGHT,))],
+    hparams=_hparams, program="fca", learner=_learner, module=__name__))

@@ -102,12 +102,12 @@ class Key(NamedTuple):
 
 def budget_of(res: results_lib.Results) -> int | None:
     """`res`'s iterations where they differ from its preset's (None: the preset's, or a preset this code lacks)."""
-    from ape_jax.pipeline.presets import PRESETS, preset_for
+    from ape_jax.pipeline.presets import BUDGETS, resolve
 
     iterations = res.config.get("iterations")
-    if res.preset not in PRESETS or not isinstance(iterations, int):
+    if res.preset not in BUDGETS or not isinstance(iterations, int):
         return None
-    return None if iterations == preset_for(res.preset, res.env, res.obs).iterations else iterations
+    return None if iterations == resolve(res.env, res.obs, preset=res.preset).budget.iterations else iterations
 
 
 def in_fca_family(name: str) -> bool:
@@ -131,10 +131,21 @@ def protocol_of(res: results_lib.Results, where: str = "") -> dict:
     return p
 
 
+def variant_name(res: results_lib.Results, protocol: dict) -> str:
+    """The group name of a file's setting: its protocol's name for files split by episode with the `mlp` recipe (every
+    file before results schema 3), else `NAME.SPLIT.RECIPE` (e.g. `fca.rows.fca`), a group of its own: the recipe
+    table (`recipe_table`) compares them, and they never join the copycat map or the whole-episode tables."""
+    split, recipe = protocol.get("split") or "episodes", res.recipe_name
+    return protocol["name"] if (split, recipe) == ("episodes", "mlp") else f"{protocol['name']}.{split}.{recipe}"
+
+
 def protocol_words(p: dict) -> str:
     """How titles name a protocol: `"fca"`, `"fca, frame skip 2"`, `"fca, 80,000 training transitions"` (the rest
-    of the fca family, by what differs from fca), else its name."""
+    of the fca family, by what differs from fca), `"fca, split by rows, recipe fca"` (a variant, `variant_name`),
+    else its name."""
     name = p["name"]
+    if p.get("variant_of"):
+        return f"{p['variant_of']}, split by {p.get('split')}, recipe {p.get('recipe')}"
     if not in_fca_family(name) or name == FCA:
         return name
     differs = ([f"frame skip {p['frame_skip']}"] if p.get("frame_skip") not in (None, 1) else []) + \
@@ -163,7 +174,10 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, dict]:
     for r in files:
         where = getattr(r, "path", "") or f"a {r.env} ({r.obs}) results file"
         protocol = protocol_of(r, where)
-        key = Key(r.env, r.obs, protocol["name"], budget_of(r))
+        name = variant_name(r, protocol)
+        if name != protocol["name"]:
+            protocol = {**protocol, "name": name, "variant_of": protocol["name"], "recipe": r.recipe_name}
+        key = Key(r.env, r.obs, name, budget_of(r))
         m = merged.setdefault(key, {"env": r.env, "obs": r.obs, "protocol": protocol, "budget": key.budget,
                                     "expert": r.expert,
                                     "summary": [], "runs": [], "sources": [], "methods": {}, "metric": main_metric(r),
@@ -912,3 +926,100 @@ def _row_label(m: dict, row: dict) -> str:
     words = ([f"THR {_pct(hp.pop('thr'))} W {hp.pop('w'):g}"] if {"thr", "w"} <= hp.keys() else []) + \
         ([f"τ {hp.pop('tau'):g}"] if "tau" in hp else []) + [f"{k} {v:g}" for k, v in hp.items()]
     return ", ".join([label(m["methods"], row["method"]), *words])
+
+
+# -- the paper's recipe: mlp against fca under one protocol ------------------------------------------------------
+
+# The recipe table's methods, (label, method, hparams: None for the task's default FCA setting).
+RECIPE_METHODS = (("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), ("Ours, step THR 10% W 5", "ours-step", PAPER_STEP),
+                  ("FCA (TCA)", "fca", None), ("FCA (TCA + IB)", "fca-ib", None))
+
+
+class RecipeCell(NamedTuple):
+    """One method under one recipe: % of expert, the mean over seeds with its 95% bootstrap interval, the seeds."""
+
+    mean: float
+    low: float
+    high: float
+    seeds: tuple[float, ...]
+
+
+class RecipeRow(NamedTuple):
+    """One task and method: a cell per recipe (None: not run), and fca − mlp with its interval (None: not both)."""
+
+    env: str
+    label: str
+    cells: dict[str, RecipeCell | None]
+    difference: Interval | None
+
+
+def _recipe_row(m: dict, method: str, hparams: dict | None) -> dict | None:
+    rows = _rows(m, method)
+    if hparams is None:  # FCA: the task's own α (the FCA code's), the first setting otherwise
+        alpha = tasks.get(m["env"]).fca_alpha
+        rows = [r for r in rows if r["hparams"].get("alpha") == alpha] or rows[:1]
+    else:
+        rows = [r for r in rows if r["hparams"] == hparams]
+    return rows[0] if rows else None
+
+
+def recipe_groups(merged: dict) -> dict[tuple[str, str, str], dict[str, dict]]:
+    """`{(env, obs, "PROTOCOL, split by SPLIT"): {recipe: group}}` for the groups of `variant_name`s that ran at
+    their preset's budget; only settings with more than one recipe."""
+    out: dict = {}
+    for key, m in _ordered(merged):
+        p = m["protocol"]
+        if p.get("variant_of") and key.budget is None:
+            out.setdefault((key.env, key.obs, f"{p['variant_of']}, split by {p.get('split')}"), {})[p["recipe"]] = m
+    return {k: v for k, v in out.items() if len(v) > 1}
+
+
+def recipe_rows(recipes: dict[str, dict], order: Sequence[str] = ("mlp", "fca")) -> list[RecipeRow]:
+    """Per method of `RECIPE_METHODS` that ran under some recipe: its % of expert per recipe (bootstrap mean) and
+    fca − mlp (bootstrap difference of means over seeds, in points of % of expert)."""
+    names = [r for r in order if r in recipes] + [r for r in recipes if r not in order]
+    out = []
+    for lab, method, hparams in RECIPE_METHODS:
+        cells = {}
+        for name in names:
+            seeds = _seeds(recipes[name], _recipe_row(recipes[name], method, hparams), "normalized")
+            cells[name] = RecipeCell(*bootstrap_mean(seeds), tuple(seeds)) if seeds else None
+        if not any(cells.values()):
+            continue
+        env = next(iter(recipes.values()))["env"]
+        both = len(names) >= 2 and cells[names[0]] is not None and cells[names[1]] is not None
+        diff = bootstrap_difference(cells[names[1]].seeds, cells[names[0]].seeds) if both else None
+        out.append(RecipeRow(env, lab, cells, diff))
+    return out
+
+
+class AlphaRow(NamedTuple):
+    """FCA at one α: % of expert over seeds (bootstrap mean), and its adversary's final loss against the reference
+    predictor of a_{t−1} from a_t alone (means over seeds; None where the files predate them)."""
+
+    method: str
+    hparams: dict
+    cell: RecipeCell
+    adversary: float | None
+    reference: float | None
+
+
+def alpha_rows(m: dict) -> list[AlphaRow]:
+    """Every FCA configuration of group `m` (both variants), in α order: the α sensitivity."""
+    out = []
+    for method in ("fca", "fca-ib"):
+        for row in sorted(_rows(m, method), key=lambda r: tuple(sorted(r["hparams"].items()))):
+            seeds = _seeds(m, row, "normalized")
+            if not seeds:
+                continue
+            runs = [r for r in m["runs"] if r["method"] == method and r["hparams"] == row["hparams"]
+                    and r["status"] == "ok"]
+            finals = [r.get("train_final") or {} for r in runs]
+
+            def mean_of(k, finals=finals):
+                values = [f[k] for f in finals if f.get(k) is not None]
+                return float(np.mean(values)) if values else None
+
+            out.append(AlphaRow(method, row["hparams"], RecipeCell(*bootstrap_mean(seeds), tuple(seeds)),
+                                mean_of("adversary_loss"), mean_of("reference_loss")))
+    return out

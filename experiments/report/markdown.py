@@ -22,6 +22,7 @@ from ape_jax.pipeline import results as results_lib
 from experiments.report import figures
 from experiments.report.analysis import (APE_SCALES, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, BRAX, FCA, MAP_METHODS,
                                          PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP, PAPER_TABLE5,
+                                         alpha_rows, recipe_groups, recipe_rows,
                                          CopycatMap, Difference, Interval, Key, ReportError, WeightShares, _best, _hp,
                                          _metric, _ordered, _paper_step, _pct, _rows, _title, _unit, bootstrap_rows,
                                          choices, copycat_groups, copycat_map, expert_ape, extra_methods, file_stem,
@@ -684,19 +685,20 @@ def _protocol_provenance(r: results_lib.Results) -> str:
 
 def _rebuilt_command(r: results_lib.Results) -> str:
     """The sweep command of a file that does not record its own (schema 1, or a sweep run from Python)."""
-    from ape_jax.pipeline.presets import PRESETS, preset_for
+    from ape_jax.pipeline.presets import BUDGETS, resolve
 
     cfg = r.config
     cmd = f"python -m experiments.sweep --env {r.env} --obs {r.obs} --preset {r.preset}"
     if cfg.get("methods") != list(methods_lib.default()):
         cmd += f" --methods {','.join(cfg['methods'])}"
-    preset = preset_for(r.preset, r.env, r.obs) if r.preset in PRESETS else None
+    # the budget and the grids of its preset (schema 1/2 files ran the mlp recipe, whose grids every recipe shares)
+    preset = resolve(r.env, r.obs, preset=r.preset, recipe="mlp") if r.preset in BUDGETS else None
     for key, flag in (("iterations", "--iterations"), ("seeds", "--seeds"), ("eval_episodes", "--eval-episodes")):
-        if preset is not None and cfg.get(key) != getattr(preset, key):
+        if preset is not None and cfg.get(key) != getattr(preset.budget, key):
             cmd += f" {flag} {cfg[key]}"
-    if preset is not None and "step_grid" in cfg and [list(g) for g in preset.step_grid] != cfg["step_grid"]:
+    if preset is not None and "step_grid" in cfg and [list(g) for g in preset.recipe.step_grid] != cfg["step_grid"]:
         cmd += " --step-grid " + ",".join(f"{thr:g}:{w:g}" for thr, w in cfg["step_grid"])
-    if preset is not None and "softmax_grid" in cfg and list(preset.softmax_grid) != cfg["softmax_grid"]:
+    if preset is not None and "softmax_grid" in cfg and list(preset.recipe.softmax_grid) != cfg["softmax_grid"]:
         cmd += " --softmax-grid " + ",".join(f"{tau:g}" for tau in cfg["softmax_grid"])
     return cmd
 
@@ -732,6 +734,67 @@ def provenance(r: results_lib.Results) -> str:
         line += (f"; {', '.join(f'`{f}`' for f in again['fields'])} added later by `python -m experiments.evaluate` "
                  f"(commit `{again['system'].get('commit')}`, every recorded number reproduced)")
     return line
+
+
+def _pct_cell(cell) -> str:
+    return "—" if cell is None else f"{cell.mean:.1f} [{cell.low:.1f}, {cell.high:.1f}]"
+
+
+def _diff_cell(ci: Interval | None) -> str:
+    if ci is None:
+        return "—"
+    text = f"{ci.diff:+.1f} [{ci.low:+.1f}, {ci.high:+.1f}]"
+    return f"**{text}**" if _significant(ci) else text
+
+
+def recipe_section(merged: dict) -> list[str]:
+    """"The paper's recipe": per task, every method under each recipe of one protocol, fca − mlp, the within-recipe
+    differences the paper's question turns on, and FCA's α sensitivity where several α ran."""
+    groups = recipe_groups(merged)
+    if not groups:
+        return []
+    out = ["### The paper's recipe: the FCA code's network and optimiser against the project's first", "",
+           "The same protocol, data, budget, seeds and evaluation episodes; only the recipe differs. `mlp`: the "
+           "project's first recipe (no normalisation, Flax's default init, Adam β1 0.9, batch 128). `fca`: the FCA "
+           "code's (BatchNorm after each encoder layer, LeakyReLU on the embedding, xavier-uniform init, Adam β1 "
+           "0.5, batch 64; `ape_jax.pipeline.presets.RECIPES`). Each cell: % of expert, the mean over seeds with "
+           "its 95% percentile bootstrap interval; fca − mlp: the difference of those means in points, with its "
+           "interval, bold where it excludes 0. FCA rows are at the task's α (the FCA code's).", ""]
+    for (env, obs, setting), recipes in groups.items():
+        rows = recipe_rows(recipes)
+        names = [r for r in ("mlp", "fca") if r in recipes] + [r for r in recipes if r not in ("mlp", "fca")]
+        title = tasks.get(env).title + ("" if obs == "pos" else f" ({obs})")
+        out += [f"**{title}**, protocol {setting}:", "",
+                "| method | " + " | ".join(f"recipe {n}" for n in names) + " | fca − mlp |",
+                "|---|" + "---:|" * (len(names) + 1)]
+        out += [f"| {r.label} | " + " | ".join(_pct_cell(r.cells.get(n)) for n in names) + f" | {_diff_cell(r.difference)} |"
+                for r in rows]
+        out += [""]
+        lines = []
+        for n in names:
+            cells = {r.label: r.cells.get(n) for r in rows}
+            for a, b in (("BC-OH", "BC-SO"), ("Ours, step THR 10% W 5", "BC-OH"), ("FCA (TCA)", "BC-OH"),
+                         ("FCA (TCA + IB)", "BC-OH")):
+                if cells.get(a) is not None and cells.get(b) is not None:
+                    ci = bootstrap_difference(cells[a].seeds, cells[b].seeds)
+                    lines.append(f"recipe {n}: {a} − {b} {_diff_cell(ci)} ({verdict(ci, a, b)})")
+        if lines:
+            out += [f"- {line}" for line in lines] + [""]
+        for n in names:
+            alphas = alpha_rows(recipes[n])
+            if len({tuple(sorted(a.hparams.items())) for a in alphas if a.method == "fca"}) > 1:
+                out += [f"FCA's α on {title}, recipe {n}: % of expert [95% bootstrap interval], and the adversary's "
+                        "final loss (its prediction of a_{t−1} from the embedding and a_t) beside a reference "
+                        "predictor's from a_t alone, means over seeds of each run's last 1% of iterations: an "
+                        "adversary at the reference's loss gets nothing about a_{t−1} from the embedding.", "",
+                        "| method | hyperparameters | % of expert | adversary loss | reference loss |",
+                        "|---|---|---:|---:|---:|"]
+                out += [f"| {a.method} | {', '.join(f'{k} {v:g}' for k, v in a.hparams.items())} | "
+                        f"{_pct_cell(a.cell)} | " + " | ".join("—" if v is None else f"{v:.4g}"
+                                                               for v in (a.adversary, a.reference)) + " |"
+                        for a in alphas]
+                out += [""]
+    return out
 
 
 def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = None,
@@ -788,10 +851,13 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
                     "Next to the supplement's Table 5 (its own experts, whose returns it does not give; its returns "
                     "are on another scale than these): mean returns, and in brackets each method's ratio to BC-OH "
                     "of the same source.", "", paper_table(merged, protocol)]
-        elif not in_fca_family(protocol):  # the fca family's other frame skips feed the copycat map instead
+        elif not in_fca_family(protocol) and "." not in protocol:
+            # the fca family's other frame skips feed the copycat map instead, and the recipe variants
+            # (`analysis.variant_name`) the recipe section
             out += [f"### MuJoCo-State, protocol {protocol}" + (f": {heading}" if heading else ""), "",
                     "Positions only (velocities removed). " + cells + " " + selection
                     + (f" {details}" if details else ""), "", state_table(merged, "pos", protocol)]
+    out += recipe_section(merged)
     for protocol in protocols_of(merged, "image"):
         groups = groups_of(merged, "image", protocol)
         details = protocol_details(groups)
