@@ -16,7 +16,9 @@ hopper `pos` demonstrations shapes: input 2 × 5, action 3, batch 128):
 3. evaluation env steps/s (jitted, vmapped over policies × episodes, the
    policy included) against native MuJoCo stepping the same model with the same
    network (PyTorch, one step at a time) in a Python loop;
-4. end-to-end wall time of the sweeps whose `results.json` are given.
+4. model-updates/s of the same grid under each recipe (`ape_jax.pipeline.presets.RECIPES`: `mlp`, batch
+   128; `fca`, the FCA code's BatchNorm network at batch 64), one after another in this run;
+5. end-to-end wall time of the sweeps whose `results.json` are given.
 
 Medians of `--repeats` timed runs after a separate compiling call.
 """
@@ -36,7 +38,7 @@ import numpy as np
 
 from ape_jax import methods
 from ape_jax.learner import Data, Hparams, LearnerConfig, make_train, stack_hparams
-from ape_jax.pipeline.presets import SOFTMAX_GRID, STEP_GRID
+from ape_jax.pipeline.presets import RECIPES, SOFTMAX_GRID, STEP_GRID, resolve
 from experiments._cli import Parser
 from experiments._timing import machine, run_benchmark, time_jitted
 
@@ -61,6 +63,27 @@ def _grid() -> list[Hparams]:
 def macs_per_sample(cfg: LearnerConfig) -> int:
     params = cfg.model().init(jax.random.PRNGKey(0), jnp.zeros((1, cfg.history * cfg.obs_shape[0])))
     return int(sum(np.prod(k.shape) for k in jax.tree.leaves(params) if k.ndim == 2))
+
+
+def recipe_config(recipe: str, iters: int) -> LearnerConfig:
+    """The learner of recipe `recipe` on the benchmark's shapes (Hopper `pos`, history 2), `iters` iterations."""
+    settings = resolve("hopper", "pos", recipe=recipe, sets=[f"budget.iterations={iters}"])
+    return settings.learner_config((OBS,), ACT, H, "l2")
+
+
+def recipe_throughput(iters: int, repeats: int) -> dict[str, dict]:
+    """Per recipe: the grid's model-updates/s (steady state) and compile time, one recipe after another."""
+    out = {}
+    for name in RECIPES:
+        cfg = recipe_config(name, iters)
+        learner, data, hps = make_train(cfg), _data(), stack_hparams(_grid())
+        keys = jax.random.split(jax.random.PRNGKey(0), len(_grid()))
+        states = jax.jit(jax.vmap(learner.init, (0, 0, None)))(keys, hps, data)
+        run = jax.jit(jax.vmap(lambda s, hp, d: learner.run(s, hp, d, iters)[0].params, (0, 0, None)))
+        compile_s, steady, _ = time_jitted(run, states, hps, data, repeats=repeats)
+        out[name] = {"batch": cfg.batch_size, "network": cfg.network, "updates_s": len(_grid()) * iters / steady,
+                     "samples_s": len(_grid()) * iters * cfg.batch_size / steady, "compile_s": compile_s}
+    return out
 
 
 def jax_throughput(iters: int, repeats: int) -> dict:
@@ -181,6 +204,7 @@ def table(args) -> str:
     peak = matmul_peak(args.repeats)
     flops = 6 * BATCH * t["macs"] * t["grid_updates_s"]
     ev = eval_throughput(args.policies, args.episodes, args.repeats)
+    recipes = recipe_throughput(args.iters, args.repeats)
     cmd = (f"python -m experiments.bench_train --iters {args.iters} --torch-iters {args.torch_iters} "
            f"--repeats {args.repeats}")
     lines = [
@@ -206,7 +230,12 @@ def table(args) -> str:
         f"| JAX: {args.policies} policies × {args.episodes} episodes, vmapped, 200-step scan | {ev['steps_s']:,.0f} "
         f"(compile {ev['compile_s']:.1f} s) |",
         "| native MuJoCo + PyTorch policy, Python loop, one env | "
-        + (f"{ev['native_steps_s']:,.0f} |" if ev["native_steps_s"] else "torch not installed |"),
+        + (f"{ev['native_steps_s']:,.0f} |" if ev["native_steps_s"] else "torch not installed |"), "",
+        f"Per recipe (`--recipe`), the same {t['models']} configurations as one `jit(vmap(scan))`, one recipe after "
+        "the other in this run:", "",
+        "| recipe | network | batch | model-updates/s | samples/s | compile s |", "|---|---|---:|---:|---:|---:|",
+        *[f"| `{name}` | {r['network']} | {r['batch']} | {r['updates_s']:,.0f} | {r['samples_s']:,.0f} | "
+          f"{r['compile_s']:.1f} |" for name, r in recipes.items()],
     ]
     if args.results:
         lines += ["", "| sweep (results.json) | total s | compile s | train s | evaluate s |", "|---|---:|---:|---:|---:|"]
