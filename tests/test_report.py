@@ -96,8 +96,8 @@ def test_the_report_merges_files_per_environment_and_builds_every_table(tmp_path
     assert "| BC-OH | 1,000 ± 10 (50%) |" in state
     assert "| Ours, step THR 10% W 5 | 1,500 ± 10 (75%) |" in state
     assert "| Ours, best step | 1,600 ± 10 (80%) <br>(thr 0.2, w 3) |" in state     # the best, with its setting
-    assert "| FCA | 1,100 ± 10 (55%) |" in state and "| DAgger (online) | 1,900 ± 10 (95%) |" in state
-    assert state.index("| DAgger (online) |") < state.index("| FCA |")               # the registry's order
+    assert "| FCA (TCA) | 1,100 ± 10 (55%) |" in state and "| DAgger (online) | 1,900 ± 10 (95%) |" in state
+    assert state.index("| DAgger (online) |") < state.index("| FCA (TCA) |")               # the registry's order
     assert "HistoryDropout" not in state                                               # in no file: no row
     # next to the paper: ratios to BC-OH within each source
     assert "| Ours, step THR 10% W 5 | 641 (2.19×) | 1,500 (1.50×) |" in text
@@ -442,7 +442,7 @@ def test_a_plugin_and_the_baselines_are_listed_by_their_recorded_labels(tmp_path
     text = report.report(files)
     state = text[text.index("| method | Hopper | Walker2d |"):]
     rows = [line.split(" | ")[0][2:] for line in state.splitlines()[2:13]]
-    assert rows[5:] == ["DAgger (online)", "FCA", "My plugin", "My online plugin (online)", "expert (ours)",
+    assert rows[5:] == ["DAgger (online)", "FCA (TCA)", "My plugin", "My online plugin (online)", "expert (ours)",
                         "random policy"]
     assert "| My plugin | 1,700 ± 10 (85%) | — |" in state        # not run on Walker2d: a dash
     assert "| My online plugin (online) | 1,300 ± 10 (65%) | — |" in state
@@ -450,7 +450,7 @@ def test_a_plugin_and_the_baselines_are_listed_by_their_recorded_labels(tmp_path
     assert "`python -m experiments.sweep --env hopper --plugins my_plugin` — " in text   # its recorded command
     fig = figures.returns_figure(report.merge(files))
     labels = [t.get_text() for t in fig.axes[0].get_yticklabels()]
-    assert labels == ["BC-SO", "BC-OH", "Ours, step THR 10% W 5", "Ours, best softmax", "DAgger", "FCA", "My plugin",
+    assert labels == ["BC-SO", "BC-OH", "Ours, step THR 10% W 5", "Ours, best softmax", "DAgger", "FCA (TCA)", "My plugin",
                       "My online plugin"]
 
 
@@ -477,7 +477,7 @@ def test_fca_and_brax_results_of_one_task_are_merged_apart_into_two_tables(tmp_p
                           "simulated time, 20,000 training transitions"):text.index("### MuJoCo-State, Brax's")]
     brax = text[text.index("### MuJoCo-State, Brax's frame skip, where copycat is absent (the project's first "
                            "results)"):text.index("### The copycat map")]
-    assert "| BC-SO | 600 ± 8 (30%) |" in fca and "| FCA | 1,200 ± 8 (60%) |" in fca
+    assert "| BC-SO | 600 ± 8 (30%) |" in fca and "| FCA (TCA) | 1,200 ± 8 (60%) |" in fca
     assert "| BC-SO | 300 ± 10 (15%) |" in brax and "| expert (ours) | 3,000 ± 80 |" in brax
     assert text.count("| method | Hopper |") == 2          # frame skips 2 and 4 get no state table: they feed the map
     assert "| Hopper (fca) | BC-OH − BC-SO (does the history help?) | 3 / 3 |" in text
@@ -506,7 +506,7 @@ def test_the_fca_table_shows_the_papers_returns_beside_ours_on_one_scale(tmp_pat
     # absolute returns side by side, ours ± std over seeds; the ratio to BC-OH of each source in brackets
     assert "| BC-SO | 275 (0.94×) | 600 ± 8 (0.98×) |" in table
     assert "| BC-OH | 293 (1.00×) | 610 ± 8 (1.00×) |" in table
-    assert "| FCA | 1,086 (3.71×) | 1,200 ± 8 (1.97×) |" in table
+    assert "| FCA (TCA) | 1,086 (3.71×) | 1,200 ± 8 (1.97×) |" in table
     assert "| Ours, step THR 10% W 5 | 641 (2.19×) | 1,000 ± 8 (1.64×) |" in table
     assert "| expert | not published | 2,000 |" in table
     # under brax only the ratios compare: no ±, no expert row
@@ -728,7 +728,7 @@ def test_every_method_is_compared_with_bc_oh_under_fca_in_a_table_and_in_the_rea
     table = table[:table.index("\n\n")]
     fca, kmeans, actfreq = (report.bootstrap_difference([v + d for d in (-10.0, 0.0, 10.0)],
                                                         [600.0, 610.0, 620.0]) for v in (900.0, 300.0, 612.0))
-    assert f"| FCA | **{fca.diff:+,.0f} [{fca.low:+,.0f}, {fca.high:+,.0f}]** | — |" in table
+    assert f"| FCA (TCA) | **{fca.diff:+,.0f} [{fca.low:+,.0f}, {fca.high:+,.0f}]** | — |" in table
     assert f"| k-means | **{kmeans.diff:+,.0f} [{kmeans.low:+,.0f}, {kmeans.high:+,.0f}]** | — |" in table
     assert f"| ActFreq | {actfreq.diff:+,.0f} [{actfreq.low:+,.0f}, {actfreq.high:+,.0f}] | — |" in table
     assert "| BC-OH |" not in table
@@ -738,8 +738,48 @@ def test_every_method_is_compared_with_bc_oh_under_fca_in_a_table_and_in_the_rea
              "k-means": f"k-means (-310, 95% CI [{kmeans.low:+,.0f}, {kmeans.high:+,.0f}])"}
     order = [name for name in ("Boosting", "k-means") if f"| {name} |" in table]   # the state table's order
     order.sort(key=lambda name: table.index(f"| {name} |"))
-    assert (f"The other methods under fca against BC-OH (in return): significantly above: FCA (+290, 95% CI "
+    assert (f"The other methods under fca against BC-OH (in return): significantly above: FCA (TCA) (+290, 95% CI "
             f"[{fca.low:+,.0f}, {fca.high:+,.0f}]); significantly below: {', '.join(below[n] for n in order)}; "
             "not significantly different: ActFreq.") in reading
     # no BC-OH under a protocol: no table for it
     assert "| method − BC-OH |" not in report.report([files[1]])
+
+
+def _schema3(obj, recipe, split="rows"):
+    """A fixture as a schema-3 sweep under fca writes it: the protocol split by `split`, trained with `recipe`."""
+    from ape_jax.pipeline.presets import resolve
+
+    settings = resolve("hopper", "pos", preset="default", recipe=recipe, sets=[f"protocol.split={split}"]).to_json()
+    return {**_schema2(obj, protocol={**_fca(), "split": split}), "schema": 3, "settings": settings}
+
+
+def test_the_recipe_table_compares_recipes_under_one_protocol_apart_from_the_whole_episode_results(tmp_path):
+    from experiments.report.analysis import recipe_groups, recipe_rows
+
+    methods = (("bc-so", {}, 300.0), ("bc-oh", {}, 1000.0), ("ours-step", {"thr": 0.1, "w": 5.0}, 900.0),
+               ("fca", {"alpha": 2.0, "adversary_lr": 4e-4}, 800.0), ("fca", {"alpha": 0.1, "adversary_lr": 4e-4}, 1100.0))
+    mlp = _schema3(_results(methods=methods, deltas=(-10.0, 0.0, 10.0)), "mlp")
+    fca = _schema3(_results(methods=tuple((m, hp, r + 400.0) for m, hp, r in methods), deltas=(-10.0, 0.0, 10.0)),
+                   "fca")
+    for run in fca["runs"]:
+        if run["method"] == "fca":
+            run["train_final"] = {"adversary_loss": 0.5, "reference_loss": 0.6}
+    old = _schema2(_results(), protocol=_fca())   # the committed whole-episode fca results: the mlp recipe
+    files = [_loaded(tmp_path, f, name) for f, name in ((mlp, "m.json"), (fca, "f.json"), (old, "o.json"))]
+    merged = report.merge(files)
+    assert sorted(k.protocol for k in merged) == ["fca", "fca.rows.fca", "fca.rows.mlp"]
+    groups = recipe_groups(merged)
+    assert list(groups) == [("hopper", "pos", "fca, split by rows")] and set(groups[next(iter(groups))]) == \
+        {"mlp", "fca"}
+    rows = {r.label: r for r in recipe_rows(groups[("hopper", "pos", "fca, split by rows")])}
+    assert list(rows) == ["BC-SO", "BC-OH", "Ours, step THR 10% W 5", "FCA (TCA)"]
+    assert rows["BC-OH"].cells["mlp"].mean == pytest.approx(50.0) and rows["BC-OH"].cells["fca"].mean == \
+        pytest.approx(70.0)
+    assert rows["BC-OH"].difference.diff == pytest.approx(20.0) and rows["BC-OH"].difference.low > 0
+    assert rows["FCA (TCA)"].cells["mlp"].mean == pytest.approx(40.0)   # the task's α (Hopper: 2.0), not the best
+    text, _ = report.build(files)
+    assert "### The paper's recipe" in text and "| BC-OH | 50.0 [49.5, 50.5] | 70.0 [69.5, 70.5] | **+20.0" in text
+    assert "recipe fca: BC-OH − BC-SO **+35.0" in text
+    assert "| fca | alpha 0.1, adversary_lr 0.0004 | 55.0 [54.5, 55.5] | — | — |" in text   # recipe mlp
+    assert "| fca | alpha 2, adversary_lr 0.0004 | 60.0 [59.5, 60.5] | 0.5 | 0.6 |" in text
+    assert "### MuJoCo-State, the paper's protocol (fca)" in text   # the whole-episode files keep their tables
