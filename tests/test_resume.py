@@ -127,7 +127,7 @@ def test_checkpoints_it_cannot_resume_are_refused_and_left_alone(workdir, refere
     before = snapshot(out)
     data = ["--data-dir", str(workdir / "data")]
     other = [*ARGS[:ARGS.index("--seeds")], "--seeds", "2", *ARGS[ARGS.index("--seeds") + 2:]]
-    assert "holds a checkpoint of a different sweep, differing in settings.seeds (1 there, 2 now)" in \
+    assert "holds a checkpoint of a different sweep, differing in settings.budget.seeds (1 there, 2 now)" in \
         refused([*other, "--out", str(out), *data], capsys)
     assert snapshot(out) == before
 
@@ -160,7 +160,7 @@ def test_a_finished_sweep_is_reported_or_refused_never_overwritten(workdir, refe
     assert "already holds this sweep; not rerunning" in capsys.readouterr().out
     other = [*ARGS[:ARGS.index("--iterations")], "--iterations", "40", *ARGS[ARGS.index("--iterations") + 2:]]
     before = snapshot(out)
-    assert "holds a finished sweep with other settings, differing in settings.iterations (60 there, 40 now)" in \
+    assert "holds a finished sweep with other settings, differing in settings.budget.iterations (60 there, 40 now)" in \
         refused([*other, "--out", str(out), *data], capsys)
     assert snapshot(out) == before
 
