@@ -5,7 +5,7 @@
   LeakyReLU(0.2). Input: the last `H` observations, flattened `[..., H * D]`.
   With `batchnorm=True` it is the FCA code's network (`gan_mlp.py`): each
   encoder layer is a bias-free Dense → BatchNorm → LeakyReLU, and the head
-  applies LeakyReLU to the embedding before its 300 units; `init="xavier"`
+  applies LeakyReLU to the embedding before its 300 units; `weights_init="xavier"`
   gives its xavier-uniform kernels (biases zero, BatchNorm's scale ~ N(1, 0.02)).
 - `ImagePolicy` — for images: a small conv encoder (CPU-sized) to the same
   100-unit embedding and head. Input: the last `H` frames stacked on channels,
@@ -85,7 +85,8 @@ class StatePolicy(nn.Module):
         lead = obs.shape[:-1]
         x = obs.reshape((-1, obs.shape[-1])) if self.batchnorm else obs
         for i, width in enumerate(self.hidden):
-            x = nn.Dense(width, use_bias=not self.batchnorm, kernel_init=INITS[self.weights_init], name=f"encoder_{i}")(x)
+            x = nn.Dense(width, use_bias=not self.batchnorm, kernel_init=INITS[self.weights_init],
+                         name=f"encoder_{i}")(x)
             if self.batchnorm:
                 # Flax's momentum is the old statistics' share: PyTorch's 0.1 is Flax's 0.9
                 x = nn.BatchNorm(use_running_average=not train, momentum=1.0 - self.bn_momentum, epsilon=1e-5,
@@ -187,12 +188,11 @@ class ResNet18Policy(nn.Module):
       The 100-unit layer is linear, so the head is the paper's two-layer MLP
       with its 300×300 middle matrix factored through rank 100.
     - **Normalisation: GroupNorm, not BatchNorm** (`min(32, C)` groups: 2–16
-      channels per group here). BatchNorm needs mutable running statistics, a
-      second collection that every `model.apply(params, x)` of the project (the
-      learners, FCA, DAgger, evaluation, the loss analysis) would have to
-      thread, update and switch between train and eval modes; and a grid of
-      configurations is one `vmap` over parameters, where per-model running
-      stats would be more state to carry. GroupNorm has the same learnable
+      channels per group here). The learners can carry BatchNorm's running
+      statistics (the state recipe `fca` does, `StatePolicy(batchnorm=True)`,
+      each configuration of a grid its own), but this network was written
+      before they could, and no image recipe has measured BatchNorm against
+      GroupNorm here. GroupNorm has the same learnable
       scale and bias, no batch statistics at all (each sample is normalised on
       its own, so training and evaluation compute the same function and the
       batch size is irrelevant), and is the standard BatchNorm replacement for

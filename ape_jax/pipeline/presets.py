@@ -311,7 +311,8 @@ def _coerce(hint: Any, value: Any, name: str) -> Any:
     elif hint is int:
         _check(isinstance(value, int) and not isinstance(value, bool), f"{name} must be an integer, got {value!r}")
     elif hint is float:
-        _check(isinstance(value, (int, float)) and not isinstance(value, bool), f"{name} must be a number, got {value!r}")
+        _check(isinstance(value, (int, float)) and not isinstance(value, bool),
+               f"{name} must be a number, got {value!r}")
         value = float(value)
     elif hint is str:
         _check(isinstance(value, str), f"{name} must be a string, got {value!r}")
