@@ -125,3 +125,15 @@ def test_a_grid_with_one_more_method_leaves_the_shared_configurations_bit_identi
     for ident, params in a.items():
         for x, y in zip(jax.tree.leaves(params), jax.tree.leaves(b[ident])):
             np.testing.assert_array_equal(x, y, err_msg=str(ident))
+
+
+def test_run_sweep_from_python_needs_only_the_task_and_defaults_the_cache(tmp_path, monkeypatch):
+    """The Python API as documented: `SweepSpec.make` with a task and settings, no `data_dir` (the cache dir)."""
+    monkeypatch.setenv("APE_JAX_CACHE", str(tmp_path / "cache"))
+    spec = S.SweepSpec.make("toycar", "full", ("bc-oh",), sets=["budget.iterations=20", "budget.eval_episodes=1",
+                                                                "budget.chunk=20"])
+    assert spec.data_dir is None and spec.recipe.name == "mlp" and spec.protocol.name == "brax"
+    res, policies = S.run_sweep(spec, S.Hooks(log=lambda message: None))
+    assert [r["method"] for r in res.runs] == ["bc-oh"] and res.runs[0]["status"] == "ok"
+    assert res.settings["budget"]["iterations"] == 20 and list(policies) == ["h2"]
+    assert len(list((tmp_path / "cache").glob("toycar-full-*.npz"))) == 1   # collected into the default cache
