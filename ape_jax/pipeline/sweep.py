@@ -419,16 +419,15 @@ def score_rows(names: Sequence[str]) -> tuple[str, ...]:
     return ("ape", *(m for m in methods_lib.names() if m in names and methods_lib.get(m).score is not None))
 
 
-def method_scores(names: Sequence[str], train: Part | Demonstrations) -> jax.Array:
+def method_scores(names: Sequence[str], train: Part) -> jax.Array:
     """`[len(score_rows(names)) - 1, N] float32`: each weighting method's scores of the training rows (the rows
     after the APE). A method scores the whole episodes (its `t` and actions in order), read at the part's rows.
 
     Raises `methods.PluginError` for scores that are not `[M]` finite float32.
     """
-    part = train if isinstance(train, Part) else Part(train)
-    action, t = jnp.asarray(part.demos.action), jnp.asarray(part.demos.t)
-    rows = [part.own(methods_lib.get(m).score(methods_lib.score_key(m), action, t)) for m in score_rows(names)[1:]]
-    return jnp.asarray(np.stack(rows)) if rows else jnp.zeros((0, len(part)), jnp.float32)
+    action, t = jnp.asarray(train.demos.action), jnp.asarray(train.demos.t)
+    rows = [train.own(methods_lib.get(m).score(methods_lib.score_key(m), action, t)) for m in score_rows(names)[1:]]
+    return jnp.asarray(np.stack(rows)) if rows else jnp.zeros((0, len(train)), jnp.float32)
 
 
 def score_table(ape: jax.Array, scores: jax.Array) -> jax.Array:
@@ -746,8 +745,7 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
               "score_rows": list(score_rows(spec.methods)),
               "data": {"path": prepared.data_path, "train_transitions": len(prepared.train),
                        "val_transitions": len(prepared.val), "split": spec.protocol.split,
-                       "episodes": prepared.train.demos.num_episodes if prepared.train.rows is not None else
-                       prepared.train.num_episodes, "settings": prepared.settings}}
+                       "episodes": prepared.train.num_episodes, "settings": prepared.settings}}
     card = prepared.card
     expert = ({"return_mean": card["return_mean"], "return_std": card["return_std"],
                "random_return_mean": card["random_return_mean"]} if card is not None else

@@ -861,7 +861,7 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
                     "Next to the supplement's Table 5 (its own experts, whose returns it does not give; its returns "
                     "are on another scale than these): mean returns, and in brackets each method's ratio to BC-OH "
                     "of the same source.", "", paper_table(merged, protocol)]
-        elif not in_fca_family(protocol) and "." not in protocol:
+        elif not in_fca_family(protocol) and not any(m["protocol"].get("variant_of") for m in groups):
             # the fca family's other frame skips feed the copycat map instead, and the recipe variants
             # (`analysis.variant_name`) the recipe section
             out += [f"### MuJoCo-State, protocol {protocol}" + (f": {heading}" if heading else ""), "",
