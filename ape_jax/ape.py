@@ -51,7 +51,8 @@ def past_actions(actions: jax.Array, t: jax.Array, idx: jax.Array, k: int = K) -
 
 
 def fit(key: jax.Array, actions: jax.Array, t: jax.Array, steps: int, batch: int = 512,
-        lr: float = 1e-3, k: int = K, rows: jax.Array | None = None) -> tuple[dict, jax.Array]:
+        lr: float = 1e-3, k: int = K, rows: jax.Array | None = None,
+        count: jax.Array | int | None = None) -> tuple[dict, jax.Array]:
     """Fits ψ on a training split with MSE (jit-able; the loop is a `lax.scan`).
 
     Args:
@@ -64,6 +65,9 @@ def fit(key: jax.Array, actions: jax.Array, t: jax.Array, steps: int, batch: int
       k: past actions per input.
       rows: `[N'] int32`, the training rows among `actions` (a split by rows: the past actions still come from
         the whole episodes); None: every row.
+      count: minibatches are drawn from the first `count` rows (of `rows`, or of `actions`) only; the rest is
+        padding, so arrays of one shape can hold datasets of different sizes (traced: one compiled fit for
+        all). None: every row.
 
     Returns:
       (params, losses): ψ's parameters and the per-step minibatch MSE `[steps]`.
@@ -71,6 +75,7 @@ def fit(key: jax.Array, actions: jax.Array, t: jax.Array, steps: int, batch: int
     actions = jnp.asarray(actions, jnp.float32)
     a = actions.shape[1]
     n = actions.shape[0] if rows is None else rows.shape[0]
+    n = n if count is None else count
     model = ActionPredictor(a)
     key_init, key_batches = jax.random.split(key)
     params = model.init(key_init, jnp.zeros((1, k * a)))

@@ -33,7 +33,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -411,12 +411,96 @@ def _halves(name: str, actions: Any, valid: Any | None) -> tuple[_Rows, _Rows]:
     return _episode_rows(actions[:half], valid[:half]), _episode_rows(actions[half:], valid[half:])
 
 
+class _Fits(NamedTuple):
+    """ψ fits of one shape: F sides' rows padded to `S`/`S'` rows, each side's own row counts (traced)."""
+
+    train_action: np.ndarray  # [F, S, A]
+    train_t: np.ndarray       # [F, S]
+    train_count: np.ndarray   # [F]
+    val_action: np.ndarray    # [F, S', A]
+    val_t: np.ndarray         # [F, S']
+    val_count: np.ndarray     # [F]
+
+
+def _padded(rows: _Rows, n: int, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """The first `n` rows, padded with zero rows (t = 0) to `size`: padding is never drawn nor scored."""
+    action = np.zeros((size, rows.action.shape[1]), np.float32)
+    t = np.zeros(size, np.int32)
+    action[:n], t[:n] = rows.action[:n], rows.t[:n]
+    return action, t
+
+
 @functools.partial(jax.jit, static_argnames=("k", "steps", "batch"))
-def _heldout_ape(key: jax.Array, train_action: jax.Array, train_t: jax.Array, val_action: jax.Array,
-                 val_t: jax.Array, k: int, steps: int, batch: int) -> jax.Array:
-    params, _ = ape_lib.fit(key, train_action, train_t, steps=steps, batch=batch, k=k)
-    scored = (val_t >= 1).astype(jnp.float32)  # at t = 0 ψ's padded input holds a_0 itself
-    return jnp.sum(ape_lib.errors(params, val_action, val_t, k) * scored) / jnp.maximum(scored.sum(), 1.0)
+def _heldout_apes(keys: jax.Array, fits: _Fits, k: int, steps: int, batch: int) -> jax.Array:
+    """ψ's held-out error `[F]` of each fit: fitted on its first `train_count` training rows, averaged over its
+    first `val_count` held-out rows with `t ≥ 1`. One compiled program for every fit of a shape (`lax.map`)."""
+    def one(args):
+        key, train_action, train_t, train_count, val_action, val_t, val_count = args
+        params, _ = ape_lib.fit(key, train_action, train_t, steps=steps, batch=batch, k=k, count=train_count)
+        # at t = 0 ψ's padded input holds a_0 itself; the padding beyond val_count is not the side's
+        scored = ((val_t >= 1) & (jnp.arange(val_t.shape[0]) < val_count)).astype(jnp.float32)
+        return jnp.sum(ape_lib.errors(params, val_action, val_t, k) * scored) / jnp.maximum(scored.sum(), 1.0)
+
+    return jax.lax.map(one, (keys, *fits))
+
+
+def rollout_predictability_batch(key: jax.Array, policies: Sequence[tuple[Any, Any | None]], expert_actions: Any,
+                                 expert_valid: Any | None = None, k: int = ape_lib.K, steps: int = PROBE_STEPS,
+                                 batch: int = 512) -> list[Predictability]:
+    """`rollout_predictability` of many policies against one expert, in one compiled program.
+
+    Each policy's reference is the expert's rollouts cut to the policy's step counts (so it depends on the
+    policy only through them: expert fits of equal counts are computed once). Every policy's ψ starts from
+    the same key, and every expert fit from another, so two policies differ by their actions alone (common
+    random numbers). Host code around one jitted `lax.map`: the sides are laid out as padded rows with their
+    own counts, so a batch compiles once whatever its episodes' lengths.
+
+    Args:
+      key: PRNG key, split into the policies' fits' and the expert's.
+      policies: per policy, `(actions [E, T, A], valid [E, T] or None)` (see `rollout_predictability`).
+      expert_actions: `[E', T', A] float32`, the expert's rollouts (E' >= 2).
+      expert_valid: `[E', T']` or None.
+      k, steps, batch: ψ's fit (see `rollout_predictability`).
+
+    Returns:
+      One `Predictability` per policy, in order.
+    """
+    e_train, e_val = _halves("expert", expert_actions, expert_valid)
+    sides, counts = [], []
+    for i, (actions, valid) in enumerate(policies):
+        p_train, p_val = _halves(f"policy {i}" if len(policies) > 1 else "policy", actions, valid)
+        if p_train.action.shape[1] != e_train.action.shape[1]:
+            raise ValueError(f"rollout_predictability: action dims differ: policy {np.shape(actions)}, "
+                             f"expert {np.shape(expert_actions)}")
+        n_train, n_val = min(len(p_train.t), len(e_train.t)), min(len(p_val.t), len(e_val.t))
+        if n_train < 1 or n_val < 1:
+            raise ValueError(f"rollout_predictability: no valid steps to fit or score on (training steps "
+                             f"{len(p_train.t)} policy / {len(e_train.t)} expert, held-out {len(p_val.t)} / "
+                             f"{len(e_val.t)})")
+        sides.append((p_train, p_val)), counts.append((n_train, n_val))
+    if not sides:
+        return []
+    expert_counts = list(dict.fromkeys(counts))  # the expert's fits: one per distinct pair of counts
+    size_train, size_val = max(c[0] for c in counts), max(c[1] for c in counts)
+    fits = [(train, val, *c) for (train, val), c in zip(sides, counts)]
+    fits += [(e_train, e_val, *c) for c in expert_counts]
+    padded_train = [_padded(train, n, size_train) for train, _, n, _ in fits]
+    padded_val = [_padded(val, n, size_val) for _, val, _, n in fits]
+    stacked = _Fits(np.stack([a for a, _ in padded_train]), np.stack([t for _, t in padded_train]),
+                    np.array([n for *_, n, _ in fits], np.int32), np.stack([a for a, _ in padded_val]),
+                    np.stack([t for _, t in padded_val]), np.array([n for *_, n in fits], np.int32))
+    key_policy, key_expert = jax.random.split(key)
+    keys = jnp.stack([key_policy] * len(sides) + [key_expert] * len(expert_counts))
+    mse = np.asarray(_heldout_apes(keys, jax.tree.map(jnp.asarray, stacked), k=k, steps=steps, batch=batch),
+                     np.float64)
+    expert_mse = dict(zip(expert_counts, mse[len(sides):]))
+    out = []
+    for i, c in enumerate(counts):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = float(mse[i] / expert_mse[c])
+        out.append(Predictability(policy_mse=float(mse[i]), expert_mse=float(expert_mse[c]), ratio=ratio,
+                                  train_rows=c[0], val_rows=c[1]))
+    return out
 
 
 def rollout_predictability(key: jax.Array, policy_actions: Any, expert_actions: Any, k: int = ape_lib.K,
@@ -430,10 +514,9 @@ def rollout_predictability(key: jax.Array, policy_actions: Any, expert_actions: 
     layer of 300) is fitted on the first half of the episodes and its error (`ape_jax.ape.errors`, the
     squared error summed over action dims) averaged over the other half's steps with `t ≥ 1` (at `t = 0`
     ψ's padded input is the action itself, a free near-zero error that would favour the side with more,
-    shorter episodes). Both sides keep the same number
-    of steps, the longer cut to the shorter total (in episode order, so a cut episode keeps its first steps)
-    in each half, so neither ψ has more to learn from. Host code: the masks decide the shapes, and the
-    jitted fit compiles once per distinct row count.
+    shorter episodes). Both sides keep the same number of steps, the longer cut to the shorter total (in
+    episode order, so a cut episode keeps its first steps) in each half, so neither ψ has more to learn
+    from. Host code around a jitted fit (`rollout_predictability_batch`, which does many policies at once).
 
     Args:
       key: PRNG key, split into the two fits'.
@@ -449,29 +532,28 @@ def rollout_predictability(key: jax.Array, policy_actions: Any, expert_actions: 
     Returns:
       A `Predictability`.
     """
-    p_train, p_val = _halves("policy", policy_actions, policy_valid)
-    e_train, e_val = _halves("expert", expert_actions, expert_valid)
-    if p_train.action.shape[1] != e_train.action.shape[1]:
-        raise ValueError(f"rollout_predictability: action dims differ: policy {np.shape(policy_actions)}, "
-                         f"expert {np.shape(expert_actions)}")
-    n_train = min(len(p_train.t), len(e_train.t))
-    n_val = min(len(p_val.t), len(e_val.t))
-    if n_train < 1 or n_val < 1:
-        raise ValueError(f"rollout_predictability: no valid steps to fit or score on (training steps "
-                         f"{len(p_train.t)} policy / {len(e_train.t)} expert, held-out {len(p_val.t)} / "
-                         f"{len(e_val.t)})")
-    key_policy, key_expert = jax.random.split(key)
+    return rollout_predictability_batch(key, [(policy_actions, policy_valid)], expert_actions, expert_valid,
+                                        k=k, steps=steps, batch=batch)[0]
 
-    def score(key_side, train: _Rows, val: _Rows) -> float:
-        return float(_heldout_ape(key_side, jnp.asarray(train.action[:n_train]), jnp.asarray(train.t[:n_train]),
-                                  jnp.asarray(val.action[:n_val]), jnp.asarray(val.t[:n_val]),
-                                  k=k, steps=steps, batch=batch))
 
-    policy_mse, expert_mse = score(key_policy, p_train, p_val), score(key_expert, e_train, e_val)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = float(np.float64(policy_mse) / np.float64(expert_mse))
-    return Predictability(policy_mse=policy_mse, expert_mse=expert_mse, ratio=ratio, train_rows=n_train,
-                          val_rows=n_val)
+def demonstration_rollouts(action: Any, episode: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Demonstrations (rows, episodes contiguous) as rollouts: `(actions [E, T, A], valid [E, T] bool)`, each
+    episode's steps first, padded to the longest episode. The expert's side of the predictability when its
+    demonstrations were collected without noise (as every sweep's are): they are its own rollouts.
+
+    Args:
+      action: `[N, A]`, the expert's actions.
+      episode: `[N]`, episode ids (contiguous runs).
+    """
+    action, episode = np.asarray(action, np.float32), np.asarray(episode)
+    starts = np.flatnonzero(np.r_[True, episode[1:] != episode[:-1]])
+    ends = np.r_[starts[1:], len(episode)]
+    length = int((ends - starts).max()) if len(starts) else 0
+    actions = np.zeros((len(starts), length, action.shape[1]), np.float32)
+    valid = np.zeros((len(starts), length), bool)
+    for e, (a, b) in enumerate(zip(starts, ends)):
+        actions[e, : b - a], valid[e, : b - a] = action[a:b], True
+    return actions, valid
 
 
 # -- the verdict -----------------------------------------------------------------------------------------------------
@@ -501,3 +583,101 @@ def verdict(probe: EmbeddingProbe, predictability: Predictability,
                                  float(predictability.ratio), thresholds.predictability_ratio)
     return Verdict(label=COPYCAT if e_held and p_held else NOT_COPYCAT, embedding_held=e_held,
                    predictability_held=p_held, reasons=(e_reason, p_reason))
+
+
+# -- every diagnostic of a batch of policies -------------------------------------------------------------------------
+
+PROBE_ROWS = (20_000, 5_000)  # the embedding probes' training and held-out rows at most (FCA's 20k/4k split fits)
+FIELDS = ("embedding_ratio", "prev_from_embedding", "prev_from_action", "velocity_ratio", "predictability_ratio",
+          "policy_mse", "expert_mse", "predictability_steps", "copycat")
+
+
+def probe_rows(data: Data, at_most: int, seed: int = 0) -> np.ndarray:
+    """The split's rows with `t ≥ 1` (`previous_action_rows`), at most `at_most` of them drawn by a fixed
+    permutation, in row order (`[N] int32`)."""
+    rows = previous_action_rows(data)
+    if len(rows) > at_most:
+        rows = np.sort(np.random.default_rng(seed).permutation(rows)[:at_most])
+    return rows
+
+
+@functools.partial(jax.jit, static_argnames=("cfg", "steps"))
+def _probe_policies(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data, val: Data, rows: tuple,
+                    targets: tuple, steps: int) -> tuple[jax.Array, jax.Array]:
+    """Per policy (a `lax.map`, so one policy's embeddings are in memory at a time): the probe's held-out MSE of
+    `a_{t−1}` from its embedding `[P]`, and the velocity probe's ratio `[P]` (NaN without velocities)."""
+    rows_train, rows_val = rows
+    prev_train, prev_val, vel_train, vel_val = targets
+    key_prev, key_vel = jax.random.split(key)
+
+    def one(p):
+        e_train = policy_embeddings(cfg, p, train, rows_train)
+        e_val = policy_embeddings(cfg, p, val, rows_val)
+        prev = probe_target(key_prev, e_train, e_val, prev_train, prev_val, steps=steps).mse
+        vel = (jnp.float32(jnp.nan) if vel_train is None else
+               probe_target(key_vel, e_train, e_val, vel_train, vel_val, steps=steps).ratio)
+        return prev, vel
+
+    return jax.lax.map(one, params)
+
+
+def diagnose(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data, val: Data, rollouts: Any,
+             rollouts_valid: Any, expert: tuple[Any, Any], velocity: tuple[Any, Any] | None = None,
+             steps: int = PROBE_STEPS, max_rows: tuple[int, int] = PROBE_ROWS,
+             thresholds: Thresholds = THRESHOLDS) -> dict[str, np.ndarray]:
+    """Both diagnostics and the verdict of every policy of a batch (one network, stacked parameters).
+
+    - the embedding probe on the demonstrations: fitted on (at most `max_rows[0]`) training rows, scored on
+      (at most `max_rows[1]`) validation rows, `a_{t−1}` from each policy's embedding; the reference (from
+      `a_t` alone) once, as it does not depend on the policy; every probe starts from the same key;
+    - with `velocity`, the same probe on the true velocity (`qvel_t`): its `1 − R²` says whether the policy
+      extracts what its history is for;
+    - own-rollout predictability of each policy's evaluation rollouts against the expert's
+      (`rollout_predictability_batch`);
+    - the verdict (`verdict`, `thresholds`).
+
+    Host code around jitted programs. Args:
+      key: PRNG key (the probes' and ψ's).
+      cfg: the policies' learner config; params: their variables, leaves `[P, ...]`.
+      train, val: the splits the policies trained and validated on (`Data`, observations as they trained).
+      rollouts: `[P, E, T, A]`, the policies' evaluation actions; rollouts_valid: `[P, E, T]`.
+      expert: `(actions [E', T', A], valid [E', T'])`, the expert's rollouts (`demonstration_rollouts`).
+      velocity: `(train [M, V], val [M', V])`, the true velocity of every row of `train.obs` / `val.obs`; None:
+        no velocity probe.
+      steps: each probe's and ψ's Adam steps.
+      max_rows: the embedding probes' training and held-out rows at most.
+      thresholds: the verdict's.
+
+    Returns:
+      `{field: [P] array}` for every field of `FIELDS` (`velocity_ratio` NaN without `velocity`; `copycat`
+      bool), and `"probe_rows": (training rows, held-out rows)`.
+    """
+    rows_train, rows_val = probe_rows(train, max_rows[0]), probe_rows(val, max_rows[1])
+    if len(rows_train) == 0 or len(rows_val) == 0:
+        raise ValueError("diagnose: a split has no row with t >= 1 (no previous action to predict)")
+    action_train, action_val = jnp.asarray(train.action, jnp.float32), jnp.asarray(val.action, jnp.float32)
+    prev_train, prev_val = action_train[rows_train - 1], action_val[rows_val - 1]
+    key_probe, key_psi = jax.random.split(key)
+    reference = float(probe_target(jax.random.split(key_probe)[0], action_train[rows_train], action_val[rows_val],
+                                   prev_train, prev_val, steps=steps).mse)
+    vel = (None, None) if velocity is None else tuple(
+        jnp.asarray(np.asarray(v)[r], jnp.float32) for v, r in zip(velocity, (rows_train, rows_val)))
+    prev, vel_ratio = jax.device_get(_probe_policies(
+        key_probe, cfg, params, train, val, (jnp.asarray(rows_train), jnp.asarray(rows_val)),
+        (prev_train, prev_val, *vel), steps=steps))
+    rollouts, rollouts_valid = np.asarray(rollouts), np.asarray(rollouts_valid)
+    pred = rollout_predictability_batch(key_psi, [(a, v) for a, v in zip(rollouts, rollouts_valid)], *expert,
+                                        steps=steps)
+    out = {"prev_from_embedding": np.asarray(prev, np.float64),
+           "prev_from_action": np.full(len(pred), reference),
+           "velocity_ratio": np.asarray(vel_ratio, np.float64),
+           "predictability_ratio": np.array([p.ratio for p in pred]),
+           "policy_mse": np.array([p.policy_mse for p in pred]),
+           "expert_mse": np.array([p.expert_mse for p in pred]),
+           "predictability_steps": np.array([p.train_rows + p.val_rows for p in pred])}
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out["embedding_ratio"] = out["prev_from_embedding"] / reference
+    out["copycat"] = np.array([verdict(EmbeddingProbe(e, reference, r), p, thresholds).label == COPYCAT
+                               for e, r, p in zip(out["prev_from_embedding"], out["embedding_ratio"], pred)])
+    out["probe_rows"] = (len(rows_train), len(rows_val))
+    return out

@@ -62,12 +62,15 @@ def history_policy(cfg: LearnerConfig, obs_mean: jax.Array | None, obs_std: jax.
 
 def make_evaluator(env: envs.Env, cfg: LearnerConfig, obs_mean: jax.Array | None, obs_std: jax.Array | None,
                    episodes: int, steps: int | None = None, expert: Callable[[jax.Array], jax.Array] | None = None,
-                   ape_params: Any = None, ape_scale: float = 1.0) -> Callable[[Any, jax.Array], dict]:
+                   ape_params: Any = None, ape_scale: float = 1.0,
+                   keep_actions: bool = False) -> Callable[[Any, jax.Array], dict]:
     """A jitted `(params [P, ...], key) -> {"return": [P, E], "length": [P, E], ...}`.
 
     `expert` (`full observation -> action`) adds `imitation_error`, and
     `ape_params` (ψ) with `ape_scale` (the training mean APE) `rollout_ape`
-    (see the module docstring).
+    (see the module docstring). `keep_actions` adds the rollouts' actions
+    `"actions": [P, E, T, A]` and `"valid": [P, E, T]` (for
+    `ape_jax.diagnostics`' own-rollout predictability).
     """
     policy = history_policy(cfg, obs_mean, obs_std, env)
     own_metrics = bool(env.episode_metric_names)
@@ -95,6 +98,8 @@ def make_evaluator(env: envs.Env, cfg: LearnerConfig, obs_mean: jax.Array | None
             t = jnp.arange(traj.action.shape[1])
             ape = jax.vmap(lambda a: ape_lib.errors(ape_params, a, t))(traj.action) / ape_scale
             out["rollout_ape"] = per_episode(ape, traj.valid)
+        if keep_actions:
+            out["actions"], out["valid"] = traj.action, traj.valid
         return out
 
     return jax.jit(jax.vmap(one, in_axes=(0, None)))

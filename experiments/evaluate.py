@@ -1,8 +1,10 @@
 """Evaluate a finished sweep's saved policies again: `python -m experiments.evaluate OUT`.
 
 Adds to `OUT/results.json` the evaluation fields it lacks (the copycat
-diagnostics `imitation_error` and `rollout_ape`, and the training APE's
-quantiles, for sweeps run before they existed), from the policies in
+diagnostics: each run's `diagnostics`, the embedding probe, own-rollout
+predictability and verdict of `ape_jax.diagnostics`, and `imitation_error` and
+`rollout_ape`; the training APE's quantiles; for sweeps run before they
+existed), from the policies in
 `OUT/params/`, on the same episodes (`ape_jax.pipeline.reevaluate`). Every run's return
 and recorded metric must come out as recorded, or nothing is written (exit 2). The file is
 replaced atomically; `--out FILE` writes elsewhere and leaves it alone.
@@ -48,7 +50,8 @@ def main(argv=None) -> int:
     results_lib.save(target, new)
     added = new.reevaluated["fields"]
     print(f"wrote {target}: " + (f"added {', '.join(added)}" if added else "nothing was missing")
-          + f" ({new.reevaluated['eval_s']:.0f} s); every recorded return and metric came out as recorded")
+          + f" ({new.reevaluated['eval_s']:.0f} s, of which diagnostics {new.reevaluated['diagnostics_s']:.0f} s); "
+          "every recorded return and metric came out as recorded")
     return 0
 
 

@@ -181,16 +181,29 @@ def _temperature(text: str) -> float:
 
 
 def table(res) -> str:
-    """The printed summary: one row per configuration, the task's main metric first, the best marked."""
+    """The printed summary: one row per configuration, the task's main metric first, the best marked; where runs
+    record copycat diagnostics (`ape_jax.diagnostics`), each configuration's median embedding and predictability
+    ratios over seeds and its seeds judged copycat / seeds whose diagnostics could be read."""
     metric = res.main_metric
     shown = list(res.config.get("task_metrics", []))
     rows = [r for r in res.summary if r["n_seeds"]]
     best = max(rows, key=lambda r: r["normalized_mean"] if r["normalized_mean"] is not None else -math.inf,
                default=None)
+
+    def read(runs):  # the readable diagnostics of `runs`; `{"absent": why}` is not read (shown "-", never 0)
+        return [d for x in runs if isinstance(d := x.get("diagnostics"), dict) and "absent" not in d]
+
+    def median(blocks, key):
+        v = sorted(b[key] for b in blocks if isinstance(b.get(key), (int, float)) and math.isfinite(b[key]))
+        return f"{(v[(len(v) - 1) // 2] + v[len(v) // 2]) / 2:.3g}" if v else "-"
+
+    diagnosed = bool(read(res.runs))
     heads = [f"{m} (mean ± std over seeds)" for m in shown] if shown else ["return (mean ± std over seeds)"]
     width = [max(len(h), 18) for h in heads]
     lines = [f"{'':2}{'method':<17}{'hparams':<30}{'seeds':>5}  " + "  ".join(f"{h:>{w}}" for h, w in zip(heads, width))
-             + ("" if metric != "return" else f"  {'normalized':>11}")]
+             + ("" if metric != "return" else f"  {'normalized':>11}")
+             + (f"  {'emb ratio':>9}  {'pred ratio':>10}  {'copycat':>7}" if diagnosed else "")]
+    absent = []
     for r in res.summary:
         hp = ", ".join(f"{k}={v:g}" for k, v in r["hparams"].items()) or "-"
         if res.online(r["method"]):
@@ -208,6 +221,16 @@ def table(res) -> str:
         line = f"{mark}{r['method']:<17}{hp:<30}{r['n_seeds']:>5}  " + "  ".join(f"{c:>{w}}" for c, w in zip(cells, width))
         if metric == "return":
             line += f"  {r['normalized_mean']:>10.1f}%"
+        if diagnosed:
+            runs = [x for x in res.runs if x["method"] == r["method"] and x["hparams"] == r["hparams"]
+                    and x["status"] == "ok"]
+            blocks = read(runs)
+            count = f"{sum(b.get('verdict') == 'copycat' for b in blocks)}/{len(blocks)}" if blocks else "-"
+            line += (f"  {median(blocks, 'embedding_ratio'):>9}  {median(blocks, 'predictability_ratio'):>10}"
+                     f"  {count:>7}")
+            why = [d["absent"] for x in runs if isinstance(d := x.get("diagnostics"), dict) and "absent" in d]
+            absent += [f"no copycat diagnostics: {r['method']}" + (f" {hp}" if r["hparams"] else "")
+                       + f", {why.count(w)} of {len(runs)} seeds: {w}" for w in dict.fromkeys(why)]
         lines.append(line)
     e = res.expert
     if e.get("return_mean") is not None:
@@ -216,6 +239,15 @@ def table(res) -> str:
                      "* = best configuration")
     elif metric != "return":
         lines.append(f"{metric} in % of episodes; the other metrics are per-episode means; * = best {metric}")
+    if diagnosed:
+        t = (res.config.get("diagnostics") or {}).get("thresholds") or {}
+        rule = " and ".join(f"{name} ratio <= " + (f"{t[key]:g}" if isinstance(t.get(key), (int, float)) else
+                                                   "(threshold not recorded)")
+                            for name, key in (("embedding", "embedding_ratio"),
+                                              ("predictability", "predictability_ratio")))
+        lines += [f"copycat = {rule} (both, per seed; fixed before any result)",
+                  "emb / pred ratio: medians over seeds; copycat: seeds judged copycat / seeds with diagnostics"]
+    lines += absent
     for r in res.runs:
         if r["status"] != "ok":
             lines.append(f"failed: {r['method']} {r['hparams']} seed {r['seed']}: {r['error']}")

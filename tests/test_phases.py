@@ -11,7 +11,7 @@ from ape_jax import methods, tasks
 from ape_jax.pipeline import sweep as S
 from ape_jax.pipeline.presets import resolve
 
-SETS = ("budget.iterations=40", "budget.eval_episodes=2", "budget.chunk=20", "budget.seeds=2",
+SETS = ("budget.iterations=40", "budget.eval_episodes=2", "budget.chunk=20", "budget.seeds=2", "budget.probe_steps=200",
         "recipe.step_grid=0.1:5,0.2:3", "recipe.softmax_grid=1")
 
 
@@ -98,7 +98,7 @@ def test_the_softmax_weights_a_batch_by_b_softmax_of_the_raw_ape_over_tau(small)
 
 def test_evaluate_and_assemble_give_one_record_per_run_in_plan_order(small):
     spec, prepared, programs, ape, trained = small
-    evaluated = S.evaluate(trained, prepared, ape, spec.budget.eval_episodes)
+    evaluated = S.evaluate(trained, prepared, ape, spec.budget.eval_episodes, probe_steps=spec.budget.probe_steps)
     assert [g.name for g in evaluated.groups] == ["h1", "h2"]
     res = S.assemble(spec, prepared, ape, trained, evaluated, timing={})
     assert [(r["method"], r["seed"]) for r in res.runs] == [(r.method, r.seed) for p in programs for r in p.runs]
@@ -109,6 +109,19 @@ def test_evaluate_and_assemble_give_one_record_per_run_in_plan_order(small):
     assert row["metrics"]["success"]["mean"] == pytest.approx(np.mean(seeds))
     assert res.main_metric == "success" and res.methods["bc-so"]["label"] == "BC-SO"
     assert res.protocol["history"] == 2 and res.command is None
+    # every policy carries the copycat diagnostics, with what they mean beside them
+    diag = res.config["diagnostics"]
+    assert diag["thresholds"] == {"embedding_ratio": 0.5, "predictability_ratio": 0.5} and diag["velocity"] is None
+    assert diag["probe_steps"] == 200
+    assert 0 < diag["probe_rows"]["val"] <= diag["probe_rows"]["train"] <= len(prepared.train)
+    reference = {r["diagnostics"]["prev_from_action"] for r in res.runs}
+    assert len(reference) == 1  # the a_t-alone probe does not depend on the policy
+    for r in res.runs:
+        d = r["diagnostics"]
+        assert d["verdict"] in ("copycat", "not copycat") and d["velocity_ratio"] is None  # ToyCar has no qvel
+        assert d["embedding_ratio"] == pytest.approx(d["prev_from_embedding"] / d["prev_from_action"])
+        assert d["predictability_ratio"] == pytest.approx(d["policy_mse"] / d["expert_mse"])
+        assert d["predictability_steps"] > 0 and d["policy_mse"] > 0
 
 
 def test_a_grid_with_one_more_method_leaves_the_shared_configurations_bit_identical(small, tmp_path):

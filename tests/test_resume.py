@@ -223,15 +223,20 @@ def test_evaluating_saved_policies_again_adds_the_missing_fields_and_refuses_oth
     shutil.copytree(workdir / "reference" / "params", run / "params")
     stripped = copy.deepcopy(reference)
     for r in stripped["runs"]:
-        del r["eval"]["imitation_error"], r["eval"]["rollout_ape"]
-    del stripped["config"]["ape"]["quantiles"], stripped["config"]["ape"]["val_mean"]
+        del r["eval"]["imitation_error"], r["eval"]["rollout_ape"], r["diagnostics"]
+    del stripped["config"]["ape"]["quantiles"], stripped["config"]["ape"]["val_mean"], stripped["config"]["diagnostics"]
     (run / "results.json").write_text(json.dumps(stripped))
     assert evaluate.main([str(run), "--data-dir", str(workdir / "data")]) == 0
     again = json.loads((run / "results.json").read_text())
     assert set(again["reevaluated"]["fields"]) == {"imitation_error", "rollout_ape", "config.ape.quantiles",
-                                                   "config.ape.val_mean"}
+                                                   "config.ape.val_mean", "diagnostics", "config.diagnostics"}
+    assert again["config"]["diagnostics"] == reference["config"]["diagnostics"]
     for r, ref in zip(again["runs"], reference["runs"]):
         assert r["eval"] == pytest.approx(ref["eval"], rel=1e-6)
+        exact = {k for k, v in ref["diagnostics"].items() if not isinstance(v, float)}  # the verdict, nulls, counts
+        assert {k: r["diagnostics"][k] for k in exact} == {k: ref["diagnostics"][k] for k in exact}
+        assert {k: v for k, v in r["diagnostics"].items() if k not in exact} == pytest.approx(
+            {k: v for k, v in ref["diagnostics"].items() if k not in exact}, rel=1e-5, abs=1e-7)
     ape, ref_ape = again["config"]["ape"], reference["config"]["ape"]
     assert ape["quantiles"] == pytest.approx(ref_ape["quantiles"], rel=1e-6)
     assert ape["val_mean"] == pytest.approx(ref_ape["val_mean"], rel=1e-6)

@@ -58,11 +58,13 @@ class Budget:
     eval_episodes: int
     ape_steps: int
     chunk: int = 500              # iterations per compiled call (progress and checkpoint granularity)
+    probe_steps: int = 2_000      # the copycat diagnostics' probes' and ψ's Adam steps; 0: no diagnostics
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
-            _check(isinstance(getattr(self, f.name), int) and getattr(self, f.name) >= 1,
-                   f"budget.{f.name} must be an integer >= 1, got {getattr(self, f.name)!r}")
+            least = 0 if f.name == "probe_steps" else 1
+            _check(isinstance(getattr(self, f.name), int) and getattr(self, f.name) >= least,
+                   f"budget.{f.name} must be an integer >= {least}, got {getattr(self, f.name)!r}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -138,7 +140,7 @@ RECIPES: Mapping[str, Recipe] = {
     "fca": Recipe("fca", network="bn-mlp", init="xavier", beta1=0.5, batch_size=64),
 }
 BUDGETS: Mapping[str, Budget] = {
-    "quick": Budget(iterations=3_000, seeds=1, eval_episodes=5, ape_steps=1_000, chunk=500),
+    "quick": Budget(iterations=3_000, seeds=1, eval_episodes=5, ape_steps=1_000, chunk=500, probe_steps=500),
     "default": Budget(iterations=30_000, seeds=3, eval_episodes=20, ape_steps=5_000, chunk=2_000),
     "paper": Budget(iterations=300_000, seeds=5, eval_episodes=100, ape_steps=20_000, chunk=10_000),
 }

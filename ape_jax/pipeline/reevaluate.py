@@ -8,8 +8,10 @@ from `results.json` alone: the preset, the environment, the demonstrations
 (from the cache, collected again if missing), and ψ (fitted again; key 0 makes
 it deterministic), with the sweep's own phases. It then runs the sweep's own
 evaluation (`sweep.evaluate_group`, the same episodes) and adds the fields the file
-lacks, such as the copycat diagnostics `imitation_error` and `rollout_ape`
-written by newer code, and the training APE's `quantiles`.
+lacks, such as the copycat diagnostics written by newer code (`imitation_error`
+and `rollout_ape`; each run's `diagnostics`, the embedding probe, own-rollout
+predictability and verdict of `ape_jax.diagnostics`, with `config.diagnostics`),
+and the training APE's `quantiles`.
 
 Nothing is overwritten that the file has: each run's return and every
 metric it records must come out as recorded (they do on the same machine and
@@ -27,6 +29,7 @@ from typing import Callable
 
 import numpy as np
 
+from ape_jax import diagnostics as diagnostics_lib
 from ape_jax.pipeline import checkpoint as ckpt_lib
 from ape_jax.pipeline import sweep as sweep_lib
 from ape_jax.pipeline.results import Results
@@ -88,7 +91,7 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
     new = Results.from_json(results.to_json())  # a deep copy: `results` is left as it was
     new_records = {_key(r): r for r in new.runs}
     metrics = (*prepared.task.metrics, *sweep_lib.COPYCAT_METRICS)
-    added, differ = set(), []
+    added, differ, diag_configs, diag_s = set(), [], [], 0.0
     t0 = time.perf_counter()
     for name, saved in policies.items():
         history = int(name[1:])
@@ -98,13 +101,21 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
         runs = tuple(sweep_lib.Run(r["method"], r["hparams"], r["seed"]) for r in saved["runs"])
         group = sweep_lib.PolicyGroup(history, prepared.learner_config(spec.settings, history), runs, saved["params"])
         log(f"evaluating {len(runs)} saved policies with history {history} ({episodes} episodes each)")
-        out, _ = sweep_lib.evaluate_group(prepared, ape, episodes, group)
+        lacking = any("diagnostics" not in records.get(_key(r), {}) for r in saved["runs"])
+        steps = spec.budget.probe_steps or diagnostics_lib.PROBE_STEPS  # a file that ran none gets the default's
+        out, _, seconds = sweep_lib.evaluate_group(prepared, ape, episodes, group, steps if lacking else 0)
+        diag_s += seconds
+        if (diag_config := sweep_lib.diagnostics_config(prepared, [out])) is not None:
+            diag_configs.append(diag_config)
         for j, run in enumerate(saved["runs"]):
             key = _key(run)
             if key not in records:
                 raise ReevaluationError(f"a saved policy ({run['method']} {run['hparams']} seed {run['seed']}) "
                                         "has no run in results.json: the params and the results are of different sweeps")
             was, ev = records[key].get("eval") or {}, new_records[key].setdefault("eval", {})
+            if "diagnostics" not in records[key] and (diag := sweep_lib.diagnostics_record(out, j)) is not None:
+                new_records[key]["diagnostics"] = diag
+                added.add("diagnostics")
             now = {"return_mean": out["return"][j], **{k: out[k][j] for k in metrics if k in out}}
             for k, values in now.items():
                 value = float(np.mean(values))
@@ -119,6 +130,9 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
         raise ReevaluationError(f"{len(differ)} recorded evaluation numbers (returns, metrics) differ from the "
                                 f"recomputed ones (e.g. {differ[0]}): the policies, the environment or the "
                                 "evaluation changed")
+    if "diagnostics" not in new.config and diag_configs:
+        new.config["diagnostics"] = diag_configs[0]
+        added.add("config.diagnostics")
     ape_record = new.config.setdefault("ape", {})
     if "val_mean" not in ape_record:
         ape_record["val_mean"] = float(np.mean(ape.val))
@@ -129,5 +143,6 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
     if "quantiles" not in ape_record:
         ape_record["quantiles"] = np.quantile(np.asarray(ape.train), np.linspace(0, 1, 101)).tolist()
         added.add("config.ape.quantiles")
-    new.reevaluated = {"fields": sorted(added), "eval_s": time.perf_counter() - t0, "system": system}
+    new.reevaluated = {"fields": sorted(added), "eval_s": time.perf_counter() - t0,
+                       "diagnostics_s": diag_s, "system": system}  # the diagnostics' time is in eval_s
     return new

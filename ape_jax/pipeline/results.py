@@ -284,6 +284,10 @@ _SUMMARY = {"method": _TEXT, "hparams": (_hparams, "an object of numbers"),
 _RUN = {"method": _TEXT, "hparams": (_hparams, "an object of numbers"), "status": _TEXT}
 _EVAL = {"return_mean": (lambda v: _number(v) and math.isfinite(v), "a finite number"),
          "normalized": (_optional(_number), "a number or null")}
+_DIAGNOSTICS = {"verdict": (lambda v: v in ("copycat", "not copycat"), "'copycat' or 'not copycat'"),
+                **{k: (_optional(_number), "a number or null")
+                   for k in ("embedding_ratio", "prev_from_embedding", "prev_from_action", "velocity_ratio",
+                             "predictability_ratio", "policy_mse", "expert_mse")}}
 _LOSSES = {s: (lambda v: isinstance(v, dict) and all(
     _number(v.get(k)) for k in ("unweighted", "changepoint", "copycat")), "an object with numbers unweighted, "
     "changepoint and copycat") for s in ("train", "val")}
@@ -315,3 +319,7 @@ def validate(obj: dict, where: str = "results") -> None:
             _row(f"{where}: runs[{i}]", run, {"losses": _OBJECT, "eval": _OBJECT})
             _row(f"{where}: runs[{i}] losses", run["losses"], _LOSSES)
             _row(f"{where}: runs[{i}] eval", {"normalized": None, **run["eval"]}, _EVAL)
+        if "diagnostics" in run:  # optional (files before the diagnostics have none); absent: {"absent": why}
+            diag = run["diagnostics"]
+            if not (isinstance(diag, dict) and isinstance(diag.get("absent"), str)):
+                _row(f"{where}: runs[{i}] diagnostics", diag, _DIAGNOSTICS)

@@ -20,7 +20,9 @@ fix everything else (`ape_jax.pipeline.presets.Settings`: protocol, budget, reci
    runs and sharded over devices, in chunks so progress moves and checkpoints
    can be taken;
 4. `evaluate` → `Evaluated`: every policy on the same episodes, with the copycat
-   diagnostics and the loss analysis on both splits (`ape_jax.evaluate`);
+   diagnostics (the rollouts' `imitation_error` and `rollout_ape`, `ape_jax.evaluate`;
+   the embedding probe, own-rollout predictability and verdict, `ape_jax.diagnostics`)
+   and the loss analysis on both splits;
 5. `assemble` → `results.Results`.
 
 A run's PRNG key comes from its identity (`methods.run_key(seed, method,
@@ -46,6 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ape_jax import ape as ape_lib
+from ape_jax import diagnostics as diagnostics_lib
 from ape_jax import evaluate as evaluate_lib
 from ape_jax import methods as methods_lib
 from ape_jax import tasks
@@ -65,6 +68,8 @@ from ape_jax.pipeline.presets import Settings, resolve
 CPU_IMAGE_CHUNK = 10
 EVAL_SEED = 12345  # every policy is evaluated on the same episodes
 COPYCAT_METRICS = ("imitation_error", "rollout_ape")  # the copycat diagnostics (`ape_jax.evaluate`)
+DIAGNOSTICS_SEED = 0  # the embedding probes' and ψ's key in `ape_jax.diagnostics.diagnose`
+DIAG = "diag_"  # the prefix of the diagnostics' arrays among a group's evaluation outputs
 CURVE_POINTS = 100  # points of each run's training curve in results.json (the full curves: OUT/curves/)
 
 
@@ -635,28 +640,66 @@ class Evaluated:
     """The evaluation phase's output: per group, the evaluation outputs and loss analysis, row j = run j."""
 
     groups: tuple[PolicyGroup, ...]
-    outputs: tuple[dict, ...]   # per group: {"return": [P, E], metric: [P, E], ...}
+    outputs: tuple[dict, ...]   # per group: {"return": [P, E], metric: [P, E], "diag_<field>": [P], ...}
     losses: tuple[dict, ...]    # per group: {"train": {...: [P]}, "val": {...}}
-    eval_s: float
+    eval_s: float               # the diagnostics' time included
+    diagnostics_s: float = 0.0
 
 
-def evaluate_group(prepared: Prepared, ape: ApeFit, episodes: int, group: PolicyGroup) -> tuple[dict, dict]:
-    """Evaluation outputs `{"return": [P, E], metric: [P, E], ...}` (copycat diagnostics included) and the loss
-    analysis `{"train": {...: [P]}, "val": {...}}` of one group."""
+def diagnosable(episodes: int, probe_steps: int) -> bool:
+    """Whether a sweep's policies get the embedding probe and predictability diagnostics: `probe_steps > 0`
+    (`Budget.probe_steps`), and at least 2 evaluation episodes (ψ fits on half of them, scores the rest)."""
+    return probe_steps > 0 and episodes >= 2
+
+
+def group_diagnostics(prepared: Prepared, ape: ApeFit, group: PolicyGroup, actions: np.ndarray,
+                      valid: np.ndarray, steps: int) -> dict[str, np.ndarray]:
+    """The group's copycat diagnostics (`ape_jax.diagnostics.diagnose`) as `{"diag_<field>": [P]}`; the expert's
+    rollouts are its demonstrations' training episodes (a sweep collects them without noise, so they are its
+    own rollouts), the velocity the demonstrations' `qvel` where they hold one. A network without an embedding gives `{"diag_absent": [P]}`."""
+    train, val = prepared.data(prepared.train, ape.train), prepared.data(prepared.val, ape.val)
+    demos = prepared.train.demos
+    velocity = None
+    if "qvel" in demos.sim and "qvel" in prepared.val.demos.sim:
+        velocity = (demos.sim["qvel"], prepared.val.demos.sim["qvel"])
+    expert = diagnostics_lib.demonstration_rollouts(demos.action, demos.episode)
+    try:
+        d = diagnostics_lib.diagnose(jax.random.PRNGKey(DIAGNOSTICS_SEED), group.cfg, group.params, train, val,
+                                     actions, valid, expert, velocity, steps=steps)
+    except TypeError:  # a plugin's network that takes no `return_embedding`: reported absent, never as zero
+        return {f"{DIAG}absent": np.ones(len(group.runs))}
+    rows = d.pop("probe_rows")
+    return {**{DIAG + k: np.asarray(v) for k, v in d.items()},
+            f"{DIAG}probe_rows_train": np.full(len(group.runs), rows[0]),
+            f"{DIAG}probe_rows_val": np.full(len(group.runs), rows[1]),
+            f"{DIAG}probe_steps": np.full(len(group.runs), steps)}
+
+
+def evaluate_group(prepared: Prepared, ape: ApeFit, episodes: int, group: PolicyGroup,
+                   probe_steps: int = 0) -> tuple[dict, dict, float]:
+    """Evaluation outputs `{"return": [P, E], metric: [P, E], ...}` (copycat diagnostics included: the
+    `ape_jax.diagnostics` ones as `diag_<field>` `[P]` with `probe_steps` where `diagnosable`), the loss
+    analysis `{"train": {...: [P]}, "val": {...}}` of one group, and the diagnostics' seconds."""
+    diagnostics = diagnosable(episodes, probe_steps)
     evaluator = evaluate_lib.make_evaluator(prepared.env, group.cfg, prepared.normalizer.mean, prepared.normalizer.std,
                                             episodes, expert=prepared.expert, ape_params=ape.params,
-                                            ape_scale=ape.raw_mean)
+                                            ape_scale=ape.raw_mean, keep_actions=diagnostics)
     out = jax.device_get(evaluator(group.params, jax.random.PRNGKey(EVAL_SEED)))
+    diag_s = 0.0
+    if diagnostics:
+        t0 = time.perf_counter()
+        out.update(group_diagnostics(prepared, ape, group, out.pop("actions"), out.pop("valid"), probe_steps))
+        diag_s = time.perf_counter() - t0
     losses = {split: jax.device_get(evaluate_lib.loss_analysis(group.cfg, group.params, prepared.data(s, a)))
               for split, s, a in (("train", prepared.train, ape.train), ("val", prepared.val, ape.val))}
-    return out, losses
+    return out, losses, diag_s
 
 
 def evaluate(trained: Sequence[Trained], prepared: Prepared, ape: ApeFit, episodes: int, hooks: Hooks = Hooks(),
-             checkpoint: SweepCheckpoint | None = None) -> Evaluated:
+             checkpoint: SweepCheckpoint | None = None, probe_steps: int = 0) -> Evaluated:
     """Phase 4: every policy on the same `episodes` episodes, one program per history (groups saved in
-    `checkpoint` reused)."""
-    eval_s, groups, outputs, losses = 0.0, [], [], []
+    `checkpoint` reused), with the copycat diagnostics at `probe_steps` (`Budget.probe_steps`; 0: none)."""
+    eval_s, diag_s, groups, outputs, losses = 0.0, 0.0, [], [], []
     total = sum(len(t.program.runs) for t in trained) * episodes
     with hooks.bar(desc="evaluate", total=total, unit="episode") as b:
         for history in dict.fromkeys(t.program.cfg.history for t in trained):
@@ -666,12 +709,27 @@ def evaluate(trained: Sequence[Trained], prepared: Prepared, ape: ApeFit, episod
             saved = ckpt_lib.load_evaluation(checkpoint, f"eval-{group.name}")
             if saved is None:
                 t0 = time.perf_counter()
-                saved = evaluate_group(prepared, ape, episodes, group)
-                eval_s += time.perf_counter() - t0
+                out, loss, seconds = evaluate_group(prepared, ape, episodes, group, probe_steps)
+                saved = out, loss
+                eval_s, diag_s = eval_s + time.perf_counter() - t0, diag_s + seconds
                 ckpt_lib.save_evaluation(checkpoint, f"eval-{group.name}", *saved)
             groups.append(group), outputs.append(saved[0]), losses.append(saved[1])
             b.update(len(group.runs) * episodes)
-    return Evaluated(tuple(groups), tuple(outputs), tuple(losses), eval_s)
+    return Evaluated(tuple(groups), tuple(outputs), tuple(losses), eval_s, diag_s)
+
+
+def diagnostics_record(out: dict, j: int) -> dict | None:
+    """Run `j`'s `diagnostics` in results.json from its group's outputs, None where the group has none (files
+    before them, or a sweep whose `absent_diagnostics` says why)."""
+    if f"{DIAG}absent" in out:
+        return {"absent": "the policy's network gives no embedding (it takes no return_embedding)"}
+    if f"{DIAG}copycat" not in out:
+        return None
+    value = {k: float(out[DIAG + k][j]) for k in diagnostics_lib.FIELDS if k != "copycat"}
+    value = {k: v if np.isfinite(v) else None for k, v in value.items()}  # e.g. no velocity: null, never 0
+    value["predictability_steps"] = int(value["predictability_steps"])
+    value["verdict"] = diagnostics_lib.COPYCAT if bool(out[f"{DIAG}copycat"][j]) else diagnostics_lib.NOT_COPYCAT
+    return value
 
 
 # -- 5. assemble ----------------------------------------------------------------------------------------------------
@@ -699,6 +757,8 @@ def run_record(run: Run, j: int, out: dict, losses: dict, curves: dict, prepared
     if prepared.task.metric != "return":
         ev.setdefault("normalized", 100.0 * ev[prepared.task.metric])  # a rate, in % (no return to normalise)
     record["eval"] = ev
+    if (diag := diagnostics_record(out, j)) is not None:
+        record["diagnostics"] = diag
     record["losses"] = {split: {k: float(v[j]) for k, v in losses[split].items()} for split in losses}
     record["train_loss_final"] = float(np.mean(loss_curve[-100:]))
     # every training metric over the last 1% of the run (at least 100 minibatches): e.g. FCA's adversary against
@@ -750,6 +810,8 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
     expert = ({"return_mean": card["return_mean"], "return_std": card["return_std"],
                "random_return_mean": card["random_return_mean"]} if card is not None else
               {"return_mean": None, "return_std": None, "random_return_mean": None, "kind": task.expert})
+    if (diag := diagnostics_config(prepared, evaluated.outputs)) is not None:
+        config["diagnostics"] = diag
     config["env"] = {"dt": float(prepared.env.dt), "episode_length": int(prepared.env.episode_length),
                      "overrides": {k: list(v) if isinstance(v, tuple) else v for k, v in spec.env_overrides().items()}}
     return results_lib.Results(
@@ -758,6 +820,22 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
         command=list(spec.command) if spec.command is not None else None,
         protocol=spec.protocol_settings(), settings=blocks,
         methods={m: results_lib.method_info(m) for m in dict.fromkeys(r["method"] for r in runs)})
+
+
+def diagnostics_config(prepared: Prepared, outputs: Sequence[dict]) -> dict | None:
+    """What the runs' `diagnostics` mean (results.json's `config.diagnostics`), None where no group's evaluation
+    `outputs` have them."""
+    out = next((o for o in outputs if f"{DIAG}probe_rows_train" in o), None)
+    if out is None:
+        return None
+    demos = prepared.train.demos
+    return {"thresholds": dataclasses.asdict(diagnostics_lib.THRESHOLDS),
+            "probe_steps": int(out[f"{DIAG}probe_steps"][0]),
+            "probe_rows": {"train": int(out[f"{DIAG}probe_rows_train"][0]),
+                           "val": int(out[f"{DIAG}probe_rows_val"][0])},
+            "expert_rollouts": f"the demonstrations' {demos.num_episodes} training episodes, cut to each policy's "
+                               "step count",
+            "velocity": "qvel" if "qvel" in demos.sim else None}
 
 
 def policies(evaluated: Evaluated, prepared: Prepared) -> dict[str, dict]:
@@ -792,9 +870,11 @@ def run_sweep(spec: SweepSpec, hooks: Hooks = Hooks(),
     """
     t_start = time.perf_counter()
     prepared, ape, trained = train_sweep(spec, hooks, checkpoint)
-    evaluated = evaluate(trained, prepared, ape, spec.budget.eval_episodes, hooks, checkpoint)
+    evaluated = evaluate(trained, prepared, ape, spec.budget.eval_episodes, hooks, checkpoint,
+                         spec.budget.probe_steps)
     timing = {"compile_s": sum(t.compile_s for t in trained), "train_s": sum(t.train_s for t in trained),
-              "eval_s": evaluated.eval_s, "total_s": time.perf_counter() - t_start,
+              "eval_s": evaluated.eval_s, "diagnostics_s": evaluated.diagnostics_s,  # included in eval_s
+              "total_s": time.perf_counter() - t_start,
               "resumed": bool(checkpoint is not None and checkpoint.resumed),
               # included in the phases' times
               "checkpoint_s": checkpoint.save_s if checkpoint is not None else 0.0,

@@ -23,6 +23,8 @@ from experiments.report import figures
 from experiments.report.analysis import (APE_SCALES, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, BRAX, FCA, MAP_METHODS,
                                          PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP, PAPER_TABLE5,
                                          alpha_rows, recipe_groups, recipe_rows,
+                                         DiagnosticsRow, PolicyDiagnostics, Spread, diagnostics_rows,
+                                         diagnostics_thresholds, recipe_diagnostics,
                                          CopycatMap, Difference, Interval, Key, ReportError, WeightShares, _best, _hp,
                                          _metric, _ordered, _paper_step, _pct, _rows, _title, _unit, bootstrap_rows,
                                          choices, copycat_groups, copycat_map, expert_ape, extra_methods, file_stem,
@@ -349,6 +351,109 @@ def copycat_table(m: dict) -> str | None:
         lines.append(f"| {label(m['methods'], method)} | {hps} | {len(runs)} | {mean('rollout_ape'):.3f} | "
                      f"{mean('imitation_error'):.4f} | {norm} |")
     return "\n".join(lines) + "\n"
+
+
+# What each column of a diagnostics table shows (`diagnostics_table`), one line each, under its first table.
+DIAGNOSTICS_COLUMNS = (
+    "seeds: the configuration's trained policies; % of expert: their mean",
+    "embedding ratio: a probe's held-out MSE predicting the expert's previous action a_{t−1} from the frozen "
+    "policy's embedding ÷ the same probe's from a_t alone, median over seeds (their range in brackets); below 1 "
+    "the embedding holds a_{t−1} beyond what a_t gives",
+    "velocity 1 − R²: the probe's held-out MSE predicting the true joint velocity from the embedding ÷ the "
+    "velocity's variance, median over seeds; near 0 the policy extracts velocity (— where the data has none)",
+    "predictability ratio: ψ's held-out MSE on the policy's own rollout actions ÷ on the expert's rollouts (as "
+    "many steps), median over seeds (range); below 1 the policy's actions are more predictable than the expert's",
+    "verdict: the seeds judged copycat / the seeds whose diagnostics could be read (— where none could)",
+)
+
+
+def _ratio(s: Spread | None, with_range: bool = True) -> str:
+    """`"0.412 (0.301–0.52)"`: a ratio's median over seeds and, with `with_range` and ≥ 2 seeds, their range."""
+    if s is None:
+        return "—"
+    return f"{s.median:.3g}" + (f" ({s.low:.3g}–{s.high:.3g})" if with_range and s.n > 1 else "")
+
+
+def _verdicts(d: PolicyDiagnostics) -> str:
+    """`"copycat 2/5"`: seeds judged copycat / seeds read; "—" where none could be read."""
+    return "—" if not d.read else f"copycat {d.copycats}/{d.read}"
+
+
+def _diagnostics_cells(row: DiagnosticsRow) -> list[str]:
+    d = row.diagnostics
+    return [", ".join(f"{k} {v:g}" for k, v in row.hparams.items()) or "—", str(row.seeds),
+            "—" if row.normalized is None else f"{row.normalized:.1f}", _ratio(d.embedding),
+            _ratio(d.velocity, with_range=False), _ratio(d.predictability), _verdicts(d)]
+
+
+def diagnostics_table(rows: list[tuple[tuple[str, ...], DiagnosticsRow]], heads: tuple[str, ...] = ("method",),
+                      unit: str = "% of expert") -> str:
+    """Copycat diagnostics per configuration: seeds, % of expert, embedding ratio (median and range over seeds),
+    velocity 1 − R² (median), predictability ratio (median and range) and the verdict count.
+
+    Args:
+      rows: `(leading cells, row)`, the leading cells one per `heads` (`("Hopper", "fca", "BC-OH")`).
+      heads: the leading columns' headings (the method, and in the recipe table the task and recipe first).
+      unit: the heading of the % of expert column (a task judged by a rate: that rate in %).
+    """
+    lines = ["| " + " | ".join(heads) + f" | hparams | seeds | {unit} | embedding ratio | velocity 1 − R² | "
+             "predictability ratio | verdict |", "|" + "---|" * (len(heads) + 1) + "---:|" * 5 + "---|"]
+    lines += ["| " + " | ".join([*lead, *_diagnostics_cells(row)]) + " |" for lead, row in rows]
+    return "\n".join(lines) + "\n"
+
+
+def thresholds_line(thresholds: list[dict]) -> str:
+    """The copycat verdict's criteria as the files record them (`analysis.diagnostics_thresholds`), in one line."""
+    def both(t: dict) -> str:
+        return " and ".join(f"{name} ≤ " + (f"{t[key]:g}" if isinstance(t.get(key), (int, float)) else "?")
+                            for name, key in (("embedding ratio", "embedding_ratio"),
+                                              ("predictability ratio", "predictability_ratio")))
+
+    fixed = "thresholds fixed before any result, `ape_jax.diagnostics.THRESHOLDS`"
+    if not thresholds:
+        return "Copycat = both ratios at or below their thresholds, per seed; the files record no thresholds."
+    if len(thresholds) == 1:
+        return f"Copycat = {both(thresholds[0])}, both, per seed ({fixed})."
+    return (f"Copycat = both ratios at or below their thresholds, per seed ({fixed}); the files record different "
+            "ones: " + "; ".join(both(t) for t in thresholds) + ".")
+
+
+def _absent_lines(rows: list[tuple[tuple[str, ...], DiagnosticsRow]], heads: tuple[str, ...]) -> list[str]:
+    """One bullet per configuration with seeds the diagnostics could not read (shown "—" in the table), with the
+    recorded reason: `"- BC-SO (Hopper, recipe fca): no diagnostics for 1 of 5 seeds: …"`."""
+    out = []
+    for lead, row in rows:
+        where = [f"recipe {v}" if h == "recipe" else v for h, v in zip(heads, lead) if h != "method"]
+        where += [", ".join(f"{k} {v:g}" for k, v in row.hparams.items())] if row.hparams else []
+        for why, n in row.diagnostics.absent:
+            out.append(f"- {row.label}" + (f" ({', '.join(where)})" if where else "")
+                       + f": no diagnostics for {n} of {row.seeds} seed{'s' * (row.seeds != 1)}: {why}")
+    return out
+
+
+def diagnostics_lines(rows: list[tuple[tuple[str, ...], DiagnosticsRow]], thresholds: list[dict], intro: str,
+                      explained: bool, heads: tuple[str, ...] = ("method",), unit: str = "% of expert") -> list[str]:
+    """A diagnostics table with its caption, the column explanations (unless `explained` above), the thresholds
+    once under it and the seeds it could not read; nothing without rows."""
+    if not rows:
+        return []
+    if explained:
+        out = [intro.rstrip(":") + " (the columns as explained under the first such table above):", ""]
+    else:
+        out = [intro, "", *(f"- {c}" for c in DIAGNOSTICS_COLUMNS), ""]
+    absent = _absent_lines(rows, heads)
+    out += [diagnostics_table(rows, heads, unit), thresholds_line(thresholds), ""]
+    return out + (absent + [""] if absent else [])
+
+
+def diagnostics_section(m: dict, explained: bool) -> list[str]:
+    """Group `m`'s copycat diagnostics per configuration (`analysis.diagnostics_rows`); nothing for a group whose
+    files predate them."""
+    rows = [((r.label,), r) for r in diagnostics_rows(m)]
+    unit = _metric(m)[1] if _metric(m)[0] == "normalized" else "% of expert"
+    return diagnostics_lines(rows, diagnostics_thresholds(m["sources"]),
+                             "Copycat diagnostics per trained policy (`ape_jax.diagnostics`), from its embedding "
+                             "and its own rollouts:", explained, unit=unit)
 
 
 SENSITIVITY = Key("walker2d", "pos", BRAX)  # the group the sensitivity study ran in (its committed file is brax's)
@@ -804,6 +909,11 @@ def recipe_section(merged: dict) -> list[str]:
                                                                for v in (a.adversary, a.reference)) + " |"
                         for a in alphas]
                 out += [""]
+    sources = [src for recipes in groups.values() for m in recipes.values() for src in m["sources"]]
+    out += diagnostics_lines([((title, n, r.label), r) for title, n, r in recipe_diagnostics(groups)],
+                             diagnostics_thresholds(sources), "Copycat diagnostics per trained policy "
+                             "(`ape_jax.diagnostics`), per task, recipe and configuration:", explained=False,
+                             heads=("task", "recipe", "method"))
     return out
 
 
@@ -868,6 +978,7 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
                     "Positions only (velocities removed). " + cells + " " + selection
                     + (f" {details}" if details else ""), "", state_table(merged, "pos", protocol)]
     out += recipe_section(merged)
+    explained = bool(recipe_diagnostics(recipe_groups(merged)))   # the recipe section explained the columns
     for protocol in protocols_of(merged, "image"):
         groups = groups_of(merged, "image", protocol)
         details = protocol_details(groups)
@@ -988,4 +1099,7 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
                     "actions are from its previous 9 (ψ's APE, ÷ the training set's mean APE; a policy that "
                     "repeats its last action scores below the expert), and how far its actions are from the "
                     "expert's on the states it visits itself:", "", copycat]
+        diagnostics = diagnostics_section(m, explained)
+        out += diagnostics
+        explained = explained or bool(diagnostics)
     return "\n".join(out), drawn
