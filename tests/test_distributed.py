@@ -64,9 +64,9 @@ writes = jax.process_index() == 0
 if writes:
     out.mkdir(parents=True, exist_ok=True)
 first = SavesAtThree(out / "ckpt", every=3) if writes else None
-params, metrics = train_program(program, hparams, None, data, lambda n: None, chunk=3, checkpoint=first)
+params, metrics, _ = train_program(program, hparams, None, data, lambda n: None, chunk=3, checkpoint=first)
 again = ProgramCheckpoint(out / "ckpt", every=3) if writes else None
-resumed, resumed_metrics = train_program(program, hparams, None, data, lambda n: None, chunk=3, checkpoint=again)
+resumed, resumed_metrics, _ = train_program(program, hparams, None, data, lambda n: None, chunk=3, checkpoint=again)
 assert again is None or again._last_saved == 6  # it did resume from 3, and saved at the end
 
 # process 0's values arrive bit for bit: the sign of -0.0, NaN, 64-bit integers

@@ -150,3 +150,32 @@ def test_run_sweep_from_python_needs_only_the_task_and_defaults_the_cache(tmp_pa
     assert [r["method"] for r in res.runs] == ["bc-oh"] and res.runs[0]["status"] == "ok"
     assert res.settings["budget"]["iterations"] == 20 and list(policies) == ["h2"]
     assert len(list((tmp_path / "cache").glob("toycar-full-*.npz"))) == 1   # collected into the default cache
+
+
+def test_policies_kept_at_eval_at_are_the_training_state_there_and_leave_training_unchanged(small, tmp_path):
+    """`budget.eval_at`: a chunk stops at each point and the policies there are kept, evaluated and recorded; the
+    run goes on bit-identically, and with the lr never decayed the policy at 10 iterations is a 10-iteration run's."""
+    spec, *_ = small
+    flat = ("recipe.lr_decay_at=", "budget.probe_steps=0")
+
+    def sweep(*sets):
+        s = S.SweepSpec.make("toycar", "full", ("bc-oh",), recipe="mlp", sets=(*SETS, *flat, *sets),
+                             data_dir=spec.data_dir)
+        prepared, programs, ape, trained = _train(s)
+        return s, prepared, ape, trained
+
+    s, prepared, ape, trained = sweep("budget.eval_at=10,30")
+    assert sorted(trained[0].snapshots) == [10, 30]
+    _, _, _, plain = sweep()
+    _, _, _, short = sweep("budget.iterations=10")
+    for x, y in zip(jax.tree.leaves(trained[0].params), jax.tree.leaves(plain[0].params)):
+        np.testing.assert_array_equal(x, y)
+    for x, y in zip(jax.tree.leaves(trained[0].snapshots[10]), jax.tree.leaves(short[0].params)):
+        np.testing.assert_array_equal(x, y)
+    evaluated = S.evaluate(trained, prepared, ape, s.budget.eval_episodes)
+    res = S.assemble(s, prepared, ape, trained, evaluated, timing={})
+    for r in res.runs:
+        assert [a["iteration"] for a in r["at"]] == [10, 30]
+        assert all(a["eval"]["episodes"] == 2 and a["train_loss"] > 0 for a in r["at"])
+    from ape_jax.pipeline import results as results_lib
+    results_lib.validate(res.to_json())

@@ -159,3 +159,22 @@ def test_the_thresholds_line_says_what_the_files_record():
                            {"embedding_ratio": 0.4, "predictability_ratio": 0.5}])
     assert "the files record different ones: embedding ratio ≤ 0.5 and predictability ratio ≤ 0.5; embedding " \
            "ratio ≤ 0.4 and predictability ratio ≤ 0.5." in two
+
+
+def test_runs_evaluated_during_training_get_a_table_per_iteration_with_intervals_and_diagnostics(tmp_path):
+    """`budget.eval_at`: each run's `at` list; the report shows every configuration at each point and at the end."""
+    obj = _diagnosed(FCA_BC)
+    obj["config"]["iterations"] = 30_000
+    for run in obj["runs"]:
+        run["at"] = [{"iteration": 10_000, "eval": {**run["eval"], "normalized": 10.0 + run["seed"]},
+                      "train_loss": 0.02, "diagnostics": _block(0.3, 0.3)}]
+    text, _ = report.build([_loaded(tmp_path, obj, "fca.json")])
+    section = text[text.index("The same policies over training"):]
+    # at 10k: seeds 10..14 % of expert, mean 12 with its bootstrap interval; every seed copycat there
+    at_10k = next(line for line in section.splitlines() if line.startswith("| BC-OH | — | 10,000 |"))
+    assert at_10k.startswith("| BC-OH | — | 10,000 | 12.0 [") and at_10k.endswith(
+        "| 0.02 | 0.3 (0.3–0.3) | 0.3 (0.3–0.3) | copycat 5/5 |")
+    at_end = next(line for line in section.splitlines() if line.startswith("| BC-OH | — | 30,000 |"))
+    assert at_end.startswith(f"| BC-OH | — | 30,000 | {_pct_of_expert(obj, 'bc-oh')} [")
+    assert at_end.endswith("| 0.6 (0.1–0.9) | 0.4 (0.2–1.1) | copycat 2/5 |")
+    assert "The same policies over training" not in report.build([_loaded(tmp_path, _diagnosed(FCA_BC), "b.json")])[0]

@@ -21,10 +21,10 @@ from experiments import sweep
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 ARGS = ["--env", "toycar", "--obs", "full", "--iterations", "60", "--checkpoint-every", "20", "--eval-episodes", "2",
-        "--seeds", "1", "--methods", "bc-oh,ours-step", "--quiet"]
+        "--seeds", "1", "--methods", "bc-oh,ours-step", "--quiet", "--set", "budget.eval_at=30"]
 
 # Runs the sweep's command line and SIGKILLs itself right after the KILL_AT-th save of kind KILL_KIND:
-# "train" (a training state, orbax) or "phase" (a finished phase's outputs: the APE fit, an evaluation group).
+# "train" (a training state, orbax) or "phase" (saved arrays: the APE fit, policies kept at eval_at, an evaluation group).
 KILLER = """
 import os, signal, sys
 from ape_jax.pipeline import checkpoint
@@ -90,7 +90,9 @@ def test_a_sweep_killed_mid_training_and_resumed_equals_an_uninterrupted_one_bit
     out = killed_run(workdir, "killed-training", "train", 2)
     steps = sorted(int(p.name) for p in (out / "checkpoints" / "train-grid").iterdir() if p.name.isdigit())
     assert steps == [40]  # killed where we meant to: BC-OH and the step grid at 40 of 60 iterations
+    assert (out / "checkpoints" / "train-grid-at30.npz").exists()  # the policies at eval_at, kept when passed
     resumed = resume(workdir, out, capsys)
+    assert all([a["iteration"] for a in r["at"]] == [30] for r in resumed["runs"])
     assert resumed["timing"]["resumed"] and not reference["timing"]["resumed"]
     assert numbers(resumed) == numbers(reference)
     curves = (out / "curves" / "grid.csv").read_text().splitlines()
@@ -101,8 +103,9 @@ def test_a_sweep_killed_mid_training_and_resumed_equals_an_uninterrupted_one_bit
 def test_the_same_sweep_in_another_process_gives_bit_identical_numbers(workdir, reference, capsys):
     """Determinism: a second process computes everything (killed after its last phase, before writing the
     outputs); resuming only writes what it computed, and that equals the reference run's numbers."""
-    out = killed_run(workdir, "killed-at-the-end", "phase", 2)  # phases: the APE fit, the evaluation
-    assert (out / "checkpoints" / "eval-h2.npz").exists()
+    # saved arrays: the APE fit, the policies at eval_at, the evaluation at the end and at eval_at
+    out = killed_run(workdir, "killed-at-the-end", "phase", 4)
+    assert (out / "checkpoints" / "eval-h2.npz").exists() and (out / "checkpoints" / "eval-h2-at30.npz").exists()
     again = resume(workdir, out, capsys)
     assert again["timing"]["train_s"] == again["timing"]["eval_s"] == 0.0  # nothing recomputed here
     assert numbers(again) == numbers(reference)

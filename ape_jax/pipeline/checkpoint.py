@@ -7,8 +7,11 @@ Everything lives in `OUT/checkpoints/`:
 - `sweep.json`: the sweep's *fingerprint* (environment, observations, every
   preset setting, methods, data). A directory whose fingerprint differs, or
   that has none, is refused with a `CheckpointError`, never overwritten.
-- `ape.npz`, `eval-h<H>.npz`: the outputs of finished phases (the APE fit; each
-  evaluation group), written to a temporary name and renamed.
+- `ape.npz`, `eval-h<H>.npz` (`eval-h<H>-at<I>.npz`): the outputs of finished
+  phases (the APE fit; each evaluation group, at the end and at each iteration
+  `I` of `Budget.eval_at`), written to a temporary name and renamed.
+- `train-<program>-at<I>.npz`: a program's policies at iteration `I` of
+  `Budget.eval_at`, written when training passes it.
 - `train-<program>/<step>/`: the training state of one compiled program (every
   configuration × seed, vmapped) and its loss curves so far, saved with orbax's
   `CheckpointManager` every `every` iterations and when the program finishes.
@@ -174,6 +177,30 @@ class ProgramCheckpoint:
     def due(self, iteration: int) -> bool:
         """Whether a save is due after `iteration` (a multiple of `every` has been passed since the last)."""
         return iteration // self.every > self._last_saved // self.every
+
+    def _snapshot_name(self, iteration: int) -> str:
+        return f"{self.directory.name}-at{iteration}"
+
+    def save_snapshot(self, iteration: int, params: Any) -> None:
+        """Saves the policies at `iteration` (`Budget.eval_at`), as `<program>-at<iteration>.npz` beside the
+        training states: written when taken, so a state saved later never lacks the snapshots before it."""
+        import jax
+
+        if self.owner is not None:
+            leaves = jax.tree.leaves(jax.device_get(params))
+            self.owner.save_arrays(self._snapshot_name(iteration), {str(i): x for i, x in enumerate(leaves)})
+
+    def load_snapshot(self, iteration: int, like: Any) -> Any:
+        """The policies saved at `iteration`, laid out like `like`; a `CheckpointError` if they are missing."""
+        import jax
+
+        saved = self.owner.load_arrays(self._snapshot_name(iteration)) if self.owner is not None else None
+        leaves, treedef = jax.tree.flatten(like)
+        if saved is None or len(saved) != len(leaves):
+            raise CheckpointError(f"{self.directory} resumes past iteration {iteration} but the policies saved "
+                                  f"there ({self._snapshot_name(iteration)}.npz) are missing or not this "
+                                  "program's; pass --fresh to start over")
+        return jax.tree.unflatten(treedef, [saved[str(i)] for i in range(len(leaves))])
 
     def save(self, iteration: int, state: Any, curves: dict[str, np.ndarray]) -> None:
         import orbax.checkpoint as ocp

@@ -59,12 +59,20 @@ class Budget:
     ape_steps: int
     chunk: int = 500              # iterations per compiled call (progress and checkpoint granularity)
     probe_steps: int = 2_000      # the copycat diagnostics' probes' and ψ's Adam steps; 0: no diagnostics
+    eval_at: tuple[int, ...] = ()  # iterations before the end at which every policy is also evaluated
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
+            if f.name == "eval_at":
+                continue
             least = 0 if f.name == "probe_steps" else 1
             _check(isinstance(getattr(self, f.name), int) and getattr(self, f.name) >= least,
                    f"budget.{f.name} must be an integer >= {least}, got {getattr(self, f.name)!r}")
+        at = self.eval_at
+        _check(all(isinstance(i, int) and not isinstance(i, bool) for i in at)
+               and list(at) == sorted(set(at)) and all(0 < i < self.iterations for i in at),
+               f"budget.eval_at must be increasing iterations between 0 and budget.iterations ({self.iterations}), "
+               f"exclusive (the end is always evaluated), got {list(at)}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -142,7 +150,8 @@ RECIPES: Mapping[str, Recipe] = {
 BUDGETS: Mapping[str, Budget] = {
     "quick": Budget(iterations=3_000, seeds=1, eval_episodes=5, ape_steps=1_000, chunk=500, probe_steps=500),
     "default": Budget(iterations=30_000, seeds=3, eval_episodes=20, ape_steps=5_000, chunk=2_000),
-    "paper": Budget(iterations=300_000, seeds=5, eval_episodes=100, ape_steps=20_000, chunk=10_000),
+    "paper": Budget(iterations=300_000, seeds=5, eval_episodes=100, ape_steps=20_000, chunk=10_000,
+                    eval_at=(30_000, 100_000)),
 }
 PRESETS = BUDGETS  # the preset names are the budgets'
 # Image observations. A conv policy trains tens of times slower per iteration than the state MLP on a
@@ -223,9 +232,14 @@ def resolve(env: str, obs: str, protocol: str | None = None, preset: str = "quic
     for layer in ((IMAGE_PRESETS[preset] if obs == "image" else {}), task.preset_overrides(obs, preset)):
         for key, value in layer.items():
             values[_section_of(key)][key] = value
+    explicit = set()
     for item in sets:
         section, field, value = parse_set(item)
         values[section][field] = value
+        explicit.add(field)
+    if "eval_at" not in explicit:  # the preset's points inside the run only, when its length was changed
+        budget = values["budget"]
+        budget["eval_at"] = tuple(i for i in budget["eval_at"] if i < budget["iterations"])
     return Settings(*(_record(name, values[name]) for name in SECTIONS), preset=preset)
 
 

@@ -319,7 +319,16 @@ def validate(obj: dict, where: str = "results") -> None:
             _row(f"{where}: runs[{i}]", run, {"losses": _OBJECT, "eval": _OBJECT})
             _row(f"{where}: runs[{i}] losses", run["losses"], _LOSSES)
             _row(f"{where}: runs[{i}] eval", {"normalized": None, **run["eval"]}, _EVAL)
-        if "diagnostics" in run:  # optional (files before the diagnostics have none); absent: {"absent": why}
-            diag = run["diagnostics"]
-            if not (isinstance(diag, dict) and isinstance(diag.get("absent"), str)):
-                _row(f"{where}: runs[{i}] diagnostics", diag, _DIAGNOSTICS)
+        _check_diagnostics(f"{where}: runs[{i}]", run)
+        for n, snap in enumerate(run.get("at") or ()):  # optional: the policy at `Budget.eval_at`'s iterations
+            _row(f"{where}: runs[{i}] at[{n}]", snap, {"iteration": (_count, "an int >= 0"), "eval": _OBJECT})
+            _row(f"{where}: runs[{i}] at[{n}] eval", {"normalized": None, **snap["eval"]}, _EVAL)
+            _check_diagnostics(f"{where}: runs[{i}] at[{n}]", snap)
+
+
+def _check_diagnostics(where: str, record: dict) -> None:
+    """A record's optional `diagnostics` (files before them have none; a policy without them: {"absent": why})."""
+    if "diagnostics" in record:
+        diag = record["diagnostics"]
+        if not (isinstance(diag, dict) and isinstance(diag.get("absent"), str)):
+            _row(f"{where} diagnostics", diag, _DIAGNOSTICS)

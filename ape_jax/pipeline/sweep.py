@@ -482,23 +482,26 @@ class Trained:
     metrics: dict
     compile_s: float
     train_s: float
+    snapshots: dict = dataclasses.field(default_factory=dict)  # {iteration: params} at `Budget.eval_at`
 
 
 def train_program(program: Program, hparams: Any, budget, data: Data, progress: Callable[[int], None],
                   chunk: int | None = None, vectorize: bool = True,
-                  checkpoint: ProgramCheckpoint | None = None) -> tuple[Any, dict]:
+                  checkpoint: ProgramCheckpoint | None = None) -> tuple[Any, dict, dict[int, Any]]:
     """Trains a program's runs vmapped and sharded over devices, in chunks of iterations.
 
     Round-based learners (boosting, DAgger) get `next_round` between rounds.
     `chunk` overrides the budget's iterations per compiled call; `vectorize=False`
     trains the runs one after another instead of vmapped (`grid.grid_runner`).
+    A chunk that would pass an iteration of `budget.eval_at` (counted over all
+    rounds) stops there, and the policies are kept (a snapshot).
     With a `checkpoint`, training continues from its latest save and saves
     the state and curves after every chunk that passes a multiple of its
-    interval, and at the end.
+    interval, and at the end; snapshots are saved when taken.
 
     Returns:
-      (params, metrics): the policies' parameters, leaves `[len(runs), ...]`;
-      metrics `[len(runs), rounds * round_iterations]`.
+      (params, metrics, snapshots): the policies' parameters, leaves `[len(runs), ...]`;
+      metrics `[len(runs), rounds * round_iterations]`; `{iteration: params}` at `budget.eval_at`.
     """
     learner, runs = program.learner, program.runs
     keys = jnp.stack([r.key for r in runs])
@@ -512,10 +515,16 @@ def train_program(program: Program, hparams: Any, budget, data: Data, progress: 
         saved = checkpoint.restore(state) if checkpoint is not None else None
     else:
         saved = _restore_on_every_process(checkpoint, state, learner, hps, data)
+    trim = functools.partial(jax.tree.map, lambda x: x[: len(runs)])
+    at = tuple(getattr(budget, "eval_at", ()))
+    snapshots = {}
     if saved is not None:
         start, state, curves = saved
         metrics.append(curves)
         progress(start)
+        if checkpoint is not None:  # process 0's: the others never evaluate
+            like = trim(learner.policy_params(state))
+            snapshots = {i: checkpoint.load_snapshot(i, like) for i in at if i <= start}
     total = learner.rounds * learner.round_iterations
     runners = {}
     for r in range(learner.rounds):
@@ -527,18 +536,22 @@ def train_program(program: Program, hparams: Any, budget, data: Data, progress: 
             state = runners["next_round"](state, hps, data)
         done = max(0, start - first)
         while done < learner.round_iterations:
-            n = min(chunk, learner.round_iterations - done)
+            n = min(chunk - done % chunk, learner.round_iterations - done)  # chunks end at multiples of chunk
+            n = min([n, *(i - first - done for i in at if i > first + done)])  # and stop at a snapshot
             if n not in runners:
                 runners[n] = grid_runner(lambda s, hp, d, n=n: learner.run(s, hp, d, n), vectorize=vectorize)
             state, m = runners[n](state, hps, data)
             metrics.append(jax.device_get(m))
             done += n
+            if first + done in at:
+                snapshots[first + done] = trim(learner.policy_params(state))
+                if checkpoint is not None:
+                    checkpoint.save_snapshot(first + done, snapshots[first + done])
             if checkpoint is not None and (checkpoint.due(first + done) or first + done == total):
                 metrics = [_concat(metrics)]
                 checkpoint.save(first + done, state, metrics[0])
             progress(n)
-    metrics = jax.tree.map(lambda x: x[: len(runs)], _concat(metrics))
-    return jax.tree.map(lambda x: x[: len(runs)], learner.policy_params(state)), metrics
+    return trim(learner.policy_params(state)), trim(_concat(metrics)), snapshots
 
 
 def _restore_on_every_process(checkpoint: ProgramCheckpoint | None, state: Any, learner: Learner, hparams: Any,
@@ -605,7 +618,7 @@ def train(programs: Sequence[Program], spec: SweepSpec, prepared: Prepared, data
                 b.update(n)
 
             t0 = time.perf_counter()
-            params, metrics = train_program(
+            params, metrics, snapshots = train_program(
                 program, traced_hparams(program.runs, spec.recipe.lr, rows), spec.budget, data, tick,
                 chunk=CPU_IMAGE_CHUNK if prepared.sequential else None, vectorize=not prepared.sequential,
                 checkpoint=None if checkpoint is None else checkpoint.program(program.name))
@@ -613,7 +626,7 @@ def train(programs: Sequence[Program], spec: SweepSpec, prepared: Prepared, data
             chunk_times = np.diff([t0, *stamps])
             steady = float(np.median(chunk_times[1:])) if len(chunk_times) > 1 else 0.0
             compile_s = max(0.0, float(chunk_times[0]) - steady) if len(chunk_times) else 0.0
-            out.append(Trained(program, params, metrics, compile_s, float(sum(chunk_times)) - compile_s))
+            out.append(Trained(program, params, metrics, compile_s, float(sum(chunk_times)) - compile_s, snapshots))
             if hooks.curves is not None:
                 hooks.curves(program.name, program.runs, metrics)
     return out
@@ -637,13 +650,17 @@ class PolicyGroup:
 
 @dataclasses.dataclass(frozen=True)
 class Evaluated:
-    """The evaluation phase's output: per group, the evaluation outputs and loss analysis, row j = run j."""
+    """The evaluation phase's output: per group, the evaluation outputs and loss analysis, row j = run j.
+
+    `snapshots`: the same at each iteration of `Budget.eval_at`, `{iteration: ((group, outputs, losses), ...)}`
+    (a group there holds the runs whose programs passed that iteration)."""
 
     groups: tuple[PolicyGroup, ...]
     outputs: tuple[dict, ...]   # per group: {"return": [P, E], metric: [P, E], "diag_<field>": [P], ...}
     losses: tuple[dict, ...]    # per group: {"train": {...: [P]}, "val": {...}}
     eval_s: float               # the diagnostics' time included
     diagnostics_s: float = 0.0
+    snapshots: dict = dataclasses.field(default_factory=dict)
 
 
 def diagnosable(episodes: int, probe_steps: int) -> bool:
@@ -698,24 +715,39 @@ def evaluate_group(prepared: Prepared, ape: ApeFit, episodes: int, group: Policy
 def evaluate(trained: Sequence[Trained], prepared: Prepared, ape: ApeFit, episodes: int, hooks: Hooks = Hooks(),
              checkpoint: SweepCheckpoint | None = None, probe_steps: int = 0) -> Evaluated:
     """Phase 4: every policy on the same `episodes` episodes, one program per history (groups saved in
-    `checkpoint` reused), with the copycat diagnostics at `probe_steps` (`Budget.probe_steps`; 0: none)."""
-    eval_s, diag_s, groups, outputs, losses = 0.0, 0.0, [], [], []
-    total = sum(len(t.program.runs) for t in trained) * episodes
+    `checkpoint` reused), with the copycat diagnostics at `probe_steps` (`Budget.probe_steps`; 0: none); the
+    same for the policies kept at each iteration of `Budget.eval_at` (`Trained.snapshots`)."""
+    points = sorted({i for t in trained for i in t.snapshots})
+    seconds = {"eval": 0.0, "diagnostics": 0.0}
+    total = sum(len(t.program.runs) * (1 + len(t.snapshots)) for t in trained) * episodes
     with hooks.bar(desc="evaluate", total=total, unit="episode") as b:
-        for history in dict.fromkeys(t.program.cfg.history for t in trained):
-            mine = [t for t in trained if t.program.cfg.history == history]
+
+        def evaluated(history: int, mine: list[Trained], params: list, name: str):
             group = PolicyGroup(history, mine[0].program.cfg, tuple(r for t in mine for r in t.program.runs),
-                                jax.tree.map(lambda *xs: jnp.concatenate(xs), *[t.params for t in mine]))
-            saved = ckpt_lib.load_evaluation(checkpoint, f"eval-{group.name}")
+                                jax.tree.map(lambda *xs: jnp.concatenate(xs), *params))
+            saved = ckpt_lib.load_evaluation(checkpoint, name)
             if saved is None:
                 t0 = time.perf_counter()
-                out, loss, seconds = evaluate_group(prepared, ape, episodes, group, probe_steps)
+                out, loss, diag_s = evaluate_group(prepared, ape, episodes, group, probe_steps)
                 saved = out, loss
-                eval_s, diag_s = eval_s + time.perf_counter() - t0, diag_s + seconds
-                ckpt_lib.save_evaluation(checkpoint, f"eval-{group.name}", *saved)
-            groups.append(group), outputs.append(saved[0]), losses.append(saved[1])
+                seconds["eval"] += time.perf_counter() - t0
+                seconds["diagnostics"] += diag_s
+                ckpt_lib.save_evaluation(checkpoint, name, *saved)
             b.update(len(group.runs) * episodes)
-    return Evaluated(tuple(groups), tuple(outputs), tuple(losses), eval_s, diag_s)
+            return group, *saved
+
+        final, snapshots = [], {i: [] for i in points}
+        for history in dict.fromkeys(t.program.cfg.history for t in trained):
+            mine = [t for t in trained if t.program.cfg.history == history]
+            final.append(evaluated(history, mine, [t.params for t in mine], f"eval-h{history}"))
+            for i in points:
+                passed = [t for t in mine if i in t.snapshots]
+                if passed:
+                    snapshots[i].append(evaluated(history, passed, [t.snapshots[i] for t in passed],
+                                                  f"eval-h{history}-at{i}"))
+    groups, outputs, losses = zip(*final) if final else ((), (), ())
+    return Evaluated(tuple(groups), tuple(outputs), tuple(losses), seconds["eval"], seconds["diagnostics"],
+                     {i: tuple(v) for i, v in snapshots.items()})
 
 
 def diagnostics_record(out: dict, j: int) -> dict | None:
@@ -734,19 +766,9 @@ def diagnostics_record(out: dict, j: int) -> dict | None:
 
 # -- 5. assemble ----------------------------------------------------------------------------------------------------
 
-def run_record(run: Run, j: int, out: dict, losses: dict, curves: dict, prepared: Prepared) -> dict:
-    """Run `run`'s record in results.json; `j` is its row in the evaluation outputs `out` and `losses`; `curves`
-    its per-iteration training metrics (`"loss"` and the learner's others, e.g. FCA's `adversary_loss`)."""
-    loss_curve = curves["loss"]
+def eval_record(out: dict, j: int, prepared: Prepared) -> dict:
+    """Row `j`'s `eval` block in results.json from its group's evaluation outputs `out`."""
     returns = np.asarray(out["return"][j], np.float64)
-    record = {"method": run.method, "hparams": run.hparams, "seed": run.seed, "status": "ok", "error": None,
-              "online": methods_lib.get(run.method).online}
-    loss_curve = np.asarray(loss_curve)
-    bad = np.flatnonzero(~np.isfinite(loss_curve))
-    if len(bad):
-        record.update(status="failed", error=f"training loss became non-finite at iteration {int(bad[0])}")
-    elif not np.all(np.isfinite(returns)):
-        record.update(status="failed", error="evaluation returns are non-finite")
     ev = {"episodes": int(len(returns)), "return_mean": float(returns.mean()), "return_std": float(returns.std())}
     if prepared.card is not None:
         ev["normalized"] = float(evaluate_lib.normalized(returns.mean(), prepared.card["return_mean"],
@@ -756,7 +778,22 @@ def run_record(run: Run, j: int, out: dict, losses: dict, curves: dict, prepared
             ev[k] = float(np.mean(out[k][j]))
     if prepared.task.metric != "return":
         ev.setdefault("normalized", 100.0 * ev[prepared.task.metric])  # a rate, in % (no return to normalise)
-    record["eval"] = ev
+    return ev
+
+
+def run_record(run: Run, j: int, out: dict, losses: dict, curves: dict, prepared: Prepared) -> dict:
+    """Run `run`'s record in results.json; `j` is its row in the evaluation outputs `out` and `losses`; `curves`
+    its per-iteration training metrics (`"loss"` and the learner's others, e.g. FCA's `adversary_loss`)."""
+    returns = np.asarray(out["return"][j], np.float64)
+    record = {"method": run.method, "hparams": run.hparams, "seed": run.seed, "status": "ok", "error": None,
+              "online": methods_lib.get(run.method).online}
+    loss_curve = np.asarray(curves["loss"])
+    bad = np.flatnonzero(~np.isfinite(loss_curve))
+    if len(bad):
+        record.update(status="failed", error=f"training loss became non-finite at iteration {int(bad[0])}")
+    elif not np.all(np.isfinite(returns)):
+        record.update(status="failed", error="evaluation returns are non-finite")
+    record["eval"] = eval_record(out, j, prepared)
     if (diag := diagnostics_record(out, j)) is not None:
         record["diagnostics"] = diag
     record["losses"] = {split: {k: float(v[j]) for k, v in losses[split].items()} for split in losses}
@@ -766,6 +803,18 @@ def run_record(run: Run, j: int, out: dict, losses: dict, curves: dict, prepared
     tail = max(100, len(loss_curve) // 100)
     record["train_final"] = {k: float(np.mean(np.asarray(v)[-tail:])) for k, v in curves.items()}
     record["train_curve"] = window_means(loss_curve, CURVE_POINTS)
+    return record
+
+
+def snapshot_record(iteration: int, j: int, out: dict, losses: dict, curves: dict, prepared: Prepared) -> dict:
+    """One entry of a run's `at` list in results.json: its policy at `iteration` (`Budget.eval_at`) evaluated as
+    at the end (`eval`, `diagnostics`, `losses`), and its training loss over the 100 minibatches before."""
+    loss = np.asarray(curves["loss"])[max(0, iteration - 100):iteration]
+    record = {"iteration": iteration, "eval": eval_record(out, j, prepared),
+              "losses": {split: {k: float(v[j]) for k, v in losses[split].items()} for split in losses},
+              "train_loss": float(np.mean(loss)) if len(loss) else None}
+    if (diag := diagnostics_record(out, j)) is not None:
+        record["diagnostics"] = diag
     return record
 
 
@@ -785,6 +834,11 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
     for group, out, losses in zip(evaluated.groups, evaluated.outputs, evaluated.losses):
         for j, r in enumerate(group.runs):
             records[r.ident] = run_record(r, j, out, losses, curves[r.ident], prepared)
+    for iteration, at in sorted(evaluated.snapshots.items()):
+        for group, out, losses in at:
+            for j, r in enumerate(group.runs):
+                records[r.ident].setdefault("at", []).append(
+                    snapshot_record(iteration, j, out, losses, curves[r.ident], prepared))
     order = {m: i for i, m in enumerate(methods_lib.names())}  # the plan's order: methods, settings, seeds
     runs = sorted((records[r.ident] for t in trained for r in t.program.runs), key=lambda rec: order[rec["method"]])
     task, blocks = prepared.task, spec.settings.to_json()

@@ -1141,3 +1141,47 @@ def recipe_diagnostics(groups: dict[tuple[str, str, str], dict[str, dict]]
         names = [r for r in ("mlp", "fca") if r in recipes] + [r for r in recipes if r not in ("mlp", "fca")]
         out += [(title, n, row) for n in names for row in diagnostics_rows(recipes[n])]
     return out
+
+
+# -- the policies over training (`Budget.eval_at`: each run's `at` list) ---------------------------------------------
+
+class TrainingPoint(NamedTuple):
+    """One configuration at one iteration of its runs (an `eval_at` point, or the end): % of expert over its
+    seeds with a 95% bootstrap interval, its training loss (mean over seeds of the 100 minibatches before; None
+    where not recorded) and its `PolicyDiagnostics` there."""
+
+    label: str
+    hparams: dict
+    iteration: int
+    normalized: RecipeCell | None
+    train_loss: float | None
+    diagnostics: PolicyDiagnostics
+
+
+def _at(run: dict, iteration: int, end: int) -> dict | None:
+    """A run's record at `iteration`: its `at` entry, or the run itself at the end (`end`); None if neither."""
+    if iteration == end:
+        return {"eval": run["eval"], "diagnostics": run.get("diagnostics"), "train_loss": run.get("train_loss_final"),
+                "status": run["status"]}
+    snap = next((a for a in run.get("at") or () if a["iteration"] == iteration), None)
+    return None if snap is None else {**snap, "status": run["status"]}
+
+
+def training_points(m: dict) -> list[TrainingPoint]:
+    """Every configuration of group `m` whose runs were also evaluated before the end (`Budget.eval_at`), at each
+    of those iterations and at the end, in summary order then iteration order; none for other groups."""
+    end = int(m["sources"][0].config["iterations"])  # a group's files share their budget
+    out = []
+    for row in m["summary"]:
+        runs = _ok_runs(m, row["method"], row["hparams"])
+        points = sorted({a["iteration"] for r in runs for a in r.get("at") or ()})
+        if not points:
+            continue
+        for iteration in [*points, end]:
+            at = [a for r in sorted(runs, key=lambda r: r.get("seed", 0)) if (a := _at(r, iteration, end))]
+            seeds = [a["eval"]["normalized"] for a in at if a["eval"].get("normalized") is not None]
+            losses = [a["train_loss"] for a in at if _finite(a.get("train_loss"))]
+            out.append(TrainingPoint(label(m["methods"], row["method"]), row["hparams"], iteration,
+                                     RecipeCell(*bootstrap_mean(seeds), tuple(seeds)) if seeds else None,
+                                     float(np.mean(losses)) if losses else None, policy_diagnostics(at)))
+    return out

@@ -24,7 +24,7 @@ from experiments.report.analysis import (APE_SCALES, BOOTSTRAP_RESAMPLES, BOOTST
                                          PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP, PAPER_TABLE5,
                                          alpha_rows, recipe_groups, recipe_rows,
                                          DiagnosticsRow, PolicyDiagnostics, Spread, diagnostics_rows,
-                                         diagnostics_thresholds, recipe_diagnostics,
+                                         diagnostics_thresholds, recipe_diagnostics, training_points,
                                          CopycatMap, Difference, Interval, Key, ReportError, WeightShares, _best, _hp,
                                          _metric, _ordered, _paper_step, _pct, _rows, _title, _unit, bootstrap_rows,
                                          choices, copycat_groups, copycat_map, expert_ape, extra_methods, file_stem,
@@ -454,6 +454,27 @@ def diagnostics_section(m: dict, explained: bool) -> list[str]:
     return diagnostics_lines(rows, diagnostics_thresholds(m["sources"]),
                              "Copycat diagnostics per trained policy (`ape_jax.diagnostics`), from its embedding "
                              "and its own rollouts:", explained, unit=unit)
+
+
+def training_table(m: dict) -> list[str]:
+    """Group `m`'s configurations over training (`Budget.eval_at`): per configuration and iteration, % of expert
+    with its 95% bootstrap interval over seeds, the training loss, the copycat diagnostics' medians and the
+    verdict count; nothing for a group evaluated at the end only."""
+    points = training_points(m)
+    if not points:
+        return []
+    unit = _metric(m)[1] if _metric(m)[0] == "normalized" else "% of expert"
+    lines = ["The same policies over training (the runs also evaluated at `budget.eval_at`'s iterations, on the "
+             "same episodes, with the same diagnostics; a run's learning-rate schedule is its whole run's):", "",
+             f"| method | hparams | iteration | {unit} [95% CI] | training loss | embedding ratio | "
+             "predictability ratio | verdict |", "|---|---|---:|---:|---:|---:|---:|---|"]
+    for p in points:
+        hps = ", ".join(f"{k} {v:g}" for k, v in p.hparams.items()) or "—"
+        loss = "—" if p.train_loss is None else f"{p.train_loss:.4g}"
+        lines.append(f"| {p.label} | {hps} | {p.iteration:,} | {_pct_cell(p.normalized)} | {loss} | "
+                     f"{_ratio(p.diagnostics.embedding)} | {_ratio(p.diagnostics.predictability)} | "
+                     f"{_verdicts(p.diagnostics)} |")
+    return [*lines, ""]
 
 
 SENSITIVITY = Key("walker2d", "pos", BRAX)  # the group the sensitivity study ran in (its committed file is brax's)
@@ -1100,6 +1121,6 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
                     "repeats its last action scores below the expert), and how far its actions are from the "
                     "expert's on the states it visits itself:", "", copycat]
         diagnostics = diagnostics_section(m, explained)
-        out += diagnostics
+        out += diagnostics + training_table(m)
         explained = explained or bool(diagnostics)
     return "\n".join(out), drawn
