@@ -179,3 +179,20 @@ def test_policies_kept_at_eval_at_are_the_training_state_there_and_leave_trainin
         assert all(a["eval"]["episodes"] == 2 and a["train_loss"] > 0 for a in r["at"])
     from ape_jax.pipeline import results as results_lib
     results_lib.validate(res.to_json())
+
+
+def test_a_network_without_an_embedding_gets_its_diagnostics_recorded_absent_not_as_zeros():
+    """A plugin's network whose `__call__` takes no `return_embedding`: no probe can read it."""
+    import types
+
+    import flax.linen as nn
+
+    class NoEmbedding(nn.Module):
+        @nn.compact
+        def __call__(self, x):
+            return nn.Dense(2)(x)
+
+    group = S.PolicyGroup(2, types.SimpleNamespace(model=NoEmbedding), (S.Run("bc-oh", {}, 0),) * 3, None)
+    out = S.group_diagnostics(None, None, group, None, None, steps=100)
+    assert [S.diagnostics_record(out, j) for j in range(3)] == [
+        {"absent": "the policy's network gives no embedding (it takes no return_embedding)"}] * 3

@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import inspect
 import pathlib
 import resource
 import time
@@ -673,18 +674,18 @@ def group_diagnostics(prepared: Prepared, ape: ApeFit, group: PolicyGroup, actio
                       valid: np.ndarray, steps: int) -> dict[str, np.ndarray]:
     """The group's copycat diagnostics (`ape_jax.diagnostics.diagnose`) as `{"diag_<field>": [P]}`; the expert's
     rollouts are its demonstrations' training episodes (a sweep collects them without noise, so they are its
-    own rollouts), the velocity the demonstrations' `qvel` where they hold one. A network without an embedding gives `{"diag_absent": [P]}`."""
+    own rollouts), the velocity the demonstrations' `qvel` where they hold one. A network that gives no
+    embedding (its `__call__` takes no `return_embedding`, e.g. a plugin's) gets `{"diag_absent": [P]}`."""
+    if "return_embedding" not in inspect.signature(type(group.cfg.model()).__call__).parameters:
+        return {f"{DIAG}absent": np.ones(len(group.runs))}  # reported absent, never as zero
     train, val = prepared.data(prepared.train, ape.train), prepared.data(prepared.val, ape.val)
     demos = prepared.train.demos
     velocity = None
     if "qvel" in demos.sim and "qvel" in prepared.val.demos.sim:
         velocity = (demos.sim["qvel"], prepared.val.demos.sim["qvel"])
     expert = diagnostics_lib.demonstration_rollouts(demos.action, demos.episode)
-    try:
-        d = diagnostics_lib.diagnose(jax.random.PRNGKey(DIAGNOSTICS_SEED), group.cfg, group.params, train, val,
-                                     actions, valid, expert, velocity, steps=steps)
-    except TypeError:  # a plugin's network that takes no `return_embedding`: reported absent, never as zero
-        return {f"{DIAG}absent": np.ones(len(group.runs))}
+    d = diagnostics_lib.diagnose(jax.random.PRNGKey(DIAGNOSTICS_SEED), group.cfg, group.params, train, val,
+                                 actions, valid, expert, velocity, steps=steps)
     rows = d.pop("probe_rows")
     return {**{DIAG + k: np.asarray(v) for k, v in d.items()},
             f"{DIAG}probe_rows_train": np.full(len(group.runs), rows[0]),
@@ -751,8 +752,8 @@ def evaluate(trained: Sequence[Trained], prepared: Prepared, ape: ApeFit, episod
 
 
 def diagnostics_record(out: dict, j: int) -> dict | None:
-    """Run `j`'s `diagnostics` in results.json from its group's outputs, None where the group has none (files
-    before them, or a sweep whose `absent_diagnostics` says why)."""
+    """Run `j`'s `diagnostics` in results.json from its group's outputs, None where the group has none (outputs
+    saved before them, or a sweep that is not `diagnosable`)."""
     if f"{DIAG}absent" in out:
         return {"absent": "the policy's network gives no embedding (it takes no return_embedding)"}
     if f"{DIAG}copycat" not in out:
