@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import statistics
 import pathlib
 import shutil
 import sys
@@ -194,8 +195,8 @@ def table(res) -> str:
         return [d for x in runs if isinstance(d := x.get("diagnostics"), dict) and "absent" not in d]
 
     def median(blocks, key):
-        v = sorted(b[key] for b in blocks if isinstance(b.get(key), (int, float)) and math.isfinite(b[key]))
-        return f"{(v[(len(v) - 1) // 2] + v[len(v) // 2]) / 2:.3g}" if v else "-"
+        v = [b[key] for b in blocks if isinstance(b.get(key), (int, float)) and math.isfinite(b[key])]
+        return f"{statistics.median(v):.3g}" if v else "-"
 
     diagnosed = bool(read(res.runs))
     heads = [f"{m} (mean ± std over seeds)" for m in shown] if shown else ["return (mean ± std over seeds)"]

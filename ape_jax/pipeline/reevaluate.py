@@ -91,7 +91,7 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
     new = Results.from_json(results.to_json())  # a deep copy: `results` is left as it was
     new_records = {_key(r): r for r in new.runs}
     metrics = (*prepared.task.metrics, *sweep_lib.COPYCAT_METRICS)
-    added, differ, diag_configs, diag_s = set(), [], [], 0.0
+    added, differ, diag_config, diag_s = set(), [], None, 0.0
     t0 = time.perf_counter()
     for name, saved in policies.items():
         history = int(name[1:])
@@ -105,8 +105,7 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
         steps = spec.budget.probe_steps or diagnostics_lib.PROBE_STEPS  # a file that ran none gets the default's
         out, _, seconds = sweep_lib.evaluate_group(prepared, ape, episodes, group, steps if lacking else 0)
         diag_s += seconds
-        if (diag_config := sweep_lib.diagnostics_config(prepared, [out])) is not None:
-            diag_configs.append(diag_config)
+        diag_config = diag_config or sweep_lib.diagnostics_config(prepared, [out])
         for j, run in enumerate(saved["runs"]):
             key = _key(run)
             if key not in records:
@@ -130,8 +129,8 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
         raise ReevaluationError(f"{len(differ)} recorded evaluation numbers (returns, metrics) differ from the "
                                 f"recomputed ones (e.g. {differ[0]}): the policies, the environment or the "
                                 "evaluation changed")
-    if "diagnostics" not in new.config and diag_configs:
-        new.config["diagnostics"] = diag_configs[0]
+    if "diagnostics" not in new.config and diag_config is not None:
+        new.config["diagnostics"] = diag_config
         added.add("config.diagnostics")
     ape_record = new.config.setdefault("ape", {})
     if "val_mean" not in ape_record:
