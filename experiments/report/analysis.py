@@ -101,13 +101,19 @@ class Key(NamedTuple):
 
 
 def budget_of(res: results_lib.Results) -> int | None:
-    """`res`'s iterations where they differ from its preset's (None: the preset's, or a preset this code lacks)."""
+    """`res`'s iterations where they differ from its base preset's (None: the base's, or a preset this code lacks).
+
+    The base is the file's own preset, except for `paper`, whose base is `default`: a `paper` run is the same
+    experiment trained longer (300k iterations where `default` trains 30k), a group of its own beside the `default`
+    group, never merged into it.
+    """
     from ape_jax.pipeline.presets import BUDGETS, resolve
 
     iterations = res.config.get("iterations")
     if res.preset not in BUDGETS or not isinstance(iterations, int):
         return None
-    return None if iterations == resolve(res.env, res.obs, preset=res.preset).budget.iterations else iterations
+    base = "default" if res.preset == "paper" else res.preset
+    return None if iterations == resolve(res.env, res.obs, preset=base).budget.iterations else iterations
 
 
 def in_fca_family(name: str) -> bool:
@@ -1185,3 +1191,174 @@ def training_points(m: dict) -> list[TrainingPoint]:
                                      RecipeCell(*bootstrap_mean(seeds), tuple(seeds)) if seeds else None,
                                      float(np.mean(losses)) if losses else None, policy_diagnostics(at)))
     return out
+
+
+# -- the paper's budget with the paper's recipe: the same policies over training, beside Table 5 ------------------
+
+# The methods of the issue's 300k table, (label, method, hparams): None for FCA's task default (`_recipe_row`),
+# "tau" for the softmax at the paper's τ of the task (`PAPER_TAU`).
+BUDGET_METHODS = (("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), ("Ours, step THR 10% W 5", "ours-step", PAPER_STEP),
+                  ("Ours, softmax at the paper's τ", "ours-softmax", "tau"), ("FCA (TCA)", "fca", None),
+                  ("FCA (TCA + IB)", "fca-ib", None))
+
+
+class BudgetPoint(NamedTuple):
+    """One configuration at one iteration of its runs (an `eval_at` point or the end): % of expert and mean return
+    over seeds, each with its 95% bootstrap interval (None where no seed recorded it), and the diagnostics there."""
+
+    iteration: int
+    normalized: RecipeCell | None
+    returns: RecipeCell | None
+    diagnostics: PolicyDiagnostics
+
+
+class BudgetRow(NamedTuple):
+    """One method of one task's paper-budget group: its points in iteration order, the supplement's Table 5 return
+    for it (None: Table 5 has no such row), and which hyperparameters ran."""
+
+    env: str
+    label: str
+    method: str
+    hparams: dict
+    points: tuple[BudgetPoint, ...]
+    paper: float | None
+
+    def at(self, iteration: int) -> BudgetPoint | None:
+        return next((p for p in self.points if p.iteration == iteration), None)
+
+
+def paper_budget_groups(merged: dict) -> list[dict]:
+    """The groups of the paper's protocol (fca, any split) under the `fca` recipe trained for the `paper` preset's
+    iterations: the issue's 300k table, one group per state task, in task order."""
+    from ape_jax.pipeline.presets import BUDGETS
+
+    return [m for key, m in _ordered(merged) if key.env in MUJOCO and key.obs == "pos"
+            and key.budget == BUDGETS["paper"].iterations and m["protocol"].get("variant_of") == FCA
+            and m["protocol"].get("recipe") == "fca"]
+
+
+def _cell(values: Sequence[float]) -> RecipeCell | None:
+    return RecipeCell(*bootstrap_mean(values), tuple(values)) if values else None
+
+
+def budget_rows(m: dict) -> list[BudgetRow]:
+    """`BUDGET_METHODS` that ran in group `m`, each at every iteration its runs were evaluated at (`Budget.eval_at`,
+    then the end), with Table 5's return beside BC-SO, BC-OH, Ours (step THR 10% W 5) and FCA (the paper's FCA
+    has the information bottleneck: beside TCA + IB, or beside TCA where IB did not run)."""
+    end = int(m["sources"][0].config["iterations"])
+    ib = bool(_rows(m, "fca-ib"))
+    table5 = {"bc-so": "bc-so", "bc-oh": "bc-oh", "fca-ib": "fca", **({} if ib else {"fca": "fca"})}
+    out = []
+    for lab, method, hparams in BUDGET_METHODS:
+        if hparams == "tau":
+            if m["env"] not in PAPER_TAU:
+                continue
+            hparams = {"tau": PAPER_TAU[m["env"]]}
+            lab = f"Ours, softmax τ {hparams['tau']:g}"
+        row = _recipe_row(m, method, hparams)
+        if row is None:
+            continue
+        runs = sorted(_ok_runs(m, row["method"], row["hparams"]), key=lambda r: r.get("seed", 0))
+        points = []
+        for iteration in sorted({a["iteration"] for r in runs for a in r.get("at") or ()} | {end}):
+            at = [a for r in runs if (a := _at(r, iteration, end))]
+            points.append(BudgetPoint(iteration,
+                                      _cell([a["eval"]["normalized"] for a in at
+                                             if _finite(a["eval"].get("normalized"))]),
+                                      _cell([a["eval"]["return_mean"] for a in at
+                                             if _finite(a["eval"].get("return_mean"))]),
+                                      policy_diagnostics(at)))
+        key = "ours" if method == "ours-step" and row["hparams"] == PAPER_STEP else table5.get(method)
+        out.append(BudgetRow(m["env"], lab, method, dict(row["hparams"]), tuple(points),
+                             None if key is None else float(PAPER_TABLE5[key][m["env"]])))
+    return out
+
+
+def budget_differences(rows: Sequence[BudgetRow]) -> list[tuple[str, dict[int, Interval]]]:
+    """One task's differences over seeds, in points of % of expert, at each iteration both arms were evaluated:
+    BC-OH − BC-SO (what the history adds), then every other method − BC-OH (does it beat the copycat?).
+    `[(label, {iteration: Interval})]`, pairs without a common point left out."""
+    by = {r.method: r for r in rows}
+    pairs = [("BC-OH − BC-SO", by.get("bc-oh"), by.get("bc-so"))]
+    pairs += [(f"{r.label} − BC-OH", r, by.get("bc-oh")) for r in rows if r.method not in ("bc-so", "bc-oh")]
+    out = []
+    for lab, a, b in pairs:
+        if a is None or b is None:
+            continue
+        diffs = {}
+        for p in a.points:
+            q = b.at(p.iteration)
+            if p.normalized is not None and q is not None and q.normalized is not None:
+                diffs[p.iteration] = bootstrap_difference(p.normalized.seeds, q.normalized.seeds)
+        if diffs:
+            out.append((lab, diffs))
+    return out
+
+
+# -- the copycat map, extended: recipe and budget axes, diagnostics as well as returns -----------------------------
+
+class MapPoint(NamedTuple):
+    """One cell of the extended copycat map (`extended_map`): one task under one setting (recipe, split), frame skip
+    and training-set size, for runs of `run` iterations evaluated at `iteration`.
+
+    `cells` align with `MAP_METHODS` (None: not run); `history` is BC-OH − BC-SO over seeds in points of % of expert
+    (None where either did not run); `diagnostics` are BC-OH's there (None where BC-OH did not run)."""
+
+    env: str
+    recipe: str
+    split: str
+    frame_skip: int
+    train_transitions: int
+    run: int
+    iteration: int
+    cells: tuple[MapCell | None, ...]
+    history: Interval | None
+    diagnostics: PolicyDiagnostics | None
+
+    @property
+    def setting(self) -> str:
+        """`"recipe fca, split by rows"`: what the recipe axis varies."""
+        return f"recipe {self.recipe}, split by {self.split}"
+
+
+def _seed_cell(values: Sequence[float]) -> MapCell | None:
+    if not values:
+        return None
+    x = np.asarray(values, np.float64)
+    return MapCell(float(x.mean()), float(x.std(ddof=1)) if x.size > 1 else math.nan, int(x.size), tuple(values))
+
+
+def extended_map(merged: dict) -> list[MapPoint]:
+    """Every state group of the fca family (the paper's protocol at each frame skip and training-set size, under
+    every recipe, split and budget) as map points: one per iteration its runs were evaluated at (`Budget.eval_at`,
+    then the end), with BC-SO, BC-OH and Ours (step THR 10% W 5) in % of expert, BC-OH − BC-SO with its 95%
+    bootstrap interval over seeds, and BC-OH's copycat diagnostics. In task, setting (recipe mlp before fca,
+    whole episodes before rows), frame skip, size, run length and iteration order."""
+    out = []
+    for key, m in _ordered(merged):
+        p = m["protocol"]
+        base = p.get("variant_of") or key.protocol
+        if key.obs != "pos" or key.env not in MUJOCO or not in_fca_family(base) or p.get("frame_skip") is None:
+            continue
+        end = int(m["sources"][0].config["iterations"])
+        chosen = [_map_row_of(m, method, hp) for _, method, hp in MAP_METHODS]
+        runs = [sorted(_ok_runs(m, r["method"], r["hparams"]), key=lambda r: r.get("seed", 0)) if r else []
+                for r in chosen]
+        points = sorted({a["iteration"] for rs in runs for r in rs for a in r.get("at") or ()} | {end})
+        for iteration in points:
+            at = [[a for r in rs if (a := _at(r, iteration, end))] for rs in runs]
+            cells = tuple(_seed_cell([a["eval"]["normalized"] for a in xs if _finite(a["eval"].get("normalized"))])
+                          for xs in at)
+            bcso, bcoh = cells[0], cells[1]
+            history = bootstrap_difference(bcoh.seeds, bcso.seeds) if bcso and bcoh else None
+            out.append(MapPoint(key.env, p.get("recipe") or "mlp", p.get("split") or "episodes", int(p["frame_skip"]),
+                                int(p.get("train_transitions") or FCA_TRAIN), end, iteration, cells, history,
+                                policy_diagnostics(at[1]) if at[1] else None))
+    rank = {"mlp": 0, "fca": 1}
+    return sorted(out, key=lambda q: (MUJOCO.index(q.env), rank.get(q.recipe, 2), q.recipe, q.split != "episodes",
+                                      q.frame_skip, q.train_transitions, q.run, q.iteration))
+
+
+def _map_row_of(m: dict, method: str, hparams: dict | None) -> dict | None:
+    rows = _rows(m, method)
+    return _best(rows) if hparams is None else next((r for r in rows if r["hparams"] == hparams), None)

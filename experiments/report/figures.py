@@ -36,8 +36,11 @@ import numpy as np
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
+from matplotlib.ticker import FuncFormatter, NullLocator
 
-from experiments.report.analysis import (FCA, MAP_METHODS, PAPER_STEP, PAPER_TAU, CopycatMap, WeightShares, _best,
+from ape_jax import tasks
+from experiments.report.analysis import (FCA, FCA_TRAIN, MAP_METHODS, PAPER_STEP, PAPER_TAU, BudgetRow, CopycatMap,
+                                         MapPoint, WeightShares, _best,
                                          _config_key, _hp, _metric, _ordered, _paper_step, _pct, _rows, _seeds,
                                          _value, extra_methods, in_fca_family, known_methods, label)
 
@@ -143,7 +146,7 @@ def heatmap(title: str, panels: Sequence[Grid], center: float | None, unit: str 
 
 class Lines(NamedTuple):
     """One line panel: `series` of `(label, x, y, band)` or `(label, x, y, band, style)`, `band` the ± half-width
-    around y or None, `style` matplotlib line keywords (e.g. `{"ls": "--", "color": "C0"}`); a series whose
+    around y, a tuple `(lower, upper)` of the band's edges, or None, `style` matplotlib line keywords (e.g. `{"ls": "--", "color": "C0"}`); a series whose
     label is "" stays out of the legend."""
 
     title: str
@@ -152,6 +155,13 @@ class Lines(NamedTuple):
     series: Sequence[tuple]
     log_x: bool = False
     log_y: bool = False
+    xticks: Sequence[float] | None = None  # ticks at these x, labelled `30k`-style, instead of matplotlib's
+    empty: str = "no data"                   # what a panel without series says
+
+
+def _tick(x: float) -> str:
+    """`30000 -> "30k"`, `2 -> "2"`: a tick label for the values the report plots (iterations, sizes, skips)."""
+    return f"{x / 1000:g}k" if x >= 1000 else f"{x:g}"
 
 
 def _grid_axes(fig: Figure, n: int, columns: int | None, **kw) -> list:
@@ -174,17 +184,35 @@ def lines(panels: Sequence[Lines], title: str = "", columns: int | None = None) 
         for label, x, y, band, *style in p.series:
             x, y = np.asarray(x, float), np.asarray(y, float)
             (line,) = ax.plot(x, y, lw=1.3, label=label or "_nolegend_", **(style[0] if style else {}))
-            if band is not None:
+            if isinstance(band, tuple):  # (lower, upper): an interval that need not be symmetric
+                ax.fill_between(x, np.asarray(band[0], float), np.asarray(band[1], float), color=line.get_color(),
+                                alpha=0.2, lw=0)
+            elif band is not None:
                 b = np.asarray(band, float)
                 ax.fill_between(x, y - b, y + b, color=line.get_color(), alpha=0.2, lw=0)
         ax.set_xscale("log" if p.log_x else "linear")
         ax.set_yscale("log" if p.log_y else "linear")
+        low, high = ax.get_ylim()
+        if p.log_y and p.series and 0 < low and high / low < 10:  # within a decade: `0.3`, `1.5`, not `3×10⁻¹`
+            ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+            ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        if not p.series:
+            ax.set_xticks([])
+            ax.set_yticks([])
+            ax.xaxis.set_minor_locator(NullLocator())
+            ax.yaxis.set_minor_locator(NullLocator())
+        elif p.xticks is not None:
+            ax.set_xticks(list(p.xticks), labels=[_tick(x) for x in p.xticks])
+            ax.xaxis.set_minor_locator(NullLocator())
+        if not p.series:
+            ax.text(0.5, 0.5, p.empty, ha="center", va="center", transform=ax.transAxes, fontsize=8, color="0.4")
         ax.set_title(p.title, fontsize=10)
         ax.set_xlabel(p.xlabel, fontsize=9)
         ax.set_ylabel(p.ylabel, fontsize=9)
         ax.grid(color="0.9")
         ax.tick_params(labelsize=8)
-        ax.legend(fontsize=7, frameon=False)
+        if p.series:
+            ax.legend(fontsize=7, frameon=False)
     if title:
         fig.suptitle(title, fontsize=10)
     return fig
@@ -555,3 +583,96 @@ def copycat_map_figure(maps: list[CopycatMap]) -> Figure | None:
         ax.legend(fontsize=7, frameon=False, loc="best")
     fig.suptitle("The copycat map: % of expert\n(the paper's protocol; mean ± std over seeds)", fontsize=10)
     return fig
+
+
+def budget_figure(rows: Sequence[Sequence[BudgetRow]]) -> Figure | None:
+    """The paper's budget (`analysis.budget_rows`, one list per task): per task, % of expert against the iteration
+    each policy was evaluated at (log axis) with its 95% bootstrap band, a line per method; below, BC-OH's and the
+    others' median embedding ratio (the embedding probe's a_{t−1} error ÷ a_t alone's: below 1, the embedding carries
+    the previous action) with its range over seeds. None when no task has two points."""
+    tasks_rows = [r for r in rows if r and any(len(x.points) > 1 for x in r)]
+    if not tasks_rows:
+        return None
+    returns, embeddings = [], []
+    for task in tasks_rows:
+        title = tasks.get(task[0].env).title
+        series, emb = [], []
+        for i, r in enumerate(task):
+            style = {"color": f"C{i}", "marker": "o", "ms": 3}
+            pts = [p for p in r.points if p.normalized is not None]
+            if pts:
+                series.append((r.label, [p.iteration for p in pts], [p.normalized.mean for p in pts],
+                               ([p.normalized.low for p in pts], [p.normalized.high for p in pts]), style))
+            pts = [p for p in r.points if p.diagnostics.embedding is not None]
+            if pts:
+                emb.append((r.label, [p.iteration for p in pts], [p.diagnostics.embedding.median for p in pts],
+                            ([p.diagnostics.embedding.low for p in pts], [p.diagnostics.embedding.high for p in pts]),
+                            style))
+        ticks = sorted({p.iteration for r in task for p in r.points})
+        returns.append(Lines(title, "iterations", "% of expert (95% bootstrap band)", series, log_x=True,
+                             xticks=ticks))
+        if emb:
+            emb.append(("", [min(p.iteration for r in task for p in r.points),
+                             max(p.iteration for r in task for p in r.points)], [1.0, 1.0], None,
+                        {"color": "0.5", "ls": ":"}))
+            embeddings.append(Lines(title, "iterations", "embedding ratio (median, range over seeds)", emb,
+                                    log_x=True, log_y=True, xticks=ticks))
+    return lines(returns + embeddings, "The paper's budget and recipe: the same runs over training", len(returns))
+
+
+def extended_map_figure(points: Sequence[MapPoint]) -> Figure | None:
+    """The extended copycat map (`analysis.extended_map`): per task and axis with two or more points (frame skip;
+    training transitions at frame skip 1; the iteration of the runs that were evaluated during training), BC-OH −
+    BC-SO in points of % of expert with its 95% bootstrap band, and BC-OH's median embedding and predictability
+    ratios, a line per setting (recipe, split). None where no axis has two points."""
+    panels = []
+    for env in dict.fromkeys(q.env for q in points):
+        mine = [q for q in points if q.env == env]
+        final = [q for q in mine if q.iteration == q.run]
+        axes = (("frame skip", "frame skip", [q for q in final if q.train_transitions == FCA_TRAIN
+                                              and q.run == min_run(final)],
+                 lambda q: q.frame_skip, lambda q: q.setting),
+                ("training transitions (frame skip 1)", "data", [q for q in final if q.frame_skip == 1
+                                                                 and q.run == min_run(final)],
+                 lambda q: q.train_transitions, lambda q: q.setting),
+                ("iteration evaluated at (frame skip 1, 20k transitions)", "training",
+                 [q for q in mine if q.frame_skip == 1 and q.train_transitions == FCA_TRAIN],
+                 lambda q: q.iteration, lambda q: f"{q.setting}, {_tick(q.run)} runs"))
+        for xlabel, axis, qs, x_of, line_of in axes:
+            lines_of: dict[str, list[MapPoint]] = {}
+            for q in qs:
+                lines_of.setdefault(line_of(q), []).append(q)
+            lines_of = {k: sorted(v, key=x_of) for k, v in lines_of.items() if len({x_of(q) for q in v}) > 1}
+            if not lines_of:
+                continue
+            title = f"{tasks.get(env).title}: {axis}"
+            ticks = sorted({x_of(q) for v in lines_of.values() for q in v})
+            gap, emb, pred = [], [], []
+            for i, (name, qs_) in enumerate(lines_of.items()):
+                style = {"color": f"C{i}", "marker": "o", "ms": 3}
+                h = [q for q in qs_ if q.history is not None]
+                if h:
+                    gap.append((name, [x_of(q) for q in h], [q.history.diff for q in h],
+                                ([q.history.low for q in h], [q.history.high for q in h]), style))
+                for out, field in ((emb, "embedding"), (pred, "predictability")):
+                    d = [q for q in qs_ if q.diagnostics is not None and getattr(q.diagnostics, field) is not None]
+                    if d:
+                        out.append((name, [x_of(q) for q in d], [getattr(q.diagnostics, field).median for q in d],
+                                    None, style))
+            none = "no diagnostics\n(files from before them)"
+            for series in (emb, pred):
+                if series:  # 1: the policy's ratio equals the reference's
+                    series.append(("", [ticks[0], ticks[-1]], [1.0, 1.0], None, {"color": "0.5", "ls": ":"}))
+            panels += [Lines(title, xlabel, "BC-OH − BC-SO (points of % of expert)", gap, log_x=True, xticks=ticks),
+                       Lines(title, xlabel, "BC-OH's embedding ratio (median)", emb, log_x=True, log_y=bool(emb),
+                             xticks=ticks, empty=none),
+                       Lines(title, xlabel, "BC-OH's predictability ratio (median)", pred, log_x=True,
+                             log_y=bool(pred), xticks=ticks, empty=none)]
+    if not panels:
+        return None
+    return lines(panels, "Where copycat appears: the history's benefit and BC-OH's diagnostics along each axis", 3)
+
+
+def min_run(points: Sequence[MapPoint]) -> int:
+    """The shortest run length among `points` (the map's frame-skip and data axes compare runs of one length)."""
+    return min((q.run for q in points), default=0)

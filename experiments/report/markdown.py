@@ -22,7 +22,8 @@ from ape_jax.pipeline import results as results_lib
 from experiments.report import figures
 from experiments.report.analysis import (APE_SCALES, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, BRAX, FCA, MAP_METHODS,
                                          PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP, PAPER_TABLE5,
-                                         alpha_rows, recipe_groups, recipe_rows,
+                                         alpha_rows, recipe_groups, recipe_rows, BudgetRow, MapPoint, budget_differences,
+                                         budget_rows, extended_map, paper_budget_groups,
                                          DiagnosticsRow, PolicyDiagnostics, Spread, diagnostics_rows,
                                          diagnostics_thresholds, recipe_diagnostics, training_points,
                                          CopycatMap, Difference, Interval, Key, ReportError, WeightShares, _best, _hp,
@@ -999,6 +1000,8 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
                     "Positions only (velocities removed). " + cells + " " + selection
                     + (f" {details}" if details else ""), "", state_table(merged, "pos", protocol)]
     out += recipe_section(merged)
+    out += paper_budget_section(merged, figure)
+    out += extended_map_section(merged, figure)
     explained = bool(recipe_diagnostics(recipe_groups(merged)))   # the recipe section explained the columns
     for protocol in protocols_of(merged, "image"):
         groups = groups_of(merged, "image", protocol)
@@ -1124,3 +1127,178 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
         out += diagnostics + training_table(m)
         explained = explained or bool(diagnostics)
     return "\n".join(out), drawn
+
+
+def _k(iteration: int) -> str:
+    """`30000 -> "30k"`, `2500 -> "2.5k"`: an iteration in column headings."""
+    return f"{iteration / 1000:g}k" if iteration >= 1000 else str(iteration)
+
+
+def _ratio_cell(rows: list[BudgetRow], r: BudgetRow, its: list[int]) -> str:
+    """`"x"` of `r` at each of `its`, `"—"` where the point is missing; "/" between them."""
+    return " / ".join("—" if (p := r.at(i)) is None or p.returns is None or (b := _bcoh_at(rows, i)) is None
+                      else f"{p.returns.mean / b:.2f}×" for i in its)
+
+
+def _bcoh_at(rows: list[BudgetRow], iteration: int) -> float | None:
+    bcoh = next((r for r in rows if r.method == "bc-oh"), None)
+    p = None if bcoh is None else bcoh.at(iteration)
+    return None if p is None or p.returns is None or p.returns.mean == 0 else p.returns.mean
+
+
+def _ratios(r: BudgetRow, its: list[int], field: str) -> str:
+    return " → ".join("—" if (p := r.at(i)) is None else _ratio(getattr(p.diagnostics, field), with_range=False)
+                      for i in its)
+
+
+def _budget_reading(rows: list[BudgetRow], diffs: list[tuple[str, dict[int, Interval]]]) -> str:
+    """One task's plain reading of the paper-budget table, from its numbers."""
+    by = {r.method: r for r in rows}
+    title = tasks.get(rows[0].env).title
+    end = max(p.iteration for r in rows for p in r.points)
+    parts = []
+    bcoh = by.get("bc-oh")
+    if bcoh is not None:
+        seen = [(p.iteration, p) for p in bcoh.points if p.normalized is not None]
+        parts.append("BC-OH reaches " + ", ".join(f"{p.normalized.mean:.1f}% of expert at {_k(i)}" for i, p in seen))
+        judged = [(i, p.diagnostics) for i, p in seen if p.diagnostics.read]
+        if judged:
+            parts.append("it is judged copycat in " + ", ".join(f"{d.copycats} of {d.read} seeds at {_k(i)}"
+                                                               for i, d in judged))
+    for lab, d in diffs:
+        ci = d.get(end)
+        if ci is not None:
+            a, b = lab.split(" − ")
+            parts.append(f"at {_k(end)} {lab} is {ci.diff:+.1f} points ({_ci(ci)}; {verdict(ci, a, b)})")
+    return f"{title}: " + "; ".join(parts) + "." if parts else f"{title}: nothing to compare."
+
+
+def paper_budget_section(merged: dict, figure) -> list[str]:
+    """"The paper's budget with the paper's recipe": per task (`analysis.paper_budget_groups`), every method of
+    `analysis.BUDGET_METHODS` at each iteration its runs were evaluated at, in % of expert with bootstrap intervals,
+    its return at the end beside the supplement's Table 5 (each source's ratio to BC-OH), the differences the
+    copycat question turns on at each point, and the copycat diagnostics at each point; `figure(name, alt, draw)`
+    links the section's figure (`build`'s)."""
+    groups = paper_budget_groups(merged)
+    if not groups:
+        return []
+    rows = [budget_rows(m) for m in groups]
+    its = sorted({p.iteration for task in rows for r in task for p in r.points})
+    end = its[-1]
+    p = groups[0]["protocol"]
+    out = [f"### The paper's budget with the paper's recipe: the same runs at {', '.join(f'{i:,}' for i in its)} "
+           "iterations", "",
+           f"Protocol {FCA}, split by {p.get('split')}, recipe fca (the FCA code's network and optimiser), "
+           f"{end:,} iterations with the learning rate × 0.1 at a third and two thirds of the run (the FCA code's "
+           "100k and 200k of 300k). Each run's policy was also evaluated, on the same episodes and with the same "
+           "diagnostics, at the iterations of `budget.eval_at` before the end, so each column is the same runs "
+           "earlier in training (their learning rate not yet decayed where the point comes before 100k). % of "
+           "expert: the mean over seeds with its 95% percentile bootstrap interval. The return at the end is on "
+           "the paper's scale; the supplement's Table 5 is beside it, and since the experts differ (the paper does "
+           "not publish its own), each source's ratio to its own BC-OH is the comparison that does not depend on "
+           "them.", ""]
+    out += figure("paper-budget.png", "The paper's budget: % of expert and the embedding ratio against iterations",
+                  lambda: figures.budget_figure(rows))
+    out += ["| task | method | seeds | " + " | ".join(f"% of expert at {i:,}" for i in its)
+            + f" | return at {end:,} [95% CI] | × BC-OH | Table 5 | × BC-OH |",
+            "|---|---|---:|" + "---:|" * (len(its) + 4)]
+    for task in rows:
+        title = tasks.get(task[0].env).title
+        paper_bcoh = PAPER_TABLE5["bc-oh"][task[0].env]
+        for r in task:
+            last = r.at(end)
+            ret = last.returns if last is not None else None
+            seeds = len(ret.seeds) if ret is not None else 0
+            ratio = _ratio_cell(task, r, [end])
+            paper = "—" if r.paper is None else f"{r.paper:,.0f}"
+            paper_ratio = "—" if r.paper is None else f"{r.paper / paper_bcoh:.2f}×"
+            out.append(f"| {title} | {r.label} | {seeds} | " + " | ".join(_pct_cell(None if (q := r.at(i)) is None
+                                                                                      else q.normalized) for i in its)
+                       + " | " + ("—" if ret is None else f"{ret.mean:,.0f} [{ret.low:,.0f}, {ret.high:,.0f}]")
+                       + f" | {ratio} | {paper} | {paper_ratio} |")
+    out += ["", "Differences over seeds in points of % of expert at each iteration: BC-OH − BC-SO (what the history "
+            "adds; copycat is the history not helping) and each other method − BC-OH (does it beat BC-OH?), with "
+            "95% bootstrap intervals (each arm's seeds resampled independently), bold where the interval excludes "
+            "0.", "", "| task | difference | " + " | ".join(f"at {i:,}" for i in its) + " |",
+            "|---|---|" + "---:|" * len(its)]
+    diffs = [budget_differences(task) for task in rows]
+    for task, d in zip(rows, diffs):
+        out += [f"| {tasks.get(task[0].env).title} | {lab} | " + " | ".join(_diff_cell(ci.get(i)) for i in its) + " |"
+                for lab, ci in d]
+    out += ["", "The copycat diagnostics at each iteration (medians over seeds, " + " → ".join(_k(i) for i in its)
+            + "): the embedding ratio (the embedding probe's held-out error on a_{t−1} ÷ the same probe's from a_t "
+            "alone: below 1 the embedding carries the previous action beyond what the current one gives), the "
+            "predictability ratio (a ψ-architecture predictor's held-out error on the policy's own rollout actions ÷ "
+            "the same on the expert's: below 1 the policy's actions are more predictable from its previous ones "
+            "than the expert's), and the seeds judged copycat out of those read.", "",
+            "| task | method | embedding ratio | predictability ratio | copycat |", "|---|---|---:|---:|---:|"]
+    for task in rows:
+        title = tasks.get(task[0].env).title
+        out += [f"| {title} | {r.label} | {_ratios(r, its, 'embedding')} | {_ratios(r, its, 'predictability')} | "
+                + " → ".join("—" if (q := r.at(i)) is None or not q.diagnostics.read
+                             else f"{q.diagnostics.copycats}/{q.diagnostics.read}" for i in its) + " |" for r in task]
+    sources = [src for m in groups for src in m["sources"]]
+    out += ["", thresholds_line(diagnostics_thresholds(sources)), ""]
+    out += [f"- {_budget_reading(task, d)}" for task, d in zip(rows, diffs)] + [""]
+    return out
+
+
+def _point_diag(q: MapPoint, field: str) -> str:
+    return "—" if q.diagnostics is None else _ratio(getattr(q.diagnostics, field), with_range=False)
+
+
+def extended_map_section(merged: dict, figure) -> list[str]:
+    """"Where copycat appears: the map, extended": every fca-family state group (`analysis.extended_map`), per
+    setting (recipe, split), frame skip, training-set size, run length and evaluation point, the three map methods
+    in % of expert and BC-OH − BC-SO with its interval; then, for the cells whose files record them, BC-OH's
+    copycat diagnostics in a table of their own (so files without diagnostics report as before, and adding them
+    only adds lines). Nothing where the map has no axis beyond the copycat map's (one setting, one budget, no
+    diagnostics); `figure` as in `paper_budget_section`."""
+    points = extended_map(merged)
+    diagnosed = [q for q in points if q.diagnostics is not None and (q.diagnostics.read or q.diagnostics.absent)]
+    if len({q.setting for q in points}) < 2 and len({q.run for q in points}) < 2 and not diagnosed:
+        return []
+    names = [lab for lab, _, _ in MAP_METHODS]
+    out = ["### Where copycat appears: the map, extended", "",
+           f"Every result of the paper's protocol ({FCA}) and its variants, on four axes: the recipe (`mlp`, the "
+           "project's first, whose map cells split the demonstrations by whole episodes; `fca`, the FCA code's, "
+           "split by rows as its code does), the frame skip, the training-set size, and the budget (the run's "
+           "length, and for runs evaluated during training each iteration they were evaluated at). Per cell, BC-SO, "
+           "BC-OH and Ours (step THR 10% W 5) in % of expert (mean ± std over seeds), and BC-OH − BC-SO in points "
+           "with its 95% bootstrap interval (bold where it excludes 0): copycat was inferred from a small or "
+           "negative BC-OH − BC-SO.", ""]
+    out += figure("copycat-map-extended.png", "Where copycat appears: the history's benefit and BC-OH's "
+                  "diagnostics along each axis", lambda: figures.extended_map_figure(points))
+    lead = "| task | recipe, split | frame skip | training transitions | run | at | "
+    out += [lead + " | ".join(names) + " | BC-OH − BC-SO [95% CI] |", "|---|---|---:|---:|---:|---:|"
+            + "---:|" * (len(names) + 1)]
+
+    def cells(q: MapPoint) -> str:
+        return (f"| {tasks.get(q.env).title} | {q.recipe}, {q.split} | {q.frame_skip} | {q.train_transitions:,} | "
+                f"{_k(q.run)} | {_k(q.iteration)} | ")
+
+    out += [cells(q) + " | ".join(map(_map_cell, q.cells)) + f" | {_diff_cell(q.history)} |" for q in points]
+    out += [""]
+    if diagnosed:
+        out += ["BC-OH's copycat diagnostics in the cells whose files record them, which test that inference: "
+                "the median embedding ratio and predictability ratio over seeds (below 1: the embedding carries "
+                "a_{t−1} beyond what a_t gives; the policy's actions are more predictable than the expert's), and "
+                "the seeds judged copycat.", "",
+                lead + "BC-OH − BC-SO | embedding ratio | predictability ratio | copycat |",
+                "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+        out += [cells(q) + ("—" if q.history is None else f"{q.history.diff:+.1f}") + f" | "
+                f"{_point_diag(q, 'embedding')} | {_point_diag(q, 'predictability')} | "
+                + ("—" if not q.diagnostics.read else f"{q.diagnostics.copycats}/{q.diagnostics.read}") + " |"
+                for q in diagnosed]
+        sources = [src for key, m in _ordered(merged) for src in m["sources"]]
+        judged = [q for q in diagnosed if q.diagnostics.read]
+        copycat = [q for q in judged if q.diagnostics.copycats]
+        out += ["", thresholds_line(diagnostics_thresholds(sources)), ""]
+        if judged:
+            out += [f"Of the {len(judged)} cells whose BC-OH policies were diagnosed, "
+                    + (f"{len(copycat)} {'has' if len(copycat) == 1 else 'have'} a seed judged copycat: " + "; ".join(
+                        f"{tasks.get(q.env).title} {q.setting}, frame skip {q.frame_skip}, "
+                        f"{q.train_transitions:,} transitions, at {_k(q.iteration)} of {_k(q.run)} "
+                        f"({q.diagnostics.copycats}/{q.diagnostics.read})" for q in copycat)
+                       if copycat else "none has a seed judged copycat") + ".", ""]
+    return out

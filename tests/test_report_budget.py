@@ -1,0 +1,97 @@
+"""The paper's budget in the report (`analysis.paper_budget_groups`, `budget_rows`, `markdown.paper_budget_section`)
+and the extended copycat map (`analysis.extended_map`, `markdown.extended_map_section`).
+
+The fixture is the committed recipe-fca file (BC-SO, BC-OH, Ours 10% × 5 at 30k, 5 seeds) turned into a `paper`-preset
+file of 300k iterations whose runs were also evaluated at 30k and 100k (`at`), with numbers and diagnostics chosen
+so each point differs: BC-OH is copycat in every seed at 300k and in none before.
+"""
+
+import json
+import pathlib
+
+import numpy as np
+import pytest
+
+from experiments import report
+from experiments.report.analysis import (Key, budget_differences, budget_rows, bootstrap_difference, extended_map,
+                                         paper_budget_groups)
+
+RESULTS = pathlib.Path(__file__).resolve().parents[1] / "results"
+FCA_BC = RESULTS / "hopper-pos-fca-rows-default-fca-bc.json"   # recipe fca: BC-SO, BC-OH, Ours (10% × 5), 5 seeds
+SHIFT = {30_000: -20.0, 100_000: -10.0}                         # % of expert at each point: the end's + SHIFT
+COPYCAT = {"embedding_ratio": 0.2, "prev_from_embedding": 0.002, "prev_from_action": 0.01, "velocity_ratio": 0.5,
+           "predictability_ratio": 0.3, "policy_mse": 0.0006, "expert_mse": 0.002, "predictability_steps": 4000,
+           "verdict": "copycat"}
+HONEST = {**COPYCAT, "embedding_ratio": 1.5, "prev_from_embedding": 0.015, "predictability_ratio": 1.2,
+          "policy_mse": 0.0024, "verdict": "not copycat"}
+
+
+def _paper_file(tmp_path):
+    obj = json.loads(FCA_BC.read_text())
+    obj["preset"], obj["config"]["iterations"] = "paper", 300_000
+    for run in obj["runs"]:
+        run["diagnostics"] = COPYCAT if run["method"] == "bc-oh" else HONEST
+        run["at"] = [{"iteration": i, "train_loss": 0.01,
+                      "eval": {**run["eval"], "normalized": run["eval"]["normalized"] + shift,
+                               "return_mean": run["eval"]["return_mean"] + 10 * shift},
+                      "diagnostics": HONEST} for i, shift in SHIFT.items()]
+    path = tmp_path / "paper.json"
+    path.write_text(json.dumps(obj))
+    return report.load(path)
+
+
+def _normalized(method: str) -> list[float]:
+    runs = [r for r in json.loads(FCA_BC.read_text())["runs"] if r["method"] == method]
+    return [r["eval"]["normalized"] for r in sorted(runs, key=lambda r: r["seed"])]
+
+
+def test_a_paper_preset_file_is_a_group_of_its_own_beside_the_default_one(tmp_path):
+    merged = report.merge([_paper_file(tmp_path), report.load(FCA_BC)])   # the same configurations: never merged
+    assert set(merged) == {Key("hopper", "pos", "fca.rows.fca"), Key("hopper", "pos", "fca.rows.fca", 300_000)}
+    assert [m["budget"] for m in paper_budget_groups(merged)] == [300_000]
+
+
+def test_budget_rows_hold_every_point_with_table5_beside_its_methods(tmp_path):
+    (m,) = paper_budget_groups(report.merge([_paper_file(tmp_path)]))
+    rows = {r.method: r for r in budget_rows(m)}
+    assert set(rows) == {"bc-so", "bc-oh", "ours-step"}        # the softmax and FCA did not run: no rows
+    assert {k: r.paper for k, r in rows.items()} == {"bc-so": 275, "bc-oh": 293, "ours-step": 641}
+    bcoh = rows["bc-oh"]
+    assert [p.iteration for p in bcoh.points] == [30_000, 100_000, 300_000]
+    end = np.mean(_normalized("bc-oh"))
+    assert [p.normalized.mean for p in bcoh.points] == pytest.approx([end - 20, end - 10, end])
+    assert [(p.diagnostics.copycats, p.diagnostics.read) for p in bcoh.points] == [(0, 5), (0, 5), (5, 5)]
+    (lab, history), *others = budget_differences(list(rows.values()))
+    assert lab == "BC-OH − BC-SO" and history[300_000] == bootstrap_difference(_normalized("bc-oh"),
+                                                                               _normalized("bc-so"))
+    assert history[30_000].diff == pytest.approx(history[300_000].diff)   # both shifted alike
+    assert [o[0] for o in others] == ["Ours, step THR 10% W 5 − BC-OH"]
+
+
+def test_the_report_shows_the_paper_budget_table_beside_table5_with_differences_and_diagnostics(tmp_path):
+    text, drawn = report.build([_paper_file(tmp_path), report.load(FCA_BC)], figure_dir=tmp_path / "figures")
+    section = text[text.index("### The paper's budget with the paper's recipe"):]
+    section = section[:section.index("\n### ")]
+    end = np.mean(_normalized("bc-oh"))
+    row = next(line for line in section.splitlines() if line.startswith("| Hopper | BC-OH | 5 | "))
+    assert row.startswith(f"| Hopper | BC-OH | 5 | {end - 20:.1f} [") and f"| {end:.1f} [" in row
+    assert row.endswith("| 1.00× | 293 | 1.00× |")
+    assert next(line for line in section.splitlines()
+                if line.startswith("| Hopper | BC-SO |")).endswith(f"| 275 | {275 / 293:.2f}× |")
+    assert "| Hopper | BC-OH − BC-SO | " in section and "| Hopper | Ours, step THR 10% W 5 − BC-OH | " in section
+    assert "| Hopper | BC-OH | 1.5 → 1.5 → 0.2 | 1.2 → 1.2 → 0.3 | 0/5 → 0/5 → 5/5 |" in section
+    assert "it is judged copycat in 0 of 5 seeds at 30k, 0 of 5 seeds at 100k, 5 of 5 seeds at 300k" in section
+    assert {p.name for p in drawn} >= {"paper-budget.png", "copycat-map-extended.png"}
+
+
+def test_the_extended_map_has_the_budget_axis_and_names_where_copycat_was_judged(tmp_path):
+    files = [_paper_file(tmp_path), report.load(FCA_BC)]
+    points = [q for q in extended_map(report.merge(files)) if q.setting == "recipe fca, split by rows"]
+    assert [(q.run, q.iteration) for q in points] == [(30_000, 30_000), (300_000, 30_000), (300_000, 100_000),
+                                                      (300_000, 300_000)]
+    assert [q.diagnostics.copycats for q in points] == [0, 0, 0, 5]   # the committed file: read, none copycat
+    text, _ = report.build(files)
+    section = text[text.index("### Where copycat appears: the map, extended"):]
+    assert "| Hopper | fca, rows | 1 | 20,000 | 300k | 100k | " in section
+    assert ("Of the 4 cells whose BC-OH policies were diagnosed, 1 has a seed judged copycat: Hopper recipe fca, "
+                "split by rows, frame skip 1, 20,000 transitions, at 300k of 300k (5/5)." in section)
