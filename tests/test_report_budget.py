@@ -95,3 +95,22 @@ def test_the_extended_map_has_the_budget_axis_and_names_where_copycat_was_judged
     assert "| Hopper | fca, rows | 1 | 20,000 | 300k | 100k | " in section
     assert ("Of the 4 cells whose BC-OH policies were diagnosed, 1 has a seed judged copycat: Hopper recipe fca, "
                 "split by rows, frame skip 1, 20,000 transitions, at 300k of 300k (5/5)." in section)
+
+
+def test_a_longer_history_is_a_setting_of_its_own_in_the_map_and_stays_out_of_the_recipe_table(tmp_path):
+    obj = json.loads(FCA_BC.read_text())
+    obj["protocol"]["history"] = obj["settings"]["protocol"]["history"] = 7   # `--set protocol.history=7`
+    path = tmp_path / "h7.json"
+    path.write_text(json.dumps(obj))
+    files = [report.load(path), report.load(FCA_BC), report.load(RESULTS / "hopper-pos-fca-rows-default-mlp-bc.json")]
+    merged = report.merge(files)   # the same configurations as the history-2 file: a group of its own, not merged
+    assert Key("hopper", "pos", "fca.rows.fca.h7") in merged
+    settings = [q.setting for q in extended_map(merged)]
+    assert settings == ["recipe mlp, split by rows", "recipe fca, split by rows", "recipe fca, split by rows, history 7"]
+    text, _ = report.build(files)
+    recipe = text[text.index("### The paper's recipe"):]
+    recipe = recipe[:recipe.index("\n### ")]
+    assert "history 7" not in recipe   # the recipe table compares mlp with fca at the protocol's own history
+    assert "| Hopper | fca, rows, history 7 | 1 | 20,000 | 30k | 30k | " in text
+    assert "### Hopper, `pos` observations, protocol fca, split by rows, recipe fca, history 7: every configuration" \
+        in text

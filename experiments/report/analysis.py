@@ -142,7 +142,18 @@ def variant_name(res: results_lib.Results, protocol: dict) -> str:
     file before results schema 3), else `NAME.SPLIT.RECIPE` (e.g. `fca.rows.fca`), a group of its own: the recipe
     section (`recipe_groups`, `recipe_rows`) compares them, and they never join the copycat map or the whole-episode tables."""
     split, recipe = protocol.get("split") or "episodes", res.recipe_name
-    return protocol["name"] if (split, recipe) == ("episodes", "mlp") else f"{protocol['name']}.{split}.{recipe}"
+    history = other_history(protocol)
+    if (split, recipe, history) == ("episodes", "mlp", None):
+        return protocol["name"]
+    return f"{protocol['name']}.{split}.{recipe}" + ("" if history is None else f".h{history}")
+
+
+def other_history(protocol: dict) -> int | None:
+    """The protocol's history where it differs from its named protocol's (`--set protocol.history=7`), else None
+    (the named protocol's, or a protocol this code does not know)."""
+    named = tasks.PROTOCOLS.get(protocol.get("variant_of") or protocol.get("name"))
+    history = protocol.get("history")
+    return history if named is not None and isinstance(history, int) and history != named.history else None
 
 
 def protocol_words(p: dict) -> str:
@@ -151,7 +162,9 @@ def protocol_words(p: dict) -> str:
     else its name."""
     name = p["name"]
     if p.get("variant_of"):
-        return f"{p['variant_of']}, split by {p.get('split')}, recipe {p.get('recipe')}"
+        history = other_history(p)
+        return (f"{p['variant_of']}, split by {p.get('split')}, recipe {p.get('recipe')}"
+                + ("" if history is None else f", history {history}"))
     if not in_fca_family(name) or name == FCA:
         return name
     differs = ([f"frame skip {p['frame_skip']}"] if p.get("frame_skip") not in (None, 1) else []) + \
@@ -975,7 +988,7 @@ def recipe_groups(merged: dict) -> dict[tuple[str, str, str], dict[str, dict]]:
     out: dict = {}
     for key, m in _ordered(merged):
         p = m["protocol"]
-        if p.get("variant_of") and key.budget is None:
+        if p.get("variant_of") and key.budget is None and other_history(p) is None:
             out.setdefault((key.env, key.obs, f"{p['variant_of']}, split by {p.get('split')}"), {})[p["recipe"]] = m
     return {k: v for k, v in out.items() if len(v) > 1}
 
@@ -1234,7 +1247,7 @@ def paper_budget_groups(merged: dict) -> list[dict]:
 
     return [m for key, m in _ordered(merged) if key.env in MUJOCO and key.obs == "pos"
             and key.budget == BUDGETS["paper"].iterations and m["protocol"].get("variant_of") == FCA
-            and m["protocol"].get("recipe") == "fca"]
+            and m["protocol"].get("recipe") == "fca" and other_history(m["protocol"]) is None]
 
 
 def _cell(values: Sequence[float]) -> RecipeCell | None:
@@ -1314,11 +1327,14 @@ class MapPoint(NamedTuple):
     cells: tuple[MapCell | None, ...]
     history: Interval | None
     diagnostics: PolicyDiagnostics | None
+    observations: int | None = None  # the policies' history where it is not the protocol's (`other_history`)
 
     @property
     def setting(self) -> str:
-        """`"recipe fca, split by rows"`: what the recipe axis varies."""
-        return f"recipe {self.recipe}, split by {self.split}"
+        """`"recipe fca, split by rows"` (`", history 7"` where the history is not the protocol's): what the recipe
+        axis varies."""
+        return f"recipe {self.recipe}, split by {self.split}" + (
+            "" if self.observations is None else f", history {self.observations}")
 
 
 def _seed_cell(values: Sequence[float]) -> MapCell | None:
@@ -1353,10 +1369,10 @@ def extended_map(merged: dict) -> list[MapPoint]:
             history = bootstrap_difference(bcoh.seeds, bcso.seeds) if bcso and bcoh else None
             out.append(MapPoint(key.env, p.get("recipe") or "mlp", p.get("split") or "episodes", int(p["frame_skip"]),
                                 int(p.get("train_transitions") or FCA_TRAIN), end, iteration, cells, history,
-                                policy_diagnostics(at[1]) if at[1] else None))
+                                policy_diagnostics(at[1]) if at[1] else None, other_history(p)))
     rank = {"mlp": 0, "fca": 1}
     return sorted(out, key=lambda q: (MUJOCO.index(q.env), rank.get(q.recipe, 2), q.recipe, q.split != "episodes",
-                                      q.frame_skip, q.train_transitions, q.run, q.iteration))
+                                      q.observations or 0, q.frame_skip, q.train_transitions, q.run, q.iteration))
 
 
 def _map_row_of(m: dict, method: str, hparams: dict | None) -> dict | None:

@@ -1262,19 +1262,21 @@ def extended_map_section(merged: dict, figure) -> list[str]:
     out = ["### Where copycat appears: the map, extended", "",
            f"Every result of the paper's protocol ({FCA}) and its variants, on four axes: the recipe (`mlp`, the "
            "project's first, whose map cells split the demonstrations by whole episodes; `fca`, the FCA code's, "
-           "split by rows as its code does), the frame skip, the training-set size, and the budget (the run's "
-           "length, and for runs evaluated during training each iteration they were evaluated at). Per cell, BC-SO, "
+           "split by rows as its code does; a history other than the protocol's 2 observations is named there), the "
+           "frame skip, the training-set size, and the budget (the run's length, and for runs evaluated during "
+           "training each iteration they were evaluated at). Per cell, BC-SO, "
            "BC-OH and Ours (step THR 10% W 5) in % of expert (mean ± std over seeds), and BC-OH − BC-SO in points "
            "with its 95% bootstrap interval (bold where it excludes 0): copycat was inferred from a small or "
            "negative BC-OH − BC-SO.", ""]
     out += figure("copycat-map-extended.png", "Where copycat appears: the history's benefit and BC-OH's "
                   "diagnostics along each axis", lambda: figures.extended_map_figure(points))
-    lead = "| task | recipe, split | frame skip | training transitions | run | at | "
+    lead = "| task | recipe, split | frame skip | training transitions | run | at | "  # and a history not the protocol's
     out += [lead + " | ".join(names) + " | BC-OH − BC-SO [95% CI] |", "|---|---|---:|---:|---:|---:|"
             + "---:|" * (len(names) + 1)]
 
     def cells(q: MapPoint) -> str:
-        return (f"| {tasks.get(q.env).title} | {q.recipe}, {q.split} | {q.frame_skip} | {q.train_transitions:,} | "
+        history = "" if q.observations is None else f", history {q.observations}"
+        return (f"| {tasks.get(q.env).title} | {q.recipe}, {q.split}{history} | {q.frame_skip} | {q.train_transitions:,} | "
                 f"{_k(q.run)} | {_k(q.iteration)} | ")
 
     out += [cells(q) + " | ".join(map(_map_cell, q.cells)) + f" | {_diff_cell(q.history)} |" for q in points]
