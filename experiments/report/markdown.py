@@ -22,7 +22,7 @@ from ape_jax.pipeline import results as results_lib
 from experiments.report import figures
 from experiments.report.analysis import (APE_SCALES, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, BRAX, FCA, MAP_METHODS,
                                          PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP, PAPER_TABLE5,
-                                         alpha_rows, recipe_groups, recipe_rows, BudgetRow, MapPoint, budget_differences,
+                                         alpha_rows, policy_diagnostics, recipe_groups, recipe_rows, BudgetRow, MapPoint, budget_differences,
                                          budget_rows, extended_map, paper_budget_groups,
                                          DiagnosticsRow, PolicyDiagnostics, Spread, diagnostics_rows,
                                          diagnostics_thresholds, recipe_diagnostics, training_points,
@@ -696,11 +696,13 @@ def _words(ci: Interval, a: str, b: str, better: str, worse: str) -> str:
 
 
 def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
-    """Does keyframe weighting fix copycat where copycat exists? One paragraph per task with results under the
+    """Does keyframe weighting help where the history does not? One paragraph per task with results under the
     paper's protocol (`fca`; tasks without any get none), every number from the results:
 
-    - copycat: BC-OH − BC-SO under fca with its CI; BC-OH not significantly above BC-SO means the history
-      adds nothing these seeds can see, which is what copycat does to it;
+    - the history: BC-OH − BC-SO under fca with its CI; BC-OH not significantly above BC-SO means the history
+      adds nothing these seeds can see, the return signature the paper attributes to copycat; whether BC-OH
+      copies is the diagnostics' to say (BC-OH's verdicts where its runs record them, else that they were not
+      measured), never inferred from returns;
     - Ours − BC-OH at the paper's step setting, and at the best of our step and softmax grids (selected after
       the fact on the evaluation returns, so optimistic), each with its CI's verdict;
     - where the task has a copycat map or brax results, the history's benefit (in points of % of expert) at
@@ -717,20 +719,21 @@ def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
         history = history_difference(m)
         copycat = None
         if history is None:
-            text.append("BC-SO and BC-OH did not both run under fca, so these results cannot say whether copycat "
-                        "is present.")
+            text.append("BC-SO and BC-OH did not both run under fca, so these results cannot say whether the "
+                        "history helps.")
         elif min(history.n_a, history.n_b) < 2:
             text.append(f"Under fca BC-OH − BC-SO is {history.diff:+{number}} ({unit}), with fewer than 2 seeds "
-                        "per arm: no verdict on copycat.")
+                        "per arm: no verdict on the history.")
         else:
             copycat = not _significant(history)
             where = ("significantly above" if not copycat else
                      "significantly below" if history.high < 0 else "not significantly above")
-            meaning = ("the history helps, so copycat does not cancel its benefit here" if not copycat else
-                       "the history hurts: copycat is present" if history.high < 0 else
-                       "the history adds nothing: copycat is present")
+            meaning = ("the history helps" if not copycat else
+                       "the history hurts, the return signature the paper attributes to copycat" if history.high < 0
+                       else "the history adds nothing, the return signature the paper attributes to copycat")
             text.append(f"Under fca BC-OH is {where} BC-SO ({history.diff:+{number}} {unit}, {_ci(history, '+,.0f')}):"
                         f" {meaning}.")
+        text.append(_bcoh_diagnosed(m))
         ours = ours_differences(m)
         paper = next(((row, ci) for _, row, ci in ours if row["method"] == "ours-step"
                       and row["hparams"] == PAPER_STEP), None)
@@ -758,8 +761,8 @@ def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
         if copycat and paper is not None:
             outcome = {"Ours better": "beats BC-OH", "BC-OH better": "does worse than BC-OH"}.get(
                 verdict(paper[1]), "does not detectably beat BC-OH")
-            text.append(f"So where copycat is present, keyframe weighting at the paper's setting {outcome} on these "
-                        "seeds.")
+            text.append(f"So where the history does not help, keyframe weighting at the paper's setting {outcome} on "
+                        "these seeds.")
         extras = extra_methods({key: m})
         others = [(lab, ci) for lab, row, ci in versus_bcoh(m, extras, known_methods(merged))
                   if row is not None and row["method"] in extras and ci is not None and min(ci.n_a, ci.n_b) >= 2]
@@ -794,6 +797,19 @@ def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
             text.append("In % of expert: " + "; ".join(contrast) + ".")
         out.append(" ".join(text))
     return out
+
+
+def _bcoh_diagnosed(m: dict) -> str:
+    """Whether group `m`'s BC-OH copies, by its copycat diagnostics: the seeds judged copycat and the median ratios,
+    or that its runs record none (files from before the diagnostics)."""
+    row = _best(_rows(m, "bc-oh"))
+    d = policy_diagnostics([r for r in m["runs"] if row is not None and r["method"] == "bc-oh"
+                            and r["hparams"] == row["hparams"]])
+    if not d.read:
+        return ("BC-OH's policies here were not diagnosed (their files predate the copycat diagnostics), so whether "
+                "it copies is not measured.")
+    return (f"BC-OH's copycat diagnostics judge {d.copycats} of {d.read} seeds copycat (median embedding ratio "
+            f"{_ratio(d.embedding, with_range=False)}, predictability ratio {_ratio(d.predictability, with_range=False)}).")
 
 
 def _grid_name(m: dict) -> str:
@@ -1040,8 +1056,9 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
                 "only in how often they act. Per frame skip, BC-SO, BC-OH and Ours (step THR "
                 f"{_pct(PAPER_STEP['thr'])} W {PAPER_STEP['w']:g}) in % of expert (mean ± std over seeds); BC-OH − "
                 "BC-SO is what the history adds, in points of % of expert, with a 95% bootstrap CI over seeds; "
-                "expert − BC-OH is how far BC-OH is from its ceiling (the expert, 100%). Copycat shows as a small or "
-                "negative BC-OH − BC-SO: the history then predicts the last action instead of helping."
+                "expert − BC-OH is how far BC-OH is from its ceiling (the expert, 100%). The paper reads copycat from a "
+                "small or negative BC-OH − BC-SO (the history not helping); the copycat diagnostics test whether the "
+                "policies copy (\"Where copycat appears: the map, extended\", where files record them)."
                 + (" The rows at frame skip 1 with other training-set sizes (fca-train5k, fca-train80k) separate "
                    "the frame rate from how much of the task the data shows: 20,000 transitions at frame skip 1 "
                    "span a quarter of the simulated time 20,000 span at frame skip 4, and 80,000 span the same."
@@ -1057,7 +1074,8 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
         seeds = min(min(d.ci.n_a, d.ci.n_b) for d in boot)
         rates = list(dict.fromkeys(f"{tasks.get(m['env']).title}: in {m['metric']} rate"
                                    for _, m in _ordered(merged) if is_rate(m)))
-        out += ["Per task and protocol, BC-OH − BC-SO (does the history help? copycat is the history not helping) "
+        out += ["Per task and protocol, BC-OH − BC-SO (does the history help? the paper reads copycat from it not "
+                "helping) "
                 "and Ours − BC-OH, differences of mean return over seeds"
                 + (f" ({'; '.join(rates)})" if rates else "") + ", with a 95% percentile bootstrap confidence "
                 f"interval (each arm's seeds resampled with replacement, independently, {BOOTSTRAP_RESAMPLES:,} "
@@ -1070,9 +1088,11 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
                 "\"not significant\" as \"these seeds cannot tell\", not as evidence of no effect.", ""]
     reading = plain_reading(merged, maps)
     if reading:
-        out += ["### Does keyframe weighting fix copycat where copycat exists?", "",
+        out += ["### Does keyframe weighting help where the history does not?", "",
                 f"Read from the tables above, task by task, under the paper's protocol ({FCA}); differences of "
-                "mean return over seeds with their 95% bootstrap CIs.", ""]
+                "mean return over seeds with their 95% bootstrap CIs. The paper reads copycat from the history not "
+                "helping; here that is only the return signature, and whether BC-OH copies is what its copycat "
+                "diagnostics say, where its runs record them.", ""]
         out += [f"{paragraph}\n" for paragraph in reading]
     longer = longer_runs(merged)
     if longer:
@@ -1217,7 +1237,7 @@ def paper_budget_section(merged: dict, figure) -> list[str]:
                        + " | " + ("—" if ret is None else f"{ret.mean:,.0f} [{ret.low:,.0f}, {ret.high:,.0f}]")
                        + f" | {ratio} | {paper} | {paper_ratio} |")
     out += ["", "Differences over seeds in points of % of expert at each iteration: BC-OH − BC-SO (what the history "
-            "adds; copycat is the history not helping) and each other method − BC-OH (does it beat BC-OH?), with "
+            "adds; the paper reads copycat from it not helping) and each other method − BC-OH (does it beat BC-OH?), with "
             "95% bootstrap intervals (each arm's seeds resampled independently), bold where the interval excludes "
             "0.", "", "| task | difference | " + " | ".join(f"at {i:,}" for i in its) + " |",
             "|---|---|" + "---:|" * len(its)]
