@@ -475,7 +475,7 @@ def test_fca_and_brax_results_of_one_task_are_merged_apart_into_two_tables(tmp_p
     text = report.report(files)
     fca = text[text.index("### MuJoCo-State, the paper's protocol (fca): frame skip 1, 500 standard steps of "
                           "simulated time, 20,000 training transitions"):text.index("### MuJoCo-State, Brax's")]
-    brax = text[text.index("### MuJoCo-State, Brax's frame skip, where copycat is absent (the project's first "
+    brax = text[text.index("### MuJoCo-State, Brax's frame skip, where the history helps (the project's first "
                            "results)"):text.index("### The copycat map")]
     assert "| BC-SO | 600 ± 8 (30%) |" in fca and "| FCA (TCA) | 1,200 ± 8 (60%) |" in fca
     assert "| BC-SO | 300 ± 10 (15%) |" in brax and "| expert (ours) | 3,000 ± 80 |" in brax

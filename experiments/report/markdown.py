@@ -1002,7 +1002,7 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
                     "experts differ (the paper does not publish its expert's return), so the ratio is the "
                     "comparison that does not depend on them.", "", paper_table(merged, protocol)]
         elif protocol == BRAX:
-            out += ["### MuJoCo-State, Brax's frame skip, where copycat is absent (the project's first results)", "",
+            out += ["### MuJoCo-State, Brax's frame skip, where the history helps (the project's first results)", "",
                     "Positions only (velocities removed), with the environments' own frame skip and episode length. "
                     + cells + " " + selection + (f" {details}" if details else ""), "",
                     state_table(merged, "pos", protocol)] + versus_section(merged, protocol) + [
