@@ -15,6 +15,7 @@ trained by `experiments.train_expert` before a sweep can run on it.
 from __future__ import annotations
 
 import dataclasses
+import re
 from types import MappingProxyType
 from typing import Any, Mapping
 
@@ -46,6 +47,8 @@ class Protocol:
       doc: one line saying where the protocol comes from.
       reference: the protocol whose expert references (`envs.experts.reference`) apply: one with the same
         simulator settings (frame skip, episode length, reward scale); None: this one's own.
+      expert: which shipped expert demonstrates: None, the task's own (`envs/experts/<env>/`, SAC); a variant
+        name (`"ppo"`) for one shipped beside it (`envs/experts/<env>-<variant>/`, `expert_name`).
 
     Rewards are scaled by `frame_skip / standard frame skip`, so returns stay on the scale of the
     standard control step (the FCA code's 1/4 and 1/5).
@@ -65,6 +68,7 @@ class Protocol:
     episodes: int | None = None
     eval_steps: int | None = None
     image_size: tuple[int, int] | None = None
+    expert: str | None = None
 
     def __post_init__(self):
         if self.split not in SPLITS:
@@ -82,6 +86,14 @@ class Protocol:
             raise ValueError(f"protocol.history must be >= 1, got {self.history!r}")
         if self.image_size is not None and min(self.image_size) < 1:
             raise ValueError(f"protocol.image_size must be positive, got {self.image_size!r}")
+        if self.expert is not None and not re.fullmatch(r"[a-z0-9_]+", str(self.expert)):
+            raise ValueError(f"protocol.expert must be a variant name of lowercase letters, digits and _ "
+                             f"(e.g. ppo), got {self.expert!r}")
+
+    def expert_name(self, env: str) -> str:
+        """The shipped expert this protocol's demonstrations come from: `env`, or `env-<expert>` for a variant
+        (`envs.experts.load` takes either)."""
+        return env if self.expert is None else f"{env}-{self.expert}"
 
     def settings(self, standard_frame_skip: int | None) -> dict[str, Any]:
         """Every field, resolved for an environment whose own frame skip is `standard_frame_skip` (None: not a
@@ -92,6 +104,8 @@ class Protocol:
                "train_transitions": self.train_transitions,
                "val_transitions": self.val_transitions, "history": self.history, "split": self.split,
                "eval_steps": self.eval_steps}
+        if self.expert is not None:  # only when set: records and cache names from before the field stay valid
+            out["expert"] = self.expert
         if standard_frame_skip is not None and self.frame_skip is not None:
             out["reward_scale"] = self.frame_skip / standard_frame_skip
         if self.horizon is not None and standard_frame_skip is not None:

@@ -7,7 +7,7 @@ was trained at (`brax`); this measures them under another protocol (default
 `fca`: frame skip 1, 500 standard steps of simulated time, rewards on the
 standard-step scale) over `--episodes` episodes each, and writes them into
 `envs/experts/<env>/references.json` (atomically; other protocols' entries
-are kept). The card itself is left as it is, so the datasets and checkpoints
+are kept); `--expert ppo` measures the variant shipped beside it, `envs/experts/<env>-ppo/`. The card itself is left as it is, so the datasets and checkpoints
 named by its hash stay valid.
 """
 
@@ -35,9 +35,12 @@ def main(argv=None) -> int:
     p.add_argument("--protocol", default="fca", help=f"one of {', '.join(n for n in tasks.PROTOCOLS if n != 'brax')}")
     p.add_argument("--episodes", type=int, default=100, help="episodes of the expert and of a random policy")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--expert", default=None, metavar="VARIANT",
+                   help="an expert shipped beside the task's own, envs/experts/<env>-VARIANT (e.g. ppo)")
     args = p.parse_args(argv)
-    if args.env not in experts.available():
-        fail(p, f"no shipped expert for {args.env!r}; valid: {', '.join(experts.available())}")
+    name = args.env if args.expert is None else f"{args.env}-{args.expert}"
+    if args.env not in envs.names() or name not in experts.available():
+        fail(p, f"no shipped expert {name!r}; valid: {', '.join(experts.available())}")
     if args.protocol not in tasks.PROTOCOLS or args.protocol == "brax":
         fail(p, f"unknown protocol {args.protocol!r}; valid: {', '.join(n for n in tasks.PROTOCOLS if n != 'brax')} "
                 "('brax' is the card's own setting)")
@@ -45,12 +48,12 @@ def main(argv=None) -> int:
         fail(p, f"--episodes must be >= 1, got {args.episodes}")
     try:
         protocol = tasks.get(args.env).protocol(args.protocol, "full")
-        policy = experts.load(args.env)
+        policy = experts.load(name)
     except (ValueError, experts.ExpertError) as e:
         fail(p, str(e))
     standard = envs.brax_env.default_frame_skip(args.env)
     env = envs.make(args.env, obs="full", **protocol.env_overrides(standard))
-    print(f"{args.env} under {args.protocol}: frame skip {env.frame_skip}, {env.episode_length:,} steps per episode, "
+    print(f"{name} under {args.protocol}: frame skip {env.frame_skip}, {env.episode_length:,} steps per episode, "
           f"reward scale {env.config.reward_scale:g}; {args.episodes} episodes each of the expert and a random policy")
     t0 = time.perf_counter()
     measured = expert_and_random_returns(env, policy, args.episodes, jax.random.PRNGKey(args.seed))
@@ -59,7 +62,7 @@ def main(argv=None) -> int:
              "command": " ".join(["python", "-m", "experiments.expert_references", *(sys.argv[1:] if argv is None
                                                                                      else argv)]),
              "seconds": round(seconds, 1), "hardware": machine(), "jax": jax.__version__}
-    path = experts.directory(args.env) / experts.REFERENCES
+    path = experts.directory(name) / experts.REFERENCES
     refs = json.loads(path.read_text()) if path.is_file() else {}
     refs[args.protocol] = entry
     write_atomic(path, lambda f: f.write((json.dumps(refs, indent=2, sort_keys=True) + "\n").encode()))

@@ -44,11 +44,25 @@ CONFIGS = {
 }
 
 
+# `--algorithm ppo`: an expert of the kind the FCA paper's MuJoCo experts are (a 64×64 tanh Gaussian policy from
+# PPO), shipped beside the SAC one as `envs/experts/<env>-ppo` (`ape_jax.tasks.Protocol.expert`). Brax's PPO with
+# the classic MuJoCo settings (2,048 steps per update from 64 environments, 4 minibatches, 10 epochs, Adam 3e-4,
+# γ 0.99, GAE λ 0.95, clip 0.2, no entropy bonus, normalised observations, a 64×64 tanh value network).
+PPO = dict(num_timesteps=3_000_000, num_envs=64, unroll_length=32, batch_size=16, num_minibatches=4,
+           num_updates_per_batch=10, learning_rate=3e-4, entropy_cost=0.0, discounting=0.99, gae_lambda=0.95,
+           clipping_epsilon=0.2, reward_scaling=1.0, normalize_observations=True, episode_length=1000,
+           num_evals=31, num_eval_envs=16, hidden_layer_sizes=(64, 64))
+ALGORITHMS = ("sac", "ppo")
+
+
 def parse(argv=None) -> argparse.Namespace:
     import envs
 
     p = Parser(prog="python -m experiments.train_expert", description=__doc__.splitlines()[0])
     p.add_argument("--env", required=True, help="a Brax environment (hopper, walker2d, halfcheetah, ...)")
+    p.add_argument("--algorithm", default="sac", choices=ALGORITHMS,
+                   help="sac (the shipped experts, envs/experts/<env>) or ppo (a 64x64 tanh policy, "
+                        "envs/experts/<env>-ppo; trained in one go, without checkpoints)")
     p.add_argument("--steps", type=int, default=None, help="environment steps in all (default: per task)")
     p.add_argument("--stop-at", type=float, default=None,
                    help="stop once the 16-episode evaluation return reaches this (default: 1.1 x the target)")
@@ -73,11 +87,12 @@ def parse(argv=None) -> argparse.Namespace:
         fail(p, f"--eval-episodes must be >= 1, got {args.eval_episodes}")
     if args.stop_at is not None and math.isnan(args.stop_at):
         fail(p, "--stop-at must be a number (inf: never stop early), got nan")
-    args.workdir = args.workdir or pathlib.Path("runs/experts") / args.env
+    name = args.env if args.algorithm == "sac" else f"{args.env}-{args.algorithm}"
+    args.workdir = args.workdir or pathlib.Path("runs/experts") / name
     if args.out is None:
         from envs import experts
 
-        args.out = experts.directory(args.env)
+        args.out = experts.directory(name)
     for flag, path in (("--workdir", args.workdir), ("--out", args.out)):
         if path.exists() and not path.is_dir():
             fail(p, f"{flag} {path} is a file; it must be a directory")
@@ -101,6 +116,8 @@ def make_config(args):
 
 def main(argv=None) -> int:
     args = parse(argv)
+    if args.algorithm == "ppo":
+        return train_ppo(args)
     import jax
     import jax.numpy as jnp
     from tqdm import tqdm
@@ -140,7 +157,86 @@ def main(argv=None) -> int:
     return export(args, cfg, env, trainer.policy_spec(best), meta)
 
 
-def export(args, cfg, env, params, meta) -> int:
+def train_ppo(args) -> int:
+    """`--algorithm ppo`: Brax's PPO with `PPO`'s settings (`--steps`, `--seed` apply), evaluated `num_evals` times
+    (deterministic, `num_eval_envs` episodes), the best evaluated policy exported as `export` does."""
+    import functools
+
+    import jax.numpy as jnp
+    from brax.training.agents.ppo import networks as ppo_networks
+    from brax.training.agents.ppo import train as ppo
+    from tqdm import tqdm
+
+    import envs
+
+    kw = dict(PPO, seed=args.seed, **({"num_timesteps": args.steps} if args.steps is not None else {}))
+    hidden = kw.pop("hidden_layer_sizes")
+    env = envs.make(args.env, obs="full", episode_length=kw["episode_length"])
+    stop_at = args.stop_at if args.stop_at is not None else math.inf
+    meta = {"best_return": -math.inf, "best_step": 0, "history": [], "wall_s": 0.0}
+    latest, best = {}, {}
+    t0 = time.perf_counter()
+    bar = tqdm(total=kw["num_timesteps"], unit="step", unit_scale=True, desc=f"PPO {args.env}", dynamic_ncols=True)
+
+    def keep(step, make_policy, params):   # called with each evaluated policy, before its evaluation
+        latest.update(step=int(step), normalizer=params[0], policy=params[1])
+
+    def progress(step, metrics):
+        ret = float(metrics.get("eval/episode_reward", math.nan))
+        meta["history"].append({"env_steps": int(step), "return": ret})
+        if ret > meta["best_return"] and latest.get("step") == int(step):
+            meta.update(best_return=ret, best_step=int(step))
+            best.update(latest)
+        bar.update(int(step) - bar.n)
+        bar.set_postfix(ret=f"{ret:.0f}", best=f"{meta['best_return']:.0f}")
+
+    network = functools.partial(ppo_networks.make_ppo_networks, policy_hidden_layer_sizes=hidden,
+                                value_hidden_layer_sizes=hidden, activation=jnp.tanh)
+    ppo.train(environment=env.brax_env, network_factory=network, deterministic_eval=True,
+              progress_fn=progress, policy_params_fn=keep, **kw)
+    bar.close()
+    meta["wall_s"] = time.perf_counter() - t0
+    if not best:
+        return fail(None, "PPO evaluated no policy; raise --steps")
+    if meta["best_return"] < stop_at < math.inf:
+        print(f"best evaluation return {meta['best_return']:.1f} stayed below --stop-at {stop_at:g}")
+    layers = best["policy"]["params"]
+    names = sorted(layers, key=lambda n: int(n.rsplit("_", 1)[1]))
+    params = {"obs_mean": jnp.asarray(best["normalizer"].mean, jnp.float32),
+              "obs_std": jnp.asarray(best["normalizer"].std, jnp.float32),
+              "kernels": [jnp.asarray(layers[n]["kernel"], jnp.float32) for n in names],
+              "biases": [jnp.asarray(layers[n]["bias"], jnp.float32) for n in names]}
+    cfg = PpoSettings(**kw, hidden_layer_sizes=tuple(hidden))
+    return export(args, cfg, env, params, meta, algorithm="PPO (brax.training.agents.ppo, tanh Gaussian policy)",
+                  activation="tanh")
+
+
+@dataclasses.dataclass(frozen=True)
+class PpoSettings:
+    """`PPO`'s settings as the card records them (`export` reads `episode_length` and `hidden_layer_sizes`)."""
+
+    num_timesteps: int
+    num_envs: int
+    unroll_length: int
+    batch_size: int
+    num_minibatches: int
+    num_updates_per_batch: int
+    learning_rate: float
+    entropy_cost: float
+    discounting: float
+    gae_lambda: float
+    clipping_epsilon: float
+    reward_scaling: float
+    normalize_observations: bool
+    episode_length: int
+    num_evals: int
+    num_eval_envs: int
+    seed: int
+    hidden_layer_sizes: tuple
+
+
+def export(args, cfg, env, params, meta, algorithm: str = "SAC (ape_jax.pipeline.sac, from brax.training's SAC parts)",
+           activation: str = "relu") -> int:
     """Measures the best policy over `--eval-episodes` episodes and writes it with its card."""
     import jax
 
@@ -151,17 +247,17 @@ def export(args, cfg, env, params, meta) -> int:
     out = args.out
     print(f"measuring the best policy (evaluation return {meta['best_return']:.1f} at "
           f"{meta['best_step']:,} steps) over {args.eval_episodes} episodes ...")
-    policy = experts.policy_from_params(params)
+    policy = experts.policy_from_params(params, activation)
     measured = expert_and_random_returns(env, policy, args.eval_episodes, jax.random.PRNGKey(cfg.seed + 2))
     target = TARGETS.get(args.env)
     card = {
-        "env": args.env, "obs": "full", "algorithm": "SAC (ape_jax.pipeline.sac, from brax.training's SAC parts)",
+        "env": args.env, "obs": "full", "algorithm": algorithm,
         "hyperparameters": dataclasses.asdict(cfg),
         "env_steps": meta["best_step"], "env_steps_trained": meta["history"][-1]["env_steps"] if meta["history"] else 0,
         "wall_s": round(meta["wall_s"], 1),
         "hardware": machine(),
         "network": {"obs_size": int(params["obs_mean"].shape[0]), "action_size": int(env.action_size),
-                    "hidden": list(cfg.hidden_layer_sizes), "activation": "relu",
+                    "hidden": list(cfg.hidden_layer_sizes), "activation": activation,
                     "output": "tanh of the first action_size outputs", "normalize_observations": True},
         "episode_length": cfg.episode_length, "target_return": target,
         **measured,

@@ -114,3 +114,15 @@ def test_a_longer_history_is_a_setting_of_its_own_in_the_map_and_stays_out_of_th
     assert "| Hopper | fca, rows, history 7 | 1 | 20,000 | 30k | 30k | " in text
     assert "### Hopper, `pos` observations, protocol fca, split by rows, recipe fca, history 7: every configuration" \
         in text
+
+
+def test_another_expert_is_a_setting_of_its_own(tmp_path):
+    obj = json.loads(FCA_BC.read_text())
+    obj["protocol"]["expert"] = obj["settings"]["protocol"]["expert"] = "ppo"   # `--set protocol.expert=ppo`
+    path = tmp_path / "ppo.json"
+    path.write_text(json.dumps(obj))
+    merged = report.merge([report.load(path), report.load(FCA_BC)])
+    assert Key("hopper", "pos", "fca.rows.fca.ppo") in merged
+    assert [q.setting for q in extended_map(merged)] == ["recipe fca, split by rows",
+                                                         "recipe fca, split by rows, expert ppo"]
+    assert "| Hopper | fca, rows, expert ppo | 1 | 20,000 | 30k | 30k | " in report.build([report.load(path)])[0]

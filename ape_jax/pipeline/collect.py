@@ -44,12 +44,14 @@ class ProtocolSetup:
       settings: every field, resolved for the environment (results.json's `protocol`).
       env_overrides: the `envs.make` settings it fixes (frame skip, episode length, reward scale).
       episodes: expert episodes to collect: as many whole episodes as its expert steps take, else the task's.
+      expert: the expert variant demonstrating (`ape_jax.tasks.Protocol.expert`; None: the task's own).
     """
 
     name: str
     settings: dict
     env_overrides: dict
     episodes: int
+    expert: str | None = None
 
 
 def protocol_setup(env_name: str, obs: str, protocol: str | tasks.Protocol | None = None) -> ProtocolSetup:
@@ -67,30 +69,34 @@ def protocol_setup(env_name: str, obs: str, protocol: str | tasks.Protocol | Non
         settings["episode_length"] = envs.make(env_name, obs="full" if brax else None).episode_length
     episodes = (-(-proto.collect_transitions // settings["episode_length"]) if proto.collect_transitions is not None
                 else proto.episodes or default_episodes(env_name))
-    return ProtocolSetup(proto.name, settings, proto.env_overrides(standard), episodes)
+    return ProtocolSetup(proto.name, settings, proto.env_overrides(standard), episodes, proto.expert)
 
 
-def expert_for(env: envs.Env) -> tuple[Callable[[jax.Array], jax.Array], dict]:
+def expert_for(env: envs.Env, variant: str | None = None) -> tuple[Callable[[jax.Array], jax.Array], dict]:
     """The expert of `env` as `full_obs -> action`, and a description of it for metadata.
 
     A task with a rule-based expert (`ape_jax.tasks.Task.expert`) uses the
     environment's own `expert`; any other uses the shipped checkpoint
-    (`envs.experts.load`), which raises `ExpertError` if missing.
+    (`envs.experts.load`: `envs/experts/<env>/`, or with `variant` the one shipped beside it,
+    `envs/experts/<env>-<variant>/`), which raises `ExpertError` if missing.
     """
     from envs import experts
 
     if tasks.get(env.name).expert == "rule-based":
+        if variant is not None:
+            raise ValueError(f"{env.name}'s expert is rule-based: it has no variant {variant!r} (protocol.expert)")
         # the rule and the physics it drives are code: their settings name the data (a changed default,
         # e.g. ToyCar's rolling resistance, must not reuse demonstrations cached before it)
         config = getattr(env, "config", None)
         config = json.loads(json.dumps(dataclasses.asdict(config))) if dataclasses.is_dataclass(config) else None
         return env.expert, {"kind": "rule-based", "function": f"{type(env).__module__}.expert_action",
                             "config": config}
-    policy = experts.load(env.name)
-    card_file = experts.directory(env.name) / experts.CARD
-    card = experts.card(env.name)
+    name = env.name if variant is None else f"{env.name}-{variant}"
+    policy = experts.load(name)
+    card_file = experts.directory(name) / experts.CARD
+    card = experts.card(name)
     return policy, {
-        "kind": "checkpoint", "path": f"envs/experts/{env.name}",
+        "kind": "checkpoint", "path": f"envs/experts/{name}",
         "card_sha256": hashlib.sha256(card_file.read_bytes()).hexdigest(),
         "algorithm": card.get("algorithm"), "return_mean": card.get("return_mean"),
         "return_std": card.get("return_std"), "random_return_mean": card.get("random_return_mean"),
@@ -180,14 +186,22 @@ def _flatten(traj: envs.Trajectory, keep: int, first_episode: int) -> data_lib.D
 
 
 def settings(env_name: str, obs: str, episodes: int, seed: int = 0, noise_frac: float = 0.0,
-             noise_std: float = 0.0, batch: int = 32, **env_overrides) -> dict:
-    """The collection settings that name a cached dataset (see `data.cache_path`)."""
+             noise_std: float = 0.0, batch: int = 32, expert: str | None = None, **env_overrides) -> dict:
+    """The collection settings that name a cached dataset (see `data.cache_path`); `expert`: the expert variant
+    (`expert_for`; None: the task's own), named through its card in the settings' `expert`."""
     env = envs.make(env_name, obs=obs, **env_overrides)
-    _, expert_info = expert_for(env)
+    _, expert_info = expert_for(env, expert)
     overrides = {k: (list(v) if isinstance(v, tuple) else v) for k, v in sorted(env_overrides.items())}
     return {"env": env_name, "obs": obs, "episodes": int(episodes), "seed": int(seed),
             "noise_frac": float(noise_frac), "noise_std": float(noise_std), "batch": int(batch),
             "env_overrides": overrides, "expert": expert_info, "format": data_lib.FORMAT}
+
+
+def _variant(cfg: dict) -> str | None:
+    """The expert variant collection settings name (`settings`): the suffix of the expert's directory, if any."""
+    path = (cfg.get("expert") or {}).get("path") or ""
+    name = path.rsplit("/", 1)[-1]
+    return name[len(cfg["env"]) + 1:] if name.startswith(cfg["env"] + "-") else None
 
 
 def collect_cached(cfg: dict, data_dir, force: bool = False, progress=None, save: bool = True):
@@ -212,7 +226,7 @@ def collect_cached(cfg: dict, data_dir, force: bool = False, progress=None, save
             return demos, meta, path, True
     env = envs.make(cfg["env"], obs=cfg["obs"], **{k: (tuple(v) if isinstance(v, list) else v)
                                                      for k, v in cfg["env_overrides"].items()})
-    expert, _ = expert_for(env)
+    expert, _ = expert_for(env, _variant(cfg))
     t0 = time.perf_counter()
     demos = collect(env, expert, jax.random.PRNGKey(cfg["seed"]), cfg["episodes"], cfg["noise_frac"],
                     cfg["noise_std"], cfg["batch"], progress)

@@ -208,7 +208,8 @@ class SweepSpec:
     def data_settings(self) -> dict:
         """What names the demonstrations: the collection settings, or the dataset file's path and size."""
         if self.dataset is None:
-            return collect.settings(self.env, self.obs, self.episodes, seed=0, **self.collection_overrides())
+            return collect.settings(self.env, self.obs, self.episodes, seed=0, expert=self.protocol.expert,
+                                    **self.collection_overrides())
         path = pathlib.Path(self.dataset)
         files = ([path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
                  if path.is_dir() else [])
@@ -313,8 +314,9 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
     if len(train) < spec.recipe.batch_size:
         raise ValueError(f"the training split has {len(train)} transitions, fewer than the batch size "
                          f"{spec.recipe.batch_size}; collect more episodes")
-    expert, _ = collect.expert_for(env)
-    card = experts.reference(spec.env, protocol.reference or protocol.name) if spec.task.has_card else None
+    expert, _ = collect.expert_for(env, protocol.expert)
+    card = (experts.reference(protocol.expert_name(spec.env), protocol.reference or protocol.name)
+            if spec.task.has_card else None)
     return Prepared(env=env, task=spec.task, train=train, val=val, normalizer=Normalizer.fit(train.obs),
                     expert=expert, card=card, data_path=str(path), source=source, settings=settings)
 

@@ -42,8 +42,15 @@ class ExpertError(RuntimeError):
     """A missing or unreadable expert; the message names the file and the command that trains it."""
 
 
+def _variant(name: str) -> tuple[str, str]:
+    """`"hopper-ppo" -> ("hopper", "ppo")`, `"hopper" -> ("hopper", "")`: an expert's environment and variant."""
+    env, _, variant = name.partition("-")
+    return env, variant
+
+
 def train_command(name: str) -> str:
-    return f"python -m experiments.train_expert --env {name}"
+    env, variant = _variant(name)
+    return f"python -m experiments.train_expert --env {env}" + (f" --algorithm {variant}" if variant else "")
 
 
 def available() -> tuple[str, ...]:
@@ -77,7 +84,9 @@ def card(name: str, root: pathlib.Path | None = None) -> dict:
 
 
 def reference_command(name: str, protocol: str) -> str:
-    return f"python -m experiments.expert_references --env {name} --protocol {protocol}"
+    env, variant = _variant(name)
+    return (f"python -m experiments.expert_references --env {env}" + (f" --expert {variant}" if variant else "")
+            + f" --protocol {protocol}")
 
 
 def reference(name: str, protocol: str = "brax", root: pathlib.Path | None = None) -> dict:
@@ -167,16 +176,22 @@ def load_params(name: str, root: pathlib.Path | None = None) -> dict:
     return jax.tree.map(jnp.asarray, params)
 
 
-def policy_from_params(params: dict) -> Callable[[jax.Array], jax.Array]:
-    """A deterministic policy `obs [..., D] float -> action [..., A] float32` in [-1, 1]."""
-    n_layers = len(params["kernels"])
+ACTIVATIONS = {"relu": jax.nn.relu, "tanh": jnp.tanh}  # the hidden layers' (the card's `network.activation`)
+
+
+def policy_from_params(params: dict, activation: str = "relu") -> Callable[[jax.Array], jax.Array]:
+    """A deterministic policy `obs [..., D] float -> action [..., A] float32` in [-1, 1], its hidden layers'
+    `activation` one of `ACTIVATIONS` (SAC's experts: relu; PPO's: tanh)."""
+    if activation not in ACTIVATIONS:
+        raise ExpertError(f"unknown expert activation {activation!r}; valid: {', '.join(ACTIVATIONS)}")
+    act, n_layers = ACTIVATIONS[activation], len(params["kernels"])
 
     def policy(obs: jax.Array) -> jax.Array:
         x = (jnp.asarray(obs, jnp.float32) - params["obs_mean"]) / params["obs_std"]
         for i, (k, b) in enumerate(zip(params["kernels"], params["biases"])):
             x = x @ k + b
             if i < n_layers - 1:
-                x = jax.nn.relu(x)
+                x = act(x)
         return jnp.tanh(x[..., : x.shape[-1] // 2])
 
     return policy
@@ -186,7 +201,8 @@ def load(name: str, root: pathlib.Path | None = None) -> Callable[[jax.Array], j
     """The shipped expert of environment `name` as a jit-able `obs -> action`.
 
     Args:
-      name: an environment with an expert (`available()`), e.g. `"hopper"`.
+      name: an environment with an expert (`available()`), e.g. `"hopper"`, or a variant shipped beside
+        it, `"<env>-<variant>"` (e.g. `"hopper-ppo"`: `ape_jax.tasks.Protocol.expert`).
       root: a directory holding `card.json` and `policy/` instead of the
         shipped one (e.g. a freshly trained expert).
 
@@ -198,5 +214,5 @@ def load(name: str, root: pathlib.Path | None = None) -> Callable[[jax.Array], j
       ExpertError: a missing or corrupt checkpoint, naming the file and the
         command that trains it.
     """
-    return policy_from_params(load_params(name, root))
+    return policy_from_params(load_params(name, root), card(name, root)["network"].get("activation", "relu"))
 

@@ -142,10 +142,17 @@ def variant_name(res: results_lib.Results, protocol: dict) -> str:
     file before results schema 3), else `NAME.SPLIT.RECIPE` (e.g. `fca.rows.fca`), a group of its own: the recipe
     section (`recipe_groups`, `recipe_rows`) compares them, and they never join the copycat map or the whole-episode tables."""
     split, recipe = protocol.get("split") or "episodes", res.recipe_name
-    history = other_history(protocol)
-    if (split, recipe, history) == ("episodes", "mlp", None):
+    history, expert = other_history(protocol), protocol.get("expert")
+    if (split, recipe, history, expert) == ("episodes", "mlp", None, None):
         return protocol["name"]
-    return f"{protocol['name']}.{split}.{recipe}" + ("" if history is None else f".h{history}")
+    return (f"{protocol['name']}.{split}.{recipe}" + ("" if history is None else f".h{history}")
+            + ("" if expert is None else f".{expert}"))
+
+
+def other_setting(protocol: dict) -> bool:
+    """Whether a variant changes more than the split and the recipe: another history or another expert (such
+    groups stay out of the recipe table and the paper-budget table, and are settings of their own in the map)."""
+    return other_history(protocol) is not None or protocol.get("expert") is not None
 
 
 def other_history(protocol: dict) -> int | None:
@@ -164,7 +171,8 @@ def protocol_words(p: dict) -> str:
     if p.get("variant_of"):
         history = other_history(p)
         return (f"{p['variant_of']}, split by {p.get('split')}, recipe {p.get('recipe')}"
-                + ("" if history is None else f", history {history}"))
+                + ("" if history is None else f", history {history}")
+                + ("" if p.get("expert") is None else f", expert {p['expert']}"))
     if not in_fca_family(name) or name == FCA:
         return name
     differs = ([f"frame skip {p['frame_skip']}"] if p.get("frame_skip") not in (None, 1) else []) + \
@@ -988,7 +996,7 @@ def recipe_groups(merged: dict) -> dict[tuple[str, str, str], dict[str, dict]]:
     out: dict = {}
     for key, m in _ordered(merged):
         p = m["protocol"]
-        if p.get("variant_of") and key.budget is None and other_history(p) is None:
+        if p.get("variant_of") and key.budget is None and not other_setting(p):
             out.setdefault((key.env, key.obs, f"{p['variant_of']}, split by {p.get('split')}"), {})[p["recipe"]] = m
     return {k: v for k, v in out.items() if len(v) > 1}
 
@@ -1247,7 +1255,7 @@ def paper_budget_groups(merged: dict) -> list[dict]:
 
     return [m for key, m in _ordered(merged) if key.env in MUJOCO and key.obs == "pos"
             and key.budget == BUDGETS["paper"].iterations and m["protocol"].get("variant_of") == FCA
-            and m["protocol"].get("recipe") == "fca" and other_history(m["protocol"]) is None]
+            and m["protocol"].get("recipe") == "fca" and not other_setting(m["protocol"])]
 
 
 def _cell(values: Sequence[float]) -> RecipeCell | None:
@@ -1328,13 +1336,15 @@ class MapPoint(NamedTuple):
     history: Interval | None
     diagnostics: PolicyDiagnostics | None
     observations: int | None = None  # the policies' history where it is not the protocol's (`other_history`)
+    expert: str | None = None        # the expert variant where it is not the task's own (`Protocol.expert`)
 
     @property
     def setting(self) -> str:
-        """`"recipe fca, split by rows"` (`", history 7"` where the history is not the protocol's): what the recipe
-        axis varies."""
+        """`"recipe fca, split by rows"` (`", history 7"` where the history is not the protocol's, `", expert ppo"`
+        for another expert): what the recipe axis varies."""
         return f"recipe {self.recipe}, split by {self.split}" + (
-            "" if self.observations is None else f", history {self.observations}")
+            "" if self.observations is None else f", history {self.observations}") + (
+            "" if self.expert is None else f", expert {self.expert}")
 
 
 def _seed_cell(values: Sequence[float]) -> MapCell | None:
@@ -1369,10 +1379,11 @@ def extended_map(merged: dict) -> list[MapPoint]:
             history = bootstrap_difference(bcoh.seeds, bcso.seeds) if bcso and bcoh else None
             out.append(MapPoint(key.env, p.get("recipe") or "mlp", p.get("split") or "episodes", int(p["frame_skip"]),
                                 int(p.get("train_transitions") or FCA_TRAIN), end, iteration, cells, history,
-                                policy_diagnostics(at[1]) if at[1] else None, other_history(p)))
+                                policy_diagnostics(at[1]) if at[1] else None, other_history(p), p.get("expert")))
     rank = {"mlp": 0, "fca": 1}
     return sorted(out, key=lambda q: (MUJOCO.index(q.env), rank.get(q.recipe, 2), q.recipe, q.split != "episodes",
-                                      q.observations or 0, q.frame_skip, q.train_transitions, q.run, q.iteration))
+                                      q.observations or 0, q.expert or "", q.frame_skip, q.train_transitions, q.run,
+                                      q.iteration))
 
 
 def _map_row_of(m: dict, method: str, hparams: dict | None) -> dict | None:

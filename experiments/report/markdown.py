@@ -1295,7 +1295,8 @@ def extended_map_section(merged: dict, figure) -> list[str]:
             + "---:|" * (len(names) + 1)]
 
     def cells(q: MapPoint) -> str:
-        history = "" if q.observations is None else f", history {q.observations}"
+        history = ("" if q.observations is None else f", history {q.observations}") + (
+            "" if q.expert is None else f", expert {q.expert}")
         return (f"| {tasks.get(q.env).title} | {q.recipe}, {q.split}{history} | {q.frame_skip} | {q.train_transitions:,} | "
                 f"{_k(q.run)} | {_k(q.iteration)} | ")
 
