@@ -592,7 +592,9 @@ def verdict(probe: EmbeddingProbe, predictability: Predictability,
 
 PROBE_ROWS = (20_000, 5_000)  # the embedding probes' training and held-out rows at most (FCA's 20k/4k split fits)
 FIELDS = ("embedding_ratio", "prev_from_embedding", "prev_from_action", "velocity_ratio", "predictability_ratio",
-          "policy_mse", "expert_mse", "predictability_steps", "copycat")
+          "policy_mse", "expert_mse", "predictability_steps", "copycat", "prev_from_state", "state_ratio")
+# Added after the first results: a file's diagnostics may lack them (`experiments.evaluate` adds them).
+LATER_FIELDS = ("prev_from_state", "state_ratio")
 
 
 def probe_rows(data: Data, at_most: int, seed: int = 0) -> np.ndarray:
@@ -627,7 +629,7 @@ def _probe_policies(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data
 def diagnose(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data, val: Data, rollouts: Any,
              rollouts_valid: Any, expert: tuple[Any, Any], velocity: tuple[Any, Any] | None = None,
              steps: int = PROBE_STEPS, max_rows: tuple[int, int] = PROBE_ROWS,
-             thresholds: Thresholds = THRESHOLDS) -> dict[str, np.ndarray]:
+             thresholds: Thresholds = THRESHOLDS, state: tuple[Any, Any] | None = None) -> dict[str, np.ndarray]:
     """Both diagnostics and the verdict of every policy of a batch (one network, stacked parameters).
 
     - the embedding probe on the demonstrations: fitted on (at most `max_rows[0]`) training rows, scored on
@@ -635,6 +637,10 @@ def diagnose(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data, val: 
       `a_t` alone) once, as it does not depend on the policy; every probe starts from the same key;
     - with `velocity`, the same probe on the true velocity (`qvel_t`): its `1 − R²` says whether the policy
       extracts what its history is for;
+    - with `state`, the same probe of `a_{t−1}` from the true simulator state at `t` (`qpos_t, qvel_t`), once: the
+      `state_ratio`, embedding ÷ state, says whether the embedding carries `a_{t−1}` beyond what the current
+      state itself tells (the expert's previous action is a function of the previous state, which the current
+      one nearly determines, so a policy that reads the state well carries `a_{t−1}` without copying it);
     - own-rollout predictability of each policy's evaluation rollouts against the expert's
       (`rollout_predictability_batch`);
     - the verdict (`verdict`, `thresholds`).
@@ -647,13 +653,16 @@ def diagnose(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data, val: 
       expert: `(actions [E', T', A], valid [E', T'])`, the expert's rollouts (`demonstration_rollouts`).
       velocity: `(train [M, V], val [M', V])`, the true velocity of every row of `train.obs` / `val.obs`; None:
         no velocity probe.
+      state: `(train [M, S], val [M', S])`, the true state of every row (e.g. `qpos` and `qvel`); None: no state
+        reference (`prev_from_state`, `state_ratio` NaN).
       steps: each probe's and ψ's Adam steps.
       max_rows: the embedding probes' training and held-out rows at most.
       thresholds: the verdict's.
 
     Returns:
-      `{field: [P] array}` for every field of `FIELDS` (`velocity_ratio` NaN without `velocity`; `copycat`
-      bool), and `"probe_rows": (training rows, held-out rows)`.
+      `{field: [P] array}` for every field of `FIELDS` (`velocity_ratio` NaN without `velocity`, `prev_from_state`
+      and `state_ratio` without `state`; `copycat` bool, from the two ratios of `verdict` alone), and
+      `"probe_rows": (training rows, held-out rows)`.
     """
     rows_train, rows_val = probe_rows(train, max_rows[0]), probe_rows(val, max_rows[1])
     if len(rows_train) == 0 or len(rows_val) == 0:
@@ -663,6 +672,11 @@ def diagnose(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data, val: 
     key_probe, key_psi = jax.random.split(key)
     reference = float(probe_target(jax.random.split(key_probe)[0], action_train[rows_train], action_val[rows_val],
                                    prev_train, prev_val, steps=steps).mse)
+    from_state = np.nan
+    if state is not None:  # the true state at t: what a_{t−1} is predictable from without any history
+        s_train, s_val = (jnp.asarray(np.asarray(v)[r], jnp.float32) for v, r in zip(state, (rows_train, rows_val)))
+        from_state = float(probe_target(jax.random.split(key_probe)[0], s_train, s_val, prev_train, prev_val,
+                                        steps=steps).mse)
     vel = (None, None) if velocity is None else tuple(
         jnp.asarray(np.asarray(v)[r], jnp.float32) for v, r in zip(velocity, (rows_train, rows_val)))
     prev, vel_ratio = jax.device_get(_probe_policies(
@@ -678,8 +692,10 @@ def diagnose(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data, val: 
            "policy_mse": np.array([p.policy_mse for p in pred]),
            "expert_mse": np.array([p.expert_mse for p in pred]),
            "predictability_steps": np.array([p.train_rows + p.val_rows for p in pred])}
+    out["prev_from_state"] = np.full(len(pred), from_state)
     with np.errstate(divide="ignore", invalid="ignore"):
         out["embedding_ratio"] = out["prev_from_embedding"] / reference
+        out["state_ratio"] = out["prev_from_embedding"] / from_state
     out["copycat"] = np.array([verdict(EmbeddingProbe(e, reference, r), p, thresholds).label == COPYCAT
                                for e, r, p in zip(out["prev_from_embedding"], out["embedding_ratio"], pred)])
     out["probe_rows"] = (len(rows_train), len(rows_val))

@@ -152,6 +152,25 @@ def test_a_state_reader_that_acts_like_the_expert_is_not_a_copycat(world):
     assert 0.7 < pred.ratio < 1.5, pred
 
 
+def test_the_state_reference_separates_reading_the_state_from_copying(world):
+    """`diagnose`'s state reference: `a_{t−1}` from the true state at t (here the phase's features). The copycat's
+    embedding holds `a_{t−1}` far beyond what the state tells; the state reader's holds what the state does."""
+    def state(rows):
+        th = world.theta[rows]
+        return jnp.asarray(np.stack([np.sin(th), np.cos(th), np.sin(2 * th), np.cos(2 * th)], -1), jnp.float32)
+
+    rows = [dg.previous_action_rows(world.data.replace(rows=jnp.asarray(r))) for r in (world.train, world.val)]
+    key = jax.random.PRNGKey(5)
+    prev = [world.data.action[r - 1] for r in rows]
+    from_state = dg.probe_target(key, state(rows[0]), state(rows[1]), *prev, steps=PROBE_STEPS).mse
+    ratios = {}
+    for name, embed in (("copycat", _copycat_embedding), ("reader", _reader_embedding)):
+        from_embedding = dg.probe_target(key, embed(world, rows[0]), embed(world, rows[1]), *prev,
+                                         steps=PROBE_STEPS).mse
+        ratios[name] = float(from_embedding / from_state)
+    assert ratios["copycat"] < 0.2 and 0.7 < ratios["reader"] < 1.4, ratios
+
+
 def test_steps_after_an_episode_ended_are_masked_out(world):
     rng = np.random.default_rng(4)
     actions = _on_circle(_expert_phases(rng, ROLLOUTS, ROLLOUT_LENGTH))

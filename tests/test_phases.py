@@ -119,6 +119,7 @@ def test_evaluate_and_assemble_give_one_record_per_run_in_plan_order(small):
     for r in res.runs:
         d = r["diagnostics"]
         assert d["verdict"] in ("copycat", "not copycat") and d["velocity_ratio"] is None  # ToyCar has no qvel
+        assert d["prev_from_state"] is None and d["state_ratio"] is None and diag["state"] is None  # nor qpos
         assert d["embedding_ratio"] == pytest.approx(d["prev_from_embedding"] / d["prev_from_action"])
         assert d["predictability_ratio"] == pytest.approx(d["policy_mse"] / d["expert_mse"])
         assert d["predictability_steps"] > 0 and d["policy_mse"] > 0

@@ -43,6 +43,22 @@ def _key(run: dict) -> tuple:
     return run["method"], json.dumps(run["hparams"], sort_keys=True), run["seed"]
 
 
+def _lacks(record: dict) -> bool:
+    """Whether a run record lacks copycat diagnostics, or has a readable block without the later fields
+    (`ape_jax.diagnostics.LATER_FIELDS`); an absent block (`{"absent": why}`) lacks nothing."""
+    diag = record.get("diagnostics")
+    if diag is None:
+        return True
+    return "absent" not in diag and any(k not in diag for k in diagnostics_lib.LATER_FIELDS)
+
+
+def _same(a, b, rtol: float) -> bool:
+    """Whether a recomputed diagnostics value is the recorded one (numbers within `rtol`; null and text equal)."""
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)):
+        return bool(np.isclose(a, b, rtol=rtol, atol=1e-9))
+    return a == b
+
+
 def spec_of(results: Results, data_dir=None) -> sweep_lib.SweepSpec:
     """The `SweepSpec` that produced `results` (its methods need not be registered: only evaluated here)."""
     settings = results.config["data"]["settings"]
@@ -101,8 +117,11 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
         runs = tuple(sweep_lib.Run(r["method"], r["hparams"], r["seed"]) for r in saved["runs"])
         group = sweep_lib.PolicyGroup(history, prepared.learner_config(spec.settings, history), runs, saved["params"])
         log(f"evaluating {len(runs)} saved policies with history {history} ({episodes} episodes each)")
-        lacking = any("diagnostics" not in records.get(_key(r), {}) for r in saved["runs"])
-        steps = spec.budget.probe_steps or diagnostics_lib.PROBE_STEPS  # a file that ran none gets the default's
+        lacking = any(_lacks(records.get(_key(r), {})) for r in saved["runs"])
+        # the steps the file's diagnostics ran (so the fields added beside them are of the same fit), else the
+        # budget's, else (a file that ran none) the default's
+        steps = ((config.get("diagnostics") or {}).get("probe_steps") or spec.budget.probe_steps
+                 or diagnostics_lib.PROBE_STEPS)
         out, _, seconds = sweep_lib.evaluate_group(prepared, ape, episodes, group, steps if lacking else 0)
         diag_s += seconds
         diag_config = diag_config or sweep_lib.diagnostics_config(prepared, [out])
@@ -112,9 +131,18 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
                 raise ReevaluationError(f"a saved policy ({run['method']} {run['hparams']} seed {run['seed']}) "
                                         "has no run in results.json: the params and the results are of different sweeps")
             was, ev = records[key].get("eval") or {}, new_records[key].setdefault("eval", {})
-            if "diagnostics" not in records[key] and (diag := sweep_lib.diagnostics_record(out, j)) is not None:
+            diag = sweep_lib.diagnostics_record(out, j) if lacking else None
+            if diag is not None and "diagnostics" not in records[key]:
                 new_records[key]["diagnostics"] = diag
                 added.add("diagnostics")
+            elif diag is not None and _lacks(records[key]):   # diagnostics from before the later fields
+                had = records[key]["diagnostics"]
+                differ += [f"{run['method']} {run['hparams']} seed {run['seed']} diagnostics {k}: {diag[k]!r} vs "
+                           f"{had[k]!r}" for k in had if k in diag and not _same(diag[k], had[k], rtol)]
+                for k in diagnostics_lib.LATER_FIELDS:
+                    if k in diag and k not in had:
+                        new_records[key]["diagnostics"][k] = diag[k]
+                        added.add(f"diagnostics.{k}")
             now = {"return_mean": out["return"][j], **{k: out[k][j] for k in metrics if k in out}}
             for k, values in now.items():
                 value = float(np.mean(values))
@@ -132,6 +160,9 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
     if "diagnostics" not in new.config and diag_config is not None:
         new.config["diagnostics"] = diag_config
         added.add("config.diagnostics")
+    elif diag_config is not None and "state" not in new.config["diagnostics"]:
+        new.config["diagnostics"]["state"] = diag_config.get("state")
+        added.add("config.diagnostics.state")
     ape_record = new.config.setdefault("ape", {})
     if "val_mean" not in ape_record:
         ape_record["val_mean"] = float(np.mean(ape.val))

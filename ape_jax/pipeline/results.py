@@ -288,6 +288,7 @@ _DIAGNOSTICS = {"verdict": (lambda v: v in ("copycat", "not copycat"), "'copycat
                 **{k: (_optional(_number), "a number or null")
                    for k in ("embedding_ratio", "prev_from_embedding", "prev_from_action", "velocity_ratio",
                              "predictability_ratio", "policy_mse", "expert_mse")}}
+_LATER_DIAGNOSTICS = {k: (_optional(_number), "a number or null") for k in ("prev_from_state", "state_ratio")}  # optional
 _LOSSES = {s: (lambda v: isinstance(v, dict) and all(
     _number(v.get(k)) for k in ("unweighted", "changepoint", "copycat")), "an object with numbers unweighted, "
     "changepoint and copycat") for s in ("train", "val")}
@@ -332,3 +333,4 @@ def _check_diagnostics(where: str, record: dict) -> None:
         diag = record["diagnostics"]
         if not (isinstance(diag, dict) and isinstance(diag.get("absent"), str)):
             _row(f"{where} diagnostics", diag, _DIAGNOSTICS)
+            _row(f"{where} diagnostics", diag, {k: v for k, v in _LATER_DIAGNOSTICS.items() if k in diag})

@@ -682,12 +682,15 @@ def group_diagnostics(prepared: Prepared, ape: ApeFit, group: PolicyGroup, actio
         return {f"{DIAG}absent": np.ones(len(group.runs))}  # reported absent, never as zero
     train, val = prepared.data(prepared.train, ape.train), prepared.data(prepared.val, ape.val)
     demos = prepared.train.demos
-    velocity = None
-    if "qvel" in demos.sim and "qvel" in prepared.val.demos.sim:
-        velocity = (demos.sim["qvel"], prepared.val.demos.sim["qvel"])
+    velocity = state = None
+    both = [d.sim for d in (demos, prepared.val.demos)]
+    if all("qvel" in sim for sim in both):
+        velocity = tuple(sim["qvel"] for sim in both)
+        if all("qpos" in sim for sim in both):
+            state = tuple(np.concatenate([sim["qpos"], sim["qvel"]], axis=-1) for sim in both)
     expert = diagnostics_lib.demonstration_rollouts(demos.action, demos.episode)
     d = diagnostics_lib.diagnose(jax.random.PRNGKey(DIAGNOSTICS_SEED), group.cfg, group.params, train, val,
-                                 actions, valid, expert, velocity, steps=steps)
+                                 actions, valid, expert, velocity, steps=steps, state=state)
     rows = d.pop("probe_rows")
     return {**{DIAG + k: np.asarray(v) for k, v in d.items()},
             f"{DIAG}probe_rows_train": np.full(len(group.runs), rows[0]),
@@ -760,7 +763,7 @@ def diagnostics_record(out: dict, j: int) -> dict | None:
         return {"absent": "the policy's network gives no embedding (it takes no return_embedding)"}
     if f"{DIAG}copycat" not in out:
         return None
-    value = {k: float(out[DIAG + k][j]) for k in diagnostics_lib.FIELDS if k != "copycat"}
+    value = {k: float(out[DIAG + k][j]) for k in diagnostics_lib.FIELDS if k != "copycat" and DIAG + k in out}
     value = {k: v if np.isfinite(v) else None for k, v in value.items()}  # e.g. no velocity: null, never 0
     value["predictability_steps"] = int(value["predictability_steps"])
     value["verdict"] = diagnostics_lib.COPYCAT if bool(out[f"{DIAG}copycat"][j]) else diagnostics_lib.NOT_COPYCAT
@@ -892,7 +895,8 @@ def diagnostics_config(prepared: Prepared, outputs: Sequence[dict]) -> dict | No
                            "val": int(out[f"{DIAG}probe_rows_val"][0])},
             "expert_rollouts": f"the demonstrations' {demos.num_episodes} training episodes, cut to each policy's "
                                "step count",
-            "velocity": "qvel" if "qvel" in demos.sim else None}
+            "velocity": "qvel" if "qvel" in demos.sim else None,
+            "state": "qpos, qvel" if {"qpos", "qvel"} <= set(demos.sim) else None}
 
 
 def policies(evaluated: Evaluated, prepared: Prepared) -> dict[str, dict]:

@@ -638,7 +638,8 @@ def copycat_map(merged: dict) -> list[CopycatMap]:
     by_task: dict[tuple[str, str], dict[tuple[int, int], dict]] = {}
     for key, m in _ordered(merged):
         skip, train = m["protocol"].get("frame_skip"), m["protocol"].get("train_transitions") or FCA_TRAIN
-        if not in_fca_family(key.protocol) or skip is None or key.budget is not None:
+        if (not in_fca_family(key.protocol) or m["protocol"].get("variant_of") or skip is None
+                or key.budget is not None):  # the map of the first recipe; the extended map has the variants
             continue
         cells = by_task.setdefault((key.env, key.obs), {})
         if (skip, train) in cells:
