@@ -1079,6 +1079,7 @@ class PolicyDiagnostics(NamedTuple):
     velocity: Spread | None
     predictability: Spread | None
     absent: tuple[tuple[str, int], ...]
+    state: Spread | None = None  # embedding ÷ the true state's probe (`state_ratio`; files before it: None)
 
 
 def _finite(v) -> bool:
@@ -1119,7 +1120,8 @@ def policy_diagnostics(runs: Sequence[dict]) -> PolicyDiagnostics:
                              spread([d.get("embedding_ratio") for d in read]),
                              spread([d.get("velocity_ratio") for d in read]),
                              spread([d.get("predictability_ratio") for d in read]),
-                             tuple((why, reasons.count(why)) for why in dict.fromkeys(reasons)))
+                             tuple((why, reasons.count(why)) for why in dict.fromkeys(reasons)),
+                             spread([d.get("state_ratio") for d in read]))
 
 
 class DiagnosticsRow(NamedTuple):

@@ -365,6 +365,10 @@ DIAGNOSTICS_COLUMNS = (
     "predictability ratio: ψ's held-out MSE on the policy's own rollout actions ÷ on the expert's rollouts (as "
     "many steps), median over seeds (range); below 1 the policy's actions are more predictable than the expert's",
     "verdict: the seeds judged copycat / the seeds whose diagnostics could be read (— where none could)",
+    "embedding ÷ state (where the files record it): the embedding probe's MSE ÷ the same probe's from the true "
+    "state at t (joint positions and velocities), median (range); the expert's previous action follows from the "
+    "previous state, which the current one nearly fixes, so a policy that reads the state carries a_{t−1} "
+    "(ratio near 1) without copying it; below 1 the embedding holds a_{t−1} beyond the state",
 )
 
 
@@ -397,9 +401,12 @@ def diagnostics_table(rows: list[tuple[tuple[str, ...], DiagnosticsRow]], heads:
       heads: the leading columns' headings (the method, and in the recipe table the task and recipe first).
       unit: the heading of the % of expert column (a task judged by a rate: that rate in %).
     """
+    state = any(row.diagnostics.state is not None for _, row in rows)   # files from before it: no column
     lines = ["| " + " | ".join(heads) + f" | hparams | seeds | {unit} | embedding ratio | velocity 1 − R² | "
-             "predictability ratio | verdict |", "|" + "---|" * (len(heads) + 1) + "---:|" * 5 + "---|"]
-    lines += ["| " + " | ".join([*lead, *_diagnostics_cells(row)]) + " |" for lead, row in rows]
+             "predictability ratio | verdict |" + (" embedding ÷ state |" if state else ""),
+             "|" + "---|" * (len(heads) + 1) + "---:|" * 5 + "---|" + ("---:|" if state else "")]
+    lines += ["| " + " | ".join([*lead, *_diagnostics_cells(row)]) + " |"
+              + (f" {_ratio(row.diagnostics.state)} |" if state else "") for lead, row in rows]
     return "\n".join(lines) + "\n"
 
 
@@ -1242,6 +1249,7 @@ def paper_budget_section(merged: dict, figure) -> list[str]:
             "0.", "", "| task | difference | " + " | ".join(f"at {i:,}" for i in its) + " |",
             "|---|---|" + "---:|" * len(its)]
     diffs = [budget_differences(task) for task in rows]
+    state = any(p.diagnostics.state is not None for task in rows for r in task for p in r.points)
     for task, d in zip(rows, diffs):
         out += [f"| {tasks.get(task[0].env).title} | {lab} | " + " | ".join(_diff_cell(ci.get(i)) for i in its) + " |"
                 for lab, ci in d]
@@ -1250,13 +1258,18 @@ def paper_budget_section(merged: dict, figure) -> list[str]:
             "alone: below 1 the embedding carries the previous action beyond what the current one gives), the "
             "predictability ratio (a ψ-architecture predictor's held-out error on the policy's own rollout actions ÷ "
             "the same on the expert's: below 1 the policy's actions are more predictable from its previous ones "
-            "than the expert's), and the seeds judged copycat out of those read.", "",
-            "| task | method | embedding ratio | predictability ratio | copycat |", "|---|---|---:|---:|---:|"]
+            "than the expert's), and the seeds judged copycat out of those read"
+            + ("; and beside them, where recorded, the embedding probe's error ÷ the same probe's from the true "
+               "state at t (below 1: the embedding carries a_{t−1} beyond what the state itself tells)" if state
+               else "") + ".", "",
+            "| task | method | embedding ratio | predictability ratio | copycat |" + (" embedding ÷ state |" if state else ""),
+            "|---|---|---:|---:|---:|" + ("---:|" if state else "")]
     for task in rows:
         title = tasks.get(task[0].env).title
         out += [f"| {title} | {r.label} | {_ratios(r, its, 'embedding')} | {_ratios(r, its, 'predictability')} | "
                 + " → ".join("—" if (q := r.at(i)) is None or not q.diagnostics.read
-                             else f"{q.diagnostics.copycats}/{q.diagnostics.read}" for i in its) + " |" for r in task]
+                             else f"{q.diagnostics.copycats}/{q.diagnostics.read}" for i in its) + " |"
+                + (f" {_ratios(r, its, 'state')} |" if state else "") for r in task]
     sources = [src for m in groups for src in m["sources"]]
     out += ["", thresholds_line(diagnostics_thresholds(sources)), ""]
     out += [f"- {_budget_reading(task, d)}" for task, d in zip(rows, diffs)] + [""]
@@ -1303,15 +1316,21 @@ def extended_map_section(merged: dict, figure) -> list[str]:
     out += [cells(q) + " | ".join(map(_map_cell, q.cells)) + f" | {_diff_cell(q.history)} |" for q in points]
     out += [""]
     if diagnosed:
+        state = any(q.diagnostics.state is not None for q in diagnosed)
         out += ["BC-OH's copycat diagnostics in the cells whose files record them, which test that inference: "
                 "the median embedding ratio and predictability ratio over seeds (below 1: the embedding carries "
                 "a_{t−1} beyond what a_t gives; the policy's actions are more predictable than the expert's), and "
-                "the seeds judged copycat.", "",
-                lead + "BC-OH − BC-SO | embedding ratio | predictability ratio | copycat |",
-                "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+                "the seeds judged copycat"
+                + ("; where recorded, the embedding probe's error ÷ the same probe's from the true state at t "
+                   "(below 1: beyond what the state itself tells) and the velocity probe's 1 − R² (near 0: the "
+                   "embedding holds the velocity the history is for)" if state else "") + ".", "",
+                lead + "BC-OH − BC-SO | embedding ratio | predictability ratio | copycat |"
+                + (" embedding ÷ state | velocity 1 − R² |" if state else ""),
+                "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|" + ("---:|---:|" if state else "")]
         out += [cells(q) + ("—" if q.history is None else f"{q.history.diff:+.1f}") + f" | "
                 f"{_point_diag(q, 'embedding')} | {_point_diag(q, 'predictability')} | "
                 + ("—" if not q.diagnostics.read else f"{q.diagnostics.copycats}/{q.diagnostics.read}") + " |"
+                + (f" {_point_diag(q, 'state')} | {_point_diag(q, 'velocity')} |" if state else "")
                 for q in diagnosed]
         sources = [src for key, m in _ordered(merged) for src in m["sources"]]
         judged = [q for q in diagnosed if q.diagnostics.read]
