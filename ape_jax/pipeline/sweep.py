@@ -686,8 +686,8 @@ def group_diagnostics(prepared: Prepared, ape: ApeFit, group: PolicyGroup, actio
     both = [d.sim for d in (demos, prepared.val.demos)]
     if all("qvel" in sim for sim in both):
         velocity = tuple(sim["qvel"] for sim in both)
-        if all("qpos" in sim for sim in both):
-            state = tuple(np.concatenate([sim["qpos"], sim["qvel"]], axis=-1) for sim in both)
+        if all("qpos" in sim for sim in both):  # the experts' observation: the root's x left out, as Brax does
+            state = tuple(np.concatenate([sim["qpos"][:, 1:], sim["qvel"]], axis=-1) for sim in both)
     expert = diagnostics_lib.demonstration_rollouts(demos.action, demos.episode)
     d = diagnostics_lib.diagnose(jax.random.PRNGKey(DIAGNOSTICS_SEED), group.cfg, group.params, train, val,
                                  actions, valid, expert, velocity, steps=steps, state=state)
@@ -896,7 +896,7 @@ def diagnostics_config(prepared: Prepared, outputs: Sequence[dict]) -> dict | No
             "expert_rollouts": f"the demonstrations' {demos.num_episodes} training episodes, cut to each policy's "
                                "step count",
             "velocity": "qvel" if "qvel" in demos.sim else None,
-            "state": "qpos, qvel" if {"qpos", "qvel"} <= set(demos.sim) else None}
+            "state": "qpos[1:], qvel (the expert's observation)" if {"qpos", "qvel"} <= set(demos.sim) else None}
 
 
 def policies(evaluated: Evaluated, prepared: Prepared) -> dict[str, dict]:
