@@ -637,10 +637,11 @@ def diagnose(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data, val: 
       `a_t` alone) once, as it does not depend on the policy; every probe starts from the same key;
     - with `velocity`, the same probe on the true velocity (`qvel_t`): its `1 − R²` says whether the policy
       extracts what its history is for;
-    - with `state`, the same probe of `a_{t−1}` from the true state at `t` (the expert's own observation: `qpos_t` without the root's x, `qvel_t`), once: the
-      `state_ratio`, embedding ÷ state, says whether the embedding carries `a_{t−1}` beyond what the current
-      state itself tells (the expert's previous action is a function of the previous state, which the current
-      one nearly determines, so a policy that reads the state well carries `a_{t−1}` without copying it);
+    - with `state`, the same probe of `a_{t−1}` from the true state at `t` (the expert's own observation:
+      `qpos_t` without the root's x, `qvel_t`), once: the `state_ratio`, embedding ÷ state, says whether the
+      embedding carries `a_{t−1}` beyond what the current state itself tells (the expert's previous action is
+      a function of the previous state, which the current one nearly determines, so a policy that reads the
+      state well carries `a_{t−1}` without copying it);
     - own-rollout predictability of each policy's evaluation rollouts against the expert's
       (`rollout_predictability_batch`);
     - the verdict (`verdict`, `thresholds`).
