@@ -641,7 +641,8 @@ def diagnose(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data, val: 
       `qpos_t` without the root's x, `qvel_t`), once: the `state_ratio`, embedding ÷ state, says whether the
       embedding carries `a_{t−1}` beyond what the current state itself tells (the expert's previous action is
       a function of the previous state, which the current one nearly determines, so a policy that reads the
-      state well carries `a_{t−1}` without copying it);
+      state well carries `a_{t−1}` without copying it). The probe reads a trained embedding more easily than
+      the raw state, so the ratio is below 1 even for a policy without a history: read it against one;
     - own-rollout predictability of each policy's evaluation rollouts against the expert's
       (`rollout_predictability_batch`);
     - the verdict (`verdict`, `thresholds`).

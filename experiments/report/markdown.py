@@ -366,10 +366,11 @@ DIAGNOSTICS_COLUMNS = (
     "many steps), median over seeds (range); below 1 the policy's actions are more predictable than the expert's",
     "verdict: the seeds judged copycat / the seeds whose diagnostics could be read (— where none could)",
     "embedding ÷ state (where the files record it): the embedding probe's MSE ÷ the same probe's from the true "
-    "state at t (the expert's observation: joint positions and velocities), median (range); the expert's "
-    "previous action follows from the previous state, which the current one nearly fixes, so a policy that reads "
-    "the state carries a_{t−1} (ratio near 1) without copying it; below 1 the embedding holds a_{t−1} beyond "
-    "the state",
+    "state at t (the expert's observation: joint positions and velocities), median (range). The expert's "
+    "previous action follows from the previous state, which the current one nearly fixes, so reading the state "
+    "well carries a_{t−1} without copying it; but the small probe reads a trained embedding (a feature made to "
+    "predict a_t, which a_{t−1} is close to) more easily than the raw state, so a ratio below 1 is expected even "
+    "without a history: compare it with BC-SO's, which has none",
 )
 
 
