@@ -143,11 +143,11 @@ def test_a_damaged_checkpoint_is_refused_in_one_line_and_left_in_place(tmp_path,
 # drifts (HalfCheetah, returns near 0); a trained expert keeps collecting
 # healthy and forward reward. Bounds are a third of the card's 1000-step return,
 # scaled to 200 steps, and well above random.
-@pytest.mark.parametrize("name", envs.MUJOCO_TASKS)
+@pytest.mark.parametrize("name", [*envs.MUJOCO_TASKS, "hopper-ppo"])   # and the variant shipped beside one
 def test_shipped_experts_load_and_beat_a_random_policy(name):
     card = experts.card(name)
     policy = experts.load(name)
-    env = envs.make(name, obs="full")
+    env = envs.make(name.partition("-")[0], obs="full")
     run = jax.jit(lambda k: envs.rollout(env, envs.from_observation(policy, expert=True, env=env), None, k,
                                          num_episodes=4, num_steps=200).returns)
     # 800 MJX steps run ~20 s at the suite's XLA backend optimisation level 0 (conftest), under a
