@@ -259,3 +259,12 @@ def test_evaluating_saved_policies_again_adds_the_missing_fields_and_refuses_oth
     with pytest.raises(SystemExit):
         evaluate.main([str(run), "--data-dir", str(workdir / "data")])
     assert "progress" in capsys.readouterr().err
+    # diagnostics from before the later fields get them added, the recorded ones checked as they are recomputed
+    older = copy.deepcopy(reference)
+    for r in older["runs"]:
+        del r["diagnostics"]["prev_from_state"], r["diagnostics"]["state_ratio"]
+    older["runs"][0]["diagnostics"]["embedding_ratio"] *= 2
+    (run / "results.json").write_text(json.dumps(older))
+    with pytest.raises(SystemExit):
+        evaluate.main([str(run), "--data-dir", str(workdir / "data")])
+    assert "seed 0 diagnostics embedding_ratio" in capsys.readouterr().err
