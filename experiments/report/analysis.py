@@ -310,6 +310,11 @@ def _paper_step(m: dict) -> dict | None:
     return next((r for r in _rows(m, "ours-step") if r["hparams"] == PAPER_STEP), None)
 
 
+def thousands(x: float) -> str:
+    """`30000 -> "30k"`, `2500 -> "2.5k"`, `2 -> "2"`: iterations, sizes and frame skips in headings and ticks."""
+    return f"{x / 1000:g}k" if x >= 1000 else f"{x:g}"
+
+
 def _pct(thr: float) -> str:
     """A fraction as a percentage, `0.1 -> "10%"`."""
     return f"{100 * thr:g}%"
@@ -614,8 +619,7 @@ FCA_TRAIN = 20_000  # fca's training transitions: the frame-skip rows of the map
 
 
 def _map_cell(m: dict, method: str, hparams: dict | None) -> MapCell | None:
-    rows = _rows(m, method)
-    row = _best(rows) if hparams is None else next((r for r in rows if r["hparams"] == hparams), None)
+    row = _map_row_of(m, method, hparams)
     if row is None or row.get("normalized_mean") is None:
         return None
     seeds = tuple(_seeds(m, row, "normalized"))
@@ -1211,8 +1215,7 @@ def training_points(m: dict) -> list[TrainingPoint]:
             at = [a for r in sorted(runs, key=lambda r: r.get("seed", 0)) if (a := _at(r, iteration, end))]
             seeds = [a["eval"]["normalized"] for a in at if a["eval"].get("normalized") is not None]
             losses = [a["train_loss"] for a in at if _finite(a.get("train_loss"))]
-            out.append(TrainingPoint(label(m["methods"], row["method"]), row["hparams"], iteration,
-                                     RecipeCell(*bootstrap_mean(seeds), tuple(seeds)) if seeds else None,
+            out.append(TrainingPoint(label(m["methods"], row["method"]), row["hparams"], iteration, _cell(seeds),
                                      float(np.mean(losses)) if losses else None, policy_diagnostics(at)))
     return out
 

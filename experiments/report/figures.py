@@ -40,7 +40,7 @@ from matplotlib.ticker import FuncFormatter, NullLocator
 
 from ape_jax import tasks
 from experiments.report.analysis import (FCA, FCA_TRAIN, MAP_METHODS, PAPER_STEP, PAPER_TAU, BudgetRow, CopycatMap,
-                                         MapPoint, WeightShares, _best,
+                                         MapPoint, WeightShares, _best, thousands,
                                          _config_key, _hp, _metric, _ordered, _paper_step, _pct, _rows, _seeds,
                                          _value, extra_methods, in_fca_family, known_methods, label)
 
@@ -159,11 +159,6 @@ class Lines(NamedTuple):
     empty: str = "no data"                   # what a panel without series says
 
 
-def _tick(x: float) -> str:
-    """`30000 -> "30k"`, `2 -> "2"`: a tick label for the values the report plots (iterations, sizes, skips)."""
-    return f"{x / 1000:g}k" if x >= 1000 else f"{x:g}"
-
-
 def _grid_axes(fig: Figure, n: int, columns: int | None, **kw) -> list:
     """`n` axes in rows of at most `columns` (None: one row), row-major; the unused cells of the last row removed."""
     cols = n if columns is None else max(1, min(columns, n))
@@ -202,7 +197,7 @@ def lines(panels: Sequence[Lines], title: str = "", columns: int | None = None) 
             ax.xaxis.set_minor_locator(NullLocator())
             ax.yaxis.set_minor_locator(NullLocator())
         elif p.xticks is not None:
-            ax.set_xticks(list(p.xticks), labels=[_tick(x) for x in p.xticks])
+            ax.set_xticks(list(p.xticks), labels=[thousands(x) for x in p.xticks])
             ax.xaxis.set_minor_locator(NullLocator())
         if not p.series:
             ax.text(0.5, 0.5, p.empty, ha="center", va="center", transform=ax.transAxes, fontsize=8, color="0.4")
@@ -637,7 +632,7 @@ def extended_map_figure(points: Sequence[MapPoint]) -> Figure | None:
                  lambda q: q.train_transitions, lambda q: q.setting),
                 ("iteration evaluated at (frame skip 1, 20k transitions)", "training",
                  [q for q in mine if q.frame_skip == 1 and q.train_transitions == FCA_TRAIN],
-                 lambda q: q.iteration, lambda q: f"{q.setting}, {_tick(q.run)} runs"))
+                 lambda q: q.iteration, lambda q: f"{q.setting}, {thousands(q.run)} runs"))
         for xlabel, axis, qs, x_of, line_of in axes:
             lines_of: dict[str, list[MapPoint]] = {}
             for q in qs:

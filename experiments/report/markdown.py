@@ -23,7 +23,7 @@ from experiments.report import figures
 from experiments.report.analysis import (APE_SCALES, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, BRAX, FCA, MAP_METHODS,
                                          PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP, PAPER_TABLE5,
                                          alpha_rows, policy_diagnostics, recipe_groups, recipe_rows, BudgetRow, MapPoint, budget_differences,
-                                         budget_rows, extended_map, paper_budget_groups,
+                                         budget_rows, extended_map, paper_budget_groups, thousands,
                                          DiagnosticsRow, PolicyDiagnostics, Spread, diagnostics_rows,
                                          diagnostics_thresholds, recipe_diagnostics, training_points,
                                          CopycatMap, Difference, Interval, Key, ReportError, WeightShares, _best, _hp,
@@ -1158,11 +1158,6 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
     return "\n".join(out), drawn
 
 
-def _k(iteration: int) -> str:
-    """`30000 -> "30k"`, `2500 -> "2.5k"`: an iteration in column headings."""
-    return f"{iteration / 1000:g}k" if iteration >= 1000 else str(iteration)
-
-
 def _ratio_cell(rows: list[BudgetRow], r: BudgetRow, its: list[int]) -> str:
     """`"x"` of `r` at each of `its`, `"—"` where the point is missing; "/" between them."""
     return " / ".join("—" if (p := r.at(i)) is None or p.returns is None or (b := _bcoh_at(rows, i)) is None
@@ -1189,16 +1184,16 @@ def _budget_reading(rows: list[BudgetRow], diffs: list[tuple[str, dict[int, Inte
     bcoh = by.get("bc-oh")
     if bcoh is not None:
         seen = [(p.iteration, p) for p in bcoh.points if p.normalized is not None]
-        parts.append("BC-OH reaches " + ", ".join(f"{p.normalized.mean:.1f}% of expert at {_k(i)}" for i, p in seen))
+        parts.append("BC-OH reaches " + ", ".join(f"{p.normalized.mean:.1f}% of expert at {thousands(i)}" for i, p in seen))
         judged = [(i, p.diagnostics) for i, p in seen if p.diagnostics.read]
         if judged:
-            parts.append("it is judged copycat in " + ", ".join(f"{d.copycats} of {d.read} seeds at {_k(i)}"
+            parts.append("it is judged copycat in " + ", ".join(f"{d.copycats} of {d.read} seeds at {thousands(i)}"
                                                                for i, d in judged))
     for lab, d in diffs:
         ci = d.get(end)
         if ci is not None:
             a, b = lab.split(" − ")
-            parts.append(f"at {_k(end)} {lab} is {ci.diff:+.1f} points ({_ci(ci)}; {verdict(ci, a, b)})")
+            parts.append(f"at {thousands(end)} {lab} is {ci.diff:+.1f} points ({_ci(ci)}; {verdict(ci, a, b)})")
     return f"{title}: " + "; ".join(parts) + "." if parts else f"{title}: nothing to compare."
 
 
@@ -1255,7 +1250,7 @@ def paper_budget_section(merged: dict, figure) -> list[str]:
     for task, d in zip(rows, diffs):
         out += [f"| {tasks.get(task[0].env).title} | {lab} | " + " | ".join(_diff_cell(ci.get(i)) for i in its) + " |"
                 for lab, ci in d]
-    out += ["", "The copycat diagnostics at each iteration (medians over seeds, " + " → ".join(_k(i) for i in its)
+    out += ["", "The copycat diagnostics at each iteration (medians over seeds, " + " → ".join(thousands(i) for i in its)
             + "): the embedding ratio (the embedding probe's held-out error on a_{t−1} ÷ the same probe's from a_t "
             "alone: below 1 the embedding carries the previous action beyond what the current one gives), the "
             "predictability ratio (a ψ-architecture predictor's held-out error on the policy's own rollout actions ÷ "
@@ -1313,7 +1308,7 @@ def extended_map_section(merged: dict, figure) -> list[str]:
         history = ("" if q.observations is None else f", history {q.observations}") + (
             "" if q.expert is None else f", expert {q.expert}")
         return (f"| {tasks.get(q.env).title} | {q.recipe}, {q.split}{history} | {q.frame_skip} | {q.train_transitions:,} | "
-                f"{_k(q.run)} | {_k(q.iteration)} | ")
+                f"{thousands(q.run)} | {thousands(q.iteration)} | ")
 
     out += [cells(q) + " | ".join(map(_map_cell, q.cells)) + f" | {_diff_cell(q.history)} |" for q in points]
     out += [""]
@@ -1342,7 +1337,7 @@ def extended_map_section(merged: dict, figure) -> list[str]:
             out += [f"Of the {len(judged)} cells whose BC-OH policies were diagnosed, "
                     + (f"{len(copycat)} {'has' if len(copycat) == 1 else 'have'} a seed judged copycat: " + "; ".join(
                         f"{tasks.get(q.env).title} {q.setting}, frame skip {q.frame_skip}, "
-                        f"{q.train_transitions:,} transitions, at {_k(q.iteration)} of {_k(q.run)} "
+                        f"{q.train_transitions:,} transitions, at {thousands(q.iteration)} of {thousands(q.run)} "
                         f"({q.diagnostics.copycats}/{q.diagnostics.read})" for q in copycat)
                        if copycat else "none has a seed judged copycat") + ".", ""]
     return out
