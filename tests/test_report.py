@@ -110,6 +110,11 @@ def test_the_report_merges_files_per_environment_and_builds_every_table(tmp_path
                                            "system": {"commit": "def5678"}}}
     assert ("`imitation_error`, `rollout_ape` added later by `python -m experiments.evaluate` (commit `def5678`"
             in report.provenance(Results.from_json(again)))
+    later = {**_results(), "reevaluated": {"fields": ["diagnostics.state_ratio"], "eval_s": 5.0,
+                                           "system": {"commit": "0a1b2c3"}, "previous": again["reevaluated"]}}
+    assert ("`imitation_error`, `rollout_ape` added later by `python -m experiments.evaluate` (commit `def5678`), "
+            "then `diagnostics.state_ratio` (commit `0a1b2c3`, every recorded number reproduced)"
+            in report.provenance(Results.from_json(later)))
     assert "100 s in all, peak resident memory 1.5 GB" in report.provenance(
         Results.from_json({**_results(), "timing": {"total_s": 100.0, "peak_rss_mb": 1536.0}}))
     assert "100 s in all (resumed after an interruption" in report.provenance(

@@ -21,7 +21,8 @@ from experiments import sweep
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 ARGS = ["--env", "toycar", "--obs", "full", "--iterations", "60", "--checkpoint-every", "20", "--eval-episodes", "2",
-        "--seeds", "1", "--methods", "bc-oh,ours-step", "--quiet", "--set", "budget.eval_at=30"]
+        "--seeds", "1", "--methods", "bc-oh,ours-step", "--quiet", "--set", "budget.eval_at=30",
+        "--set", "budget.probe_steps=100"]   # the diagnostics' fits shortened (quick's: 500 steps)
 
 # Runs the sweep's command line and SIGKILLs itself right after the KILL_AT-th save of kind KILL_KIND:
 # "train" (a training state, orbax) or "phase" (saved arrays: the APE fit, policies kept at eval_at, an evaluation group).
@@ -228,11 +229,13 @@ def test_evaluating_saved_policies_again_adds_the_missing_fields_and_refuses_oth
     for r in stripped["runs"]:
         del r["eval"]["imitation_error"], r["eval"]["rollout_ape"], r["diagnostics"]
     del stripped["config"]["ape"]["quantiles"], stripped["config"]["ape"]["val_mean"], stripped["config"]["diagnostics"]
-    (run / "results.json").write_text(json.dumps(stripped))
+    earlier = {"fields": ["config.ape.raw_mean"], "eval_s": 1.0, "diagnostics_s": 0.0, "system": {"commit": "abc1234"}}
+    (run / "results.json").write_text(json.dumps({**stripped, "reevaluated": earlier}))
     assert evaluate.main([str(run), "--data-dir", str(workdir / "data")]) == 0
     again = json.loads((run / "results.json").read_text())
     assert set(again["reevaluated"]["fields"]) == {"imitation_error", "rollout_ape", "config.ape.quantiles",
                                                    "config.ape.val_mean", "diagnostics", "config.diagnostics"}
+    assert again["reevaluated"]["previous"] == earlier  # an earlier evaluation's record is kept
     assert again["config"]["diagnostics"] == reference["config"]["diagnostics"]
     for r, ref in zip(again["runs"], reference["runs"]):
         assert r["eval"] == pytest.approx(ref["eval"], rel=1e-6)

@@ -15,8 +15,9 @@ from experiments import sweep
 @pytest.fixture(scope="module")
 def finished(tmp_path_factory):
     out = tmp_path_factory.mktemp("sweep")
+    # the diagnostics' fits shortened (quick's 500 steps): they are tested in test_diagnostics and test_phases
     argv = ["--env", "toycar", "--obs", "full", "--iterations", "30", "--eval-episodes", "2", "--seeds", "2",
-            "--out", str(out / "run"), "--data-dir", str(out / "data")]
+            "--set", "budget.probe_steps=100", "--out", str(out / "run"), "--data-dir", str(out / "data")]
     import contextlib
     import io
 
@@ -42,7 +43,7 @@ def test_sweep_writes_results_matching_the_schema_with_every_configuration_and_s
     from ape_jax.pipeline.presets import resolve
     again = results_lib.load(out / "results.json").records()
     assert again == resolve("toycar", "full", sets=["budget.iterations=30", "budget.eval_episodes=2",
-                                                      "budget.seeds=2"])
+                                                      "budget.seeds=2", "budget.probe_steps=100"])
     assert r["config"]["env"]["episode_length"] == 300 and r["config"]["env"]["dt"] == pytest.approx(0.1)
     expected = {("bc-so", ()), ("bc-oh", ())} | {("ours-step", (("thr", t), ("w", w))) for t, w in STEP_GRID} | \
                {("ours-softmax", (("tau", tau),)) for tau in SOFTMAX_GRID}
@@ -99,7 +100,8 @@ def test_the_printed_table_leads_with_the_tasks_own_metrics(finished):
 def test_every_baseline_runs_from_the_sweep_under_its_design_name(tmp_path):
     out = tmp_path / "run"
     argv = ["--env", "toycar", "--obs", "full", "--iterations", "24", "--eval-episodes", "2", "--seeds", "1",
-            "--methods", "baselines", "--out", str(out), "--data-dir", str(tmp_path / "data")]
+            "--methods", "baselines", "--set", "budget.probe_steps=0", "--out", str(out),
+            "--data-dir", str(tmp_path / "data")]
     assert sweep.main(argv) == 0
     r = json.loads((out / "results.json").read_text())
     assert [run["method"] for run in r["runs"]] == list(methods.names("baseline"))

@@ -175,4 +175,6 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
         added.add("config.ape.quantiles")
     new.reevaluated = {"fields": sorted(added), "eval_s": time.perf_counter() - t0,
                        "diagnostics_s": diag_s, "system": system}  # the diagnostics' time is in eval_s
+    if results.reevaluated:  # an earlier evaluation's record is kept, not replaced
+        new.reevaluated["previous"] = results.reevaluated
     return new

@@ -887,10 +887,17 @@ def provenance(r: results_lib.Results) -> str:
             + (" (resumed after an interruption: the last process's time only)" if t.get("resumed") else ""))
     if t.get("peak_rss_mb"):
         line += f", peak resident memory {t['peak_rss_mb'] / 1024:.1f} GB"
-    again = r.reevaluated
-    if again and again.get("fields"):
-        line += (f"; {', '.join(f'`{f}`' for f in again['fields'])} added later by `python -m experiments.evaluate` "
-                 f"(commit `{again['system'].get('commit')}`, every recorded number reproduced)")
+    chain, again = [], r.reevaluated
+    while again:  # the latest evaluation first, each earlier one under "previous"
+        chain.append(again)
+        again = again.get("previous")
+    added = [(", ".join(f"`{f}`" for f in a["fields"]), (a.get("system") or {}).get("commit"))
+             for a in reversed(chain) if a.get("fields")]
+    if added:
+        (fields, commit), *later = added
+        line += f"; {fields} added later by `python -m experiments.evaluate` (commit `{commit}`"
+        line += "".join(f"), then {fields} (commit `{commit}`" for fields, commit in later)
+        line += ", every recorded number reproduced)"
     return line
 
 
