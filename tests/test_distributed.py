@@ -146,7 +146,8 @@ def test_two_processes_train_the_grid_like_one_process_and_resume_from_process_z
 
 
 SWEEP = ["--env", "toycar", "--obs", "full", "--iterations", "4", "--eval-episodes", "1", "--seeds", "1",
-         "--methods", "bc-oh,ours-softmax", "--softmax-grid", "0.5,1", "--quiet"]
+         "--methods", "bc-oh,ours-softmax", "--softmax-grid", "0.5,1", "--quiet",
+         "--set", "budget.probe_steps=0"]  # no copycat diagnostics (process 0 evaluates alone; test_diagnostics)
 
 
 def test_a_sweep_over_two_processes_is_written_by_process_zero_alone(tmp_path):

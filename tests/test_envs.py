@@ -14,23 +14,22 @@ SMALL = {"image_size": 16}
 # The paper's tasks and ToyCar are tested per mode, as users call them: separately
 # jitted reset and step. Every other Brax env is tested in one program for all of
 # its modes (compiling MJX costs ~10 s a program on 2 cores).
-# `pos` is the same physics and Brax observation as `full`, cut to `positional_dims`
-# (a gather): Hopper's run checks that path, and `test_pos_keeps_the_positions` the
-# dimensions of every task; HalfCheetah's and Walker2d's `pos` runs are in the full
-# matrix (`pytest -m slow`).
+# The default run keeps Hopper's `full` and `image` and HalfCheetah's `full`; the rest is the
+# full matrix (`pytest -m slow`):
+# - `pos` is the same physics and Brax observation as `full`, cut to `positional_dims`
+#   (a gather): `test_pos_keeps_the_positions` checks the dimensions of every task, and
+#   `tests/test_data.py` collects Hopper's `pos` demonstrations under jit;
+# - the renderer is one program for every task (`envs/render.py`), tested on Hopper here
+#   and in `tests/test_render.py`; Walker2d's physics runs in the shipped expert's test.
+DEFAULT_RUN = {("hopper", "full"), ("hopper", "image"), ("halfcheetah", "full")}
 PER_MODE = [
-    pytest.param(n, m, marks=pytest.mark.slow) if m == "pos" and n != "hopper" else (n, m)
+    (n, m) if n == "toycar" or (n, m) in DEFAULT_RUN else pytest.param(n, m, marks=pytest.mark.slow)
     for n in (*PAPER_TASKS, "toycar")
     for m in envs.obs_modes(n)
 ]
-# Every other Brax env compiles for 30-90 s on 2 cores: the default run checks one representative
-# (the cheapest), the full matrix runs with `pytest -m slow`.
-REPRESENTATIVE = "inverted_pendulum"
-OTHER = [
-    n if n == REPRESENTATIVE else pytest.param(n, marks=pytest.mark.slow)
-    for n in envs.names()
-    if n not in (*PAPER_TASKS, "toycar")
-]
+# Every other Brax env compiles for 20-90 s on 2 cores and goes through the wrapper the paper's tasks
+# use: they run in the full matrix (`pytest -m slow`).
+OTHER = [pytest.param(n, marks=pytest.mark.slow) for n in envs.names() if n not in (*PAPER_TASKS, "toycar")]
 
 
 def _action(env, key):

@@ -126,6 +126,7 @@ def test_the_readme_plugin_runs_from_outside_the_repository_in_the_grid_program(
     out = tmp_path / "run"
     proc = _run_sweep(["--plugins", "my_weighting", "--methods", "bc-oh,action-norm", "--env", "toycar", "--obs", "full",
                        "--iterations", "20", "--eval-episodes", "1", "--step-grid", "0.1:5,0.2:3", "--quiet",
+                       "--set", "budget.probe_steps=0",  # no copycat diagnostics: not this test's subject
                        "--out", str(out), "--data-dir", str(tmp_path / "data")], tmp_path, plugins)
     assert proc.returncode == 0, proc.stderr[-2000:]
     r = json.loads((out / "results.json").read_text())

@@ -139,7 +139,7 @@ def test_sweep_refuses_bad_input_before_compiling(argv, message, capsys):
 def test_a_diverging_configuration_is_recorded_as_failed_and_the_others_finish(tmp_path):
     out = tmp_path / "run"
     argv = ["--env", "toycar", "--obs", "full", "--iterations", "30", "--eval-episodes", "1",
-            "--methods", "bc-oh,ours-step,diverging", "--step-grid", "0.1:3,0.1:5",
+            "--methods", "bc-oh,ours-step,diverging", "--step-grid", "0.1:3,0.1:5", "--set", "budget.probe_steps=0",
             "--out", str(out), "--data-dir", str(tmp_path / "data")]
     with methods.scratch():   # a method with an absurd learning rate, in the grid program beside the others
         methods.register(methods.Method("diverging", "Diverging", grid=lambda ctx: [{}],
