@@ -56,7 +56,7 @@ from flax import struct
 
 from ape_jax import weighting
 from ape_jax.history import history_index
-from ape_jax.models import IMAGE_ENCODERS, INITS, StatePolicy
+from ape_jax.models import IMAGE_ENCODERS, INITS, NORMS, StatePolicy
 from ape_jax.weighting import Weighting
 
 LOSSES = ("l2", "l1")
@@ -80,10 +80,15 @@ class LearnerConfig:
     bn_momentum: float = 0.1     # BatchNorm's running statistics: new = (1 − m) · old + m · batch (PyTorch's m)
     loss: str = "l2"
     unroll: bool = False         # unroll `run`'s scan: XLA:CPU runs convolutions in loop bodies ~50x slower
-    # Image encoder: "small" (`ImagePolicy`, 3 convs, CPU-sized) or "resnet18" (`ResNet18Policy`, the
-    # supplement's MuJoCo-Image network, ~11M parameters: for GPUs). State observations always use
+    # Image encoder: "small" (`ImagePolicy`, 3 convs, CPU-sized), "patch" (`PatchPolicy`, one 8×8 patch
+    # embedding: ~5× faster on a CPU) or "resnet18" (`ResNet18Policy`, the supplement's MuJoCo-Image
+    # network, ~11M parameters: for GPUs). State observations always use
     # `StatePolicy`; they accept only "small", so a config never records an encoder it did not use.
     encoder: str = "small"
+    # Image encoders "small" and "patch": "group" puts GroupNorm after each encoder layer (`models.encoder_norm`)
+    encoder_norm: str = "none"
+    # Images: each training sample's frames shifted by one random offset of up to this many pixels (`augment`)
+    augment_shift: int = 0
 
     def __post_init__(self):
         if self.loss not in LOSSES:
@@ -112,6 +117,19 @@ class LearnerConfig:
                 raise ValueError(f"LearnerConfig.{name} must be in [0, 1), got {getattr(self, name)}")
         if not 0.0 < self.bn_momentum <= 1.0:
             raise ValueError(f"LearnerConfig.bn_momentum must be in (0, 1], got {self.bn_momentum}")
+        if self.encoder_norm not in NORMS:
+            raise ValueError(f"unknown encoder_norm {self.encoder_norm!r}; valid: {list(NORMS)}")
+        if self.encoder_norm != "none" and (not self.images or self.encoder == "resnet18"):
+            raise ValueError(f"encoder_norm {self.encoder_norm!r} is for the image encoders 'small' and 'patch' "
+                             f"(ResNet-18 has its own; state policies: network='bn-mlp'), got encoder "
+                             f"{self.encoder!r} on obs_shape {self.obs_shape}")
+        if self.augment_shift and not self.images:
+            raise ValueError(f"augment_shift is for image observations, got {self.augment_shift} on obs_shape "
+                             f"{self.obs_shape}")
+        side = min(self.obs_shape[:2]) if self.images else 0
+        if not (isinstance(self.augment_shift, int) and 0 <= self.augment_shift <= side // 4):
+            raise ValueError(f"augment_shift must be an integer in [0, {side // 4}] (a quarter of the image's "
+                             f"shorter side, {side}), got {self.augment_shift!r}")
 
     @property
     def images(self) -> bool:
@@ -119,7 +137,8 @@ class LearnerConfig:
 
     def model(self) -> nn.Module:
         if self.images:
-            return IMAGE_ENCODERS[self.encoder](self.action_dim)
+            norm = {} if self.encoder == "resnet18" else {"norm": self.encoder_norm}
+            return IMAGE_ENCODERS[self.encoder](self.action_dim, **norm)
         return StatePolicy(self.action_dim, batchnorm=self.network == "bn-mlp", weights_init=self.init,
                            bn_momentum=self.bn_momentum)
 
@@ -219,6 +238,28 @@ def stack_hparams(configs: list[Hparams]) -> Hparams:
     return jax.tree.map(lambda *xs: jnp.stack(xs), *configs)
 
 
+def random_shift(key: jax.Array, frames: jax.Array, pad: int) -> jax.Array:
+    """`[B, H, h, w, C]` frames, each sample's `H` frames shifted by one random offset in `[−pad, pad]²`.
+
+    The random-shift augmentation of image-based control (DrQ: Kostrikov, Yarats and Fergus, 2020): the frames
+    are padded by `pad` pixels, repeating the edge, and a window of the original size is cut at an offset drawn
+    uniformly per sample. Every frame of a sample's history gets the same shift, so the motion between them is
+    kept. Integer offsets: the pixels are copied, not interpolated.
+    """
+    b, h, w = frames.shape[0], frames.shape[2], frames.shape[3]
+    padded = jnp.pad(frames, ((0, 0), (0, 0), (pad, pad), (pad, pad), (0, 0)), mode="edge")
+    offsets = jax.random.randint(key, (b, 2), 0, 2 * pad + 1)
+    cut = lambda x, o: jax.lax.dynamic_slice(x, (0, o[0], o[1], 0), (x.shape[0], h, w, x.shape[3]))  # noqa: E731
+    return jax.vmap(cut)(padded, offsets)
+
+
+def augment(cfg: LearnerConfig, key: jax.Array, history_obs: jax.Array) -> jax.Array:
+    """A training batch's `[B, H, *obs_shape]` observations as `cfg` augments them (`augment_shift`:
+    `random_shift`); unchanged (and `key` unused) without augmentation. Training only: evaluation and the
+    diagnostics read the frames as they are."""
+    return random_shift(key, history_obs, cfg.augment_shift) if cfg.augment_shift else history_obs
+
+
 def drop_history(key: jax.Array, history: jax.Array, p: jax.Array | float) -> jax.Array:
     """HistoryDropout: each past observation of `history [B, H, ...]` zeroed with probability `p`.
 
@@ -313,10 +354,13 @@ def make_train(cfg: LearnerConfig) -> Learner:
         x = jnp.moveaxis(history_obs, -4, -2)  # [..., h, w, H, 3]
         return x.reshape(x.shape[:-2] + (-1,)).astype(jnp.float32) / 255.0
 
-    def batch(data: Data, idx: jax.Array, dropout_key: jax.Array | None = None, dropout=0.0) -> jax.Array:
+    def batch(data: Data, idx: jax.Array, dropout_key: jax.Array | None = None, dropout=0.0,
+              augment_key: jax.Array | None = None) -> jax.Array:
         obs = data.obs[history_index(data.t, idx, cfg.history)]  # [B, H, *obs_shape]
         if dropout_key is not None:
             obs = drop_history(dropout_key, obs, dropout)
+        if augment_key is not None:
+            obs = augment(cfg, augment_key, obs)
         return policy_input(obs)
 
     def errors(predicted: jax.Array, target: jax.Array) -> jax.Array:
@@ -345,7 +389,7 @@ def make_train(cfg: LearnerConfig) -> Learner:
         pos, idx = data.sample(key_step, cfg.batch_size)
         key_drop = jax.random.fold_in(key_step, 1)
         w = weighting.batch_weights(data.score_table(), state.static_weights, pos, hp.weighting)
-        x = batch(data, idx, key_drop, hp.history_dropout)
+        x = batch(data, idx, key_drop, hp.history_dropout, augment_key=jax.random.fold_in(key_step, 2))
 
         def loss_fn(variables):
             predicted, variables = policy_apply(model, variables, x, train=True)

@@ -6,12 +6,18 @@
 For the image policies the sweep trains (frames stacked on channels, history
 2, batch 128, random uint8 frames):
 
-1. model-updates/s of one configuration, per encoder and image size, trained
-   the way the sweep trains images on this backend: on a CPU one chunk of
+1. model-updates/s per encoder and image size, trained the way the sweep
+   trains that encoder on this backend (`ape_jax.pipeline.sweep.trains_sequentially`):
+   a convolutional encoder on a CPU one configuration at a time, one chunk of
    `ape_jax.pipeline.sweep.CPU_IMAGE_CHUNK` unrolled iterations per call (XLA:CPU is slow
-   at convolution gradients inside loops), elsewhere a scanned chunk;
+   at convolution gradients inside loops and under vmap); otherwise scanned
+   chunks of `SCAN_CHUNK` iterations. With `--grid G` also `G` configurations
+   as one vmapped program in the same chunks (the sweep's way for a loop-friendly
+   encoder such as "patch"; for a convolutional one on a CPU, the way it avoids),
+   counted as G model-updates per iteration. The last column is the rate against
+   the first encoder's one configuration at the same size;
 2. evaluation policy-steps/s of the image evaluator on hopper (rendering
-   inside the jitted rollout, the CNN policy, vmapped over policies × episodes);
+   inside the jitted rollout, each encoder's policy, vmapped over policies × episodes);
 3. the process's peak resident memory when done.
 
 Medians of `--repeats` timed runs after a separate compiling call.
@@ -31,37 +37,45 @@ from experiments._timing import machine, run_benchmark, time_jitted
 
 SECTION = "bench_images"
 H, BATCH, ACT = 2, 128, 3
+SCAN_CHUNK = 100  # iterations per call of a scanned chunk
 
 
-def train_rate(encoder: str, size: int, repeats: int) -> tuple[float, float]:
-    """(compile_s, model-updates/s) of one configuration at `size`×`size`."""
-    from ape_jax.learner import Data, Hparams, LearnerConfig, make_train
-    from ape_jax.pipeline.sweep import CPU_IMAGE_CHUNK
+def train_rate(encoder: str, size: int, repeats: int, grid: int = 1) -> tuple[float, float, str]:
+    """(compile_s, model-updates/s, chunk) of `grid` configurations at `size`×`size` (vmapped if `grid > 1`)."""
+    from ape_jax.learner import Data, Hparams, LearnerConfig, make_train, stack_hparams
+    from ape_jax.pipeline.sweep import CPU_IMAGE_CHUNK, trains_sequentially
 
-    cpu = jax.default_backend() == "cpu"
-    chunk = CPU_IMAGE_CHUNK if cpu else 100
-    cfg = LearnerConfig(obs_shape=(size, size, 3), action_dim=ACT, history=H, batch_size=BATCH, unroll=cpu,
+    unroll = trains_sequentially((size, size, 3), encoder)
+    chunk = CPU_IMAGE_CHUNK if unroll else SCAN_CHUNK
+    cfg = LearnerConfig(obs_shape=(size, size, 3), action_dim=ACT, history=H, batch_size=BATCH, unroll=unroll,
                         encoder=encoder)
     rng = np.random.default_rng(0)
     n = 2_000
     data = Data(obs=jnp.asarray(rng.integers(0, 256, (n, size, size, 3), np.uint8)),
                 action=jnp.asarray(rng.uniform(-1, 1, (n, ACT)), jnp.float32),
                 t=jnp.asarray(np.arange(n) % 1000, jnp.int32), ape=jnp.ones(n, jnp.float32))
-    learner, hp = make_train(cfg), Hparams.make("step", thr=0.1, w=5.0)
-    state = jax.jit(learner.init)(jax.random.PRNGKey(0), hp, data)
-    run = jax.jit(lambda s, d: learner.run(s, hp, d, chunk)[0].params)
-    compile_s, steady_s, _ = time_jitted(run, state, data, repeats=repeats)
-    return compile_s, chunk / steady_s
+    learner = make_train(cfg)
+    hp = stack_hparams([Hparams.make("step", thr=0.1, w=5.0, lr=2e-4 * (1 + i)) for i in range(grid)])
+    keys = jax.random.split(jax.random.PRNGKey(0), grid)
+    state = jax.jit(jax.vmap(learner.init, (0, 0, None)))(keys, hp, data)
+    if grid == 1:  # one configuration's own program, as the sweep compiles it (no vmap)
+        state, hp = jax.tree.map(lambda x: x[0], (state, hp))
+        run = jax.jit(lambda s, h, d: learner.run(s, h, d, chunk)[0].params)
+    else:
+        run = jax.jit(jax.vmap(lambda s, h, d: learner.run(s, h, d, chunk)[0].params, (0, 0, None)))
+    compile_s, steady_s, _ = time_jitted(run, state, hp, data, repeats=repeats)
+    return compile_s, grid * chunk / steady_s, f"{chunk} {'unrolled' if unroll else 'scanned'}"
 
 
-def eval_rate(size: int, policies: int, episodes: int, steps: int, repeats: int) -> tuple[float, float]:
-    """(compile_s, policy-steps/s) of the image evaluator on hopper at `size`×`size`."""
+def eval_rate(size: int, encoder: str, policies: int, episodes: int, steps: int, repeats: int
+              ) -> tuple[float, float]:
+    """(compile_s, policy-steps/s) of the image evaluator on hopper at `size`×`size` with `encoder`'s policies."""
     import envs
     from ape_jax import evaluate
     from ape_jax.learner import LearnerConfig
 
     env = envs.make("hopper", obs="image", image_size=(size, size))
-    cfg = LearnerConfig(obs_shape=env.observation_shape, action_dim=env.action_size, history=H)
+    cfg = LearnerConfig(obs_shape=env.observation_shape, action_dim=env.action_size, history=H, encoder=encoder)
     keys = jax.random.split(jax.random.PRNGKey(0), policies)
     params = jax.vmap(lambda k: cfg.model().init(k, jnp.zeros((1, size, size, 3 * H))))(keys)
     run = evaluate.make_evaluator(env, cfg, None, None, episodes, steps=steps)
@@ -71,23 +85,34 @@ def eval_rate(size: int, policies: int, episodes: int, steps: int, repeats: int)
 
 def table(args) -> str:
     cmd = (f"python -m experiments.bench_images --sizes {','.join(map(str, args.sizes))} --encoders "
-           f"{','.join(args.encoders)} --policies {args.policies} --episodes {args.episodes} --repeats {args.repeats}")
+           f"{','.join(args.encoders)} --grid {args.grid} --policies {args.policies} --episodes {args.episodes} "
+           f"--repeats {args.repeats}")
+    first = args.encoders[0]
     lines = ["## Image policies: training and evaluation speed, memory", "", f"Command: `{cmd}`  ",
              f"Machine: {machine()}  ",
-             f"Medians of {args.repeats} runs after a compiling call, batch {BATCH}, history {H}; one configuration "
-             "trained as the sweep trains images on this backend.", "",
-             "| encoder | image | model-updates/s | ms per update | compile s |", "|---|---|---:|---:|---:|"]
+             f"Medians of {args.repeats} runs after a compiling call, batch {BATCH}, history {H}; each encoder "
+             "trained as the sweep trains it on this backend (one configuration at a time in unrolled chunks, "
+             "or vmapped in scanned chunks); a vmapped grid counts every configuration's updates.", "",
+             f"| encoder | image | configurations | chunk | model-updates/s | ms per update | compile s | × {first} |",
+             "|---|---|---|---|---:|---:|---:|---:|"]
+    base = {}
     for encoder in args.encoders:
         for size in args.sizes:
-            compile_s, rate = train_rate(encoder, size, args.repeats)
-            lines.append(f"| {encoder} | {size}×{size} | {rate:,.1f} | {1e3 / rate:,.0f} | {compile_s:.1f} |")
-            print(lines[-1], file=sys.stderr)
-    compile_s, rate = eval_rate(args.sizes[0], args.policies, args.episodes, 200, args.repeats)
-    lines += ["", f"Evaluation, hopper {args.sizes[0]}×{args.sizes[0]} (small encoder, rendering in the jitted "
-              f"rollout, {args.policies} policies × {args.episodes} episodes × 200 steps): **{rate:,.0f}** "
-              f"policy-steps/s (compile {compile_s:.1f} s).", "",
-              f"Peak resident memory of this process: "
-              f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20:.2f} GB."]
+            for grid in sorted({1, args.grid}):
+                compile_s, rate, chunk = train_rate(encoder, size, args.repeats, grid)
+                base.setdefault(size, rate)
+                lines.append(f"| {encoder} | {size}×{size} | {grid if grid == 1 else f'{grid}, vmapped'} | {chunk} | "
+                             f"{rate:,.1f} | {1e3 / rate:,.1f} | {compile_s:.1f} | {rate / base[size]:.2f} |")
+                print(lines[-1], file=sys.stderr)
+    lines.append("")
+    for encoder in args.encoders:
+        compile_s, rate = eval_rate(args.sizes[0], encoder, args.policies, args.episodes, 200, args.repeats)
+        lines += [f"Evaluation, hopper {args.sizes[0]}×{args.sizes[0]} ({encoder} encoder, rendering in the jitted "
+                  f"rollout, {args.policies} policies × {args.episodes} episodes × 200 steps): **{rate:,.0f}** "
+                  f"policy-steps/s (compile {compile_s:.1f} s).", ""]
+        print(lines[-2], file=sys.stderr)
+    lines.append(f"Peak resident memory of this process: "
+                 f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20:.2f} GB.")
     return "\n".join(lines) + "\n"
 
 
@@ -95,12 +120,16 @@ def main(argv=None) -> int:
     p = Parser(prog="python -m experiments.bench_images", description=__doc__.splitlines()[0])
     p.add_argument("--sizes", type=lambda s: [int(x) for x in s.split(",")], default=[32, 64],
                    help="image sides, comma list (default: 32,64; the first is also evaluated)")
-    p.add_argument("--encoders", type=lambda s: s.split(","), default=["small"],
-                   help="small and/or resnet18 (default: small; resnet18 takes tens of seconds per update on a CPU)")
+    p.add_argument("--encoders", type=lambda s: s.split(","), default=["small", "patch"],
+                   help="comma list of image encoders (`ape_jax.models.IMAGE_ENCODERS`; default: small,patch; the "
+                        "first is the reference of the last column; resnet18 takes seconds per update on a CPU)")
+    p.add_argument("--grid", type=int, default=1,
+                   help="also time this many configurations trained as one vmapped program (default: 1, none)")
     p.add_argument("--policies", type=int, default=3, help="policies evaluated at once")
     p.add_argument("--episodes", type=int, default=4, help="episodes per policy")
     p.add_argument("--repeats", type=int, default=3, help="timed runs; the median is reported")
-    return run_benchmark(p, argv, ("--policies", "--episodes", "--repeats"), table, SECTION, check=_check)
+    return run_benchmark(p, argv, ("--grid", "--policies", "--episodes", "--repeats"), table, SECTION,
+                         check=_check)
 
 
 def _check(args) -> str | None:

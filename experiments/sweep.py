@@ -351,6 +351,15 @@ def _train_share(spec, procs: _distributed.Processes) -> int:
     return 0
 
 
+def _network(recipe, obs: str) -> str:
+    """The policy network the run line names: the state network, or the image encoder with its settings."""
+    if obs != "image":
+        return recipe.network
+    extras = [recipe.encoder_norm + " norm"] * (recipe.encoder_norm != "none")
+    extras += [f"shift {recipe.augment_shift} px"] * (recipe.augment_shift > 0)
+    return f"{recipe.encoder} encoder" + "".join(f", {x}" for x in extras)
+
+
 def _run(args: argparse.Namespace, spec, checkpoint, created: bool) -> int:
     """Process 0 (or the only one): the whole sweep, and every file it writes (`created`: --out was made for it)."""
     from tqdm import tqdm
@@ -372,7 +381,8 @@ def _run(args: argparse.Namespace, spec, checkpoint, created: bool) -> int:
     print(f"sweep: {args.env} ({args.obs}), protocol {spec.protocol.name} (frame skip {proto['frame_skip'] or '-'}, "
           f"{proto['episode_length']:,}-step episodes, split by {spec.protocol.split}), preset {args.preset}: "
           f"{b.iterations:,} iterations, {b.seeds} seed(s), {b.eval_episodes} evaluation episodes; recipe {r.name} "
-          f"({r.network}, Adam {r.lr:g} β1 {r.beta1:g}, batch {r.batch_size}); methods {', '.join(args.methods)}")
+          f"({_network(r, args.obs)}, Adam {r.lr:g} β1 {r.beta1:g}, batch {r.batch_size}); methods "
+          f"{', '.join(args.methods)}")
     bar = (lambda **kw: tqdm(disable=True, **kw)) if args.quiet else (lambda **kw: tqdm(dynamic_ncols=True, **kw))
     hooks = Hooks(bar=bar, log=tqdm.write, curves=lambda *a: logs.write_curves(args.out, *a))
     try:

@@ -1,4 +1,5 @@
-"""The policies' networks: ResNet-18's shapes, size, per-sample normalisation, embedding, and that it trains."""
+"""The policies' networks: ResNet-18's shapes, size, per-sample normalisation, embedding, and that it trains; the
+patch encoder's convolution, shapes, embedding and bottleneck noise."""
 
 import flax.linen as nn
 import jax
@@ -7,7 +8,7 @@ import numpy as np
 import pytest
 
 from ape_jax.learner import Data, Hparams, LearnerConfig, make_train
-from ape_jax.models import ImagePolicy, ResNet18Policy, StatePolicy
+from ape_jax.models import IMAGE_ENCODERS, Head, ImagePolicy, PatchPolicy, ResNet18Policy, StatePolicy, patchify
 
 # Float32 rounding scale for comparing two programs that compute the same network (another batch
 # shape, another set of outputs). XLA:CPU picks its GEMM/convolution blocking, and so the order of
@@ -115,11 +116,13 @@ def test_the_config_selects_the_encoder():
     image = dict(obs_shape=(16, 16, 3), action_dim=2)
     assert isinstance(LearnerConfig(**image).model(), ImagePolicy)
     assert isinstance(LearnerConfig(**image, encoder="resnet18").model(), ResNet18Policy)
+    assert isinstance(LearnerConfig(**image, encoder="patch").model(), PatchPolicy)
     assert isinstance(LearnerConfig(obs_shape=(5,), action_dim=2).model(), StatePolicy)
-    with pytest.raises(ValueError, match="unknown encoder 'bogus'.*'small', 'resnet18'"):
+    with pytest.raises(ValueError, match="unknown encoder 'bogus'.*'small', 'resnet18', 'patch'"):
         LearnerConfig(**image, encoder="bogus")
-    with pytest.raises(ValueError, match="for image observations"):
-        LearnerConfig(obs_shape=(5,), action_dim=2, encoder="resnet18")
+    for encoder in ("resnet18", "patch"):
+        with pytest.raises(ValueError, match="for image observations"):
+            LearnerConfig(obs_shape=(5,), action_dim=2, encoder=encoder)
 
 
 def test_resnet18_learner_fits_a_tiny_image_dataset():
@@ -148,3 +151,126 @@ def test_resnet18_learner_fits_a_tiny_image_dataset():
     assert losses[-10:].mean() < 0.3 * losses[:5].mean(), losses
     variance = float(data.action.var())  # the loss of the best blind (constant) prediction
     assert losses[-10:].mean() < 0.5 * variance, (losses, variance)
+
+
+# -- the patch encoder --------------------------------------------------------------------------------------------
+
+def test_the_patch_layer_is_a_convolution_with_kernel_equal_to_stride_on_zero_padded_frames():
+    # a Dense on `patchify`'s patches is the convolution of kernel = stride = 8; a side 8 does not divide is
+    # zero-padded at its end (20 -> 24, 12 -> 16), like a SAME convolution of stride 8
+    model = PatchPolicy(action_dim=2)
+    for shape in ((2, 16, 16, 6), (2, 20, 12, 6)):
+        x = jax.random.uniform(jax.random.PRNGKey(0), shape)
+        params = model.init(jax.random.PRNGKey(1), x)["params"]
+        layer = params["patch_0"]
+        dense = nn.leaky_relu(patchify(x, 8) @ layer["kernel"] + layer["bias"], 0.2)
+        padded = jnp.pad(x, ((0, 0), (0, -shape[1] % 8), (0, -shape[2] % 8), (0, 0)))
+        conv = jax.lax.conv_general_dilated(padded, layer["kernel"].reshape(8, 8, 6, 64), (8, 8), "VALID",
+                                            dimension_numbers=("NHWC", "HWIO", "NHWC"))
+        assert dense.shape == (2, -(-shape[1] // 8), -(-shape[2] // 8), 64)
+        np.testing.assert_allclose(dense, nn.leaky_relu(conv + layer["bias"], 0.2), rtol=1e-5, atol=1e-5)
+        # and the head reads that grid flattened
+        assert params["Head_0"]["embedding"]["kernel"].shape == (dense.shape[1] * dense.shape[2] * 64, 100)
+
+
+def test_the_patch_encoder_is_sized_like_the_small_one():
+    def count(model):
+        params = jax.eval_shape(model.init, jax.random.PRNGKey(0), jnp.zeros((1, 32, 32, 6)))
+        return _count(params)
+
+    head = (4 * 4 * 64 + 1) * 100 + (100 + 1) * 300 + (300 + 1) * 3  # embedding, hidden, action
+    assert count(PatchPolicy(3)) == (8 * 8 * 6 + 1) * 64 + head == 158_343
+    assert 0.7 < count(PatchPolicy(3)) / count(ImagePolicy(3)) < 1.0  # 194k
+
+
+@pytest.mark.parametrize("lead", [(5,), (2, 3)])
+def test_the_patch_policy_takes_any_leading_dims_returns_the_embedding_and_adds_the_noise_to_it(lead):
+    model = PatchPolicy(action_dim=3)
+    x = jax.random.uniform(jax.random.PRNGKey(2), lead + (16, 16, 6))
+    params = model.init(jax.random.PRNGKey(3), x)
+    apply = jax.jit(model.apply, static_argnames="return_embedding")
+    action = apply(params, x)
+    assert action.shape == lead + (3,) and bool(jnp.all(jnp.isfinite(action)))
+    np.testing.assert_allclose(apply(params, x.reshape((-1, 16, 16, 6))), action.reshape(-1, 3), rtol=1e-5,
+                               atol=1e-6)
+    same, z = apply(params, x, return_embedding=True)
+    assert z.shape == lead + (100,)
+    np.testing.assert_allclose(same, action, rtol=1e-5, atol=1e-6)
+    assert set(params["params"]["Head_0"]) == {"embedding", "head", "action"}  # the layers FCA reads
+    # FCA-IB's bottleneck: the head reads embedding + noise; the embedding returned is the layer's own output
+    noise = jax.random.normal(jax.random.PRNGKey(4), z.shape)
+    noisy, z_noisy = apply(params, x, return_embedding=True, embedding_noise=noise)
+    np.testing.assert_allclose(z_noisy, z, rtol=1e-6, atol=1e-6)
+    assert float(jnp.abs(noisy - action).max()) > 1e-3
+    layer = params["params"]["patch_0"]
+    features = nn.leaky_relu(patchify(x, 8) @ layer["kernel"] + layer["bias"], 0.2).reshape(lead + (-1,))
+    head = Head(3).apply({"params": params["params"]["Head_0"]}, features, embedding_noise=noise)
+    np.testing.assert_allclose(noisy, head, rtol=1e-5, atol=1e-5)
+    zero, _ = apply(params, x, return_embedding=True, embedding_noise=jnp.zeros_like(z))
+    np.testing.assert_allclose(zero, action, rtol=1e-5, atol=1e-6)
+
+
+def test_only_the_loop_friendly_encoder_leaves_the_one_at_a_time_cpu_path():
+    from ape_jax.pipeline.sweep import trains_sequentially
+
+    assert jax.default_backend() == "cpu"
+    assert {name: cls.loop_friendly for name, cls in IMAGE_ENCODERS.items()} == {
+        "small": False, "resnet18": False, "patch": True}
+    assert trains_sequentially((32, 32, 3), "small") and trains_sequentially((32, 32, 3), "resnet18")
+    assert not trains_sequentially((32, 32, 3), "patch")
+    assert not trains_sequentially((5,), "small")  # state policies: always the vmapped grid
+
+
+# -- what image imitation needs: normalisation and augmentation ---------------------------------------------------
+
+def test_random_shift_moves_every_frame_of_a_sample_by_one_offset_within_the_pad_repeating_the_edge():
+    from ape_jax.learner import random_shift
+
+    b, h, w, pad = 64, 12, 10, 2
+    frames = jax.random.randint(jax.random.PRNGKey(0), (b, 2, h, w, 3), 0, 256).astype(jnp.uint8)
+    frames = frames.at[:, 1].set(255 - frames[:, 0])  # the two frames of a history differ
+    out = np.asarray(random_shift(jax.random.PRNGKey(1), frames, pad))
+    assert out.shape == frames.shape and out.dtype == np.uint8
+    padded = np.pad(np.asarray(frames), ((0, 0), (0, 0), (pad, pad), (pad, pad), (0, 0)), mode="edge")
+    seen = set()
+    for i in range(b):  # each sample is the padded history cut at one offset, the same for both frames
+        hits = [(dy, dx) for dy in range(2 * pad + 1) for dx in range(2 * pad + 1)
+                if np.array_equal(out[i], padded[i, :, dy:dy + h, dx:dx + w])]
+        assert hits, i
+        seen.update(hits)
+    assert len(seen) > 10  # offsets drawn over the whole range (25 of them), not one
+    np.testing.assert_array_equal(random_shift(jax.random.PRNGKey(1), frames, 0), frames)
+
+
+def test_augmentation_is_training_only_and_absent_by_default():
+    from ape_jax.learner import augment
+
+    frames = jax.random.randint(jax.random.PRNGKey(0), (4, 2, 16, 16, 3), 0, 256).astype(jnp.uint8)
+    cfg = LearnerConfig(obs_shape=(16, 16, 3), action_dim=2, encoder="patch")
+    assert augment(cfg, jax.random.PRNGKey(1), frames) is frames
+    shifted = LearnerConfig(obs_shape=(16, 16, 3), action_dim=2, encoder="patch", augment_shift=4)
+    assert not np.array_equal(augment(shifted, jax.random.PRNGKey(1), frames), frames)
+    with pytest.raises(ValueError, match=r"augment_shift must be an integer in \[0, 4\]"):
+        LearnerConfig(obs_shape=(16, 16, 3), action_dim=2, augment_shift=5)
+    with pytest.raises(ValueError, match="augment_shift is for image observations"):
+        LearnerConfig(obs_shape=(5,), action_dim=2, augment_shift=1)
+
+
+@pytest.mark.parametrize("encoder", ["small", "patch"])
+def test_group_norm_normalises_each_sample_alone_after_every_encoder_layer(encoder):
+    cfg = LearnerConfig(obs_shape=(16, 16, 3), action_dim=2, encoder=encoder, encoder_norm="group")
+    model = cfg.model()
+    x = jax.random.uniform(jax.random.PRNGKey(0), (3, 2, 16, 16, 6))
+    params = model.init(jax.random.PRNGKey(1), x)["params"]
+    layers = [k for k in params if k.startswith(("conv_", "patch_"))]
+    assert sorted(k for k in params if k.startswith("norm_")) == [f"norm_{i}" for i in range(len(layers))]
+    out = model.apply({"params": params}, x)
+    # per sample: a sample's action does not depend on the others in its batch, nor on its leading dims
+    np.testing.assert_allclose(model.apply({"params": params}, x[1:2, 0]), out[1:2, 0], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(model.apply({"params": params}, x.reshape(6, 16, 16, 6)), out.reshape(6, 2),
+                               rtol=1e-5, atol=1e-6)
+    # and the first layer's features are normalised: at initialisation (biases zero) scaling the frames leaves the
+    # action as it was
+    np.testing.assert_allclose(model.apply({"params": params}, 3.0 * x), out, rtol=1e-3, atol=1e-4)
+    with pytest.raises(ValueError, match="is for the image encoders 'small' and 'patch'"):
+        LearnerConfig(obs_shape=(16, 16, 3), action_dim=2, encoder="resnet18", encoder_norm="group")

@@ -73,6 +73,28 @@ def test_a_bad_set_is_refused_in_one_line_before_anything_compiles(item, message
     assert code.value.code == 2 and message in err and err.count("\n") == 1
 
 
+@pytest.mark.parametrize("obs, item, message", [
+    ("image", "recipe.augment_shift=9", "recipe.augment_shift must be at most a quarter of the image's shorter side "
+                                        "(32: 8), got 9"),
+    ("image", "recipe.augment_shift=-1", "recipe.augment_shift must be an integer >= 0, got -1"),
+    ("image", "recipe.encoder_norm=batch", "recipe.encoder_norm 'batch' is not one of none, group"),
+    ("pos", "recipe.augment_shift=2", "recipe.augment_shift=2: for image observations (--obs image) only"),
+    ("pos", "recipe.encoder_norm=group", "recipe.encoder_norm=group: for image observations (--obs image) only"),
+])
+def test_an_image_setting_the_observations_cannot_take_is_refused_before_anything_compiles(obs, item, message,
+                                                                                           capsys):
+    with pytest.raises(SettingsError) as exc:
+        resolve("hopper", obs, sets=[item])
+    assert message in str(exc.value) and "\n" not in str(exc.value)
+    with pytest.raises(SystemExit) as code:
+        sweep.parse(["--obs", obs, "--set", item], writes=False)
+    err = capsys.readouterr().err
+    assert code.value.code == 2 and message in err and err.count("\n") == 1
+    # the paper's image preset (ResNet-18) normalises its own layers
+    with pytest.raises(SettingsError, match="is for the encoders 'small' and 'patch'"):
+        resolve("hopper", "image", preset="paper", sets=["recipe.encoder_norm=group"])
+
+
 def test_an_unknown_recipe_is_refused_listing_the_valid_ones(capsys):
     with pytest.raises(SystemExit) as code:
         sweep.parse(["--recipe", "resnet"], writes=False)

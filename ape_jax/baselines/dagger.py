@@ -86,7 +86,7 @@ from flax import struct
 import envs
 from ape_jax.evaluate import history_policy
 from ape_jax.history import history_index
-from ape_jax.learner import (Data, Hparams, Learner, LearnerConfig, gradient_step, learning_rate, make_train,
+from ape_jax.learner import (Data, Hparams, Learner, LearnerConfig, augment, gradient_step, learning_rate, make_train,
                              policy_apply, train_in_rounds, trainable)
 from ape_jax import methods
 
@@ -258,8 +258,10 @@ def make_dagger(cfg: LearnerConfig, env: envs.Env, expert: Callable[[jax.Array],
 
     def update(state: DaggerState, hp: Hparams):
         buf = state.buffer
-        idx = buf.sample(jax.random.fold_in(state.key, state.step), cfg.batch_size)
-        x = base.policy_input(buf.obs[history_index(buf.t, idx, cfg.history)])
+        key_step = jax.random.fold_in(state.key, state.step)
+        idx = buf.sample(key_step, cfg.batch_size)
+        x = base.policy_input(augment(cfg, jax.random.fold_in(key_step, 2),
+                                      buf.obs[history_index(buf.t, idx, cfg.history)]))
 
         def loss_fn(variables):
             predicted, variables = policy_apply(model, variables, x, train=True)

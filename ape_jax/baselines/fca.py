@@ -148,7 +148,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from ape_jax.history import history_index
-from ape_jax.learner import (Data, Learner, LearnerConfig, adam_step, learning_rate, make_train, policy_apply,
+from ape_jax.learner import (Data, Learner, LearnerConfig, adam_step, augment, learning_rate, make_train, policy_apply,
                              trainable)
 from ape_jax import methods
 
@@ -251,7 +251,8 @@ def make_fca(cfg: LearnerConfig) -> Learner:
     def update(state: FcaState, hp: FcaHparams, data: Data):
         key_step = jax.random.fold_in(state.key, state.step)
         _, idx = data.sample(key_step, cfg.batch_size)
-        x = base.policy_input(data.obs[history_index(data.t, idx, cfg.history)])
+        x = base.policy_input(augment(cfg, jax.random.fold_in(key_step, 2),
+                                      data.obs[history_index(data.t, idx, cfg.history)]))
         action = data.action[idx]
         previous = data.action[history_index(data.t, idx, 1, offset=1)[:, 0]]
         eps = jax.random.normal(jax.random.fold_in(key_step, 1), (cfg.batch_size,) + state.log_var.shape)

@@ -55,6 +55,7 @@ from ape_jax import methods as methods_lib
 from ape_jax import tasks
 from ape_jax.grid import differing_processes, from_process_zero, grid_runner, pad_grid
 from ape_jax.learner import Data, Learner, LearnerConfig, make_train
+from ape_jax.models import IMAGE_ENCODERS
 from ape_jax.pipeline import checkpoint as ckpt_lib
 from ape_jax.pipeline import collect, minari_io
 from ape_jax.pipeline import results as results_lib
@@ -65,13 +66,22 @@ from ape_jax.pipeline.presets import Settings, resolve
 
 # Image policies on CPU: XLA:CPU runs convolution gradients inside a loop ~50x slower than
 # outside one, and vmapped (grouped) ones ~3x slower per model, so there every
-# configuration trains one after another through one compiled, fully unrolled chunk.
+# configuration of a convolutional encoder trains one after another through one compiled,
+# fully unrolled chunk. An encoder of matrix products only (`loop_friendly`, e.g. "patch")
+# trains as states do: the grid vmapped, in scanned chunks of the budget's size.
 CPU_IMAGE_CHUNK = 10
 EVAL_SEED = 12345  # every policy is evaluated on the same episodes
 COPYCAT_METRICS = ("imitation_error", "rollout_ape")  # the copycat diagnostics (`ape_jax.evaluate`)
 DIAGNOSTICS_SEED = 0  # the embedding probes' and ψ's key in `ape_jax.diagnostics.diagnose`
 DIAG = "diag_"  # the prefix of the diagnostics' arrays among a group's evaluation outputs
 CURVE_POINTS = 100  # points of each run's training curve in results.json (the full curves: OUT/curves/)
+
+
+def trains_sequentially(obs_shape: Sequence[int], encoder: str) -> bool:
+    """Whether a sweep trains policies of `encoder` on `obs_shape` observations one configuration after another,
+    `CPU_IMAGE_CHUNK` unrolled iterations per call: images through a convolutional encoder on a CPU."""
+    return (len(obs_shape) == 3 and jax.default_backend() == "cpu"
+            and not IMAGE_ENCODERS[encoder].loop_friendly)
 
 
 class _NoBar:
@@ -268,10 +278,9 @@ class Prepared:
     source: str
     settings: dict
 
-    @property
-    def sequential(self) -> bool:
-        """Image policies on a CPU train one configuration after another (see `CPU_IMAGE_CHUNK`)."""
-        return len(self.env.observation_shape) == 3 and jax.default_backend() == "cpu"
+    def sequential(self, encoder: str) -> bool:
+        """Whether policies of `encoder` train one configuration after another here (`trains_sequentially`)."""
+        return trains_sequentially(self.env.observation_shape, encoder)
 
     def data(self, part: Part, ape: jax.Array, scores: jax.Array | None = None) -> Data:
         """`part` on device with its APE (and score table), observations standardised: the whole episodes, and
@@ -283,7 +292,7 @@ class Prepared:
 
     def learner_config(self, settings: Settings, history: int) -> LearnerConfig:
         return settings.learner_config(self.env.observation_shape, self.env.action_size, history, self.task.loss,
-                                       unroll=self.sequential)
+                                       unroll=self.sequential(settings.recipe.encoder))
 
 
 def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
@@ -596,7 +605,8 @@ def _concat(metrics: list[dict]) -> dict:
 def train(programs: Sequence[Program], spec: SweepSpec, prepared: Prepared, data: Data, hooks: Hooks = Hooks(),
           checkpoint: SweepCheckpoint | None = None) -> list[Trained]:
     """Phase 3b: every program trained, one after another; compile time estimated apart from steady state."""
-    if prepared.sequential:
+    sequential = prepared.sequential(spec.recipe.encoder)
+    if sequential:
         hooks.log(f"image policies on CPU: configurations train one after another, {CPU_IMAGE_CHUNK} unrolled "
                   "iterations per call (XLA:CPU is slow at convolution gradients in loops and under vmap)")
         if spec.recipe.encoder == "resnet18":
@@ -623,7 +633,7 @@ def train(programs: Sequence[Program], spec: SweepSpec, prepared: Prepared, data
             t0 = time.perf_counter()
             params, metrics, snapshots = train_program(
                 program, traced_hparams(program.runs, spec.recipe.lr, rows), spec.budget, data, tick,
-                chunk=CPU_IMAGE_CHUNK if prepared.sequential else None, vectorize=not prepared.sequential,
+                chunk=CPU_IMAGE_CHUNK if sequential else None, vectorize=not sequential,
                 checkpoint=None if checkpoint is None else checkpoint.program(program.name))
             jax.block_until_ready(params)
             chunk_times = np.diff([t0, *stamps])
