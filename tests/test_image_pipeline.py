@@ -17,14 +17,18 @@ def _image_cfg(**kw):
     return LearnerConfig(obs_shape=(*SIZE, 3), action_dim=2, history=2, batch_size=16, loss="l1", **kw)
 
 
-def test_the_small_cnn_learner_loss_falls_on_a_tiny_image_dataset():
-    """64 random frames whose action is a function of the frames: the CNN fits them."""
-    n = 64
+def _tiny_image_data(n: int = 64) -> Data:
+    """`n` random frames whose action (two dims) is a function of them: their red and blue means."""
     rng = np.random.default_rng(0)
     obs = rng.integers(0, 256, (n, *SIZE, 3), np.uint8)
     action = np.stack([obs[..., 0].mean((1, 2)), obs[..., 2].mean((1, 2))], -1) / 128.0 - 1.0
-    data = Data(obs=jnp.asarray(obs), action=jnp.asarray(action, jnp.float32), t=jnp.arange(n) % 16,
+    return Data(obs=jnp.asarray(obs), action=jnp.asarray(action, jnp.float32), t=jnp.arange(n) % 16,
                 ape=jnp.ones(n))
+
+
+def test_the_small_cnn_learner_loss_falls_on_a_tiny_image_dataset():
+    """64 random frames whose action is a function of the frames: the CNN fits them."""
+    data = _tiny_image_data()
     # trained as the sweep trains images on a CPU: unrolled chunks of 10 iterations (convolution gradients
     # inside a scan are ~50x slower on XLA:CPU); the loss falls to ~15% of its start within 80 iterations
     cfg = _image_cfg(iterations=80, lr_boundaries=(10_000,), unroll=True)
@@ -80,12 +84,7 @@ def test_the_patch_learner_trains_in_a_scan_and_vmapped_as_the_sweep_trains_it()
     fits it, and each configuration equals the same configuration trained alone."""
     from ape_jax.learner import stack_hparams
 
-    n = 64
-    rng = np.random.default_rng(0)
-    obs = rng.integers(0, 256, (n, *SIZE, 3), np.uint8)
-    action = np.stack([obs[..., 0].mean((1, 2)), obs[..., 2].mean((1, 2))], -1) / 128.0 - 1.0
-    data = Data(obs=jnp.asarray(obs), action=jnp.asarray(action, jnp.float32), t=jnp.arange(n) % 16,
-                ape=jnp.ones(n))
+    data = _tiny_image_data()
     cfg = _image_cfg(iterations=80, lr_boundaries=(10_000,), encoder="patch")
     assert not cfg.unroll
     learner, grid = make_train(cfg), stack_hparams([Hparams.make(lr=1e-3), Hparams.make(lr=5e-4)])
