@@ -109,6 +109,24 @@ def test_a_resumed_sweep_with_another_recipe_is_refused_naming_the_fields(tmp_pa
         SweepCheckpoint(tmp_path / "ck", other.fingerprint(), 100).open()
 
 
+def test_a_checkpoint_from_before_a_recipe_field_existed_resumes_when_the_field_is_at_its_default(tmp_path):
+    import json
+
+    spec = S.SweepSpec.make("hopper", "pos", ("bc-oh",), recipe="fca")
+    older = spec.fingerprint()
+    for field in ("encoder_norm", "augment_shift"):  # fields added after such checkpoints were written
+        del older["settings"]["recipe"][field]
+    SweepCheckpoint(tmp_path / "ck", older, 100).open()
+    assert "augment_shift" not in json.loads((tmp_path / "ck" / "sweep.json").read_text())["settings"]["recipe"]
+    assert SweepCheckpoint(tmp_path / "ck", spec.fingerprint(), 100).open() is False  # accepted (nothing saved yet)
+    image = S.SweepSpec.make("hopper", "image", ("bc-oh",), sets=["recipe.augment_shift=2"])
+    older = image.fingerprint()
+    del older["settings"]["recipe"]["augment_shift"]
+    SweepCheckpoint(tmp_path / "img", older, 100).open()
+    with pytest.raises(CheckpointError, match="settings.recipe.augment_shift \\(0 there, 2 now\\)"):
+        SweepCheckpoint(tmp_path / "img", image.fingerprint(), 100).open()
+
+
 def test_the_learning_rate_drops_at_the_recipes_fractions_of_the_run():
     assert lr_boundaries(300_000, (1 / 3, 2 / 3)) == (100_000, 200_000)
     assert lr_boundaries(30, (0.5, 0.99)) == (15,)   # a drop at the last step or after it is no drop

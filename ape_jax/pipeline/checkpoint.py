@@ -58,8 +58,21 @@ def _differences(old: Any, new: Any, prefix: str = "") -> list[str]:
 
 
 def differences(old: dict, new: dict) -> list[str]:
-    """The settings in which two fingerprints differ, as readable strings."""
-    return _differences(json.loads(json.dumps(old)), json.loads(json.dumps(new)))
+    """The settings in which two fingerprints differ, as readable strings. A settings field a fingerprint
+    predates (a recipe field added later, say) counts as its default, which is what that sweep ran with."""
+    return _differences(*(_with_defaults(json.loads(json.dumps(f))) for f in (old, new)))
+
+
+def _with_defaults(fingerprint: Any) -> Any:
+    from ape_jax.pipeline.presets import Settings, SettingsError
+
+    if isinstance(fingerprint, dict) and isinstance(fingerprint.get("settings"), dict):
+        try:
+            settings = Settings.from_json(fingerprint["settings"]).to_json()
+        except (SettingsError, TypeError, ValueError):  # not this code's settings: compared as they are
+            return fingerprint
+        return {**fingerprint, "settings": json.loads(json.dumps(settings))}
+    return fingerprint
 
 
 class SweepCheckpoint:
