@@ -105,8 +105,8 @@ def test_a_sweep_with_the_patch_encoder_trains_its_grid_vmapped_and_diagnoses_it
 
     from experiments import sweep
 
-    argv = ["--env", "toycar", "--obs", "image", "--set", "protocol.image_size=16,16", "--iterations", "20", "--eval-episodes", "2",
-            "--seeds", "1", "--methods", "bc-oh,ours-step,fca-ib", "--step-grid", "0.1:5",
+    argv = ["--env", "toycar", "--obs", "image", "--set", "protocol.image_size=16,16", "--iterations", "20",
+            "--eval-episodes", "2", "--seeds", "1", "--methods", "bc-oh,ours-step,fca-ib", "--step-grid", "0.1:5",
             "--set", "recipe.encoder=patch", "--set", "recipe.encoder_norm=group", "--set", "recipe.augment_shift=2",
             "--set", "budget.probe_steps=20", "--quiet",
             "--out", str(tmp_path / "run"), "--data-dir", str(tmp_path / "data")]

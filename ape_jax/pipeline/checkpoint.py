@@ -64,6 +64,7 @@ def differences(old: dict, new: dict) -> list[str]:
 
 
 def _with_defaults(fingerprint: Any) -> Any:
+    # here, not at the top: the settings import JAX and Flax, which reading a checkpoint's arrays does not need
     from ape_jax.pipeline.presets import Settings, SettingsError
 
     if isinstance(fingerprint, dict) and isinstance(fingerprint.get("settings"), dict):
