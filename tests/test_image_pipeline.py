@@ -4,6 +4,7 @@ the rollout (no host callback) with the returns of a step-by-step reference roll
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 import envs
 from ape_jax import evaluate
@@ -123,3 +124,31 @@ def test_a_sweep_with_the_patch_encoder_trains_its_grid_vmapped_and_diagnoses_it
         assert run["status"] == "ok", run["error"]
         assert np.isfinite(run["losses"]["val"]["unweighted"])
         assert "absent" not in run["diagnostics"] and np.isfinite(run["diagnostics"]["embedding_ratio"])
+
+
+@pytest.mark.slow
+def test_the_paper_image_preset_runs_end_to_end_as_a_smoke_run(tmp_path, capsys):
+    """`--preset paper --obs image --smoke` (ResNet-18, here on 128×128 frames) on a CPU: every method of the
+    preset's table trains, is evaluated mid-run and at the end, and is diagnosed; the report refuses the file.
+    About 5 minutes on two cores, most of it compiling ResNet-18 and the renderer."""
+    import json
+
+    from experiments import report, sweep
+
+    out = tmp_path / "run"
+    argv = ["--env", "hopper", "--obs", "image", "--preset", "paper", "--smoke", "--quiet",
+            "--set", "protocol.image_size=128x128", "--methods", "bc-so,bc-oh,ours-step,ours-softmax,fca",
+            "--out", str(out), "--data-dir", str(tmp_path / "data")]
+    assert sweep.main(argv) == 0
+    assert "smoke run: preset paper's settings" in capsys.readouterr().out
+    r = json.loads((out / "results.json").read_text())
+    assert r["config"]["smoke"] is True and r["preset"] == "paper"
+    assert r["settings"]["recipe"]["encoder"] == "resnet18" and r["settings"]["protocol"]["image_size"] == [128, 128]
+    assert {run["method"] for run in r["runs"]} == {"bc-so", "bc-oh", "ours-step", "ours-softmax", "fca"}
+    for run in r["runs"]:
+        assert run["status"] == "ok", run["error"]
+        assert [a["iteration"] for a in run["at"]] == [2]
+        assert np.isfinite(run["eval"]["return_mean"]) and np.isfinite(run["diagnostics"]["embedding_ratio"])
+    with pytest.raises(SystemExit) as exc:
+        report.main([str(out / "results.json")])
+    assert exc.value.code == 2

@@ -35,6 +35,24 @@ def test_the_fca_protocols_default_to_the_fca_codes_recipe_and_the_others_to_mlp
     assert image.network == "mlp" and image.encoder == "small"   # BatchNorm is the state network's
 
 
+def test_smoke_shrinks_the_amounts_and_keeps_what_a_step_computes():
+    paper, smoke = resolve("hopper", "image", preset="paper"), resolve("hopper", "image", preset="paper", smoke=True)
+    assert smoke.smoke and not paper.smoke and smoke.preset == "paper"
+    for kept in ("encoder", "network", "beta1", "lr", "lr_decay_at", "encoder_norm", "augment_shift"):
+        assert getattr(smoke.recipe, kept) == getattr(paper.recipe, kept)
+    assert smoke.recipe.encoder == "resnet18"
+    for kept in ("image_size", "history", "frame_skip", "split", "name"):
+        assert getattr(smoke.protocol, kept) == getattr(paper.protocol, kept)
+    b = smoke.budget
+    assert (b.iterations, b.seeds, b.eval_episodes, b.chunk, b.eval_at, b.probe_steps) == (4, 1, 2, 2, (2,), 10)
+    assert (smoke.recipe.batch_size, smoke.recipe.step_grid, smoke.recipe.softmax_grid) == (4, ((0.1, 3.0),), (0.1,))
+    assert (smoke.protocol.episodes, smoke.protocol.horizon) == (3, 20)
+    rows = resolve("hopper", "pos", preset="paper", smoke=True).protocol   # the fca protocol splits by rows
+    assert (rows.split, rows.collect_transitions, rows.train_transitions, rows.val_transitions) == ("rows", 240, 144, 48)
+    assert resolve("hopper", "pos", smoke=True, sets=["budget.iterations=8"]).budget.iterations == 8  # --set wins
+    assert resolve("hopper", "pos", preset="default", smoke=True, sets=["budget.probe_steps=0"]).budget.probe_steps == 0
+
+
 def test_set_changes_any_field_parsed_by_its_type():
     s = resolve("hopper", "pos", preset="default", sets=[
         "recipe.batch_size=32", "recipe.lr=1e-3", "recipe.step_grid=0.1:4,0.2:6", "recipe.fca_alphas=0.1,2",

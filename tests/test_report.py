@@ -159,6 +159,15 @@ def test_bad_results_files_are_refused_with_exit_code_2(tmp_path, capsys, conten
     assert exc.value.code == 2 and message in capsys.readouterr().err
 
 
+def test_a_smoke_run_is_refused_naming_it(tmp_path, capsys):
+    res = _results()
+    res["config"]["smoke"] = True
+    path = _write(tmp_path, "smoke.json", res)
+    with pytest.raises(SystemExit) as exc:
+        report.main([str(path)])
+    assert exc.value.code == 2 and f"{path}: a --smoke run" in capsys.readouterr().err
+
+
 def test_the_same_configuration_in_two_files_is_refused(tmp_path, capsys):
     a, b = _write(tmp_path, "a.json", _results()), _write(tmp_path, "b.json", _results())
     with pytest.raises(SystemExit) as exc:

@@ -13,9 +13,9 @@
   Adam β1 0.5, batch 64), the default under the fca protocols for state observations.
 
 `resolve` starts from the named records, applies the image observations' budget (`IMAGE_PRESETS`), the
-task's own overrides (`Task.presets`, e.g. ToyCar's) and the `--set SECTION.FIELD=VALUE` overrides, in that
-order, and validates the result; nothing rewrites a record after it is built. A bad name, field or value is a
-one-line `SettingsError`.
+task's own overrides (`Task.presets`, e.g. ToyCar's), the smoke run's amounts (`smoke_overrides`, `--smoke`)
+and the `--set SECTION.FIELD=VALUE` overrides, in that order, and validates the result; nothing rewrites a
+record after it is built. A bad name, field or value is a one-line `SettingsError`.
 """
 
 from __future__ import annotations
@@ -191,6 +191,7 @@ class Settings:
     budget: Budget
     recipe: Recipe
     preset: str = "quick"   # the budget's name
+    smoke: bool = False     # the preset's amounts shrunk to seconds (`smoke_overrides`): its numbers mean nothing
 
     def learner_config(self, obs_shape, action_dim: int, history: int, task_loss: str,
                        unroll: bool = False) -> LearnerConfig:
@@ -220,8 +221,33 @@ def default_recipe(protocol: Protocol, obs: str) -> str:
     return "fca" if protocol.name.startswith("fca") and obs != "image" else "mlp"
 
 
+def smoke_overrides(values: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
+    """The amounts of a `--smoke` run, given the resolved fields (`{section: {field: value}}`) it shrinks.
+
+    Everything that decides what a step computes stays: the network and encoder, the image size, the history,
+    the frame skip, the split's kind, the optimiser. The amounts become seconds: 3 demonstration episodes of 20
+    standard steps (2 train, the fewest the diagnostics take; a row-split protocol: 240 collected
+    transitions, 144 training and 48 validating), one
+    setting of each grid, one seed, four iterations in chunks of two (evaluated after the first chunk too:
+    the mid-run evaluation runs; DAgger's four rounds get one iteration each), batch 4, two evaluation
+    episodes (the fewest the diagnostics take), ten steps of the APE fit and of every diagnostic's probe.
+    """
+    protocol, recipe = values["protocol"], values["recipe"]
+    out: dict[str, Any] = dict(iterations=4, seeds=1, eval_episodes=2, ape_steps=10, chunk=2, eval_at=(2,),
+                               batch_size=4, horizon=20, episodes=3)
+    if values["budget"]["probe_steps"]:
+        out["probe_steps"] = 10
+    if protocol["collect_transitions"] is not None:
+        out.update(collect_transitions=240, train_transitions=144, val_transitions=48)
+    if protocol["eval_steps"] is not None:
+        out["eval_steps"] = min(protocol["eval_steps"], 20)
+    for name in ("step_grid", "softmax_grid", "fca_alphas", "ib_weights"):
+        out[name] = tuple(recipe[name][:1])
+    return out
+
+
 def resolve(env: str, obs: str, protocol: str | None = None, preset: str = "quick", recipe: str | None = None,
-            sets: Iterable[str] = ()) -> Settings:
+            sets: Iterable[str] = (), smoke: bool = False) -> Settings:
     """The settings of a sweep of task `env` with observations `obs` (the module docstring says how).
 
     Args:
@@ -229,6 +255,8 @@ def resolve(env: str, obs: str, protocol: str | None = None, preset: str = "quic
       preset: the budget's name (`BUDGETS`).
       recipe: `RECIPES` name; None: `default_recipe`.
       sets: `"SECTION.FIELD=VALUE"` overrides, applied last, in order.
+      smoke: shrink the amounts to seconds (`smoke_overrides`), before `sets`: a check that the preset runs end
+        to end (e.g. `paper` with images on a CPU), not a measurement.
 
     Raises:
       SettingsError: an unknown preset, recipe, protocol, section or field, or a value a field cannot take.
@@ -248,6 +276,8 @@ def resolve(env: str, obs: str, protocol: str | None = None, preset: str = "quic
     for layer in ((IMAGE_PRESETS[preset] if obs == "image" else {}), task.preset_overrides(obs, preset)):
         for key, value in layer.items():
             values[_section_of(key)][key] = value
+    for key, value in (smoke_overrides(values) if smoke else {}).items():
+        values[_section_of(key)][key] = value
     explicit = set()
     for item in sets:
         section, field, value = parse_set(item)
@@ -256,7 +286,7 @@ def resolve(env: str, obs: str, protocol: str | None = None, preset: str = "quic
     if "eval_at" not in explicit:  # the preset's points inside the run only, when its length was changed
         budget = values["budget"]
         budget["eval_at"] = tuple(i for i in budget["eval_at"] if i < budget["iterations"])
-    settings = Settings(*(_record(name, values[name]) for name in SECTIONS), preset=preset)
+    settings = Settings(*(_record(name, values[name]) for name in SECTIONS), preset=preset, smoke=smoke)
     _check_image_recipe(settings.recipe, obs, settings.protocol.image_size)
     return settings
 

@@ -676,10 +676,11 @@ class Evaluated:
     snapshots: dict = dataclasses.field(default_factory=dict)
 
 
-def diagnosable(episodes: int, probe_steps: int) -> bool:
+def diagnosable(episodes: int, probe_steps: int, expert_episodes: int = 2) -> bool:
     """Whether a sweep's policies get the embedding probe and predictability diagnostics: `probe_steps > 0`
-    (`Budget.probe_steps`), and at least 2 evaluation episodes (ψ fits on half of them, scores the rest)."""
-    return probe_steps > 0 and episodes >= 2
+    (`Budget.probe_steps`), and at least 2 evaluation episodes and 2 training episodes of the expert (ψ fits
+    on half of each side's episodes and scores the rest)."""
+    return probe_steps > 0 and episodes >= 2 and expert_episodes >= 2
 
 
 def group_diagnostics(prepared: Prepared, ape: ApeFit, group: PolicyGroup, actions: np.ndarray,
@@ -713,7 +714,7 @@ def evaluate_group(prepared: Prepared, ape: ApeFit, episodes: int, group: Policy
     """Evaluation outputs `{"return": [P, E], metric: [P, E], ...}` (copycat diagnostics included: the
     `ape_jax.diagnostics` ones as `diag_<field>` `[P]` with `probe_steps` where `diagnosable`), the loss
     analysis `{"train": {...: [P]}, "val": {...}}` of one group, and the diagnostics' seconds."""
-    diagnostics = diagnosable(episodes, probe_steps)
+    diagnostics = diagnosable(episodes, probe_steps, len(np.unique(prepared.train.demos.episode)))
     evaluator = evaluate_lib.make_evaluator(prepared.env, group.cfg, prepared.normalizer.mean, prepared.normalizer.std,
                                             episodes, expert=prepared.expert, ape_params=ape.params,
                                             ape_scale=ape.raw_mean, keep_actions=diagnostics)
@@ -862,7 +863,8 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
     flat = {**blocks["budget"], **{k: v for k, v in blocks["recipe"].items() if k != "name"},
             **{k: blocks["protocol"][k] for k in ("history", "eval_steps", "val_frac", "image_size")},
             "episodes": spec.episodes, "recipe": spec.recipe.name}
-    config = {**flat, "methods": list(spec.methods), "loss": spec.recipe.loss or task.loss, "metric": task.metric,
+    config = {**flat, **({"smoke": True} if spec.settings.smoke else {}),
+              "methods": list(spec.methods), "loss": spec.recipe.loss or task.loss, "metric": task.metric,
               "task_metrics": list(task.metrics),
               "ape": {"normalization": spec.recipe.ape_normalization, "scale": ape.scale,
                       "final_fit_mse": ape.final_fit_mse,

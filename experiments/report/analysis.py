@@ -75,6 +75,9 @@ def load(path: str | pathlib.Path) -> Source:
         res = results_lib.load(path)
     except results_lib.ResultsError as e:
         raise ReportError(str(e)) from None
+    if res.config.get("smoke"):
+        raise ReportError(f"{path}: a --smoke run (its amounts shrunk to seconds, its numbers mean nothing); "
+                          f"the report takes real runs only")
     return Source(**{f.name: getattr(res, f.name) for f in dataclasses.fields(results_lib.Results)}, path=str(path))
 
 
