@@ -119,6 +119,9 @@ def run(args: argparse.Namespace, log=print) -> dict:
 
     from ape_jax.learner import Hparams, make_train, policy_apply
     from ape_jax.pipeline.sweep import CPU_IMAGE_CHUNK, Hooks, SweepSpec, prepare
+    from experiments._provenance import system
+
+    started = system()  # the code that runs, taken at the start
 
     images = args.obs == "image"
     sets = [*([f"protocol.image_size={args.image_size}", f"recipe.encoder={args.encoder}"] if images else []),
@@ -163,7 +166,7 @@ def run(args: argparse.Namespace, log=print) -> dict:
               "history": args.history, "targets": list(args.targets), "points": list(args.points),
               "recipe": spec.settings.to_json()["recipe"], "data": prepared.data_path,
               "train_episodes_available": int(len(episodes)), "val_episodes": int(val.num_episodes),
-              "val_rows": len(val), "runs": []}
+              "val_rows": len(val), "system": started, "runs": []}
     for n_episodes in args.train_episodes:
         chosen = train_all if n_episodes is None else train_all.select_episodes(episodes[:n_episodes])
         if n_episodes is not None and n_episodes > len(episodes):

@@ -66,5 +66,5 @@ def test_a_probe_of_tiny_hopper_frames_fits_its_training_rows_and_writes_every_p
     assert [a["iteration"] for a in r["runs"][0]["at"]] == [20, 300] and r["command"][-len(argv):] == argv
     first, last = r["runs"][0]["at"]
     assert last["train"]["pose"]["one_minus_r2"] < min(0.5, first["train"]["pose"]["one_minus_r2"])
-    assert np.isfinite(last["val"]["action"]["bc_loss"])
+    assert np.isfinite(last["val"]["action"]["bc_loss"]) and r["system"]["commit"]
     assert "| 2 | 300 |" in capsys.readouterr().out
