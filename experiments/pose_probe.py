@@ -52,6 +52,10 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--obs", default="image", choices=("image", "pos"),
                    help="what the network reads: image (default) or pos, the true pose (the sweep's state "
                         "observations; the reference an image encoder is measured against)")
+    p.add_argument("--noise", type=float, default=0.0, metavar="F",
+                   help="with --obs pos: a fixed Gaussian error on every observation, of variance F × the dimension's "
+                        "training variance, drawn once per row: the pose as an encoder that reads it with "
+                        "1 − R² = F would give it (default: 0)")
     p.add_argument("--image-size", default="32x32", help="HxW of the rendered frames (default: 32x32, the CPU "
                    "image presets')")
     p.add_argument("--encoder", default="small", help="the image encoder (default: small)")
@@ -74,6 +78,8 @@ def parse(argv=None) -> argparse.Namespace:
     bad = [t for t in args.targets if t not in TARGETS]
     if not args.targets or bad or len(set(args.targets)) != len(args.targets):
         fail(p, f"--targets {','.join(args.targets)!r}: a comma list of distinct {', '.join(TARGETS)}")
+    if not 0.0 <= args.noise < float("inf") or (args.noise and args.obs != "pos"):
+        fail(p, f"--noise {args.noise:g}: a number >= 0, with --obs pos only")
     for name in ("history", "iterations", "seeds"):
         if getattr(args, name) < 1:
             fail(p, f"--{name.replace('_', '-')} must be >= 1")
@@ -143,9 +149,12 @@ def run(args: argparse.Namespace, log=print) -> dict:
     chunk = CPU_IMAGE_CHUNK if cfg.unroll else 100
     hp = Hparams.make("uniform", lr=spec.recipe.lr)
 
-    def data_of(demos, y):
+    def data_of(demos, y, seed):
         from ape_jax.learner import Data
-        return Data(obs=prepared.normalizer(demos.obs), action=jnp.asarray((y - mean) / std), t=jnp.asarray(demos.t),
+        obs = prepared.normalizer(demos.obs)
+        if args.noise:  # standardised observations: the training variance is 1 per dimension
+            obs = obs + np.sqrt(args.noise) * np.random.default_rng(seed).standard_normal(obs.shape, np.float32)
+        return Data(obs=jnp.asarray(obs), action=jnp.asarray((y - mean) / std), t=jnp.asarray(demos.t),
                     ape=jnp.ones(len(y), jnp.float32))
 
     def predict(params, data):  # standardised predictions of every row, 256 frames at a time
@@ -158,9 +167,10 @@ def run(args: argparse.Namespace, log=print) -> dict:
         return np.concatenate(out)
 
     predict_jit = jax.jit(lambda params, x: policy_apply(cfg.model(), params, x)[0])
-    val_data = data_of(val, y_val)
+    val_data = data_of(val, y_val, 1)
     episodes = train_all.episode_ids
     record = {"command": ["python", "-m", "experiments.pose_probe", *args.argv], "env": args.env, "obs": args.obs,
+              "noise": args.noise,
               "image_size": list(prepared.env.observation_shape[:2]) if images else None,
               "encoder": args.encoder if images else spec.recipe.network,
               "history": args.history, "targets": list(args.targets), "points": list(args.points),
@@ -172,7 +182,7 @@ def run(args: argparse.Namespace, log=print) -> dict:
         if n_episodes is not None and n_episodes > len(episodes):
             raise ValueError(f"--train-episodes {n_episodes}: the training split has {len(episodes)} episodes")
         _, y = targets_of(chosen, args.targets)
-        train = data_of(chosen, y)
+        train = data_of(chosen, y, 0)
         steps = {}  # one compiled call per chunk length (a shorter one to land on each point)
 
         def step(state, n):
@@ -220,7 +230,9 @@ def table(record: dict) -> str:
     import numpy as np
 
     seen = (f"{record['image_size'][0]}×{record['image_size'][1]} frames, encoder {record['encoder']}"
-            if record["image_size"] else f"the true pose ({record['obs']}), network {record['encoder']}")
+            if record["image_size"] else f"the true pose ({record['obs']}"
+            + (f", error of {record['noise']:g} × its variance" if record.get("noise") else "")
+            + f"), network {record['encoder']}")
     lines = [f"{record['env']}, {seen}, history {record['history']}: 1 − R² (median over seeds; 0 = read exactly, "
              f"1 = not at all)", "",
              "| train episodes | iterations | " + " | ".join(f"{t} train | {t} val" for t in record["targets"]) + " |",

@@ -46,6 +46,8 @@ def test_one_minus_r2_is_0_for_the_truth_and_1_for_the_mean_and_the_bc_loss_is_s
     (["--iterations", "100", "--points", "10,50"], "--points must end at --iterations (100)"),
     (["--train-episodes", "10,5"], "increasing integers >= 1"),
     (["--history", "0"], "--history must be >= 1"),
+    (["--noise", "0.1"], "--noise 0.1: a number >= 0, with --obs pos only"),
+    (["--obs", "pos", "--noise", "-1"], "--noise -1: a number >= 0"),
 ])
 def test_bad_input_is_refused_in_one_line(argv, message, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
