@@ -43,6 +43,7 @@ TARGETS = ("pose", "velocity", "action")
 
 
 def parse(argv=None) -> argparse.Namespace:
+    import envs
     from ape_jax import tasks
 
     p = Parser(prog=PROG, description=__doc__.splitlines()[0])
@@ -71,9 +72,9 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--out", type=pathlib.Path, required=True, help="the JSON file to write")
     p.add_argument("--data-dir", type=pathlib.Path, default=None, help="demonstration cache (default: the sweep's)")
     args = p.parse_args(argv)
-    if args.env not in tasks.sweepable() or args.env == "toycar":
-        fail(p, f"--env {args.env!r}: one of the Brax tasks with an expert "
-                f"({', '.join(t for t in tasks.sweepable() if t != 'toycar')})")
+    posed = [t for t in tasks.sweepable() if "pos" in envs.obs_modes(t)]  # the tasks whose state is a pose
+    if args.env not in posed:
+        fail(p, f"--env {args.env!r}: one of the tasks with an expert and a pose ({', '.join(posed)})")
     args.targets = tuple(t.strip() for t in args.targets.split(",") if t.strip())
     bad = [t for t in args.targets if t not in TARGETS]
     if not args.targets or bad or len(set(args.targets)) != len(args.targets):

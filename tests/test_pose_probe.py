@@ -42,7 +42,7 @@ def test_one_minus_r2_is_0_for_the_truth_and_1_for_the_mean_and_the_bc_loss_is_s
 @pytest.mark.parametrize("argv, message", [
     (["--targets", "pose,speed"], "--targets 'pose,speed': a comma list of distinct"),
     (["--targets", "pose,pose"], "a comma list of distinct"),
-    (["--env", "toycar"], "one of the Brax tasks with an expert"),
+    (["--env", "toycar"], "one of the tasks with an expert and a pose (hopper"),
     (["--iterations", "100", "--points", "10,50"], "--points must end at --iterations (100)"),
     (["--train-episodes", "10,5"], "increasing integers >= 1"),
     (["--history", "0"], "--history must be >= 1"),
