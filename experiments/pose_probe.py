@@ -178,23 +178,26 @@ def run(args: argparse.Namespace, log=print) -> dict:
               "recipe": spec.settings.to_json()["recipe"], "data": prepared.data_path,
               "train_episodes_available": int(len(episodes)), "val_episodes": int(val.num_episodes),
               "val_rows": len(val), "system": started, "runs": []}
+    steps = {}  # one compiled call per chunk length (a shorter one to land on each point)
+
+    def step(state, data, n):
+        if n not in steps:  # the data is an argument, not a constant folded into the program
+            steps[n] = jax.jit(lambda s, d: learner.run(s, hp, d, n))
+        return steps[n](state, data)
+
+    too_many = [n for n in args.train_episodes if n is not None and n > len(episodes)]
+    if too_many:
+        raise ValueError(f"--train-episodes {too_many[0]}: the training split has {len(episodes)} episodes")
     for n_episodes in args.train_episodes:
+        # a subset keeps the whole training split's standardisation and variances: its scores compare with the rest
         chosen = train_all if n_episodes is None else train_all.select_episodes(episodes[:n_episodes])
-        if n_episodes is not None and n_episodes > len(episodes):
-            raise ValueError(f"--train-episodes {n_episodes}: the training split has {len(episodes)} episodes")
         _, y = targets_of(chosen, args.targets)
         train = data_of(chosen, y, 0)
-        steps = {}  # one compiled call per chunk length (a shorter one to land on each point)
-
-        def step(state, n):
-            if n not in steps:
-                steps[n] = jax.jit(lambda s: learner.run(s, hp, train, n))
-            return steps[n](state)
         for seed in range(args.seeds):
             state, done, at, t0 = jax.jit(learner.init)(jax.random.PRNGKey(seed), hp, train), 0, [], time.perf_counter()
             while done < args.iterations:
                 n = min(chunk, min(p for p in args.points if p > done) - done)
-                state, _ = step(state, n)
+                state, _ = step(state, train, n)
                 done += n
                 for point in (p for p in args.points if p == done):
                     params = learner.policy_params(state)

@@ -225,12 +225,12 @@ def smoke_overrides(values: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
     """The amounts of a `--smoke` run, given the resolved fields (`{section: {field: value}}`) it shrinks.
 
     Everything that decides what a step computes stays: the network and encoder, the image size, the history,
-    the frame skip, the split's kind, the optimiser. The amounts become seconds: 3 demonstration episodes of 20
-    standard steps (2 train, the fewest the diagnostics take; a row-split protocol: 240 collected
-    transitions, 144 training and 48 validating), one
-    setting of each grid, one seed, four iterations in chunks of two (evaluated after the first chunk too:
-    the mid-run evaluation runs; DAgger's four rounds get one iteration each), batch 4, two evaluation
-    episodes (the fewest the diagnostics take), ten steps of the APE fit and of every diagnostic's probe.
+    the frame skip, the split's kind, the optimiser. The amounts become seconds: 3 demonstration episodes (2
+    train, the fewest the diagnostics take) of 20 standard steps where the task takes a horizon (the MuJoCo
+    tasks; a row-split protocol: 240 collected transitions, 144 training and 48 validating), one setting of
+    each grid, one seed, four iterations in chunks of two (evaluated after the first chunk too, so the mid-run
+    evaluation runs; DAgger's four rounds get one iteration each), batch 4, two evaluation episodes (the fewest
+    the diagnostics take), ten steps of the APE fit and of every diagnostic's probe.
     """
     protocol, recipe = values["protocol"], values["recipe"]
     out: dict[str, Any] = dict(iterations=4, seeds=1, eval_episodes=2, ape_steps=10, chunk=2, eval_at=(2,),
