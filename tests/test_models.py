@@ -274,3 +274,15 @@ def test_group_norm_normalises_each_sample_alone_after_every_encoder_layer(encod
     np.testing.assert_allclose(model.apply({"params": params}, 3.0 * x), out, rtol=1e-3, atol=1e-4)
     with pytest.raises(ValueError, match="is for the image encoders 'small' and 'patch'"):
         LearnerConfig(obs_shape=(16, 16, 3), action_dim=2, encoder="resnet18", encoder_norm="group")
+
+
+@pytest.mark.parametrize("encoder", ["small", "patch"])
+@pytest.mark.parametrize("size", [(5, 5), (12, 20)])
+def test_the_cpu_encoders_take_any_frame_size(encoder, size):
+    """Every frame size `--set protocol.image_size` accepts (>= 1 px) is one the encoders run on (the patch
+    embedding pads to whole patches, the convolutions pad their edges), so there is no size to refuse."""
+    cfg = LearnerConfig(obs_shape=(*size, 3), action_dim=3, history=2, encoder=encoder)
+    x = jnp.linspace(0.0, 1.0, 2 * size[0] * size[1] * 6).reshape(2, *size, 6)
+    variables = cfg.model().init(jax.random.PRNGKey(0), x)
+    out = cfg.model().apply(variables, x)
+    assert out.shape == (2, 3) and bool(jnp.all(jnp.isfinite(out)))
