@@ -124,7 +124,8 @@ def run(args: argparse.Namespace, log=print) -> dict:
     import jax.numpy as jnp
     import numpy as np
 
-    from ape_jax.learner import Hparams, make_train, policy_apply
+    from ape_jax.history import history_index
+    from ape_jax.learner import Data, Hparams, make_train, policy_apply
     from ape_jax.pipeline.sweep import CPU_IMAGE_CHUNK, Hooks, SweepSpec, prepare
     from experiments._provenance import system
 
@@ -142,8 +143,7 @@ def run(args: argparse.Namespace, log=print) -> dict:
     where, y_train_all = targets_of(train_all, args.targets)
     _, y_val = targets_of(val, args.targets)
     mean, std = y_train_all.mean(0), y_train_all.std(0) + 1e-6
-    raw_var = {name: (y_train_all[:, cols] ** 2).mean(0) - y_train_all[:, cols].mean(0) ** 2
-               for name, cols in where.items()}
+    raw_var = {name: y_train_all[:, cols].var(0) for name, cols in where.items()}
     cfg = spec.settings.learner_config(prepared.env.observation_shape, y_train_all.shape[1], args.history, "l2",
                                        unroll=prepared.sequential(spec.recipe.encoder))
     learner = make_train(cfg)
@@ -151,15 +151,15 @@ def run(args: argparse.Namespace, log=print) -> dict:
     hp = Hparams.make("uniform", lr=spec.recipe.lr)
 
     def data_of(demos, y, seed):
-        from ape_jax.learner import Data
         obs = prepared.normalizer(demos.obs)
         if args.noise:  # standardised observations: the training variance is 1 per dimension
             obs = obs + np.sqrt(args.noise) * np.random.default_rng(seed).standard_normal(obs.shape, np.float32)
         return Data(obs=jnp.asarray(obs), action=jnp.asarray((y - mean) / std), t=jnp.asarray(demos.t),
                     ape=jnp.ones(len(y), jnp.float32))
 
+    predict_jit = jax.jit(lambda params, x: policy_apply(cfg.model(), params, x)[0])
+
     def predict(params, data):  # standardised predictions of every row, 256 frames at a time
-        from ape_jax.history import history_index
         out = []
         for start in range(0, data.size, 256):
             idx = jnp.arange(start, min(start + 256, data.size))
@@ -167,7 +167,6 @@ def run(args: argparse.Namespace, log=print) -> dict:
             out.append(np.asarray(predict_jit(params, x)))
         return np.concatenate(out)
 
-    predict_jit = jax.jit(lambda params, x: policy_apply(cfg.model(), params, x)[0])
     val_data = data_of(val, y_val, 1)
     episodes = train_all.episode_ids
     record = {"command": ["python", "-m", "experiments.pose_probe", *args.argv], "env": args.env, "obs": args.obs,

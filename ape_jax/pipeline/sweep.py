@@ -714,7 +714,7 @@ def evaluate_group(prepared: Prepared, ape: ApeFit, episodes: int, group: Policy
     """Evaluation outputs `{"return": [P, E], metric: [P, E], ...}` (copycat diagnostics included: the
     `ape_jax.diagnostics` ones as `diag_<field>` `[P]` with `probe_steps` where `diagnosable`), the loss
     analysis `{"train": {...: [P]}, "val": {...}}` of one group, and the diagnostics' seconds."""
-    diagnostics = diagnosable(episodes, probe_steps, len(np.unique(prepared.train.demos.episode)))
+    diagnostics = diagnosable(episodes, probe_steps, prepared.train.demos.num_episodes)
     evaluator = evaluate_lib.make_evaluator(prepared.env, group.cfg, prepared.normalizer.mean, prepared.normalizer.std,
                                             episodes, expert=prepared.expert, ape_params=ape.params,
                                             ape_scale=ape.raw_mean, keep_actions=diagnostics)
