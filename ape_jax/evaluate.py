@@ -33,6 +33,7 @@ import jax.numpy as jnp
 import envs
 from ape_jax import ape as ape_lib
 from ape_jax import weighting
+from ape_jax.grid import in_blocks
 from ape_jax.learner import Data, LearnerConfig, dataset_losses, make_train
 
 
@@ -63,8 +64,11 @@ def history_policy(cfg: LearnerConfig, obs_mean: jax.Array | None, obs_std: jax.
 def make_evaluator(env: envs.Env, cfg: LearnerConfig, obs_mean: jax.Array | None, obs_std: jax.Array | None,
                    episodes: int, steps: int | None = None, expert: Callable[[jax.Array], jax.Array] | None = None,
                    ape_params: Any = None, ape_scale: float = 1.0,
-                   keep_actions: bool = False) -> Callable[[Any, jax.Array], dict]:
+                   keep_actions: bool = False, width: int | None = None) -> Callable[[Any, jax.Array], dict]:
     """A jitted `(params [P, ...], key) -> {"return": [P, E], "length": [P, E], ...}`.
+
+    `width`: the policies go `width` at a time through one executable (`grid.in_blocks`), so a policy's
+    episodes do not depend on how many are evaluated with it; None: all `P` in one call.
 
     `expert` (`full observation -> action`) adds `imitation_error`, and
     `ape_params` (ψ) with `ape_scale` (the training mean APE) `rollout_ape`
@@ -102,7 +106,7 @@ def make_evaluator(env: envs.Env, cfg: LearnerConfig, obs_mean: jax.Array | None
             out["actions"], out["valid"] = traj.action, traj.valid
         return out
 
-    return jax.jit(jax.vmap(one, in_axes=(0, None)))
+    return in_blocks(jax.jit(jax.vmap(one, in_axes=(0, None))), width)
 
 
 def normalized(returns: jax.Array | float, expert: float, random: float) -> Any:
@@ -110,7 +114,8 @@ def normalized(returns: jax.Array | float, expert: float, random: float) -> Any:
     return 100.0 * (returns - random) / (expert - random)
 
 
-def loss_analysis(cfg: LearnerConfig, params: Any, data: Data, changepoint_frac: float = 0.1) -> dict:
+def loss_analysis(cfg: LearnerConfig, params: Any, data: Data, changepoint_frac: float = 0.1,
+                  width: int | None = None) -> dict:
     """The paper's Table 3 for a batch of policies on one split.
 
     Args:
@@ -126,7 +131,8 @@ def loss_analysis(cfg: LearnerConfig, params: Any, data: Data, changepoint_frac:
     State policies are vmapped together over 4,096-row chunks; image policies
     go one after another over 256-row chunks, so that memory holds one
     policy's activations on 256 frames rather than every policy's on 4,096
-    (9 GB for nine 32×32 policies).
+    (9 GB for nine 32×32 policies). `width`: state policies go `width` at a time through one executable
+    (`grid.in_blocks`); None: all together.
     """
     learner = make_train(cfg)
 
@@ -143,4 +149,4 @@ def loss_analysis(cfg: LearnerConfig, params: Any, data: Data, changepoint_frac:
             return jax.lax.map(lambda p: one(p, data), params)
         return jax.vmap(one, in_axes=(0, None))(params, data)
 
-    return run(params, data)
+    return in_blocks(run, None if cfg.images else width)(params, data)

@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ape_jax import methods
+from ape_jax.grid import grid_runner
 from ape_jax.learner import Data, Hparams, LearnerConfig, make_train, stack_hparams
 from ape_jax.pipeline.presets import RECIPES, SOFTMAX_GRID, STEP_GRID, resolve
 from experiments._cli import Parser
@@ -72,17 +73,22 @@ def recipe_config(recipe: str, iters: int) -> LearnerConfig:
 
 
 def recipe_throughput(iters: int, repeats: int) -> dict[str, dict]:
-    """Per recipe: the grid's model-updates/s (steady state) and compile time, one recipe after another."""
+    """Per recipe: the grid's model-updates/s (steady state) and compile time, one recipe after another, trained
+    as the sweep trains it (`grid.grid_runner`) with the whole grid in one call and at `Budget.width` 1."""
     out = {}
     for name in RECIPES:
         cfg = recipe_config(name, iters)
         learner, data, hps = make_train(cfg), _data(), stack_hparams(_grid())
         keys = jax.random.split(jax.random.PRNGKey(0), len(_grid()))
         states = jax.jit(jax.vmap(learner.init, (0, 0, None)))(keys, hps, data)
-        run = jax.jit(jax.vmap(lambda s, hp, d: learner.run(s, hp, d, iters)[0].params, (0, 0, None)))
-        compile_s, steady, _ = time_jitted(run, states, hps, data, repeats=repeats)
-        out[name] = {"batch": cfg.batch_size, "network": cfg.network, "updates_s": len(_grid()) * iters / steady,
-                     "samples_s": len(_grid()) * iters * cfg.batch_size / steady, "compile_s": compile_s}
+        rates = {}
+        for width in (None, 1):
+            run = grid_runner(lambda s, hp, d: learner.run(s, hp, d, iters)[0].params, width=width)
+            compile_s, steady, _ = time_jitted(run, states, hps, data, repeats=repeats)
+            rates[width] = len(_grid()) * iters / steady, compile_s
+        out[name] = {"batch": cfg.batch_size, "network": cfg.network, "updates_s": rates[None][0],
+                     "samples_s": rates[None][0] * cfg.batch_size, "compile_s": rates[None][1],
+                     "width1_updates_s": rates[1][0], "width1_compile_s": rates[1][1]}
     return out
 
 
@@ -161,10 +167,13 @@ def eval_throughput(policies: int, episodes: int, repeats: int) -> dict:
     cfg = LearnerConfig(obs_shape=(OBS,), action_dim=ACT, history=H, iterations=1, batch_size=BATCH)
     params = jax.vmap(lambda k: cfg.model().init(k, jnp.zeros((1, H * OBS))))(
         jax.random.split(jax.random.PRNGKey(0), policies))
-    run = evaluate.make_evaluator(env, cfg, jnp.zeros(OBS), jnp.ones(OBS), episodes, steps=200)
-    compile_s, steady, _ = time_jitted(run, params, jax.random.PRNGKey(1), repeats=repeats)
-    return {"compile_s": compile_s, "steps_s": policies * episodes * 200 / steady,
-            "native_steps_s": _native_eval(env, steps=1000, repeats=repeats)}
+    out = {}
+    for width in (None, 1):  # every policy in one call; one at a time (`Budget.width` 1, the sweep's default)
+        run = evaluate.make_evaluator(env, cfg, jnp.zeros(OBS), jnp.ones(OBS), episodes, steps=200, width=width)
+        compile_s, steady, _ = time_jitted(run, params, jax.random.PRNGKey(1), repeats=repeats)
+        out[width] = compile_s, policies * episodes * 200 / steady
+    return {"compile_s": out[None][0], "steps_s": out[None][1], "width1_compile_s": out[1][0],
+            "width1_steps_s": out[1][1], "native_steps_s": _native_eval(env, steps=1000, repeats=repeats)}
 
 
 def _native_eval(env, steps: int, repeats: int) -> float | None:
@@ -229,13 +238,19 @@ def table(args) -> str:
         "| evaluation (hopper, pos) | env steps/s, policy included |", "|---|---:|",
         f"| JAX: {args.policies} policies × {args.episodes} episodes, vmapped, 200-step scan | {ev['steps_s']:,.0f} "
         f"(compile {ev['compile_s']:.1f} s) |",
+        f"| the same, one policy per call (`budget.width` 1, the sweep's default) | {ev['width1_steps_s']:,.0f} "
+        f"(compile {ev['width1_compile_s']:.1f} s) |",
         "| native MuJoCo + PyTorch policy, Python loop, one env | "
         + (f"{ev['native_steps_s']:,.0f} |" if ev["native_steps_s"] else "torch not installed |"), "",
-        f"Per recipe (`--recipe`), the same {t['models']} configurations as one `jit(vmap(scan))`, one recipe after "
-        "the other in this run:", "",
-        "| recipe | network | batch | model-updates/s | samples/s | compile s |", "|---|---|---:|---:|---:|---:|",
+        f"Per recipe (`--recipe`), the same {t['models']} configurations as the sweep trains them "
+        "(`grid.grid_runner`), one recipe after the other in this run: the whole grid in one `jit(vmap(scan))`, "
+        "and one configuration per call (`budget.width` 1, the sweep's default: a configuration's numbers then do "
+        "not depend on what trains beside it):", "",
+        "| recipe | network | batch | model-updates/s | samples/s | compile s | width 1: model-updates/s | "
+        "width 1 ÷ whole |", "|---|---|---:|---:|---:|---:|---:|---:|",
         *[f"| `{name}` | {r['network']} | {r['batch']} | {r['updates_s']:,.0f} | {r['samples_s']:,.0f} | "
-          f"{r['compile_s']:.1f} |" for name, r in recipes.items()],
+          f"{r['compile_s']:.1f} | {r['width1_updates_s']:,.0f} | {r['width1_updates_s'] / r['updates_s']:.2f} |"
+          for name, r in recipes.items()],
     ]
     if args.results:
         lines += ["", "| sweep (results.json) | total s | compile s | train s | evaluate s |", "|---|---:|---:|---:|---:|"]

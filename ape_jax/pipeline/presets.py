@@ -51,7 +51,8 @@ def _one_of(name: str, value: Any, valid: tuple) -> None:
 
 @dataclasses.dataclass(frozen=True)
 class Budget:
-    """How much compute a sweep spends (`--preset`): nothing here changes what a run computes per step."""
+    """How much compute a sweep spends (`--preset`): nothing here changes what a run computes per step, except
+    `width`'s rounding."""
 
     iterations: int
     seeds: int
@@ -60,12 +61,16 @@ class Budget:
     chunk: int = 500              # iterations per compiled call (progress and checkpoint granularity)
     probe_steps: int = 2_000      # the copycat diagnostics' probes' and ψ's Adam steps; 0: no diagnostics
     eval_at: tuple[int, ...] = ()  # iterations before the end at which every policy is also evaluated
+    # configurations per device trained (and policies evaluated) together in one call (`grid.grid_runner`), so
+    # each is computed by the same program whatever else the sweep holds; 0: a whole program at once (every file
+    # before this field: XLA rounds another width differently, so such numbers depend on the sweep's size)
+    width: int = 1
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
             if f.name == "eval_at":
                 continue
-            least = 0 if f.name == "probe_steps" else 1
+            least = 0 if f.name in ("probe_steps", "width") else 1
             _check(isinstance(getattr(self, f.name), int) and getattr(self, f.name) >= least,
                    f"budget.{f.name} must be an integer >= {least}, got {getattr(self, f.name)!r}")
         at = self.eval_at
@@ -357,6 +362,8 @@ def _record(section: str, values: Mapping[str, Any]):
             out[k] = _coerce(hints[k], v, f"{section}.{k}")
     if section == "protocol" and "name" not in out:
         out["name"] = "brax"
+    if section == "budget" and values and "width" not in out:
+        out["width"] = 0  # a file from before fixed widths trained each program whole
     try:
         return cls(**out)
     except SettingsError:

@@ -122,7 +122,8 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
         # budget's, else (a file that ran none) the default's
         steps = ((config.get("diagnostics") or {}).get("probe_steps") or spec.budget.probe_steps
                  or diagnostics_lib.PROBE_STEPS)
-        out, _, seconds = sweep_lib.evaluate_group(prepared, ape, episodes, group, steps if lacking else 0)
+        out, _, seconds = sweep_lib.evaluate_group(prepared, ape, episodes, group, steps if lacking else 0,
+                                                       spec.budget.width)
         diag_s += seconds
         diag_config = diag_config or sweep_lib.diagnostics_config(prepared, [out])
         for j, run in enumerate(saved["runs"]):

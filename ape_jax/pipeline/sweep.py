@@ -504,7 +504,8 @@ def train_program(program: Program, hparams: Any, budget, data: Data, progress: 
 
     Round-based learners (boosting, DAgger) get `next_round` between rounds.
     `chunk` overrides the budget's iterations per compiled call; `vectorize=False`
-    trains the runs one after another instead of vmapped (`grid.grid_runner`).
+    trains the runs one after another instead of vmapped (`grid.grid_runner`);
+    vmapped, the runs train `budget.width` per device at a time (0: all at once).
     A chunk that would pass an iteration of `budget.eval_at` (counted over all
     rounds) stops there, and the policies are kept (a snapshot).
     With a `checkpoint`, training continues from its latest save and saves
@@ -518,7 +519,8 @@ def train_program(program: Program, hparams: Any, budget, data: Data, progress: 
     learner, runs = program.learner, program.runs
     keys = jnp.stack([r.key for r in runs])
     chunk = chunk or budget.chunk
-    init = grid_runner(learner.init, vectorize=vectorize)
+    width = getattr(budget, "width", 0) or None
+    init = grid_runner(learner.init, vectorize=vectorize, width=width)
     pad = -len(runs) % len(init.devices)  # padded once, so the chunk runners never pad or trim
     hps = pad_grid(hparams, pad)
     state = init(pad_grid(keys, pad), hps, data)
@@ -544,14 +546,16 @@ def train_program(program: Program, hparams: Any, budget, data: Data, progress: 
         if start >= first + learner.round_iterations:
             continue  # finished before the checkpoint
         if r and start <= first:
-            runners.setdefault("next_round", grid_runner(learner.next_round, vectorize=vectorize))
+            runners.setdefault("next_round", grid_runner(learner.next_round, vectorize=vectorize,
+                                                                  width=width))
             state = runners["next_round"](state, hps, data)
         done = max(0, start - first)
         while done < learner.round_iterations:
             n = min(chunk - done % chunk, learner.round_iterations - done)  # chunks end at multiples of chunk
             n = min([n, *(i - first - done for i in at if i > first + done)])  # and stop at a snapshot
             if n not in runners:
-                runners[n] = grid_runner(lambda s, hp, d, n=n: learner.run(s, hp, d, n), vectorize=vectorize)
+                runners[n] = grid_runner(lambda s, hp, d, n=n: learner.run(s, hp, d, n), vectorize=vectorize,
+                                         width=width)
             state, m = runners[n](state, hps, data)
             metrics.append(jax.device_get(m))
             done += n
@@ -710,30 +714,33 @@ def group_diagnostics(prepared: Prepared, ape: ApeFit, group: PolicyGroup, actio
 
 
 def evaluate_group(prepared: Prepared, ape: ApeFit, episodes: int, group: PolicyGroup,
-                   probe_steps: int = 0) -> tuple[dict, dict, float]:
+                   probe_steps: int = 0, width: int = 0) -> tuple[dict, dict, float]:
     """Evaluation outputs `{"return": [P, E], metric: [P, E], ...}` (copycat diagnostics included: the
     `ape_jax.diagnostics` ones as `diag_<field>` `[P]` with `probe_steps` where `diagnosable`), the loss
-    analysis `{"train": {...: [P]}, "val": {...}}` of one group, and the diagnostics' seconds."""
+    analysis `{"train": {...: [P]}, "val": {...}}` of one group, and the diagnostics' seconds. The policies go
+    `width` at a time (`Budget.width`; 0: all together) through the evaluation and the loss analysis."""
     diagnostics = diagnosable(episodes, probe_steps, prepared.train.demos.num_episodes)
     evaluator = evaluate_lib.make_evaluator(prepared.env, group.cfg, prepared.normalizer.mean, prepared.normalizer.std,
                                             episodes, expert=prepared.expert, ape_params=ape.params,
-                                            ape_scale=ape.raw_mean, keep_actions=diagnostics)
+                                            ape_scale=ape.raw_mean, keep_actions=diagnostics, width=width or None)
     out = jax.device_get(evaluator(group.params, jax.random.PRNGKey(EVAL_SEED)))
     diag_s = 0.0
     if diagnostics:
         t0 = time.perf_counter()
         out.update(group_diagnostics(prepared, ape, group, out.pop("actions"), out.pop("valid"), probe_steps))
         diag_s = time.perf_counter() - t0
-    losses = {split: jax.device_get(evaluate_lib.loss_analysis(group.cfg, group.params, prepared.data(s, a)))
+    losses = {split: jax.device_get(evaluate_lib.loss_analysis(group.cfg, group.params, prepared.data(s, a),
+                                                               width=width or None))
               for split, s, a in (("train", prepared.train, ape.train), ("val", prepared.val, ape.val))}
     return out, losses, diag_s
 
 
 def evaluate(trained: Sequence[Trained], prepared: Prepared, ape: ApeFit, episodes: int, hooks: Hooks = Hooks(),
-             checkpoint: SweepCheckpoint | None = None, probe_steps: int = 0) -> Evaluated:
+             checkpoint: SweepCheckpoint | None = None, probe_steps: int = 0, width: int = 0) -> Evaluated:
     """Phase 4: every policy on the same `episodes` episodes, one program per history (groups saved in
-    `checkpoint` reused), with the copycat diagnostics at `probe_steps` (`Budget.probe_steps`; 0: none); the
-    same for the policies kept at each iteration of `Budget.eval_at` (`Trained.snapshots`)."""
+    `checkpoint` reused), `width` policies at a time (`Budget.width`; 0: a group at once), with the copycat
+    diagnostics at `probe_steps` (`Budget.probe_steps`; 0: none); the same for the policies kept at each
+    iteration of `Budget.eval_at` (`Trained.snapshots`)."""
     points = sorted({i for t in trained for i in t.snapshots})
     seconds = {"eval": 0.0, "diagnostics": 0.0}
     total = sum(len(t.program.runs) * (1 + len(t.snapshots)) for t in trained) * episodes
@@ -745,7 +752,7 @@ def evaluate(trained: Sequence[Trained], prepared: Prepared, ape: ApeFit, episod
             saved = ckpt_lib.load_evaluation(checkpoint, name)
             if saved is None:
                 t0 = time.perf_counter()
-                out, loss, diag_s = evaluate_group(prepared, ape, episodes, group, probe_steps)
+                out, loss, diag_s = evaluate_group(prepared, ape, episodes, group, probe_steps, width)
                 saved = out, loss
                 seconds["eval"] += time.perf_counter() - t0
                 seconds["diagnostics"] += diag_s
@@ -944,7 +951,7 @@ def run_sweep(spec: SweepSpec, hooks: Hooks = Hooks(),
     t_start = time.perf_counter()
     prepared, ape, trained = train_sweep(spec, hooks, checkpoint)
     evaluated = evaluate(trained, prepared, ape, spec.budget.eval_episodes, hooks, checkpoint,
-                         spec.budget.probe_steps)
+                         spec.budget.probe_steps, spec.budget.width)
     timing = {"compile_s": sum(t.compile_s for t in trained), "train_s": sum(t.train_s for t in trained),
               "eval_s": evaluated.eval_s, "diagnostics_s": evaluated.diagnostics_s,  # included in eval_s
               "total_s": time.perf_counter() - t_start,

@@ -887,6 +887,9 @@ def provenance(r: results_lib.Results) -> str:
             + (" (resumed after an interruption: the last process's time only)" if t.get("resumed") else ""))
     if t.get("peak_rss_mb"):
         line += f", peak resident memory {t['peak_rss_mb'] / 1024:.1f} GB"
+    width = ((r.settings or {}).get("budget") or {}).get("width")
+    line += (f"; {width} configuration(s) per device per call (`budget.width`)" if width else
+             "; each program vmapped whole (before `budget.width`: its numbers depend on what trained beside them)")
     chain, again = [], r.reevaluated
     while again:  # the latest evaluation first, each earlier one under "previous"
         chain.append(again)
