@@ -12,7 +12,7 @@ from ape_jax import tasks
 from ape_jax.pipeline.presets import resolve
 from ape_jax.pipeline.results import Results
 from experiments import report
-from experiments.report import figures
+from experiments.report import figures, stats
 
 
 def _results(env="hopper", methods=(("bc-so", {}, 300.0), ("bc-oh", {}, 1000.0),
@@ -391,10 +391,14 @@ def test_image_results_and_a_task_judged_by_a_rate_get_their_tables(tmp_path):
     assert "| BC-OH | 1,000 ± 10 (50%) |" in img
     table = text[text.index(f"### {car.title} (the supplement's Table 4 protocol)"):]
     assert ("| method | seeds | success % | red-light violations | progress | average speed | stuck % | "
-            "paper: success % |") in table
-    # mean ± std over seeds, and the mean's bootstrap interval over the two seeds (their extremes)
+            "success % of all episodes [Wilson 95%] | paper: success % |") in table
+    # mean ± std over seeds, and the mean's bootstrap interval over the two seeds (their extremes); every episode
+    # pooled: 0.90 and 0.95 of each seed's episodes
+    episodes = [run["eval"]["episodes"] for run in sandbox["runs"] if run["method"] == "bc-oh"]
+    pooled = stats.wilson(round(0.9 * episodes[0]) + round(0.95 * episodes[1]), sum(episodes))
     assert ("| BC-OH | 2 | 92.50 ± 2.50 [90.00, 95.00] | 0.00 ± 0.00 [0.00, 0.00] | 0.80 ± 0.00 [0.80, 0.80] | "
-            "0.50 ± 0.00 [0.50, 0.50] | 5.00 ± 5.00 [0.00, 10.00] | 95.1 ± 4.5 |") in table
+            f"0.50 ± 0.00 [0.50, 0.50] | 5.00 ± 5.00 [0.00, 10.00] | {100 * pooled.value:.2f} [{100 * pooled.low:.2f}, "
+            f"{100 * pooled.high:.2f}] | 95.1 ± 4.5 |") in table
     assert "Wall time of the run: 2 min (test CPU), compile included." in table
     assert "| Ours, step THR 10% W 5 | 2 |" in table and "97.8 ± 0.5" in table   # the paper's, from the task record
     # its measure is success, not its (zero) reward: in the grid table and the bootstrap
@@ -801,3 +805,14 @@ def test_the_recipe_table_compares_recipes_under_one_protocol_apart_from_the_who
     assert "| fca | alpha 0.1, adversary_lr 0.0004 | 55.0 [54.5, 55.5] | — | — |" in text   # recipe mlp
     assert "| fca | alpha 2, adversary_lr 0.0004 | 60.0 [59.5, 60.5] | 0.5 | 0.6 |" in text
     assert "### MuJoCo-State, the paper's protocol (fca)" in text   # the whole-episode files keep their tables
+
+
+def test_a_rate_pools_every_episode_with_wilsons_interval():
+    """ToyCar's success: 5 of 10 and 10 of 10 episodes are 15 of 20, Wilson's interval around 0.75."""
+    from experiments.report import markdown
+
+    runs = [{"eval": {"success": 0.5, "episodes": 10}}, {"eval": {"success": 1.0, "episodes": 10}}]
+    e = stats.wilson(15, 20)
+    assert markdown._wilson_cell(runs, "success") == f"75.00 [{100 * e.low:.2f}, {100 * e.high:.2f}]"
+    assert 0.5 < e.low < 0.75 < e.high < 0.95
+    assert markdown._wilson_cell([{"eval": {"return_mean": 1.0}}], "success") == "—"

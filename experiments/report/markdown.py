@@ -19,7 +19,7 @@ import numpy as np
 from ape_jax import methods as methods_lib
 from ape_jax import tasks
 from ape_jax.pipeline import results as results_lib
-from experiments.report import figures
+from experiments.report import figures, stats
 from experiments.report.analysis import (APE_SCALES, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, BRAX, FCA, MAP_METHODS,
                                          PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP, PAPER_TABLE5,
                                          alpha_rows, policy_diagnostics, recipe_groups, recipe_rows, BudgetRow, MapPoint, budget_differences,
@@ -199,8 +199,9 @@ def task_table(m: dict) -> str | None:
     paper = tasks.get(m["env"]).paper
     heads = [_metric_heading(m, k) for k in metrics]
     paper_head = [f"paper: {m['metric']}" + (" %" if is_rate(m) else "")] if paper else []
-    lines = ["| method | seeds | " + " | ".join([name for name, _ in heads] + paper_head) + " |",
-             "|---|---:|" + "---:|" * (len(heads) + len(paper_head))]
+    wilson_head = [f"{m['metric']} % of all episodes [Wilson 95%]"] if is_rate(m) else []
+    lines = ["| method | seeds | " + " | ".join([name for name, _ in heads] + wilson_head + paper_head) + " |",
+             "|---|---:|" + "---:|" * (len(heads) + len(wilson_head) + len(paper_head))]
     for lab, method, runs in rows:
         cells = []
         for key, (_, scale) in zip(metrics, heads):
@@ -210,10 +211,24 @@ def task_table(m: dict) -> str | None:
                 continue
             _, low, high = bootstrap_mean(v)
             cells.append(f"{v.mean():.2f} ± {v.std():.2f} [{low:.2f}, {high:.2f}]")
+        if wilson_head:
+            cells.append(_wilson_cell(runs, m["metric"]))
         if paper:
             cells.append(f"{paper[method][0]} ± {paper[method][1]}" if method in paper else "—")
         lines.append(f"| {lab} | {len(runs)} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def _wilson_cell(runs: list[dict], metric: str) -> str:
+    """A rate over every evaluation episode of `runs` pooled, with Wilson's binomial interval (episodes as
+    independent trials: it says how precisely the episodes measure the rate, the bootstrap over seeds how much
+    it varies between trained policies)."""
+    counted = [(r["eval"][metric], int(r["eval"]["episodes"])) for r in runs
+               if metric in r["eval"] and r["eval"].get("episodes")]
+    if not counted:
+        return "—"
+    e = stats.wilson(sum(round(rate * n) for rate, n in counted), sum(n for _, n in counted))
+    return f"{100 * e.value:.2f} [{100 * e.low:.2f}, {100 * e.high:.2f}]"
 
 
 def _per_seed(runs: list[dict], key: str, scale: float = 1.0) -> np.ndarray:
@@ -1058,7 +1073,9 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
                     + (f" ({machine})" if machine else "") + ", compile included." if walls else "")
             out += [f"### {title} (the supplement's Table 4 protocol)", "",
                     f"{task.title}'s own metrics per policy, mean ± std over seeds of each seed's mean over "
-                    f"evaluation episodes, and in brackets the mean's 95% bootstrap interval over seeds{paper}." + wall,
+                    f"evaluation episodes, and in brackets the mean's 95% bootstrap interval over seeds"
+                    + (f"; the {m['metric']} rate of all episodes pooled with its binomial (Wilson) interval"
+                       if is_rate(m) else "") + f"{paper}." + wall,
                     "", table]
             reading = task_reading(m)
             if reading:
