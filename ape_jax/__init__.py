@@ -5,4 +5,9 @@ here; environments are in the sibling package `envs`, entry points in
 `experiments`.
 """
 
-__version__ = "0.1.0"
+from importlib import metadata as _metadata
+
+try:
+    __version__ = _metadata.version("ape_jax")  # pyproject.toml's, as installed
+except _metadata.PackageNotFoundError:  # run from a source tree that was never installed
+    __version__ = "0.0.0+unknown"

@@ -20,7 +20,14 @@ from typing import NoReturn
 
 
 class Parser(argparse.ArgumentParser):
-    """An `ArgumentParser` whose errors are one line (no usage block), exit status 2."""
+    """An `ArgumentParser` whose errors are one line (no usage block), exit status 2. Started as a console script
+    (`ape-sweep`, …: pyproject.toml's `[project.scripts]`), it names itself by that command."""
+
+    def __init__(self, *args, **kwargs):
+        command = os.path.basename(sys.argv[0]) if sys.argv else ""
+        if command.startswith("ape-") and kwargs.get("prog", "").startswith("python -m experiments."):
+            kwargs["prog"] = command
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> NoReturn:
         fail(self, message)
@@ -72,4 +79,28 @@ def data_directory(parser: argparse.ArgumentParser, path: pathlib.Path | None) -
     path = path or data.cache_dir()
     if path.exists() and not path.is_dir():
         fail(parser, f"--data-dir {path} is a file; it must be a directory")
+    return path
+
+
+def add_compile_cache_flag(parser: argparse.ArgumentParser) -> None:
+    """`--no-compile-cache` (see `use_compile_cache`)."""
+    parser.add_argument("--no-compile-cache", action="store_true",
+                        help="compile every program afresh (default: reuse JAX's persistent compilation cache in "
+                             "the project's cache directory, xla/)")
+
+
+def use_compile_cache(args: argparse.Namespace) -> pathlib.Path | None:
+    """Turns on JAX's persistent compilation cache in `<cache dir>/xla` (`ape_jax.pipeline.data.cache_dir`), so a
+    second run of the same programs loads them instead of compiling; returns its folder, or None where
+    `--no-compile-cache` was given or the environment already names a cache (`JAX_COMPILATION_CACHE_DIR`, e.g.
+    the tests' shared one): that choice is left alone."""
+    if getattr(args, "no_compile_cache", False) or os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+        return None
+    import jax
+
+    from ape_jax.pipeline import data
+
+    path = data.cache_dir() / "xla"
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)  # the many sub-second programs: not worth it
     return path

@@ -10,11 +10,14 @@ import subprocess
 
 import jax
 
+import ape_jax
+
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 
 
 def system() -> dict:
-    """Versions, devices, machine, and the git commit of the code (`dirty`: tracked files modified).
+    """Versions (this package's and jax's), devices, machine, and the git commit of the code (`dirty`: tracked
+    files modified).
 
     Take it when a job starts: the code that runs, not what is checked out when it ends.
     """
@@ -25,8 +28,8 @@ def system() -> dict:
         commit, dirty = git("rev-parse", "--short", "HEAD") or None, bool(git("status", "--porcelain", "-uno"))
     except (OSError, subprocess.SubprocessError):
         commit, dirty = None, None
-    return {"jax": jax.__version__, "backend": jax.default_backend(), "devices": jax.device_count(),
-            "commit": commit, "dirty": dirty, "machine": machine()}
+    return {"ape_jax": ape_jax.__version__, "jax": jax.__version__, "backend": jax.default_backend(),
+            "devices": jax.device_count(), "commit": commit, "dirty": dirty, "machine": machine()}
 
 
 def machine() -> str:

@@ -28,7 +28,8 @@ import math
 import pathlib
 import sys
 
-from experiments._cli import Parser, data_directory, fail, unwritable, unwritable_file
+from experiments._cli import (Parser, add_compile_cache_flag, data_directory, fail, unwritable, unwritable_file,
+                             use_compile_cache)
 
 
 def parse(argv=None) -> argparse.Namespace:
@@ -61,7 +62,9 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--preview", type=pathlib.Path, default=None, metavar="FILE.gif",
                    help="also write the first episode's first 300 steps as a GIF, rendered from the recorded "
                         "simulator states")
+    add_compile_cache_flag(p)
     args = p.parse_args(argv)
+    use_compile_cache(args)
     if args.env not in envs.names():
         fail(p, f"unknown env {args.env!r}; valid: {', '.join(envs.names())}")
     modes = envs.obs_modes(args.env)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
-from experiments._cli import Parser, fail, unwritable_file
+from experiments._cli import Parser, add_compile_cache_flag, fail, unwritable_file, use_compile_cache
 
 
 def main(argv=None) -> int:
@@ -26,7 +26,9 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=pathlib.Path, default=None,
                    help="write the completed results here (default: replace RUN/results.json)")
     p.add_argument("--data-dir", type=pathlib.Path, default=None, help=f"demonstration cache (default: {data.cache_dir()})")
+    add_compile_cache_flag(p)
     args = p.parse_args(argv)
+    use_compile_cache(args)
     source = args.run / "results.json"
     from ape_jax.pipeline import results as results_lib
 

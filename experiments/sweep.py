@@ -35,7 +35,7 @@ import shutil
 import sys
 
 from experiments import _distributed
-from experiments._cli import Parser, fail, unwritable
+from experiments._cli import Parser, add_compile_cache_flag, fail, unwritable, use_compile_cache
 
 PROG = "python -m experiments.sweep"
 
@@ -98,7 +98,9 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
     p.add_argument("--quiet", action="store_true", help="no progress bars (for CI logs); messages and the table only")
     p.add_argument("--data-dir", type=pathlib.Path, default=None, help=f"demonstration cache (default: {data.cache_dir()})")
     _distributed.add_flags(p)
+    add_compile_cache_flag(p)
     args = p.parse_args(argv)
+    use_compile_cache(args)
     if args.resume and args.fresh:
         fail(p, "--resume and --fresh contradict each other")
     if args.env not in tasks.sweepable():
