@@ -40,19 +40,9 @@ import numpy as np
 from ape_jax import methods as methods_lib
 from ape_jax import tasks
 from ape_jax.pipeline import results as results_lib
+from experiments.report.paper import (PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP, PAPER_TABLE5,
+                                      PAPER_TAU)
 
-# The supplement's Table 5 (MuJoCo-State; its own experts, 300k iterations): mean returns.
-PAPER_TABLE5 = {
-    "bc-so": {"hopper": 275, "halfcheetah": -38, "walker2d": 363},
-    "bc-oh": {"hopper": 293, "halfcheetah": 820, "walker2d": 592},
-    "fca": {"hopper": 1086, "halfcheetah": 1250, "walker2d": 1296},
-    "ours": {"hopper": 641, "halfcheetah": 1023, "walker2d": 1460},
-}
-PAPER_STEP = {"thr": 0.1, "w": 5.0}  # the setting the paper reports for its step weighting
-PAPER_TAU = {"hopper": 0.2, "walker2d": 0.2, "halfcheetah": 0.1}  # the paper's softmax τ per environment
-# The supplement's §4 sensitivity study: Walker2d returns per softmax τ, and CARLA driving success per step W.
-PAPER_SENSITIVITY_TAU = {0.1: (765, 103), 0.2: (769, 97), 0.5: (724, 61)}
-PAPER_SENSITIVITY_W = {4.0: 41.9, 5.0: 43.4, 6.0: 41.3}
 BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED = 10_000, 0
 # The state tables' tasks: those with an expert that are judged by their return (the MuJoCo tasks).
 MUJOCO = tuple(t for t in tasks.sweepable() if tasks.get(t).metric == "return")

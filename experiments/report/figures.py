@@ -39,10 +39,11 @@ from matplotlib.patches import Rectangle
 from matplotlib.ticker import FuncFormatter, NullLocator
 
 from ape_jax import tasks
-from experiments.report.analysis import (FCA, FCA_TRAIN, MAP_METHODS, PAPER_STEP, PAPER_TAU, BudgetRow, CopycatMap,
+from experiments.report.analysis import (FCA, FCA_TRAIN, MAP_METHODS, BudgetRow, CopycatMap,
                                          MapPoint, WeightShares, _best, thousands,
                                          _config_key, _hp, _metric, _ordered, _paper_step, _pct, _rows, _seeds,
                                          _value, extra_methods, in_fca_family, known_methods, label)
+from experiments.report.paper import PAPER_STEP, PAPER_TAU
 
 DPI = 120
 # Saved without the matplotlib version, so a regenerated figure is byte-identical across matplotlib upgrades

@@ -21,7 +21,6 @@ from ape_jax import tasks
 from ape_jax.pipeline import results as results_lib
 from experiments.report import figures, stats
 from experiments.report.analysis import (APE_SCALES, BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, BRAX, FCA, MAP_METHODS,
-                                         PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP, PAPER_TABLE5,
                                          alpha_rows, policy_diagnostics, recipe_groups, recipe_rows, BudgetRow, MapPoint, budget_differences,
                                          budget_rows, extended_map, paper_budget_groups, thousands,
                                          DiagnosticsRow, PolicyDiagnostics, Spread, diagnostics_rows,
@@ -33,6 +32,7 @@ from experiments.report.analysis import (APE_SCALES, BOOTSTRAP_RESAMPLES, BOOTST
                                          known_methods, label, longer_runs, loss_rows, merge, ours_differences, protocol_words,
                                          protocols_of, sensitivity, task_metric_rows, verdict, versus_bcoh,
                                          weight_shares, bootstrap_mean, bootstrap_difference)
+from experiments.report.paper import PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP, PAPER_TABLE5
 
 # How the task-metrics table heads a task's own metrics, and the factor it shows them at (rates in %); a metric
 # not listed is headed by its name, and a task's main metric (a rate) is shown in %.
