@@ -40,9 +40,9 @@ from matplotlib.ticker import FuncFormatter, NullLocator
 
 from ape_jax import tasks
 from experiments.report.analysis import (FCA, FCA_TRAIN, MAP_METHODS, BudgetRow, CopycatMap,
-                                         MapPoint, WeightShares, _best, thousands,
-                                         _config_key, _hp, _metric, _ordered, _paper_step, _pct, _rows, _seeds,
-                                         _value, extra_methods, in_fca_family, known_methods, label)
+                                         MapPoint, WeightShares, best_of, thousands,
+                                         config_key, hparams_suffix, display_metric, ordered, paper_step_row, percent, method_rows, seed_values,
+                                         metric_value, extra_methods, in_fca_family, known_methods, label)
 from experiments.report.paper import PAPER_STEP, PAPER_TAU
 
 DPI = 120
@@ -430,18 +430,18 @@ def save_png(fig: Figure, path: str | os.PathLike) -> int:
 
 def grid_figure(m: dict) -> Figure | None:
     """The grid search of one group (task, observation mode, protocol) as heatmaps (step THR × W, softmax τ), or None if neither was run."""
-    prefix, unit = _metric(m)
+    prefix, unit = display_metric(m)
     panels = []
-    step = {(r["hparams"]["thr"], r["hparams"]["w"]): r for r in _rows(m, "ours-step")
+    step = {(r["hparams"]["thr"], r["hparams"]["w"]): r for r in method_rows(m, "ours-step")
             if set(r["hparams"]) == {"thr", "w"}}
     if step:
         thrs, ws = sorted({k[0] for k in step}), sorted({k[1] for k in step})
         panels.append(_grid_panel("step weighting", "THR (top fraction of APE)", "W (weight)",
-                                  [_pct(t) for t in thrs], [f"{w:g}" for w in ws],
+                                  [percent(t) for t in thrs], [f"{w:g}" for w in ws],
                                   [[step.get((t, w)) for w in ws] for t in thrs], prefix,
                                   next(((i, j) for i, t in enumerate(thrs) for j, w in enumerate(ws)
                                         if {"thr": t, "w": w} == PAPER_STEP), None)))
-    soft = {r["hparams"]["tau"]: r for r in _rows(m, "ours-softmax") if set(r["hparams"]) == {"tau"}}
+    soft = {r["hparams"]["tau"]: r for r in method_rows(m, "ours-softmax") if set(r["hparams"]) == {"tau"}}
     if soft:
         taus = sorted(soft)
         tau = PAPER_TAU.get(m["env"])
@@ -450,19 +450,19 @@ def grid_figure(m: dict) -> Figure | None:
                                   (0, taus.index(tau)) if tau in taus else None))
     if not panels:
         return None
-    bcoh = _best(_rows(m, "bc-oh"))
+    bcoh = best_of(method_rows(m, "bc-oh"))
     seeds = max(r["n_seeds"] for r in (*step.values(), *soft.values()))
     ref, center = "", None
     if bcoh is not None:
-        center, std = _value(bcoh, prefix)
+        center, std = metric_value(bcoh, prefix)
         ref = f"; BC-OH {center:.1f} ± {std:.1f}"
     title = (f"{m['title']}: grid search, {unit} (mean ± std over {seeds} seeds){ref}")
     return heatmap(title, panels, center, unit)
 
 
 def _grid_panel(title, row_label, col_label, rows, cols, cells, prefix, marked) -> Grid:
-    mean = np.array([[_value(c, prefix)[0] if c else np.nan for c in line] for line in cells])
-    std = np.array([[_value(c, prefix)[1] if c else np.nan for c in line] for line in cells])
+    mean = np.array([[metric_value(c, prefix)[0] if c else np.nan for c in line] for line in cells])
+    std = np.array([[metric_value(c, prefix)[1] if c else np.nan for c in line] for line in cells])
     best = np.unravel_index(np.nanargmax(mean), mean.shape)
     return Grid(title, row_label, col_label, rows, cols, mean, std, (int(best[0]), int(best[1])), marked)
 
@@ -475,17 +475,17 @@ def returns_figure(merged: dict) -> Figure | None:
     The fca family's other frame skips are left to the copycat map
     (`copycat_map_figure`). Panels wrap into rows of `COLUMNS`.
     """
-    envs = [(k, m) for k, m in _ordered(merged) if k.protocol == FCA or not in_fca_family(k.protocol)]
+    envs = [(k, m) for k, m in ordered(merged) if k.protocol == FCA or not in_fca_family(k.protocol)]
     known = known_methods(merged)
-    baselines = [b for b in extra_methods(merged) if any(_rows(m, b) for _, m in envs)]
+    baselines = [b for b in extra_methods(merged) if any(method_rows(m, b) for _, m in envs)]
     labels = ["BC-SO", "BC-OH", "Ours, step THR 10% W 5", "Ours, best softmax",
               *(label(known, b, online=False) for b in baselines)]
     panels = []
     for _, m in envs:
-        prefix, unit = _metric(m)
-        soft = _best(_rows(m, "ours-softmax"))
-        rows = [_best(_rows(m, "bc-so")), _best(_rows(m, "bc-oh")), _paper_step(m), soft,
-                *(_best(_rows(m, b)) for b in baselines)]
+        prefix, unit = display_metric(m)
+        soft = best_of(method_rows(m, "ours-softmax"))
+        rows = [best_of(method_rows(m, "bc-so")), best_of(method_rows(m, "bc-oh")), paper_step_row(m), soft,
+                *(best_of(method_rows(m, b)) for b in baselines)]
         if not any(rows):
             continue
         key = "normalized" if prefix == "normalized" else "return_mean"
@@ -493,8 +493,8 @@ def returns_figure(merged: dict) -> Figure | None:
         if soft is not None:
             notes[3] = f"τ {soft['hparams']['tau']:g}"
         panels.append(Bars(
-            m["title"], unit, [None if r is None else _value(r, prefix)[0] for r in rows],
-            [None if r is None else _value(r, prefix)[1] for r in rows], [_seeds(m, r, key) for r in rows], notes,
+            m["title"], unit, [None if r is None else metric_value(r, prefix)[0] for r in rows],
+            [None if r is None else metric_value(r, prefix)[1] for r in rows], [seed_values(m, r, key) for r in rows], notes,
             100.0 if prefix == "normalized" else None, "expert"))
     if not panels:
         return None
@@ -506,13 +506,13 @@ def curves_figure(merged: dict) -> Figure | None:
     """Training curves (the weighted loss of the sampled batches, mean ± std over seeds) of BC-OH, the paper's
     step setting and the best softmax, one panel per group; None if no run records its curve."""
     panels = []
-    for _, m in _ordered(merged):
+    for _, m in ordered(merged):
         series = []
-        best_soft = _best(_rows(m, "ours-softmax"))
-        for name, row in (("BC-OH", _best(_rows(m, "bc-oh"))), ("Ours, step THR 10% W 5", _paper_step(m)),
-                          ("Ours, best softmax" + _hp(best_soft), best_soft)):
+        best_soft = best_of(method_rows(m, "ours-softmax"))
+        for name, row in (("BC-OH", best_of(method_rows(m, "bc-oh"))), ("Ours, step THR 10% W 5", paper_step_row(m)),
+                          ("Ours, best softmax" + hparams_suffix(best_soft), best_soft)):
             runs = [r["train_curve"] for r in m["runs"] if row is not None and r["status"] == "ok"
-                    and _config_key(r) == _config_key(row) and r.get("train_curve")]
+                    and config_key(r) == config_key(row) and r.get("train_curve")]
             runs = [c for c in runs if None not in c and len(c) == len(runs[0])] if runs else []
             if runs:
                 curve = np.asarray(runs, float)

@@ -25,8 +25,8 @@ from experiments.report.analysis import (APE_SCALES, BOOTSTRAP_RESAMPLES, BOOTST
                                          budget_rows, extended_map, paper_budget_groups, thousands,
                                          DiagnosticsRow, PolicyDiagnostics, Spread, diagnostics_rows,
                                          diagnostics_thresholds, recipe_diagnostics, training_points,
-                                         CopycatMap, Difference, Interval, Key, ReportError, WeightShares, _best, _hp,
-                                         _metric, _ordered, _paper_step, _pct, _rows, _title, _unit, bootstrap_rows,
+                                         CopycatMap, Difference, Interval, Key, ReportError, WeightShares, best_of, hparams_suffix,
+                                         display_metric, ordered, paper_step_row, percent, method_rows, group_title, bootstrap_unit, bootstrap_rows,
                                          choices, copycat_groups, copycat_map, expert_ape, extra_methods, file_stem,
                                          gap, groups_of, headline, history_difference, in_fca_family, is_rate,
                                          known_methods, label, longer_runs, loss_rows, merge, ours_differences, protocol_words,
@@ -59,7 +59,7 @@ def _generic(lab: str) -> str:
 
 def _selected(lab: str, row: dict | None) -> str:
     """What a "best" row's cell adds on its own line: the configuration selected in that task; "" otherwise."""
-    return f" <br>{_hp(row)[1:]}" if lab.startswith("Ours, best") and row is not None else ""
+    return f" <br>{hparams_suffix(row)[1:]}" if lab.startswith("Ours, best") and row is not None else ""
 
 
 def state_table(merged: dict, obs: str = "pos", protocol: str = BRAX) -> str:
@@ -90,7 +90,7 @@ def state_table(merged: dict, obs: str = "pos", protocol: str = BRAX) -> str:
 
 
 def versus_table(merged: dict, obs: str = "pos", protocol: str = BRAX) -> str:
-    """The state table's rows against BC-OH, per task: each method's mean − BC-OH's over seeds (in `_unit`), its
+    """The state table's rows against BC-OH, per task: each method's mean − BC-OH's over seeds (in `bootstrap_unit`), its
     95% bootstrap CI, bold where the interval excludes 0 with ≥ 2 seeds per arm; "" if no group has BC-OH."""
     groups = groups_of(merged, obs, protocol)
     extras = extra_methods({Key(m["env"], obs, protocol): m for m in groups})
@@ -286,9 +286,9 @@ def paper_table(merged: dict, protocol: str = BRAX) -> str:
                                        for m in groups) + " |", "|---|" + "---:|" * (2 * len(groups))]
     # the paper's FCA is the FCA paper's adversary with its information bottleneck: ours with it where it ran
     # (`fca-ib`), else the adversary alone as the FCA code ships it (`fca`); the row names which
-    fca = "fca-ib" if any(_rows(m, "fca-ib") for m in groups) else "fca"
-    ours = [{"bc-so": _best(_rows(m, "bc-so")), "bc-oh": _best(_rows(m, "bc-oh")), "fca": _best(_rows(m, fca)),
-             "ours": _paper_step(m)} for m in groups]
+    fca = "fca-ib" if any(method_rows(m, "fca-ib") for m in groups) else "fca"
+    ours = [{"bc-so": best_of(method_rows(m, "bc-so")), "bc-oh": best_of(method_rows(m, "bc-oh")), "fca": best_of(method_rows(m, fca)),
+             "ours": paper_step_row(m)} for m in groups]
     for method in PAPER_TABLE5:
         cells = []
         for m, mine in zip(groups, ours):
@@ -311,7 +311,7 @@ def grid_table(m: dict) -> str:
     """Every configuration: return and % of expert (a task judged by a rate, its reward not its measure: the rate
     in %)."""
     rows = list(m["summary"])
-    best = _best([r for r in rows if r["n_seeds"]])
+    best = best_of([r for r in rows if r["n_seeds"]])
     rate = is_rate(m)
     heads = [f"{m['metric']} %"] if rate else ["return", "% of expert"]
     lines = ["| method | hparams | seeds | " + " | ".join(heads) + " |", "|---|---|---:|" + "---:|" * len(heads)]
@@ -354,7 +354,7 @@ def copycat_table(m: dict) -> str | None:
     if not groups:
         return None
     expert = expert_ape(m)
-    unit = _metric(m)[1] if _metric(m)[0] == "normalized" else "% of expert"
+    unit = display_metric(m)[1] if display_metric(m)[0] == "normalized" else "% of expert"
     lines = ["| method | hparams | seeds | rollout APE (÷ training mean) | imitation error on own states | "
              f"{unit} |", "|---|---|---:|---:|---:|---:|"]
     if expert is not None:
@@ -475,7 +475,7 @@ def diagnostics_section(m: dict, explained: bool) -> list[str]:
     """Group `m`'s copycat diagnostics per configuration (`analysis.diagnostics_rows`); nothing for a group whose
     files predate them."""
     rows = [((r.label,), r) for r in diagnostics_rows(m)]
-    unit = _metric(m)[1] if _metric(m)[0] == "normalized" else "% of expert"
+    unit = display_metric(m)[1] if display_metric(m)[0] == "normalized" else "% of expert"
     return diagnostics_lines(rows, diagnostics_thresholds(m["sources"]),
                              "Copycat diagnostics per trained policy (`ape_jax.diagnostics`), from its embedding "
                              "and its own rollouts:", explained, unit=unit)
@@ -488,7 +488,7 @@ def training_table(m: dict) -> list[str]:
     points = training_points(m)
     if not points:
         return []
-    unit = _metric(m)[1] if _metric(m)[0] == "normalized" else "% of expert"
+    unit = display_metric(m)[1] if display_metric(m)[0] == "normalized" else "% of expert"
     lines = ["The same policies over training (the runs also evaluated at `budget.eval_at`'s iterations, on the "
              "same episodes, with the same diagnostics; a run's learning-rate schedule is its whole run's):", "",
              f"| method | hparams | iteration | {unit} [95% CI] | training loss | embedding ratio | "
@@ -674,7 +674,7 @@ def _fmt(mean: float, std: float, prefix: str) -> str:
     return f"{mean:.1f} ± {std:.1f}%" if prefix == "normalized" else f"{mean:,.0f} ± {std:,.0f}"
 
 
-_SETTING = {"step": lambda hp: f"THR {_pct(hp['thr'])} W {hp['w']:g}", "softmax": lambda hp: f"τ {hp['tau']:g}"}
+_SETTING = {"step": lambda hp: f"THR {percent(hp['thr'])} W {hp['w']:g}", "softmax": lambda hp: f"τ {hp['tau']:g}"}
 
 
 def paper_choices(m: dict) -> list[str]:
@@ -684,7 +684,7 @@ def paper_choices(m: dict) -> list[str]:
     Where our APE was divided by its training-set mean, the softmax sentence also names the grid value
     nearest to the paper's τ carried over to that scale (the paper's τ acts on the raw APE).
     """
-    prefix, _ = _metric(m)
+    prefix, _ = display_metric(m)
     pts = " points" if prefix == "normalized" else ""
 
     def near(chosen: dict, best: dict, rows: list[dict], kind: str) -> str:
@@ -734,12 +734,12 @@ def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
     """
     maps_of = {(cm.env, cm.obs): cm for cm in maps}
     out = []
-    for key, m in _ordered(merged):
+    for key, m in ordered(merged):
         if key.protocol != FCA or key.budget is not None:
             continue
-        unit = _unit(m)[1]
+        unit = bootstrap_unit(m)[1]
         number = ",.0f"
-        text = [f"**{_title(key, m['protocol'], with_protocol=False)}.**"]
+        text = [f"**{group_title(key, m['protocol'], with_protocol=False)}.**"]
         history = history_difference(m)
         copycat = None
         if history is None:
@@ -762,16 +762,16 @@ def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
         paper = next(((row, ci) for _, row, ci in ours if row["method"] == "ours-step"
                       and row["hparams"] == PAPER_STEP), None)
         if paper is None:
-            text.append(f"Ours at the paper's step setting (THR {_pct(PAPER_STEP['thr'])}, W {PAPER_STEP['w']:g}) "
+            text.append(f"Ours at the paper's step setting (THR {percent(PAPER_STEP['thr'])}, W {PAPER_STEP['w']:g}) "
                         "did not run under fca, or BC-OH did not.")
         else:
             ci = paper[1]
-            text.append(f"Ours at the paper's step setting (THR {_pct(PAPER_STEP['thr'])}, W {PAPER_STEP['w']:g}) "
+            text.append(f"Ours at the paper's step setting (THR {percent(PAPER_STEP['thr'])}, W {PAPER_STEP['w']:g}) "
                         f"− BC-OH: {ci.diff:+{number}} {unit} ({_ci(ci, '+,.0f')}): "
                         f"{_words(ci, 'Ours', 'BC-OH', 'keyframe weighting beats BC-OH', 'BC-OH beats it')}.")
         grids = [(row, ci) for lab, row, ci in ours[1:]]
-        best_row = _best([row for row, _ in grids])
-        if len(_rows(m, "ours-step")) + len(_rows(m, "ours-softmax")) <= 1:
+        best_row = best_of([row for row, _ in grids])
+        if len(method_rows(m, "ours-step")) + len(method_rows(m, "ours-softmax")) <= 1:
             best_row = None   # no grid ran beside the paper's setting: nothing was selected
         if best_row is not None and paper is not None and best_row is paper[0]:
             text.append("The best of our step and softmax grids is that same setting.")
@@ -826,7 +826,7 @@ def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
 def _bcoh_diagnosed(m: dict) -> str:
     """Whether group `m`'s BC-OH copies, by its copycat diagnostics: the seeds judged copycat and the median ratios,
     or that its runs record none (files from before the diagnostics)."""
-    row = _best(_rows(m, "bc-oh"))
+    row = best_of(method_rows(m, "bc-oh"))
     d = policy_diagnostics([r for r in m["runs"] if row is not None and r["method"] == "bc-oh"
                             and r["hparams"] == row["hparams"]])
     if not d.read:
@@ -1059,11 +1059,11 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
         out += ["### MuJoCo-Image" + ("" if protocol == BRAX else f", protocol {protocol}"), "",
                 "As MuJoCo-State, from rendered frames (the image presets: see each file's provenance below)."
                 + (f" {details}" if details else ""), "", state_table(merged, "image", protocol)]
-    for key, m in _ordered(merged):
+    for key, m in ordered(merged):
         table = task_table(m)
         if table:
             task = tasks.get(key.env)
-            title = _title(key, m["protocol"], m["shows_protocol"], with_obs=key.obs != task.default_obs)
+            title = group_title(key, m["protocol"], m["shows_protocol"], with_obs=key.obs != task.default_obs)
             paper = (f"; the paper's {m['metric']} rates beside (its own {task.title}, not ours)" if task.paper
                      else "")
             walls = [f"{src.timing['total_s'] / 60:,.0f} min" for src in m["sources"]
@@ -1090,7 +1090,7 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
                 f"The paper's protocol ({FCA}) at frame skips {', '.join(map(str, skips))}: the same simulated time "
                 "per episode and the same numbers of training and validation transitions, so the policies differ "
                 "only in how often they act. Per frame skip, BC-SO, BC-OH and Ours (step THR "
-                f"{_pct(PAPER_STEP['thr'])} W {PAPER_STEP['w']:g}) in % of expert (mean ± std over seeds); BC-OH − "
+                f"{percent(PAPER_STEP['thr'])} W {PAPER_STEP['w']:g}) in % of expert (mean ± std over seeds); BC-OH − "
                 "BC-SO is what the history adds, in points of % of expert, with a 95% bootstrap CI over seeds; "
                 "expert − BC-OH is how far BC-OH is from its ceiling (the expert, 100%). The paper reads copycat from a "
                 "small or negative BC-OH − BC-SO (the history not helping); the copycat diagnostics test whether the "
@@ -1109,7 +1109,7 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
     if boot:
         seeds = min(min(d.ci.n_a, d.ci.n_b) for d in boot)
         rates = list(dict.fromkeys(f"{tasks.get(m['env']).title}: in {m['metric']} rate"
-                                   for _, m in _ordered(merged) if is_rate(m)))
+                                   for _, m in ordered(merged) if is_rate(m)))
         out += ["Per task and protocol, BC-OH − BC-SO (does the history help? the paper reads copycat from it not "
                 "helping) "
                 "and Ours − BC-OH, differences of mean return over seeds"
@@ -1159,7 +1159,7 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
                 "multiplies it by one over its mean (usually far more than 1) and so makes a τ ≤ 1 put nearly all "
                 "of a batch's weight on one sample. Both are shown for every group, computed from its recorded "
                 "quantiles; the step and uniform weights depend only on ranks and are the same on both.", ""] + extra
-    for key, m in _ordered(merged):
+    for key, m in ordered(merged):
         protocol = f", protocol {protocol_words(m['protocol'])}" if m["shows_protocol"] else ""
         out += [f"### {tasks.get(key.env).title}, `{key.obs}` observations{protocol}: every configuration", ""]
         out += [f"- {provenance(r)}" for r in m["sources"]]
@@ -1167,7 +1167,7 @@ def build(files: list[results_lib.Results], figure_dir: pathlib.Path | None = No
         out += figure(_grid_name(m), f"{m['title']} grid search", lambda: figures.grid_figure(m))
         sentences = paper_choices(m)
         if sentences:
-            unit = _metric(m)[1]
+            unit = display_metric(m)[1]
             out += [f"Are the paper's settings near the best of our grid? (In {unit}; \"within one std\": "
                     "the gap to the best is at most the larger of the two settings' std over seeds.)", ""]
             out += [f"- {c}" for c in sentences] + [""]
@@ -1356,7 +1356,7 @@ def extended_map_section(merged: dict, figure) -> list[str]:
                 + ("—" if not q.diagnostics.read else f"{q.diagnostics.copycats}/{q.diagnostics.read}") + " |"
                 + (f" {_point_diag(q, 'state')} | {_point_diag(q, 'velocity')} |" if state else "")
                 for q in diagnosed]
-        sources = [src for key, m in _ordered(merged) for src in m["sources"]]
+        sources = [src for key, m in ordered(merged) for src in m["sources"]]
         judged = [q for q in diagnosed if q.diagnostics.read]
         copycat = [q for q in judged if q.diagnostics.copycats]
         out += ["", thresholds_line(diagnostics_thresholds(sources)), ""]
