@@ -809,10 +809,10 @@ def test_the_recipe_table_compares_recipes_under_one_protocol_apart_from_the_who
 
 def test_a_rate_pools_every_episode_with_wilsons_interval():
     """ToyCar's success: 5 of 10 and 10 of 10 episodes are 15 of 20, Wilson's interval around 0.75."""
-    from experiments.report import markdown
+    from experiments.report.sections.task_metrics import wilson_cell
 
     runs = [{"eval": {"success": 0.5, "episodes": 10}}, {"eval": {"success": 1.0, "episodes": 10}}]
     e = stats.wilson(15, 20)
-    assert markdown._wilson_cell(runs, "success") == f"75.00 [{100 * e.low:.2f}, {100 * e.high:.2f}]"
+    assert wilson_cell(runs, "success") == f"75.00 [{100 * e.low:.2f}, {100 * e.high:.2f}]"
     assert 0.5 < e.low < 0.75 < e.high < 0.95
-    assert markdown._wilson_cell([{"eval": {"return_mean": 1.0}}], "success") == "—"
+    assert wilson_cell([{"eval": {"return_mean": 1.0}}], "success") == "—"

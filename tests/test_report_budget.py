@@ -1,5 +1,6 @@
-"""The paper's budget in the report (`analysis.paper_budget_groups`, `budget_rows`, `markdown.paper_budget_section`)
-and the extended copycat map (`analysis.extended_map`, `markdown.extended_map_section`).
+"""The paper's budget in the report (`analysis.paper_budget_groups`, `budget_rows`,
+`sections.recipe.paper_budget_section`) and the extended copycat map (`analysis.extended_map`,
+`sections.copycat.extended_map_section`).
 
 The fixture is the committed recipe-fca file (BC-SO, BC-OH, Ours 10% × 5 at 30k, 5 seeds) turned into a `paper`-preset
 file of 300k iterations whose runs were also evaluated at 30k and 100k (`at`), with numbers and diagnostics chosen
