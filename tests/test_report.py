@@ -487,8 +487,8 @@ def test_fca_and_brax_results_of_one_task_are_merged_apart_into_two_tables(tmp_p
     files = _map_files(tmp_path)
     merged = report.merge(files)
     assert sorted(merged) == sorted([("hopper", "pos", p, None) for p in ("fca", "fca-fs2", "fca-fs4", "brax")])
-    assert merged[("hopper", "pos", "brax", None)]["expert"]["return_mean"] == 3000.0   # each group keeps its expert
-    assert [m["title"] for m in merged.values()] == ["Hopper (fca)", "Hopper (fca, frame skip 2)",
+    assert merged[("hopper", "pos", "brax", None)].expert["return_mean"] == 3000.0   # each group keeps its expert
+    assert [m.title for m in merged.values()] == ["Hopper (fca)", "Hopper (fca, frame skip 2)",
                                                      "Hopper (fca, frame skip 4)", "Hopper (brax)"]
     text = report.report(files)
     fca = text[text.index("### MuJoCo-State, the paper's protocol (fca): frame skip 1, 500 standard steps of "
@@ -671,7 +671,9 @@ def test_the_experts_rollout_ape_reference_is_put_on_the_raw_training_means_scal
     from experiments.report import analysis
 
     def group(ape):
-        return {"sources": [Results.from_json({**_results(), "config": {**_results()["config"], "ape": ape}})]}
+        res = Results.from_json({**_results(), "config": {**_results()["config"], "ape": ape}})
+        (m,) = report.merge([res]).values()
+        return m
 
     assert analysis.expert_ape(group({"normalization": "mean", "scale": 0.02, "val_mean": 1.3})) == 1.3
     assert analysis.expert_ape(group({"normalization": "none", "scale": 1.0, "val_mean": 0.026,
@@ -689,7 +691,7 @@ def test_a_longer_run_is_its_own_group_compared_configuration_by_configuration(t
     files.append(_loaded(tmp_path, _schema2(long, protocol=_fca(1)), "long.json"))
     merged = report.merge(files)
     key = ("hopper", "pos", "fca", 100_000)
-    assert key in merged and merged[key]["title"] == "Hopper (fca, 100,000 iterations)"
+    assert key in merged and merged[key].title == "Hopper (fca, 100,000 iterations)"
     text = report.report(files, tmp_path / "figures")
     section = text[text.index("### Training longer"):]
     assert "| Hopper (fca, 100,000 iterations): configuration | 30,000 iterations | seeds | 100,000 iterations |" in section

@@ -49,7 +49,7 @@ def _normalized(method: str) -> list[float]:
 def test_a_paper_preset_file_is_a_group_of_its_own_beside_the_default_one(tmp_path):
     merged = report.merge([_paper_file(tmp_path), report.load(FCA_BC)])   # the same configurations: never merged
     assert set(merged) == {Key("hopper", "pos", "fca.rows.fca"), Key("hopper", "pos", "fca.rows.fca", 300_000)}
-    assert [m["budget"] for m in paper_budget_groups(merged)] == [300_000]
+    assert [m.budget for m in paper_budget_groups(merged)] == [300_000]
 
 
 def test_budget_rows_hold_every_point_with_table5_beside_its_methods(tmp_path):

@@ -13,7 +13,7 @@ from typing import Mapping, NamedTuple, Sequence
 
 import numpy as np
 
-from experiments.report.analysis.groups import Key, is_rate, ordered
+from experiments.report.analysis.groups import Group, Key, Merged, is_rate, ordered
 from experiments.report.analysis.selection import best_of, comparisons, headline, method_rows, seed_values
 
 
@@ -98,10 +98,10 @@ def mean_cell(values: Sequence[float]) -> RecipeCell | None:
 
 # -- Ours − BC-OH and BC-OH − BC-SO per group ----------------------------------------------------------------------
 
-def bootstrap_unit(m: dict) -> tuple[str, str, float]:
+def bootstrap_unit(m: Group) -> tuple[str, str, float]:
     """What the bootstrap compares in a group: `(eval key, unit, factor)`: the mean return, or for a task judged by a
     rate (whose reward is not its measure) that rate in % points."""
-    return (m["metric"], f"{m['metric']}, % points", 100.0) if is_rate(m) else ("return_mean", "return", 1.0)
+    return (m.metric, f"{m.metric}, % points", 100.0) if is_rate(m) else ("return_mean", "return", 1.0)
 
 
 class Difference(NamedTuple):
@@ -121,7 +121,7 @@ class Difference(NamedTuple):
     unit: str
 
 
-def _unit_seeds(m: dict, row: dict | None, key: str | None = None, factor: float | None = None) -> list[float]:
+def _unit_seeds(m: Group, row: dict | None, key: str | None = None, factor: float | None = None) -> list[float]:
     """`seed_values` of summary row `row` in `bootstrap_unit(m)` (or of `eval[key] × factor`), what the bootstrap
     compares."""
     default_key, _, default_factor = bootstrap_unit(m)
@@ -129,7 +129,7 @@ def _unit_seeds(m: dict, row: dict | None, key: str | None = None, factor: float
     return [factor * v for v in seed_values(m, row, key or default_key)]
 
 
-def history_difference(m: dict, key: str | None = None, factor: float | None = None) -> Interval | None:
+def history_difference(m: Group, key: str | None = None, factor: float | None = None) -> Interval | None:
     """BC-OH − BC-SO over seeds in group `m` (each the best of its rows), by default in `bootstrap_unit(m)`; None if
     either has no seeds. With `key`/`factor`, of `eval[key] × factor` instead (`"normalized"`, 1: % of expert points)."""
     bcoh = _unit_seeds(m, best_of(method_rows(m, "bc-oh")), key, factor)
@@ -137,7 +137,7 @@ def history_difference(m: dict, key: str | None = None, factor: float | None = N
     return bootstrap_difference(bcoh, bcso) if bcoh and bcso else None
 
 
-def ours_differences(m: dict) -> list[tuple[str, dict, Interval]]:
+def ours_differences(m: Group) -> list[tuple[str, dict, Interval]]:
     """Ours − BC-OH over seeds in group `m`, in `bootstrap_unit(m)`: `(label, Ours' summary row, interval)` per
     configuration of `comparisons` that has seeds (none if BC-OH has none)."""
     bcoh = _unit_seeds(m, best_of(method_rows(m, "bc-oh")))
@@ -149,7 +149,7 @@ def ours_differences(m: dict) -> list[tuple[str, dict, Interval]]:
     return out
 
 
-def versus_bcoh(m: dict, extras: Sequence[str] = (), known: Mapping[str, dict] | None = None
+def versus_bcoh(m: Group, extras: Sequence[str] = (), known: Mapping[str, dict] | None = None
                 ) -> list[tuple[str, dict | None, Interval | None]]:
     """Every row of the state table of group `m` (`headline`) but BC-OH, against BC-OH: `(label, summary row,
     row − BC-OH over seeds in `bootstrap_unit(m)`, or None where either arm has no seeds)`."""
@@ -163,7 +163,7 @@ def versus_bcoh(m: dict, extras: Sequence[str] = (), known: Mapping[str, dict] |
     return out
 
 
-def bootstrap_rows(merged: dict) -> list[Difference]:
+def bootstrap_rows(merged: Merged) -> list[Difference]:
     """Per group (task, observation mode, protocol), in report order: BC-OH − BC-SO ("does the history help?"),
     then Ours − BC-OH per configuration of `comparisons`, each with its 95% CI, in `bootstrap_unit`."""
     out = []
@@ -171,8 +171,8 @@ def bootstrap_rows(merged: dict) -> list[Difference]:
         unit = bootstrap_unit(m)[1]
         history = history_difference(m)
         if history is not None:
-            out.append(Difference(key, m["title"], "history", "BC-OH − BC-SO (does the history help?)", "BC-OH",
+            out.append(Difference(key, m.title, "history", "BC-OH − BC-SO (does the history help?)", "BC-OH",
                                   "BC-SO", history, unit))
-        out += [Difference(key, m["title"], "ours", f"{lab} − BC-OH", "Ours", "BC-OH", ci, unit)
+        out += [Difference(key, m.title, "ours", f"{lab} − BC-OH", "Ours", "BC-OH", ci, unit)
                 for lab, _, ci in ours_differences(m)]
     return out

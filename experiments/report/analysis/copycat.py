@@ -15,8 +15,8 @@ import numpy as np
 
 from experiments.report.analysis.bootstrap import Interval, bootstrap_difference
 from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics, run_at
-from experiments.report.analysis.groups import (FCA, FCA_TRAIN, MUJOCO, Key, ReportError, group_title, in_fca_family,
-                                                ordered, other_history)
+from experiments.report.analysis.groups import (FCA, FCA_TRAIN, MUJOCO, Group, Key, Merged, ReportError, group_title,
+                                                in_fca_family, ordered, other_history)
 from experiments.report.analysis.selection import best_of, is_finite, method_rows, ok_runs, seed_values
 from experiments.report.paper import PAPER_STEP
 
@@ -69,7 +69,7 @@ class CopycatMap(NamedTuple):
         return next((r for r in self.rows if r.frame_skip == frame_skip), None)
 
 
-def _map_cell(m: dict, method: str, hparams: dict | None) -> MapCell | None:
+def _map_cell(m: Group, method: str, hparams: dict | None) -> MapCell | None:
     row = _map_row_of(m, method, hparams)
     if row is None or row.get("normalized_mean") is None:
         return None
@@ -78,7 +78,7 @@ def _map_cell(m: dict, method: str, hparams: dict | None) -> MapCell | None:
     return MapCell(float(row["normalized_mean"]), math.nan if std is None else float(std), int(row["n_seeds"]), seeds)
 
 
-def copycat_map(merged: dict) -> list[CopycatMap]:
+def copycat_map(merged: Merged) -> list[CopycatMap]:
     """Where copycat appears: per task with fca-family results at ≥ 2 frame skips, BC-SO, BC-OH and Ours (step THR 10%
     W 5) in % of expert per frame skip, with the history's benefit (BC-OH − BC-SO) and BC-OH's gap to the expert.
 
@@ -92,13 +92,13 @@ def copycat_map(merged: dict) -> list[CopycatMap]:
     """
     by_task: dict[tuple[str, str], dict[tuple[int, int], dict]] = {}
     for key, m in ordered(merged):
-        skip, train = m["protocol"].get("frame_skip"), m["protocol"].get("train_transitions") or FCA_TRAIN
-        if (not in_fca_family(key.protocol) or m["protocol"].get("variant_of") or skip is None
+        skip, train = m.protocol.get("frame_skip"), m.protocol.get("train_transitions") or FCA_TRAIN
+        if (not in_fca_family(key.protocol) or m.protocol.get("variant_of") or skip is None
                 or key.budget is not None):  # the map of the first recipe; the extended map has the variants
             continue
         cells = by_task.setdefault((key.env, key.obs), {})
         if (skip, train) in cells:
-            raise ReportError(f"{key.env} ({key.obs}): protocols {cells[skip, train]['protocol']['name']} and "
+            raise ReportError(f"{key.env} ({key.obs}): protocols {cells[skip, train].protocol['name']} and "
                               f"{key.protocol} both ran at frame skip {skip} with {train:,} training transitions; "
                               "pass the files of one of them")
         cells[skip, train] = m
@@ -114,17 +114,17 @@ def copycat_map(merged: dict) -> list[CopycatMap]:
     return out
 
 
-def _map_row(m: dict, skip: int, train: int) -> MapRow:
+def _map_row(m: Group, skip: int, train: int) -> MapRow:
     cells = tuple(_map_cell(m, method, hp) for _, method, hp in MAP_METHODS)
     bcso, bcoh = cells[0], cells[1]
     history = None if bcso is None or bcoh is None else bcoh.mean - bcso.mean
     ci = (bootstrap_difference(bcoh.seeds, bcso.seeds)
           if bcso is not None and bcoh is not None and bcso.seeds and bcoh.seeds else None)
-    return MapRow(skip, m["protocol"]["name"], cells, history, ci, None if bcoh is None else 100.0 - bcoh.mean,
+    return MapRow(skip, m.protocol["name"], cells, history, ci, None if bcoh is None else 100.0 - bcoh.mean,
                   train)
 
 
-def _map_row_of(m: dict, method: str, hparams: dict | None) -> dict | None:
+def _map_row_of(m: Group, method: str, hparams: dict | None) -> dict | None:
     rows = method_rows(m, method)
     return best_of(rows) if hparams is None else next((r for r in rows if r["hparams"] == hparams), None)
 
@@ -167,7 +167,7 @@ def _seed_cell(values: Sequence[float]) -> MapCell | None:
     return MapCell(float(x.mean()), float(x.std(ddof=1)) if x.size > 1 else math.nan, int(x.size), tuple(values))
 
 
-def extended_map(merged: dict) -> list[MapPoint]:
+def extended_map(merged: Merged) -> list[MapPoint]:
     """Every state group of the fca family (the paper's protocol at each frame skip and training-set size, under
     every recipe, split and budget) as map points: one per iteration its runs were evaluated at (`Budget.eval_at`,
     then the end), with BC-SO, BC-OH and Ours (step THR 10% W 5) in % of expert, BC-OH − BC-SO with its 95%
@@ -175,11 +175,11 @@ def extended_map(merged: dict) -> list[MapPoint]:
     whole episodes before rows), frame skip, size, run length and iteration order."""
     out = []
     for key, m in ordered(merged):
-        p = m["protocol"]
+        p = m.protocol
         base = p.get("variant_of") or key.protocol
         if key.obs != "pos" or key.env not in MUJOCO or not in_fca_family(base) or p.get("frame_skip") is None:
             continue
-        end = int(m["sources"][0].config["iterations"])
+        end = int(m.sources[0].config["iterations"])
         chosen = [_map_row_of(m, method, hp) for _, method, hp in MAP_METHODS]
         runs = [sorted(ok_runs(m, r["method"], r["hparams"]), key=lambda r: r.get("seed", 0)) if r else []
                 for r in chosen]

@@ -14,6 +14,7 @@ import numpy as np
 from ape_jax import tasks
 from ape_jax.pipeline import results as results_lib
 from experiments.report.analysis.bootstrap import RecipeCell, mean_cell
+from experiments.report.analysis.groups import Group
 from experiments.report.analysis.selection import is_finite, label, ok_runs, seed_values
 
 
@@ -94,16 +95,16 @@ class DiagnosticsRow(NamedTuple):
     diagnostics: PolicyDiagnostics
 
 
-def diagnostics_rows(m: dict) -> list[DiagnosticsRow]:
+def diagnostics_rows(m: Group) -> list[DiagnosticsRow]:
     """Every configuration of group `m` whose ok runs record copycat diagnostics (read or absent), in summary
     order; none for a group whose files predate them."""
     out = []
-    for row in m["summary"]:
+    for row in m.summary:
         runs = ok_runs(m, row["method"], row["hparams"])
         if not has_diagnostics(runs):
             continue
         values = seed_values(m, row, "normalized")
-        out.append(DiagnosticsRow(label(m["methods"], row["method"]), row["hparams"], len(runs),
+        out.append(DiagnosticsRow(label(m.methods, row["method"]), row["hparams"], len(runs),
                                   float(np.mean(values)) if values else None, policy_diagnostics(runs)))
     return out
 
@@ -119,7 +120,7 @@ def diagnostics_thresholds(sources: Sequence[results_lib.Results]) -> list[dict]
     return out
 
 
-def recipe_diagnostics(groups: dict[tuple[str, str, str], dict[str, dict]]
+def recipe_diagnostics(groups: dict[tuple[str, str, str], dict[str, Group]]
                        ) -> list[tuple[str, str, DiagnosticsRow]]:
     """The recipe section's diagnostics (`recipe_groups`' groups): `(task title, recipe, row)` per configuration
     with diagnostics, by task, then recipe (mlp, fca, others), then summary order."""
@@ -155,12 +156,12 @@ def run_at(run: dict, iteration: int, end: int) -> dict | None:
     return None if snap is None else {**snap, "status": run["status"]}
 
 
-def training_points(m: dict) -> list[TrainingPoint]:
+def training_points(m: Group) -> list[TrainingPoint]:
     """Every configuration of group `m` whose runs were also evaluated before the end (`Budget.eval_at`), at each
     of those iterations and at the end, in summary order then iteration order; none for other groups."""
-    end = int(m["sources"][0].config["iterations"])  # a group's files share their budget
+    end = int(m.sources[0].config["iterations"])  # a group's files share their budget
     out = []
-    for row in m["summary"]:
+    for row in m.summary:
         runs = ok_runs(m, row["method"], row["hparams"])
         points = sorted({a["iteration"] for r in runs for a in r.get("at") or ()})
         if not points:
@@ -169,6 +170,6 @@ def training_points(m: dict) -> list[TrainingPoint]:
             at = [a for r in sorted(runs, key=lambda r: r.get("seed", 0)) if (a := run_at(r, iteration, end))]
             seeds = [a["eval"]["normalized"] for a in at if a["eval"].get("normalized") is not None]
             losses = [a["train_loss"] for a in at if is_finite(a.get("train_loss"))]
-            out.append(TrainingPoint(label(m["methods"], row["method"]), row["hparams"], iteration, mean_cell(seeds),
+            out.append(TrainingPoint(label(m.methods, row["method"]), row["hparams"], iteration, mean_cell(seeds),
                                      float(np.mean(losses)) if losses else None, policy_diagnostics(at)))
     return out

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import pathlib
-from typing import NamedTuple, Sequence
+from typing import Mapping, NamedTuple, Sequence
 
 from ape_jax import tasks
 from ape_jax.pipeline import results as results_lib
@@ -73,6 +73,45 @@ class Key(NamedTuple):
     obs: str
     protocol: str
     budget: int | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class Group:
+    """The merged results of one `Key` (`merge`): every file of one task, observation mode, protocol and budget.
+
+    Attributes:
+      env, obs: the task and its observation mode.
+      protocol: the files' protocol settings, `name` always set (`brax` for schema 1 files; a variant's group name,
+        with `variant_of` and `recipe`, for a variant: `variant_name`).
+      budget: `Key.budget`: None for the preset's iterations, else the iterations.
+      expert: the expert's record (`return_mean`, `return_std`, `random_return_mean`), the same in every file.
+      summary: every file's summary rows (one per configuration), in file order.
+      runs: every file's runs (one per configuration and seed), in file order.
+      sources: the files, in the order given.
+      methods: what the files record of their methods (label, role, online), the first file naming one wins.
+      metric: the main metric (`"return"`, or a rate: `is_rate`).
+      task_metrics: the task's own per-episode metrics (the task-metrics table's columns).
+      shows_protocol: whether titles name the protocol: unless it is `brax` and the only protocol of this task and
+        observation mode.
+      title: how tables name the group (`group_title`, with the budget where it is not the preset's).
+    """
+
+    env: str
+    obs: str
+    protocol: dict
+    budget: int | None
+    expert: dict
+    summary: list[dict]
+    runs: list[dict]
+    sources: list[Source]
+    methods: dict[str, dict]
+    metric: str
+    task_metrics: tuple[str, ...]
+    shows_protocol: bool
+    title: str
+
+
+Merged = Mapping[Key, Group]  # `merge`'s result: the groups by key
 
 
 def budget_of(res: results_lib.Results) -> int | None:
@@ -156,23 +195,16 @@ def protocol_words(p: dict) -> str:
     return ", ".join([FCA, *differs]) if differs else name
 
 
-def merge(files: Sequence[results_lib.Results]) -> dict[Key, dict]:
-    """Results per `Key(env, obs, protocol name)`: summary rows and runs of all files, with the files they came from.
-
-    Each value has `env`, `obs`, `protocol` (the files' protocol settings,
-    `name` always set: `brax` for schema 1 files), `title` (how tables name
-    the group: the task, its observation mode unless a state task's `pos`,
-    and its protocol where `shows_protocol`: unless it is `brax` and the
-    only protocol of that task and mode), `expert`, `summary`, `runs`, `sources` (the files), `methods`
-    (what the files record of their methods, the first file naming one
-    wins), `metric` (the main metric) and `task_metrics`.
+def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
+    """Results per `Key(env, obs, protocol name, budget)`: summary rows and runs of all files, with the files they
+    came from, as a `Group` each.
 
     Raises:
       ReportError: the same configuration in two files of one group, files of
         one group with different experts or different protocol settings, or a
         malformed protocol.
     """
-    merged: dict[Key, dict] = {}
+    merged: dict[Key, dict] = {}   # the groups' fields, gathered file by file
     for r in files:
         where = getattr(r, "path", "") or f"a {r.env} ({r.obs}) results file"
         protocol = protocol_of(r, where)
@@ -202,23 +234,24 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, dict]:
         m["sources"].append(r)
         m["methods"] = {**r.methods, **m["methods"]}
         m["protocol"] = {**protocol, **{k: v for k, v in m["protocol"].items() if v is not None}}
+    groups = {}
     for key, m in merged.items():
-        shared = any(k[:2] == key[:2] and k.protocol != key.protocol for k in merged)
-        m["shows_protocol"] = key.protocol != BRAX or shared
-        m["title"] = group_title(key, m["protocol"], m["shows_protocol"])
+        shows_protocol = key.protocol != BRAX or any(k[:2] == key[:2] and k.protocol != key.protocol for k in merged)
+        title = group_title(key, m["protocol"], shows_protocol)
         if key.budget:
-            m["title"] = m["title"][:-1] + f", {key.budget:,} iterations)" if m["title"].endswith(")") else \
-                m["title"] + f" ({key.budget:,} iterations)"
-    return merged
+            title = title[:-1] + f", {key.budget:,} iterations)" if title.endswith(")") else \
+                title + f" ({key.budget:,} iterations)"
+        groups[key] = Group(**m, shows_protocol=shows_protocol, title=title)
+    return groups
 
 
 def config_key(row: dict) -> tuple:
     return row["method"], tuple(sorted(row["hparams"].items()))
 
 
-def is_rate(m: dict) -> bool:
+def is_rate(m: Group) -> bool:
     """Whether the merged results of `m` are judged by a rate in [0, 1] (reported in %), not by the return."""
-    return m["metric"] != "return"
+    return m.metric != "return"
 
 
 # -- groups: order, titles, file names -----------------------------------------------------------------------------
@@ -230,12 +263,12 @@ def _protocol_rank(p: dict) -> tuple:
     return (1, 0, "") if p["name"] == BRAX else (2, 0, p["name"])
 
 
-def ordered(merged: dict) -> list[tuple[Key, dict]]:
+def ordered(merged: Merged) -> list[tuple[Key, Group]]:
     """`merged`'s items: the sweepable tasks first in their order (`ape_jax.tasks.sweepable`), then by name; within a
     task by observation mode, then protocol (`_protocol_rank`)."""
     order = {e: i for i, e in enumerate(tasks.sweepable())}
     return sorted(merged.items(), key=lambda kv: (order.get(kv[0][0], len(order)), kv[0][0], kv[0][1],
-                                                  _protocol_rank(kv[1]["protocol"]), kv[0].budget or 0))
+                                                  _protocol_rank(kv[1].protocol), kv[0].budget or 0))
 
 
 def group_title(key: Key, protocol: dict, with_protocol: bool, with_obs: bool | None = None) -> str:
@@ -247,28 +280,28 @@ def group_title(key: Key, protocol: dict, with_protocol: bool, with_obs: bool | 
     return tasks.get(key.env).title + (f" ({', '.join(parts)})" if parts else "")
 
 
-def file_stem(m: dict) -> str:
+def file_stem(m: Group) -> str:
     """A group's part of figure file names, unique per group: `hopper`, `hopper-image`, `hopper-fca-fs2`.
 
     `brax` groups keep the names they had before protocols existed; other protocols append their name.
     """
-    parts = [m["env"]] + ([] if m["obs"] == "pos" else [m["obs"]])
-    parts += [] if m["protocol"]["name"] == BRAX else [m["protocol"]["name"]]
-    parts += [f"{m['budget']}it"] if m.get("budget") else []
+    parts = [m.env] + ([] if m.obs == "pos" else [m.obs])
+    parts += [] if m.protocol["name"] == BRAX else [m.protocol["name"]]
+    parts += [f"{m.budget}it"] if m.budget else []
     return "-".join(parts)
 
 
-def groups_of(merged: dict, obs: str, protocol: str) -> list[dict]:
+def groups_of(merged: Merged, obs: str, protocol: str) -> list[Group]:
     """The state tasks' (`MUJOCO`) groups with observations `obs` under `protocol`, in task order."""
     return [merged[k] for e in MUJOCO if (k := Key(e, obs, protocol)) in merged]
 
 
-def protocols_of(merged: dict, obs: str) -> list[str]:
+def protocols_of(merged: Merged, obs: str) -> list[str]:
     """The protocols of the state tasks' groups with observations `obs`, in report order (`_protocol_rank`)."""
-    found = {m["protocol"]["name"]: m["protocol"] for k, m in ordered(merged) if k.env in MUJOCO and k.obs == obs}
+    found = {m.protocol["name"]: m.protocol for k, m in ordered(merged) if k.env in MUJOCO and k.obs == obs}
     return sorted(found, key=lambda n: _protocol_rank(found[n]))
 
 
-def envs_of(merged: dict, obs: str, protocol: str = BRAX) -> list[str]:
+def envs_of(merged: Merged, obs: str, protocol: str = BRAX) -> list[str]:
     """The state tasks (`MUJOCO`) `merged` has results of with observations `obs` under `protocol`, in order."""
-    return [m["env"] for m in groups_of(merged, obs, protocol)]
+    return [m.env for m in groups_of(merged, obs, protocol)]

@@ -17,7 +17,7 @@ from ape_jax import tasks
 from experiments.report.analysis.bootstrap import (Interval, RecipeCell, bootstrap_difference, bootstrap_mean,
                                                    mean_cell)
 from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics, run_at
-from experiments.report.analysis.groups import FCA, MUJOCO, ordered, other_setting
+from experiments.report.analysis.groups import FCA, MUJOCO, Group, Merged, ordered, other_setting
 from experiments.report.analysis.selection import is_finite, method_rows, ok_runs, seed_values
 from experiments.report.paper import PAPER_STEP, PAPER_TABLE5, PAPER_TAU
 
@@ -38,28 +38,28 @@ class RecipeRow(NamedTuple):
     difference: Interval | None
 
 
-def _recipe_row(m: dict, method: str, hparams: dict | None) -> dict | None:
+def _recipe_row(m: Group, method: str, hparams: dict | None) -> dict | None:
     rows = method_rows(m, method)
     if hparams is None:  # FCA: the task's own α (the FCA code's), the first setting otherwise
-        alpha = tasks.get(m["env"]).fca_alpha
+        alpha = tasks.get(m.env).fca_alpha
         rows = [r for r in rows if r["hparams"].get("alpha") == alpha] or rows[:1]
     else:
         rows = [r for r in rows if r["hparams"] == hparams]
     return rows[0] if rows else None
 
 
-def recipe_groups(merged: dict) -> dict[tuple[str, str, str], dict[str, dict]]:
+def recipe_groups(merged: Merged) -> dict[tuple[str, str, str], dict[str, Group]]:
     """`{(env, obs, "PROTOCOL, split by SPLIT"): {recipe: group}}` for the groups of `variant_name`s that ran at
     their preset's budget; only settings with more than one recipe."""
     out: dict = {}
     for key, m in ordered(merged):
-        p = m["protocol"]
+        p = m.protocol
         if p.get("variant_of") and key.budget is None and not other_setting(p):
             out.setdefault((key.env, key.obs, f"{p['variant_of']}, split by {p.get('split')}"), {})[p["recipe"]] = m
     return {k: v for k, v in out.items() if len(v) > 1}
 
 
-def recipe_rows(recipes: dict[str, dict], order: Sequence[str] = ("mlp", "fca")) -> list[RecipeRow]:
+def recipe_rows(recipes: dict[str, Group], order: Sequence[str] = ("mlp", "fca")) -> list[RecipeRow]:
     """Per method of `RECIPE_METHODS` that ran under some recipe: its % of expert per recipe (bootstrap mean) and
     fca − mlp (bootstrap difference of means over seeds, in points of % of expert)."""
     names = [r for r in order if r in recipes] + [r for r in recipes if r not in order]
@@ -71,7 +71,7 @@ def recipe_rows(recipes: dict[str, dict], order: Sequence[str] = ("mlp", "fca"))
             cells[name] = RecipeCell(*bootstrap_mean(seeds), tuple(seeds)) if seeds else None
         if not any(cells.values()):
             continue
-        env = next(iter(recipes.values()))["env"]
+        env = next(iter(recipes.values())).env
         both = len(names) >= 2 and cells[names[0]] is not None and cells[names[1]] is not None
         diff = bootstrap_difference(cells[names[1]].seeds, cells[names[0]].seeds) if both else None
         out.append(RecipeRow(env, lab, cells, diff))
@@ -89,7 +89,7 @@ class AlphaRow(NamedTuple):
     reference: float | None
 
 
-def alpha_rows(m: dict) -> list[AlphaRow]:
+def alpha_rows(m: Group) -> list[AlphaRow]:
     """Every FCA configuration of group `m` (both variants), in α order: the α sensitivity."""
     out = []
     for method in ("fca", "fca-ib"):
@@ -97,7 +97,7 @@ def alpha_rows(m: dict) -> list[AlphaRow]:
             seeds = seed_values(m, row, "normalized")
             if not seeds:
                 continue
-            runs = [r for r in m["runs"] if r["method"] == method and r["hparams"] == row["hparams"]
+            runs = [r for r in m.runs if r["method"] == method and r["hparams"] == row["hparams"]
                     and r["status"] == "ok"]
             finals = [r.get("train_final") or {} for r in runs]
 
@@ -144,29 +144,29 @@ class BudgetRow(NamedTuple):
         return next((p for p in self.points if p.iteration == iteration), None)
 
 
-def paper_budget_groups(merged: dict) -> list[dict]:
+def paper_budget_groups(merged: Merged) -> list[Group]:
     """The groups of the paper's protocol (fca, any split) under the `fca` recipe trained for the `paper` preset's
     iterations: the issue's 300k table, one group per state task, in task order."""
     from ape_jax.pipeline.presets import BUDGETS
 
     return [m for key, m in ordered(merged) if key.env in MUJOCO and key.obs == "pos"
-            and key.budget == BUDGETS["paper"].iterations and m["protocol"].get("variant_of") == FCA
-            and m["protocol"].get("recipe") == "fca" and not other_setting(m["protocol"])]
+            and key.budget == BUDGETS["paper"].iterations and m.protocol.get("variant_of") == FCA
+            and m.protocol.get("recipe") == "fca" and not other_setting(m.protocol)]
 
 
-def budget_rows(m: dict) -> list[BudgetRow]:
+def budget_rows(m: Group) -> list[BudgetRow]:
     """`BUDGET_METHODS` that ran in group `m`, each at every iteration its runs were evaluated at (`Budget.eval_at`,
     then the end), with Table 5's return beside BC-SO, BC-OH, Ours (step THR 10% W 5) and FCA (the paper's FCA
     has the information bottleneck: beside TCA + IB, or beside TCA where IB did not run)."""
-    end = int(m["sources"][0].config["iterations"])
+    end = int(m.sources[0].config["iterations"])
     ib = bool(method_rows(m, "fca-ib"))
     table5 = {"bc-so": "bc-so", "bc-oh": "bc-oh", "fca-ib": "fca", **({} if ib else {"fca": "fca"})}
     out = []
     for lab, method, hparams in BUDGET_METHODS:
         if hparams == "tau":
-            if m["env"] not in PAPER_TAU:
+            if m.env not in PAPER_TAU:
                 continue
-            hparams = {"tau": PAPER_TAU[m["env"]]}
+            hparams = {"tau": PAPER_TAU[m.env]}
             lab = f"Ours, softmax τ {hparams['tau']:g}"
         row = _recipe_row(m, method, hparams)
         if row is None:
@@ -182,8 +182,8 @@ def budget_rows(m: dict) -> list[BudgetRow]:
                                              if is_finite(a["eval"].get("return_mean"))]),
                                       policy_diagnostics(at)))
         key = "ours" if method == "ours-step" and row["hparams"] == PAPER_STEP else table5.get(method)
-        out.append(BudgetRow(m["env"], lab, method, dict(row["hparams"]), tuple(points),
-                             None if key is None else float(PAPER_TABLE5[key][m["env"]])))
+        out.append(BudgetRow(m.env, lab, method, dict(row["hparams"]), tuple(points),
+                             None if key is None else float(PAPER_TABLE5[key][m.env])))
     return out
 
 

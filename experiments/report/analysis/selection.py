@@ -17,17 +17,17 @@ import math
 from typing import Mapping, NamedTuple, Sequence
 
 from ape_jax import methods as methods_lib
-from experiments.report.analysis.groups import Key, config_key, is_rate, ordered
+from experiments.report.analysis.groups import Group, Key, Merged, config_key, is_rate, ordered
 from experiments.report.paper import PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP, PAPER_TAU
 
 
 # -- methods: labels and which ones the tables list ----------------------------------------------------------------
 
-def known_methods(merged: dict) -> dict[str, dict]:
+def known_methods(merged: Merged) -> dict[str, dict]:
     """What the results files record of each method (label, role, online), over every environment."""
     out: dict[str, dict] = {}
     for _, m in ordered(merged):
-        out = {**m["methods"], **out}
+        out = {**m.methods, **out}
     return out
 
 
@@ -47,11 +47,11 @@ def label(known: Mapping[str, dict], name: str, online: bool = True) -> str:
     return text + (" (online)" if online and is_online else "")
 
 
-def extra_methods(merged: dict) -> list[str]:
+def extra_methods(merged: Merged) -> list[str]:
     """The methods besides the references and ours that appear in the results: role baseline in registry
     order (baselines the registry does not know after them), then plugins, in order of appearance."""
     known = known_methods(merged)
-    appear = list(dict.fromkeys(r["method"] for _, m in ordered(merged) for r in m["summary"]))
+    appear = list(dict.fromkeys(r["method"] for _, m in ordered(merged) for r in m.summary))
     order = {name: i for i, name in enumerate(methods_lib.names())}
 
     def role(name):
@@ -68,8 +68,8 @@ def extra_methods(merged: dict) -> list[str]:
 
 # -- selection -----------------------------------------------------------------------------------------------------
 
-def method_rows(m: dict, method: str) -> list[dict]:
-    return [r for r in m["summary"] if r["method"] == method and r["n_seeds"]]
+def method_rows(m: Group, method: str) -> list[dict]:
+    return [r for r in m.summary if r["method"] == method and r["n_seeds"]]
 
 
 def best_of(rows: list[dict]) -> dict | None:
@@ -80,7 +80,7 @@ def best_of(rows: list[dict]) -> dict | None:
     return max(rows, key=score, default=None)
 
 
-def paper_step_row(m: dict) -> dict | None:
+def paper_step_row(m: Group) -> dict | None:
     """The summary row of Ours at the paper's step setting (THR 10%, W 5), or None if not run."""
     return next((r for r in method_rows(m, "ours-step") if r["hparams"] == PAPER_STEP), None)
 
@@ -102,7 +102,7 @@ def hparams_suffix(row: dict | None) -> str:
     return " (" + ", ".join(f"{k} {v:g}" for k, v in row["hparams"].items()) + ")"
 
 
-def headline(m: dict, extras: Sequence[str] = (), known: Mapping[str, dict] | None = None
+def headline(m: Group, extras: Sequence[str] = (), known: Mapping[str, dict] | None = None
              ) -> list[tuple[str, dict | None]]:
     """The state table's rows of one group (task, observation mode, protocol): (label, summary row or None).
 
@@ -110,7 +110,7 @@ def headline(m: dict, extras: Sequence[str] = (), known: Mapping[str, dict] | No
     softmax settings, then each of `extras` (`extra_methods`), labelled from
     `known` (default: what `m`'s files record).
     """
-    known = m["methods"] if known is None else known
+    known = m.methods if known is None else known
     best_step, best_soft = best_of(method_rows(m, "ours-step")), best_of(method_rows(m, "ours-softmax"))
     out = [("BC-SO", best_of(method_rows(m, "bc-so"))), ("BC-OH", best_of(method_rows(m, "bc-oh"))),
            ("Ours, step THR 10% W 5", paper_step_row(m)),
@@ -120,20 +120,20 @@ def headline(m: dict, extras: Sequence[str] = (), known: Mapping[str, dict] | No
     return out
 
 
-def seed_values(m: dict, row: dict | None, key: str = "return_mean") -> list[float]:
+def seed_values(m: Group, row: dict | None, key: str = "return_mean") -> list[float]:
     """Per-seed evaluation values (`eval[key]`) of the configuration of summary row `row`, in seed order."""
     if row is None:
         return []
-    runs = [r for r in m["runs"] if r["method"] == row["method"] and r["hparams"] == row["hparams"]
+    runs = [r for r in m.runs if r["method"] == row["method"] and r["hparams"] == row["hparams"]
             and r["status"] == "ok" and r["eval"].get(key) is not None]
     return [r["eval"][key] for r in sorted(runs, key=lambda r: r.get("seed", 0))]
 
 
-def ok_runs(m: dict, method: str, hparams: dict) -> list[dict]:
-    return [r for r in m["runs"] if r["method"] == method and r["hparams"] == hparams and r["status"] == "ok"]
+def ok_runs(m: Group, method: str, hparams: dict) -> list[dict]:
+    return [r for r in m.runs if r["method"] == method and r["hparams"] == hparams and r["status"] == "ok"]
 
 
-def comparisons(m: dict) -> list[tuple[str, dict | None]]:
+def comparisons(m: Group) -> list[tuple[str, dict | None]]:
     """Ours' configurations compared with BC-OH: the paper's step setting, then the best step and softmax."""
     best_step, best_soft = best_of(method_rows(m, "ours-step")), best_of(method_rows(m, "ours-softmax"))
 
@@ -144,14 +144,14 @@ def comparisons(m: dict) -> list[tuple[str, dict | None]]:
             (f"Ours, best step{after(best_step)}", best_step), (f"Ours, best softmax{after(best_soft)}", best_soft)]
 
 
-def task_metric_rows(m: dict) -> list[tuple[str, str, list[dict]]]:
+def task_metric_rows(m: Group) -> list[tuple[str, str, list[dict]]]:
     """The task-metrics table's policies (the supplement's Table 4 protocol): `(label, method, ok runs)` of
     BC-SO, BC-OH and Ours at THR 10%, W 5, those that ran."""
     wanted = (("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), ("Ours, step THR 10% W 5", "ours-step", PAPER_STEP))
     return [(lab, method, runs) for lab, method, hp in wanted if (runs := ok_runs(m, method, hp))]
 
 
-def loss_rows(m: dict) -> list[tuple[str, list[dict]]]:
+def loss_rows(m: Group) -> list[tuple[str, list[dict]]]:
     """The loss analysis' policies: BC-SO, BC-OH, Ours at the paper's step setting and the best step
     (where it differs), each with its ok runs; those without runs left out."""
     wanted = [("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), ("Ours, step THR 10% W 5", "ours-step", PAPER_STEP)]
@@ -161,16 +161,16 @@ def loss_rows(m: dict) -> list[tuple[str, list[dict]]]:
     return [(lab, runs) for lab, method, hp in wanted if (runs := ok_runs(m, method, hp))]
 
 
-def copycat_groups(m: dict) -> dict[tuple, list[dict]]:
+def copycat_groups(m: Group) -> dict[tuple, list[dict]]:
     """The ok runs that record the copycat diagnostics (`rollout_ape`, `imitation_error`), per configuration."""
     groups: dict[tuple, list[dict]] = {}
-    for r in m["runs"]:
+    for r in m.runs:
         if r["status"] == "ok" and "rollout_ape" in r["eval"] and "imitation_error" in r["eval"]:
             groups.setdefault(config_key(r), []).append(r)
     return groups
 
 
-def expert_ape(m: dict) -> float | None:
+def expert_ape(m: Group) -> float | None:
     """The validation demonstrations' mean APE ÷ the raw training mean (the scale of the policies' `rollout_ape`),
     from the first of `m`'s files that records enough to put it on that scale.
 
@@ -179,7 +179,7 @@ def expert_ape(m: dict) -> float | None:
     `rollout_ape`'s scale; a file without `raw_mean` trained with `normalization: "mean"` (or none recorded: those
     predate `"none"`) is already on it. A `"none"` file without `raw_mean` gives none.
     """
-    for src in m["sources"]:
+    for src in m.sources:
         ape = src.config.get("ape")
         if not isinstance(ape, dict) or "val_mean" not in ape:
             continue
@@ -190,9 +190,9 @@ def expert_ape(m: dict) -> float | None:
     return None
 
 
-def sensitivity(m: dict) -> tuple[list[tuple[float, dict | None]], list[tuple[float, dict | None]]]:
+def sensitivity(m: Group) -> tuple[list[tuple[float, dict | None]], list[tuple[float, dict | None]]]:
     """The sensitivity study's rows: per τ of the paper's and per W (at THR 10%) of the paper's, our summary row."""
-    rows = {config_key(r): r for r in m["summary"] if r["n_seeds"]}
+    rows = {config_key(r): r for r in m.summary if r["n_seeds"]}
     tau = [(t, rows.get(("ours-softmax", (("tau", t),)))) for t in PAPER_SENSITIVITY_TAU]
     w = [(x, rows.get(("ours-step", (("thr", 0.1), ("w", x))))) for x in PAPER_SENSITIVITY_W]
     return tau, w
@@ -200,11 +200,11 @@ def sensitivity(m: dict) -> tuple[list[tuple[float, dict | None]], list[tuple[fl
 
 # -- grid search: the paper's choices ------------------------------------------------------------------------------
 
-def display_metric(m: dict) -> tuple[str, str]:
+def display_metric(m: Group) -> tuple[str, str]:
     """Which summary numbers the figures show: `(prefix, unit)`; % of expert where every row has it (a task
     judged by a rate: that rate, in %)."""
-    if all(r.get("normalized_mean") is not None for r in m["summary"] if r["n_seeds"]):
-        return "normalized", f"{m['metric']} %" if is_rate(m) else "% of expert"
+    if all(r.get("normalized_mean") is not None for r in m.summary if r["n_seeds"]):
+        return "normalized", f"{m.metric} %" if is_rate(m) else "% of expert"
     return "return", "return"
 
 
@@ -221,9 +221,9 @@ def is_finite(v) -> bool:
     return is_number(v) and math.isfinite(v)
 
 
-def _ape_scale(m: dict) -> float | None:
+def _ape_scale(m: Group) -> float | None:
     """The training-set mean APE our softmax τ divided by (`ape_normalization: "mean"`), or None."""
-    for r in m["sources"]:
+    for r in m.sources:
         ape = r.config.get("ape")
         if (any(row["method"] == "ours-softmax" for row in r.summary) and isinstance(ape, dict)
                 and ape.get("normalization") == "mean" and is_number(ape.get("scale")) and ape["scale"] > 0):
@@ -270,10 +270,10 @@ class Choice(NamedTuple):
     closest: dict | None = None
 
 
-def choices(m: dict) -> list[Choice]:
+def choices(m: Group) -> list[Choice]:
     """Per weighting (step, softmax) that ran and has a paper setting: the paper's setting against the grid."""
     prefix, _ = display_metric(m)
-    tau = PAPER_TAU.get(m["env"])
+    tau = PAPER_TAU.get(m.env)
     out = []
     for kind, method, paper in (("step", "ours-step", PAPER_STEP),
                                 ("softmax", "ours-softmax", None if tau is None else {"tau": tau})):
@@ -303,7 +303,7 @@ class LongerRow(NamedTuple):
     longer: dict
 
 
-def longer_runs(merged: dict) -> list[tuple[dict, dict, list[LongerRow]]]:
+def longer_runs(merged: Merged) -> list[tuple[Group, Group, list[LongerRow]]]:
     """Groups trained at another budget than their preset's (`Key.budget`), each beside its preset-budget group
     (same task, observation mode and protocol): `[(longer group, base group, rows)]`, one row per configuration
     both ran, in the longer group's order. Groups without a base group, or with no configuration in common,
@@ -313,17 +313,17 @@ def longer_runs(merged: dict) -> list[tuple[dict, dict, list[LongerRow]]]:
         base = merged.get(Key(key.env, key.obs, key.protocol)) if key.budget else None
         if base is None:
             continue
-        rows = {config_key(r): r for r in base["summary"] if r["n_seeds"]}
-        pairs = [LongerRow(_row_label(m, r), rows[config_key(r)], r) for r in m["summary"]
+        rows = {config_key(r): r for r in base.summary if r["n_seeds"]}
+        pairs = [LongerRow(_row_label(m, r), rows[config_key(r)], r) for r in m.summary
                  if r["n_seeds"] and config_key(r) in rows]
         if pairs:
             out.append((m, base, pairs))
     return out
 
 
-def _row_label(m: dict, row: dict) -> str:
+def _row_label(m: Group, row: dict) -> str:
     """`"BC-OH"`, `"Ours (step), THR 10% W 5"`, `"Ours (softmax), τ 0.2"`, `"FCA, alpha 0.1"`."""
     hp = dict(row["hparams"])
     words = ([f"THR {percent(hp.pop('thr'))} W {hp.pop('w'):g}"] if {"thr", "w"} <= hp.keys() else []) + \
         ([f"τ {hp.pop('tau'):g}"] if "tau" in hp else []) + [f"{k} {v:g}" for k, v in hp.items()]
-    return ", ".join([label(m["methods"], row["method"]), *words])
+    return ", ".join([label(m.methods, row["method"]), *words])

@@ -7,7 +7,7 @@ from typing import Mapping, NamedTuple
 import numpy as np
 
 from ape_jax.pipeline import results as results_lib
-from experiments.report.analysis.groups import ordered
+from experiments.report.analysis.groups import Group, Merged, ordered
 from experiments.report.analysis.selection import is_number, method_rows, percent
 from experiments.report.paper import PAPER_STEP
 
@@ -34,14 +34,14 @@ class WeightShares(NamedTuple):
     series: list[tuple[str, np.ndarray, np.ndarray | None]]
 
 
-def _quantile_source(m: dict) -> results_lib.Results | None:
+def _quantile_source(m: Group) -> results_lib.Results | None:
     """The file of group `m` whose APE quantiles the weights are drawn from: one that ran the softmax weighting
     (it trained on that file's APE), else the first that records them (with the scale they are on)."""
     def usable(ape) -> bool:  # quantiles, and what they are the quantiles of
         return (isinstance(ape, dict) and bool(ape.get("quantiles")) and ape.get("normalization") in APE_SCALES
                 and (ape["normalization"] == "none" or (is_number(ape.get("scale")) and ape["scale"] > 0)))
 
-    recorded = [src for src in m["sources"] if usable(src.config.get("ape"))]
+    recorded = [src for src in m.sources if usable(src.config.get("ape"))]
     return next((src for src in recorded if any(r["method"] == "ours-softmax" for r in src.summary)),
                 recorded[0] if recorded else None)
 
@@ -75,7 +75,7 @@ def ape_mean(ape: Mapping) -> tuple[float, bool]:
     return quantile_mean(raw_quantiles(ape)), False
 
 
-def weight_shares(merged: dict, batch: int = 128, batches: int = 400) -> list[WeightShares]:
+def weight_shares(merged: Merged, batch: int = 128, batches: int = 400) -> list[WeightShares]:
     """How concentrated the weights are within a batch, per group that records its APE quantiles and ran softmax.
 
     Batches of `batch` are drawn from the group's training APE distribution (its quantiles, `_quantile_source`)
@@ -114,5 +114,5 @@ def weight_shares(merged: dict, batch: int = 128, batches: int = 400) -> list[We
                        None if by_mean is None else weighted))
         uniform = np.arange(1, batch + 1) / batch
         series.append(("uniform (BC-OH)", uniform, uniform))
-        out.append(WeightShares(m["title"], src.config["ape"]["normalization"], mean, recorded, series))
+        out.append(WeightShares(m.title, src.config["ape"]["normalization"], mean, recorded, series))
     return out

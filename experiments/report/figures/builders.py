@@ -16,15 +16,15 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ape_jax import tasks
-from experiments.report.analysis import (FCA, FCA_TRAIN, MAP_METHODS, BudgetRow, CopycatMap, MapPoint, WeightShares,
-                                         best_of, config_key, display_metric, extra_methods, hparams_suffix,
-                                         in_fca_family, known_methods, label, method_rows, metric_value, ordered,
-                                         paper_step_row, percent, seed_values, thousands)
+from experiments.report.analysis import (FCA, FCA_TRAIN, MAP_METHODS, BudgetRow, CopycatMap, Group, MapPoint, Merged,
+                                         WeightShares, best_of, config_key, display_metric, extra_methods,
+                                         hparams_suffix, in_fca_family, known_methods, label, method_rows, metric_value,
+                                         ordered, paper_step_row, percent, seed_values, thousands)
 from experiments.report.figures.primitives import COLUMNS, DPI, Bars, Grid, Lines, bars, grid_axes, heatmap, lines
 from experiments.report.paper import PAPER_STEP, PAPER_TAU
 
 
-def grid_figure(m: dict) -> Figure | None:
+def grid_figure(m: Group) -> Figure | None:
     """The grid search of one group (task, observation mode, protocol) as heatmaps (step THR × W, softmax τ), or None if neither was run."""
     prefix, unit = display_metric(m)
     panels = []
@@ -40,7 +40,7 @@ def grid_figure(m: dict) -> Figure | None:
     soft = {r["hparams"]["tau"]: r for r in method_rows(m, "ours-softmax") if set(r["hparams"]) == {"tau"}}
     if soft:
         taus = sorted(soft)
-        tau = PAPER_TAU.get(m["env"])
+        tau = PAPER_TAU.get(m.env)
         panels.append(_grid_panel("softmax weighting", "", "τ (temperature)", [""], [f"{t:g}" for t in taus],
                                   [[soft[t] for t in taus]], prefix,
                                   (0, taus.index(tau)) if tau in taus else None))
@@ -52,7 +52,7 @@ def grid_figure(m: dict) -> Figure | None:
     if bcoh is not None:
         center, std = metric_value(bcoh, prefix)
         ref = f"; BC-OH {center:.1f} ± {std:.1f}"
-    title = (f"{m['title']}: grid search, {unit} (mean ± std over {seeds} seeds){ref}")
+    title = (f"{m.title}: grid search, {unit} (mean ± std over {seeds} seeds){ref}")
     return heatmap(title, panels, center, unit)
 
 
@@ -63,7 +63,7 @@ def _grid_panel(title, row_label, col_label, rows, cols, cells, prefix, marked) 
     return Grid(title, row_label, col_label, rows, cols, mean, std, (int(best[0]), int(best[1])), marked)
 
 
-def returns_figure(merged: dict) -> Figure | None:
+def returns_figure(merged: Merged) -> Figure | None:
     """Every method's return per group (bars: mean, error bars: std over seeds, dots: seeds), or None.
 
     BC-SO, BC-OH, Ours at the paper's step setting and the best softmax, then
@@ -89,7 +89,7 @@ def returns_figure(merged: dict) -> Figure | None:
         if soft is not None:
             notes[3] = f"τ {soft['hparams']['tau']:g}"
         panels.append(Bars(
-            m["title"], unit, [None if r is None else metric_value(r, prefix)[0] for r in rows],
+            m.title, unit, [None if r is None else metric_value(r, prefix)[0] for r in rows],
             [None if r is None else metric_value(r, prefix)[1] for r in rows], [seed_values(m, r, key) for r in rows], notes,
             100.0 if prefix == "normalized" else None, "expert"))
     if not panels:
@@ -98,7 +98,7 @@ def returns_figure(merged: dict) -> Figure | None:
                                 "best softmax selected after the fact", columns=COLUMNS)
 
 
-def curves_figure(merged: dict) -> Figure | None:
+def curves_figure(merged: Merged) -> Figure | None:
     """Training curves (the weighted loss of the sampled batches, mean ± std over seeds) of BC-OH, the paper's
     step setting and the best softmax, one panel per group; None if no run records its curve."""
     panels = []
@@ -107,16 +107,16 @@ def curves_figure(merged: dict) -> Figure | None:
         best_soft = best_of(method_rows(m, "ours-softmax"))
         for name, row in (("BC-OH", best_of(method_rows(m, "bc-oh"))), ("Ours, step THR 10% W 5", paper_step_row(m)),
                           ("Ours, best softmax" + hparams_suffix(best_soft), best_soft)):
-            runs = [r["train_curve"] for r in m["runs"] if row is not None and r["status"] == "ok"
+            runs = [r["train_curve"] for r in m.runs if row is not None and r["status"] == "ok"
                     and config_key(r) == config_key(row) and r.get("train_curve")]
             runs = [c for c in runs if None not in c and len(c) == len(runs[0])] if runs else []
             if runs:
                 curve = np.asarray(runs, float)
-                iters = m["sources"][0].config["iterations"]
+                iters = m.sources[0].config["iterations"]
                 x = (np.arange(curve.shape[1]) + 1) * iters / curve.shape[1]
                 series.append((name, x, curve.mean(0), curve.std(0)))
         if series:
-            panels.append(Lines(m["title"], "iteration", "weighted BC loss (window mean)", series, log_y=True))
+            panels.append(Lines(m.title, "iteration", "weighted BC loss (window mean)", series, log_y=True))
     return lines(panels, "Training curves (mean ± std over seeds)", COLUMNS) if panels else None
 
 

@@ -15,7 +15,7 @@ from typing import Callable, Mapping, NamedTuple, Sequence
 
 from matplotlib.figure import Figure
 
-from experiments.report.analysis import Interval, Key, PolicyDiagnostics, Spread, percent
+from experiments.report.analysis import Interval, Merged, PolicyDiagnostics, Spread, percent
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,7 +59,7 @@ class Context:
       base: the folder the markdown's links are relative to (the `--out` file's).
     """
 
-    merged: Mapping[Key, dict]
+    merged: Merged
     figure_dir: pathlib.Path | None
     base: pathlib.Path
 

@@ -142,7 +142,7 @@ def extended_map_section(ctx: Context) -> list[Section]:
                 + ("—" if not q.diagnostics.read else f"{q.diagnostics.copycats}/{q.diagnostics.read}") + " |"
                 + (f" {_point_diag(q, 'state')} | {_point_diag(q, 'velocity')} |" if state else "")
                 for q in diagnosed]
-        sources = [src for key, m in ordered(ctx.merged) for src in m["sources"]]
+        sources = [src for key, m in ordered(ctx.merged) for src in m.sources]
         judged = [q for q in diagnosed if q.diagnostics.read]
         copycat = [q for q in judged if q.diagnostics.copycats]
         out += ["", thresholds_line(diagnostics_thresholds(sources)), ""]

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from experiments.report import figures
-from experiments.report.analysis import APE_SCALES, BRAX, Key, WeightShares, sensitivity, weight_shares
+from experiments.report.analysis import APE_SCALES, BRAX, Key, Merged, WeightShares, sensitivity, weight_shares
 from experiments.report.paper import PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W
 from experiments.report.sections.common import Context, Section, norm_cell, return_cell
 
@@ -14,7 +14,7 @@ from experiments.report.sections.common import Context, Section, norm_cell, retu
 SENSITIVITY = Key("walker2d", "pos", BRAX)  # the group the sensitivity study ran in (its committed file is brax's)
 
 
-def sensitivity_table(merged: dict) -> str | None:
+def sensitivity_table(merged: Merged) -> str | None:
     """The sensitivity study on Walker2d (states, `SENSITIVITY`'s protocol): τ ∈ {0.1, 0.2, 0.5} and W ∈ {4, 5, 6}
     at THR 10%, with the paper's."""
     m = merged.get(SENSITIVITY)

@@ -10,24 +10,24 @@ from ape_jax import methods as methods_lib
 from ape_jax import tasks
 from ape_jax.pipeline import results as results_lib
 from experiments.report import figures
-from experiments.report.analysis import (BRAX, best_of, choices, copycat_groups, display_metric, expert_ape,
+from experiments.report.analysis import (BRAX, Group, best_of, choices, copycat_groups, display_metric, expert_ape,
                                          file_stem, gap, is_rate, label, loss_rows, ordered, protocol_words,
                                          recipe_diagnostics, recipe_groups)
 from experiments.report.sections.common import SETTING_WORDS, Context, Section
 from experiments.report.sections.diagnostics import group_diagnostics, training_table
 
 
-def grid_table(m: dict) -> str:
+def grid_table(m: Group) -> str:
     """Every configuration: return and % of expert (a task judged by a rate, its reward not its measure: the rate
     in %)."""
-    rows = list(m["summary"])
+    rows = list(m.summary)
     best = best_of([r for r in rows if r["n_seeds"]])
     rate = is_rate(m)
-    heads = [f"{m['metric']} %"] if rate else ["return", "% of expert"]
+    heads = [f"{m.metric} %"] if rate else ["return", "% of expert"]
     lines = ["| method | hparams | seeds | " + " | ".join(heads) + " |", "|---|---|---:|" + "---:|" * len(heads)]
     for r in rows:
         hp = ", ".join(f"{k} {v:g}" for k, v in r["hparams"].items()) or "—"
-        lab = label(m["methods"], r["method"])
+        lab = label(m.methods, r["method"])
         ok = r["n_seeds"] and (not rate or r.get("normalized_mean") is not None)
         if not ok:
             lines.append(f"| {lab} | {hp} | {r['n_seeds']} | failed |" + ("" if rate else " |"))
@@ -42,7 +42,7 @@ def grid_table(m: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def loss_table(m: dict) -> str:
+def loss_table(m: Group) -> str:
     """The paper's Table 3: mean over seeds of the per-sample loss, all / changepoint / copycat, train / val."""
     keys = [(s, k) for s in ("train", "val") for k in ("unweighted", "changepoint", "copycat")]
     lines = ["| method | " + " | ".join(f"{s}: {'all' if k == 'unweighted' else k}" for s, k in keys) + " |",
@@ -53,7 +53,7 @@ def loss_table(m: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def copycat_table(m: dict) -> str | None:
+def copycat_table(m: Group) -> str | None:
     """The copycat diagnostics of every configuration that has them (None if no run does).
 
     Per configuration, the mean over seeds of each seed's mean over evaluation episodes of
@@ -74,7 +74,7 @@ def copycat_table(m: dict) -> str | None:
         mean = lambda k: sum(r["eval"][k] for r in runs) / len(runs)  # noqa: E731
         norm = f"{mean('normalized'):.1f}" if all("normalized" in r["eval"] for r in runs) else "—"
         hps = ", ".join(f"{k} {v:g}" for k, v in hp) or "—"
-        lines.append(f"| {label(m['methods'], method)} | {hps} | {len(runs)} | {mean('rollout_ape'):.3f} | "
+        lines.append(f"| {label(m.methods, method)} | {hps} | {len(runs)} | {mean('rollout_ape'):.3f} | "
                      f"{mean('imitation_error'):.4f} | {norm} |")
     return "\n".join(lines) + "\n"
 
@@ -83,7 +83,7 @@ def _fmt(mean: float, std: float, prefix: str) -> str:
     return f"{mean:.1f} ± {std:.1f}%" if prefix == "normalized" else f"{mean:,.0f} ± {std:,.0f}"
 
 
-def paper_choices(m: dict) -> list[str]:
+def paper_choices(m: Group) -> list[str]:
     """One sentence per weighting: is the paper's setting within one std over seeds of the grid's best?
 
     "Within one std" means the gap to the best is at most the larger of the two configurations' std over seeds.
@@ -115,7 +115,7 @@ def paper_choices(m: dict) -> list[str]:
     return out
 
 
-def _grid_name(m: dict) -> str:
+def _grid_name(m: Group) -> str:
     """A group's grid figure: `grid-hopper.png` (brax), `grid-hopper-image.png`, `grid-hopper-fca-fs2.png`."""
     return f"grid-{file_stem(m)}.png"
 
@@ -207,9 +207,9 @@ def group_sections(ctx: Context) -> list[Section]:
     explained = bool(recipe_diagnostics(recipe_groups(ctx.merged)))   # the recipe section explained the columns
     out = []
     for key, m in ordered(ctx.merged):
-        protocol = f", protocol {protocol_words(m['protocol'])}" if m["shows_protocol"] else ""
-        grid = ctx.figure(_grid_name(m), f"{m['title']} grid search", lambda: figures.grid_figure(m))
-        body = [*(f"- {provenance(r)}" for r in m["sources"]), "", grid_table(m), *grid.lines]
+        protocol = f", protocol {protocol_words(m.protocol)}" if m.shows_protocol else ""
+        grid = ctx.figure(_grid_name(m), f"{m.title} grid search", lambda: figures.grid_figure(m))
+        body = [*(f"- {provenance(r)}" for r in m.sources), "", grid_table(m), *grid.lines]
         sentences = paper_choices(m)
         if sentences:
             unit = display_metric(m)[1]

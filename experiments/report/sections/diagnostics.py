@@ -3,8 +3,8 @@ column explanations once, the thresholds the files record, and the policies over
 
 from __future__ import annotations
 
-from experiments.report.analysis import (DiagnosticsRow, diagnostics_rows, diagnostics_thresholds, display_metric,
-                                         training_points)
+from experiments.report.analysis import (DiagnosticsRow, Group, diagnostics_rows, diagnostics_thresholds,
+                                         display_metric, training_points)
 from experiments.report.sections.common import pct_cell, ratio_text, verdict_count
 
 
@@ -98,17 +98,17 @@ def diagnostics_lines(rows: list[tuple[tuple[str, ...], DiagnosticsRow]], thresh
     return out + (absent + [""] if absent else [])
 
 
-def group_diagnostics(m: dict, explained: bool) -> list[str]:
+def group_diagnostics(m: Group, explained: bool) -> list[str]:
     """Group `m`'s copycat diagnostics per configuration (`analysis.diagnostics_rows`); nothing for a group whose
     files predate them."""
     rows = [((r.label,), r) for r in diagnostics_rows(m)]
     unit = display_metric(m)[1] if display_metric(m)[0] == "normalized" else "% of expert"
-    return diagnostics_lines(rows, diagnostics_thresholds(m["sources"]),
+    return diagnostics_lines(rows, diagnostics_thresholds(m.sources),
                              "Copycat diagnostics per trained policy (`ape_jax.diagnostics`), from its embedding "
                              "and its own rollouts:", explained, unit=unit)
 
 
-def training_table(m: dict) -> list[str]:
+def training_table(m: Group) -> list[str]:
     """Group `m`'s configurations over training (`Budget.eval_at`): per configuration and iteration, % of expert
     with its 95% bootstrap interval over seeds, the training loss, the copycat diagnostics' medians and the
     verdict count; nothing for a group evaluated at the end only."""

@@ -7,8 +7,8 @@ import math
 
 from ape_jax import tasks
 from experiments.report import figures
-from experiments.report.analysis import (BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, BRAX, FCA, CopycatMap, Difference,
-                                         Interval, Key, best_of, bootstrap_rows, bootstrap_unit, copycat_map,
+from experiments.report.analysis import (BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, BRAX, FCA, CopycatMap, Difference, Group,
+                                         Interval, Key, Merged, best_of, bootstrap_rows, bootstrap_unit, copycat_map,
                                          extra_methods, group_title, history_difference, is_rate, known_methods,
                                          longer_runs, method_rows, ordered, ours_differences, percent,
                                          policy_diagnostics, verdict, versus_bcoh)
@@ -36,7 +36,7 @@ def _words(ci: Interval, a: str, b: str, better: str, worse: str) -> str:
     return "not significant: these seeds cannot tell them apart" if v.startswith("not significant") else v
 
 
-def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
+def plain_reading(merged: Merged, maps: list[CopycatMap]) -> list[str]:
     """Does keyframe weighting help where the history does not? One paragraph per task with results under the
     paper's protocol (`fca`; tasks without any get none), every number from the results:
 
@@ -56,7 +56,7 @@ def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
             continue
         unit = bootstrap_unit(m)[1]
         number = ",.0f"
-        text = [f"**{group_title(key, m['protocol'], with_protocol=False)}.**"]
+        text = [f"**{group_title(key, m.protocol, with_protocol=False)}.**"]
         history = history_difference(m)
         copycat = None
         if history is None:
@@ -122,7 +122,7 @@ def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
             text.append(f"The other methods under fca against BC-OH (in {unit}): " + "; ".join(parts) + ".")
         contrast = []
         cm = maps_of.get((key.env, key.obs))
-        here = cm.at(m["protocol"].get("frame_skip")) if cm else None
+        here = cm.at(m.protocol.get("frame_skip")) if cm else None
         top = next((r for r in reversed(cm.rows) if r.history is not None), None) if cm else None
         if top is not None and here is not None and here.history is not None and top is not here:
             contrast.append(f"at frame skip {top.frame_skip} the history {lift(top.history)}"
@@ -140,11 +140,11 @@ def plain_reading(merged: dict, maps: list[CopycatMap]) -> list[str]:
     return out
 
 
-def _bcoh_diagnosed(m: dict) -> str:
+def _bcoh_diagnosed(m: Group) -> str:
     """Whether group `m`'s BC-OH copies, by its copycat diagnostics: the seeds judged copycat and the median ratios,
     or that its runs record none (files from before the diagnostics)."""
     row = best_of(method_rows(m, "bc-oh"))
-    d = policy_diagnostics([r for r in m["runs"] if row is not None and r["method"] == "bc-oh"
+    d = policy_diagnostics([r for r in m.runs if row is not None and r["method"] == "bc-oh"
                             and r["hparams"] == row["hparams"]])
     if not d.read:
         return ("BC-OH's policies here were not diagnosed (their files predate the copycat diagnostics), so whether "
@@ -153,10 +153,10 @@ def _bcoh_diagnosed(m: dict) -> str:
             f"{ratio_text(d.embedding, with_range=False)}, predictability ratio {ratio_text(d.predictability, with_range=False)}).")
 
 
-def longer_table(rows, base: dict, longer: dict) -> str:
+def longer_table(rows, base: Group, longer: Group) -> str:
     """`analysis.longer_runs`' rows of one group: each configuration at the base budget and at the longer one."""
-    its = lambda m: f"{m['sources'][0].config['iterations']:,} iterations"  # noqa: E731
-    lines = [f"| {longer['title']}: configuration | {its(base)} | seeds | {its(longer)} | seeds |",
+    its = lambda m: f"{m.sources[0].config['iterations']:,} iterations"  # noqa: E731
+    lines = [f"| {longer.title}: configuration | {its(base)} | seeds | {its(longer)} | seeds |",
              "|---|---:|---:|---:|---:|"]
     for r in rows:
         lines.append(f"| {r.label} | {return_cell(r.base)} | {r.base['n_seeds']} | {return_cell(r.longer)} | "
@@ -177,7 +177,7 @@ def differences_section(ctx: Context) -> list[Section]:
     body = list(returns.lines)
     if boot:
         seeds = min(min(d.ci.n_a, d.ci.n_b) for d in boot)
-        rates = list(dict.fromkeys(f"{tasks.get(m['env']).title}: in {m['metric']} rate"
+        rates = list(dict.fromkeys(f"{tasks.get(m.env).title}: in {m.metric} rate"
                                    for _, m in ordered(ctx.merged) if is_rate(m)))
         body += ["Per task and protocol, BC-OH − BC-SO (does the history help? the paper reads copycat from it not "
                  "helping) "

@@ -65,7 +65,7 @@ def recipe_section(ctx: Context) -> list[Section]:
                                                                for v in (a.adversary, a.reference)) + " |"
                         for a in alphas]
                 out += [""]
-    sources = [src for recipes in groups.values() for m in recipes.values() for src in m["sources"]]
+    sources = [src for recipes in groups.values() for m in recipes.values() for src in m.sources]
     out += diagnostics_lines([((title, n, r.label), r) for title, n, r in recipe_diagnostics(groups)],
                              diagnostics_thresholds(sources), "Copycat diagnostics per trained policy "
                              "(`ape_jax.diagnostics`), per task, recipe and configuration:", explained=False,
@@ -124,7 +124,7 @@ def paper_budget_section(ctx: Context) -> list[Section]:
     rows = [budget_rows(m) for m in groups]
     its = sorted({p.iteration for task in rows for r in task for p in r.points})
     end = its[-1]
-    p = groups[0]["protocol"]
+    p = groups[0].protocol
     heading = (f"The paper's budget with the paper's recipe: the same runs at {', '.join(f'{i:,}' for i in its)} "
                "iterations")
     intro = (f"Protocol {FCA}, split by {p.get('split')}, recipe fca (the FCA code's network and optimiser), "
@@ -182,7 +182,7 @@ def paper_budget_section(ctx: Context) -> list[Section]:
                 + " → ".join("—" if (q := r.at(i)) is None or not q.diagnostics.read
                              else f"{q.diagnostics.copycats}/{q.diagnostics.read}" for i in its) + " |"
                 + (f" {_ratios(r, its, 'state')} |" if state else "") for r in task]
-    sources = [src for m in groups for src in m["sources"]]
+    sources = [src for m in groups for src in m.sources]
     out += ["", thresholds_line(diagnostics_thresholds(sources)), ""]
     out += [f"- {_budget_reading(task, d)}" for task, d in zip(rows, diffs)] + [""]
     return [Section(heading, intro, out, drawn.figures)]

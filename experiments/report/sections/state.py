@@ -4,10 +4,9 @@ them) and MuJoCo-Image."""
 from __future__ import annotations
 
 from ape_jax import tasks
-from experiments.report.analysis import (BRAX, FCA, Key, best_of, extra_methods, groups_of, headline,
-                                         hparams_suffix, in_fca_family, known_methods, label, method_rows,
-                                         paper_step_row, protocols_of, versus_bcoh, BOOTSTRAP_RESAMPLES,
-                                         BOOTSTRAP_SEED)
+from experiments.report.analysis import (BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, BRAX, FCA, Group, Key, Merged, best_of,
+                                         extra_methods, groups_of, headline, hparams_suffix, in_fca_family,
+                                         known_methods, label, method_rows, paper_step_row, protocols_of, versus_bcoh)
 from experiments.report.paper import PAPER_TABLE5
 from experiments.report.sections.common import Context, Section, return_cell
 
@@ -23,17 +22,17 @@ def _selected(lab: str, row: dict | None) -> str:
     return f" <br>{hparams_suffix(row)[1:]}" if lab.startswith("Ours, best") and row is not None else ""
 
 
-def state_table(merged: dict, obs: str = "pos", protocol: str = BRAX) -> str:
+def state_table(merged: Merged, obs: str = "pos", protocol: str = BRAX) -> str:
     """Every method per MuJoCo task with observations `obs` ("pos": MuJoCo-State, "image": MuJoCo-Image) under
     `protocol`: return mean ± std over seeds (% of expert), the methods besides ours those groups ran, our
     expert and a random policy."""
     groups = groups_of(merged, obs, protocol)
     if not groups:
         return ""
-    extras = extra_methods({Key(m["env"], obs, protocol): m for m in groups})
+    extras = extra_methods({Key(m.env, obs, protocol): m for m in groups})
     known = known_methods(merged)
     heads = [headline(m, extras, known) for m in groups]
-    lines = ["| method | " + " | ".join(tasks.get(m["env"]).title for m in groups) + " |",
+    lines = ["| method | " + " | ".join(tasks.get(m.env).title for m in groups) + " |",
              "|---|" + "---:|" * len(groups)]
     for i, (lab, _) in enumerate(heads[0]):
         cells = []
@@ -41,7 +40,7 @@ def state_table(merged: dict, obs: str = "pos", protocol: str = BRAX) -> str:
             lab, row = head[i]
             cells.append(return_cell(row) + _selected(lab, row))
         lines.append(f"| {_generic(lab)} | " + " | ".join(cells) + " |")
-    experts = [m["expert"] for m in groups]
+    experts = [m.expert for m in groups]
     lines.append("| expert (ours) | " + " | ".join("—" if x["return_mean"] is None else
                                                    f"{x['return_mean']:,.0f} ± {x['return_std'] or 0:,.0f}"
                                                    for x in experts) + " |")
@@ -50,16 +49,16 @@ def state_table(merged: dict, obs: str = "pos", protocol: str = BRAX) -> str:
     return "\n".join(lines) + "\n"
 
 
-def versus_table(merged: dict, obs: str = "pos", protocol: str = BRAX) -> str:
+def versus_table(merged: Merged, obs: str = "pos", protocol: str = BRAX) -> str:
     """The state table's rows against BC-OH, per task: each method's mean − BC-OH's over seeds (in `bootstrap_unit`), its
     95% bootstrap CI, bold where the interval excludes 0 with ≥ 2 seeds per arm; "" if no group has BC-OH."""
     groups = groups_of(merged, obs, protocol)
-    extras = extra_methods({Key(m["env"], obs, protocol): m for m in groups})
+    extras = extra_methods({Key(m.env, obs, protocol): m for m in groups})
     known = known_methods(merged)
     columns = [versus_bcoh(m, extras, known) for m in groups]
     if not any(ci is not None for col in columns for _, _, ci in col):
         return ""
-    lines = ["| method − BC-OH | " + " | ".join(tasks.get(m["env"]).title for m in groups) + " |",
+    lines = ["| method − BC-OH | " + " | ".join(tasks.get(m.env).title for m in groups) + " |",
              "|---|" + "---:|" * len(groups)]
     for i, (lab, _, _) in enumerate(columns[0]):
         cells = []
@@ -75,7 +74,7 @@ def versus_table(merged: dict, obs: str = "pos", protocol: str = BRAX) -> str:
     return "\n".join(lines) + "\n"
 
 
-def versus_lines(merged: dict, protocol: str) -> list[str]:
+def versus_lines(merged: Merged, protocol: str) -> list[str]:
     """`versus_table` of the MuJoCo-State groups under `protocol` with its caption, or nothing."""
     table = versus_table(merged, "pos", protocol)
     if not table:
@@ -101,10 +100,10 @@ def _horizon(p: dict) -> float | None:
     return p["episode_length"] * p["frame_skip"] / p["standard_frame_skip"]
 
 
-def protocol_heading(groups: list[dict]) -> str:
+def protocol_heading(groups: list[Group]) -> str:
     """The settings the groups' protocol dicts agree on, for a heading: `"frame skip 1, 500 standard steps of
     simulated time, 20,000 training transitions"`; "" if none is recorded."""
-    ps = [m["protocol"] for m in groups]
+    ps = [m.protocol for m in groups]
     parts = []
     if (skip := _agreed(p.get("frame_skip") for p in ps)) is not None:
         parts.append(f"frame skip {skip}")
@@ -118,9 +117,9 @@ def protocol_heading(groups: list[dict]) -> str:
     return ", ".join(parts)
 
 
-def protocol_details(groups: list[dict]) -> str:
+def protocol_details(groups: list[Group]) -> str:
     """One sentence with every setting the groups' protocols record, per task where they differ ("" if none)."""
-    ps = {tasks.get(m["env"]).title: m["protocol"] for m in groups}
+    ps = {tasks.get(m.env).title: m.protocol for m in groups}
 
     def each(fmt, key):
         values = {t: p.get(key) for t, p in ps.items()}
@@ -142,7 +141,7 @@ def protocol_details(groups: list[dict]) -> str:
     return ("Recorded settings: " + "; ".join(parts) + ".") if parts else ""
 
 
-def paper_table(merged: dict, protocol: str = BRAX) -> str:
+def paper_table(merged: Merged, protocol: str = BRAX) -> str:
     """Ours under `protocol` next to the supplement's Table 5 (BC-SO, BC-OH, FCA, Ours at step THR 10% W 5).
 
     Under the fca family our returns are on the paper's scale (rewards summed over the same simulated time, in
@@ -156,7 +155,7 @@ def paper_table(merged: dict, protocol: str = BRAX) -> str:
         return ""
     same_scale = in_fca_family(protocol)
     known = known_methods(merged)
-    lines = ["| method | " + " | ".join(f"{tasks.get(m['env']).title}: paper | {tasks.get(m['env']).title}: ours"
+    lines = ["| method | " + " | ".join(f"{tasks.get(m.env).title}: paper | {tasks.get(m.env).title}: ours"
                                        for m in groups) + " |", "|---|" + "---:|" * (2 * len(groups))]
     # the paper's FCA is the FCA paper's adversary with its information bottleneck: ours with it where it ran
     # (`fca-ib`), else the adversary alone as the FCA code ships it (`fca`); the row names which
@@ -166,7 +165,7 @@ def paper_table(merged: dict, protocol: str = BRAX) -> str:
     for method in PAPER_TABLE5:
         cells = []
         for m, mine in zip(groups, ours):
-            paper, paper_bcoh = PAPER_TABLE5[method][m["env"]], PAPER_TABLE5["bc-oh"][m["env"]]
+            paper, paper_bcoh = PAPER_TABLE5[method][m.env], PAPER_TABLE5["bc-oh"][m.env]
             row, bcoh = mine[method], mine["bc-oh"]
             cells.append(f"{paper:,} ({paper / paper_bcoh:.2f}×)")
             spread = f" ± {row['return_std']:,.0f}" if same_scale and row is not None else ""
@@ -176,7 +175,7 @@ def paper_table(merged: dict, protocol: str = BRAX) -> str:
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     if same_scale:
         lines.append("| expert | " + " | ".join(
-            "not published | " + ("—" if m["expert"]["return_mean"] is None else f"{m['expert']['return_mean']:,.0f}")
+            "not published | " + ("—" if m.expert["return_mean"] is None else f"{m.expert['return_mean']:,.0f}")
             for m in groups) + " |")
     return "\n".join(lines) + "\n"
 
@@ -199,7 +198,7 @@ def state_sections(ctx: Context) -> list[Section]:
         heading, details = protocol_heading(groups), protocol_details(groups)
         cells = CELLS + " " + SELECTION + (f" {details}" if details else "")
         if protocol == FCA:
-            horizon = _agreed(_horizon(m["protocol"]) for m in groups)
+            horizon = _agreed(_horizon(m.protocol) for m in groups)
             scale = (f"rewards summed over {horizon:,.0f} standard control steps of simulated time, as the paper's"
                      if horizon is not None else "rewards on the standard control step's scale, as the paper's")
             out.append(Section(
@@ -219,7 +218,7 @@ def state_sections(ctx: Context) -> list[Section]:
                  "Next to the supplement's Table 5 (its own experts, whose returns it does not give; its returns "
                  "are on another scale than these): mean returns, and in brackets each method's ratio to BC-OH "
                  "of the same source.", "", paper_table(ctx.merged, protocol)]))
-        elif not in_fca_family(protocol) and not any(m["protocol"].get("variant_of") for m in groups):
+        elif not in_fca_family(protocol) and not any(m.protocol.get("variant_of") for m in groups):
             out.append(Section(f"MuJoCo-State, protocol {protocol}" + (f": {heading}" if heading else ""),
                                "Positions only (velocities removed). " + cells,
                                [state_table(ctx.merged, "pos", protocol)]))

@@ -7,7 +7,7 @@ import numpy as np
 
 from ape_jax import tasks
 from experiments.report import stats
-from experiments.report.analysis import (bootstrap_difference, bootstrap_mean, group_title, is_rate, ordered,
+from experiments.report.analysis import (Group, bootstrap_difference, bootstrap_mean, group_title, is_rate, ordered,
                                          task_metric_rows, verdict)
 from experiments.report.sections.common import Context, Section, ci_text
 
@@ -18,25 +18,25 @@ METRIC_HEADINGS = {"red_light_violations": ("red-light violations", 1.0), "avg_s
                    "stuck": ("stuck %", 100.0)}
 
 
-def _metric_heading(m: dict, metric: str) -> tuple[str, float]:
+def _metric_heading(m: Group, metric: str) -> tuple[str, float]:
     if metric in METRIC_HEADINGS:
         return METRIC_HEADINGS[metric]
-    return (f"{metric} %", 100.0) if metric == m["metric"] and is_rate(m) else (metric.replace("_", " "), 1.0)
+    return (f"{metric} %", 100.0) if metric == m.metric and is_rate(m) else (metric.replace("_", " "), 1.0)
 
 
-def task_table(m: dict) -> str | None:
+def task_table(m: Group) -> str | None:
     """A task's own per-episode metrics (its `metrics`; the supplement's Table 4 protocol): BC-SO, BC-OH and Ours
     (THR 10%, W 5), every metric as mean ± std over seeds (of each seed's episode mean) with the mean's 95%
     bootstrap interval over seeds, and beside them the paper's main metric where the task records it
     (`Task.paper`). None for a task without metrics."""
-    metrics = m["task_metrics"]
+    metrics = m.task_metrics
     rows = task_metric_rows(m)
     if not metrics or not rows:
         return None
-    paper = tasks.get(m["env"]).paper
+    paper = tasks.get(m.env).paper
     heads = [_metric_heading(m, k) for k in metrics]
-    paper_head = [f"paper: {m['metric']}" + (" %" if is_rate(m) else "")] if paper else []
-    wilson_head = [f"{m['metric']} % of all episodes [Wilson 95%]"] if is_rate(m) else []
+    paper_head = [f"paper: {m.metric}" + (" %" if is_rate(m) else "")] if paper else []
+    wilson_head = [f"{m.metric} % of all episodes [Wilson 95%]"] if is_rate(m) else []
     lines = ["| method | seeds | " + " | ".join([name for name, _ in heads] + wilson_head + paper_head) + " |",
              "|---|---:|" + "---:|" * (len(heads) + len(wilson_head) + len(paper_head))]
     for lab, method, runs in rows:
@@ -49,7 +49,7 @@ def task_table(m: dict) -> str | None:
             _, low, high = bootstrap_mean(v)
             cells.append(f"{v.mean():.2f} ± {v.std():.2f} [{low:.2f}, {high:.2f}]")
         if wilson_head:
-            cells.append(wilson_cell(runs, m["metric"]))
+            cells.append(wilson_cell(runs, m.metric))
         if paper:
             cells.append(f"{paper[method][0]} ± {paper[method][1]}" if method in paper else "—")
         lines.append(f"| {lab} | {len(runs)} | " + " | ".join(cells) + " |")
@@ -72,14 +72,14 @@ def _per_seed(runs: list[dict], key: str, scale: float = 1.0) -> np.ndarray:
     return np.array([r["eval"][key] for r in runs if key in r["eval"]], float) * scale
 
 
-def task_reading(m: dict) -> list[str]:
+def task_reading(m: Group) -> list[str]:
     """Plain sentences under a rate-judged task's table (ToyCar): whether BC-SO learned the task, Ours − BC-OH
     and BC-OH − BC-SO on the main rate with their bootstrap intervals and verdicts, and whether BC-OH's inertia
     (`stuck`: standing still while free to go) appears; empty for a task judged by a return."""
     if not is_rate(m):
         return []
     rows = {method: runs for _, method, runs in task_metric_rows(m)}
-    metric, out = m["metric"], []
+    metric, out = m.metric, []
     episodes = sorted({int(r["eval"]["episodes"]) for runs in rows.values() for r in runs if "episodes" in r["eval"]})
     if "bc-so" in rows:
         mean, low, high = bootstrap_mean(_per_seed(rows["bc-so"], metric, 100.0))
@@ -99,7 +99,7 @@ def task_reading(m: dict) -> list[str]:
                            if k in stuck and len(stuck[k]))
         oh = stuck["bc-oh"]
         _, low, high = bootstrap_mean(oh)
-        out.append(f"Inertia (standing still for {tasks.get(m['env']).title}'s stuck time while free to go): BC-OH "
+        out.append(f"Inertia (standing still for {tasks.get(m.env).title}'s stuck time while free to go): BC-OH "
                    f"{oh.mean():.1f}% of episodes [{low:.1f}, {high:.1f}]" + (f" ({others})" if others else "")
                    + (" — it appears." if oh.mean() > 0 else " — it does not appear in these episodes."))
     return out
@@ -114,12 +114,12 @@ def task_metric_sections(ctx: Context) -> list[Section]:
         if not table:
             continue
         task = tasks.get(key.env)
-        title = group_title(key, m["protocol"], m["shows_protocol"], with_obs=key.obs != task.default_obs)
-        paper = (f"; the paper's {m['metric']} rates beside (its own {task.title}, not ours)" if task.paper
+        title = group_title(key, m.protocol, m.shows_protocol, with_obs=key.obs != task.default_obs)
+        paper = (f"; the paper's {m.metric} rates beside (its own {task.title}, not ours)" if task.paper
                  else "")
-        walls = [f"{src.timing['total_s'] / 60:,.0f} min" for src in m["sources"]
+        walls = [f"{src.timing['total_s'] / 60:,.0f} min" for src in m.sources
                  if (src.timing or {}).get("total_s")]
-        machine = next(((src.system or {}).get("machine") for src in m["sources"] if src.system), None)
+        machine = next(((src.system or {}).get("machine") for src in m.sources if src.system), None)
         wall = (f" Wall time of the run{'s' if len(walls) > 1 else ''}: {', '.join(walls)}"
                 + (f" ({machine})" if machine else "") + ", compile included." if walls else "")
         reading = task_reading(m)
@@ -127,7 +127,7 @@ def task_metric_sections(ctx: Context) -> list[Section]:
             f"{title} (the supplement's Table 4 protocol)",
             f"{task.title}'s own metrics per policy, mean ± std over seeds of each seed's mean over "
             f"evaluation episodes, and in brackets the mean's 95% bootstrap interval over seeds"
-            + (f"; the {m['metric']} rate of all episodes pooled with its binomial (Wilson) interval"
+            + (f"; the {m.metric} rate of all episodes pooled with its binomial (Wilson) interval"
                if is_rate(m) else "") + f"{paper}." + wall,
             [table, *([" ".join(reading), ""] if reading else [])]))
     return out
