@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from typing import Mapping, NamedTuple
 
+import jax
 import numpy as np
 
+from ape_jax import weighting
 from ape_jax.pipeline import results as results_lib
 from experiments.report.analysis.groups import Group, Merged, ordered
 from experiments.report.analysis.selection import is_number, method_rows, percent
@@ -79,21 +81,24 @@ def weight_shares(merged: Merged, batch: int = 128, batches: int = 400) -> list[
     """How concentrated the weights are within a batch, per group that records its APE quantiles and ran softmax.
 
     Batches of `batch` are drawn from the group's training APE distribution (its quantiles, `_quantile_source`)
-    and weighted as the sweep does, `batch·softmax(APE/τ)` at every τ the group ran, the paper's step setting
-    and uniform weights, once on the raw APE and once on the APE ÷ its mean (`ape_mean`). The step and
-    uniform weights depend only on the APE's ranks, so they are the same on both scales; the softmax's are not:
-    dividing the APE by a mean much below 1 multiplies it by much more than 1, and a τ ≤ 1 then gives one
-    sample nearly all of a batch's weight. Each group draws its batches with numpy seed 0.
+    and weighted as the sweep does, with the sweep's own functions (`ape_jax.weighting`): `weighting.softmax`,
+    `batch·softmax(APE/τ)`, at every τ the group ran, and `weighting.uniform`; and the paper's step setting, W
+    for the samples at or above the distribution's (1 − THR) quantile (what `weighting.step`, which ranks a
+    finite training set, gives a training set drawn from this distribution: its batches hold a THR share of
+    such samples on average). Each is computed once on the raw APE and once on the APE ÷ its mean
+    (`ape_mean`). The step and uniform weights depend only on the APE's ranks, so they are the same on both
+    scales; the softmax's are not: dividing the APE by a mean much below 1 multiplies it by much more than 1,
+    and a τ ≤ 1 then gives one sample nearly all of a batch's weight. Each group draws its batches with numpy
+    seed 0.
 
     Returns:
       `WeightShares` per group, in report order.
     """
-    def share(w):  # [batches, batch] -> [batch]
-        top = -np.sort(-w, axis=1)
+    def share(w):  # [batches, batch] weights -> [batch] float64
+        top = -np.sort(-np.asarray(w, np.float64), axis=1)
         return (np.cumsum(top, axis=1) / top.sum(1, keepdims=True)).mean(0)
 
-    def softmax(z):
-        return np.exp(z - z.max(1, keepdims=True))
+    softmax = jax.vmap(weighting.softmax, in_axes=(0, None))   # [batches, batch] APE, τ -> weights
 
     out = []
     for _, m in ordered(merged):
@@ -107,12 +112,14 @@ def weight_shares(merged: Merged, batch: int = 128, batches: int = 400) -> list[
         raw = np.interp(np.random.default_rng(0).uniform(size=(batches, batch)), levels, q)
         by_mean = raw / mean if mean > 0 else None
         step = np.interp(1 - PAPER_STEP["thr"], levels, q)
-        series = [(f"softmax τ {tau:g}", share(softmax(raw / tau)),
-                   None if by_mean is None else share(softmax(by_mean / tau))) for tau in taus]
+        series = [(f"softmax τ {tau:g}", share(softmax(raw, tau)),
+                   None if by_mean is None else share(softmax(by_mean, tau))) for tau in taus]
+        # the distribution's quantile, not `weighting.step` on these draws: ranking the draws (exactly ⌊THR·N⌋ of
+        # them upweighted) would move the shares by up to 0.3 points, and the report's numbers and figure with them
         weighted = share(np.where(raw >= step, PAPER_STEP["w"], 1.0))
         series.append((f"step THR {percent(PAPER_STEP['thr'])} W {PAPER_STEP['w']:g}", weighted,
                        None if by_mean is None else weighted))
-        uniform = np.arange(1, batch + 1) / batch
+        uniform = share(weighting.uniform(raw))
         series.append(("uniform (BC-OH)", uniform, uniform))
         out.append(WeightShares(m.title, src.config["ape"]["normalization"], mean, recorded, series))
     return out
