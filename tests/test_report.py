@@ -818,3 +818,62 @@ def test_a_rate_pools_every_episode_with_wilsons_interval():
     assert wilson_cell(runs, "success") == f"75.00 [{100 * e.low:.2f}, {100 * e.high:.2f}]"
     assert 0.5 < e.low < 0.75 < e.high < 0.95
     assert wilson_cell([{"eval": {"return_mean": 1.0}}], "success") == "—"
+
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+def test_the_committed_report_section_is_what_the_committed_results_give(tmp_path):
+    """Golden snapshot: `build` over the committed `results/*.json` gives BENCHMARKS.md's report section byte for
+    byte (as `python -m experiments.report results/*.json --out BENCHMARKS.md` wrote it), and draws exactly the
+    report's committed figures (here into `tmp_path`, where `build` writes nothing)."""
+    files = [report.load(path) for path in sorted((ROOT / "results").glob("*.json"))]
+    text, drawn = report.build(files, tmp_path / "figures", tmp_path)
+    committed = (ROOT / "BENCHMARKS.md").read_text()
+    start, end = "<!-- report:start -->\n", "<!-- report:end -->"
+    expected = committed[committed.index(start) + len(start):committed.index(end)]
+    if text != expected:
+        got, want = text.splitlines(), expected.splitlines()
+        line = next((i for i, (a, b) in enumerate(zip(got, want)) if a != b), min(len(got), len(want)))
+        pytest.fail(f"the report differs from BENCHMARKS.md from line {line + 1} of its section:\n"
+                    f"  generated: {got[line] if line < len(got) else '(end)'}\n"
+                    f"  committed: {want[line] if line < len(want) else '(end)'}")
+    assert sorted(path.name for path in drawn) == sorted(
+        path.name for path in (ROOT / "figures").glob("*.png") if not path.name.startswith("keyframes-"))
+    assert all(path.parent == tmp_path / "figures" for path in drawn) and not (tmp_path / "figures").exists()
+
+
+def test_a_sections_figure_is_drawn_only_with_a_figure_folder_and_linked_relative_to_the_markdown(tmp_path):
+    from experiments.report.sections import Context, Section
+
+    calls = []
+
+    def draw():
+        calls.append(1)
+        return "a figure"
+
+    none = Context({}, None, tmp_path).figure("x.png", "X", draw)
+    assert none.lines == [] and none.figures == {} and calls == []
+    drawn = Context({}, tmp_path / "out" / "figs", tmp_path / "out").figure("x.png", "X", draw)
+    assert drawn.lines == ["![X](figs/x.png)", ""]
+    assert drawn.figures == {tmp_path / "out" / "figs" / "x.png": "a figure"}
+    assert Section("T", "intro", ["table\n"]).lines() == ["### T", "", "intro", "", "table\n"]
+    assert Section("", "note").lines() == ["note", ""]
+
+
+def test_no_report_module_uses_another_modules_private_names():
+    """What one module of `experiments.report` (or `experiments.compare`) takes from another is public: no
+    `from experiments... import _name`, no `module._name`."""
+    import ast
+
+    paths = [*(ROOT / "experiments" / "report").rglob("*.py"), ROOT / "experiments" / "compare.py"]
+    for path in paths:
+        tree = ast.parse(path.read_text())
+        ours = [node for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)
+                and (node.module or "").startswith("experiments")]
+        modules = {a.asname or a.name for node in ours for a in node.names}
+        private = [a.name for node in ours for a in node.names if a.name.startswith("_")]
+        private += [f"{node.value.id}.{node.attr}" for node in ast.walk(tree) if isinstance(node, ast.Attribute)
+                    and isinstance(node.value, ast.Name) and node.value.id in modules
+                    and node.attr.startswith("_") and not node.attr.startswith("__")]
+        assert not private, f"{path.relative_to(ROOT)} uses {private}"
