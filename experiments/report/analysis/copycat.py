@@ -18,13 +18,13 @@ from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_di
 from experiments.report.analysis.groups import (FCA, FCA_TRAIN, MUJOCO, Group, Key, Merged, ReportError, group_title,
                                                 in_fca_family, ordered, other_history)
 from experiments.report.analysis.selection import best_of, is_finite, method_rows, ok_runs, seed_values
-from experiments.report.paper import PAPER_STEP
+from experiments.report.paper import PAPER_STEP, PAPER_STEP_LABEL
 
 
 # -- the copycat map: the history's benefit per frame skip ---------------------------------------------------------
 
 # The map's methods, (label, method, hparams: None for the best of its rows).
-MAP_METHODS = (("BC-SO", "bc-so", None), ("BC-OH", "bc-oh", None), ("Ours, step THR 10% W 5", "ours-step", PAPER_STEP))
+MAP_METHODS = (("BC-SO", "bc-so", None), ("BC-OH", "bc-oh", None), (PAPER_STEP_LABEL, "ours-step", PAPER_STEP))
 
 
 class MapCell(NamedTuple):

@@ -19,13 +19,13 @@ from experiments.report.analysis.bootstrap import (Interval, RecipeCell, bootstr
 from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics, run_at
 from experiments.report.analysis.groups import FCA, MUJOCO, Group, Merged, ordered, other_setting
 from experiments.report.analysis.selection import is_finite, method_rows, ok_runs, seed_values
-from experiments.report.paper import PAPER_STEP, PAPER_TABLE5, PAPER_TAU
+from experiments.report.paper import PAPER_STEP, PAPER_STEP_LABEL, PAPER_TABLE5, PAPER_TAU
 
 
 # -- the paper's recipe: mlp against fca under one protocol --------------------------------------------------------
 
 # The recipe table's methods, (label, method, hparams: None for the task's default FCA setting).
-RECIPE_METHODS = (("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), ("Ours, step THR 10% W 5", "ours-step", PAPER_STEP),
+RECIPE_METHODS = (("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), (PAPER_STEP_LABEL, "ours-step", PAPER_STEP),
                   ("FCA (TCA)", "fca", None), ("FCA (TCA + IB)", "fca-ib", None))
 
 
@@ -114,7 +114,7 @@ def alpha_rows(m: Group) -> list[AlphaRow]:
 
 # The methods of the 300k table, (label, method, hparams): None for FCA's task default (`_recipe_row`),
 # "tau" for the softmax at the paper's τ of the task (`PAPER_TAU`).
-BUDGET_METHODS = (("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), ("Ours, step THR 10% W 5", "ours-step", PAPER_STEP),
+BUDGET_METHODS = (("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), (PAPER_STEP_LABEL, "ours-step", PAPER_STEP),
                   ("Ours, softmax at the paper's τ", "ours-softmax", "tau"), ("FCA (TCA)", "fca", None),
                   ("FCA (TCA + IB)", "fca-ib", None))
 

@@ -18,7 +18,7 @@ from typing import Mapping, NamedTuple, Sequence
 
 from ape_jax import methods as methods_lib
 from experiments.report.analysis.groups import Group, Key, Merged, config_key, is_rate, ordered
-from experiments.report.paper import PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP, PAPER_TAU
+from experiments.report.paper import PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP, PAPER_STEP_LABEL, PAPER_TAU
 
 
 # -- methods: labels and which ones the tables list ----------------------------------------------------------------
@@ -113,7 +113,7 @@ def headline(m: Group, extras: Sequence[str] = (), known: Mapping[str, dict] | N
     known = m.methods if known is None else known
     best_step, best_soft = best_of(method_rows(m, "ours-step")), best_of(method_rows(m, "ours-softmax"))
     out = [("BC-SO", best_of(method_rows(m, "bc-so"))), ("BC-OH", best_of(method_rows(m, "bc-oh"))),
-           ("Ours, step THR 10% W 5", paper_step_row(m)),
+           (PAPER_STEP_LABEL, paper_step_row(m)),
            (f"Ours, best step{hparams_suffix(best_step)}", best_step),
            (f"Ours, best softmax{hparams_suffix(best_soft)}", best_soft)]
     out += [(label(known, method), best_of(method_rows(m, method))) for method in extras]
@@ -140,21 +140,21 @@ def comparisons(m: Group) -> list[tuple[str, dict | None]]:
     def after(row: dict | None) -> str:
         return "" if row is None else f" ({hparams_suffix(row)[2:-1]}; selected after the fact)"
 
-    return [("Ours, step THR 10% W 5 (the paper's)", paper_step_row(m)),
+    return [(f"{PAPER_STEP_LABEL} (the paper's)", paper_step_row(m)),
             (f"Ours, best step{after(best_step)}", best_step), (f"Ours, best softmax{after(best_soft)}", best_soft)]
 
 
 def task_metric_rows(m: Group) -> list[tuple[str, str, list[dict]]]:
     """The task-metrics table's policies (the supplement's Table 4 protocol): `(label, method, ok runs)` of
     BC-SO, BC-OH and Ours at THR 10%, W 5, those that ran."""
-    wanted = (("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), ("Ours, step THR 10% W 5", "ours-step", PAPER_STEP))
+    wanted = (("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), (PAPER_STEP_LABEL, "ours-step", PAPER_STEP))
     return [(lab, method, runs) for lab, method, hp in wanted if (runs := ok_runs(m, method, hp))]
 
 
 def loss_rows(m: Group) -> list[tuple[str, list[dict]]]:
     """The loss analysis' policies: BC-SO, BC-OH, Ours at the paper's step setting and the best step
     (where it differs), each with its ok runs; those without runs left out."""
-    wanted = [("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), ("Ours, step THR 10% W 5", "ours-step", PAPER_STEP)]
+    wanted = [("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), (PAPER_STEP_LABEL, "ours-step", PAPER_STEP)]
     best = best_of(method_rows(m, "ours-step"))
     if best is not None and best["hparams"] != PAPER_STEP:
         wanted.append((f"Ours, best step{hparams_suffix(best)}", "ours-step", best["hparams"]))
@@ -194,7 +194,7 @@ def sensitivity(m: Group) -> tuple[list[tuple[float, dict | None]], list[tuple[f
     """The sensitivity study's rows: per τ of the paper's and per W (at THR 10%) of the paper's, our summary row."""
     rows = {config_key(r): r for r in m.summary if r["n_seeds"]}
     tau = [(t, rows.get(("ours-softmax", (("tau", t),)))) for t in PAPER_SENSITIVITY_TAU]
-    w = [(x, rows.get(("ours-step", (("thr", 0.1), ("w", x))))) for x in PAPER_SENSITIVITY_W]
+    w = [(x, rows.get(("ours-step", (("thr", PAPER_STEP["thr"]), ("w", x))))) for x in PAPER_SENSITIVITY_W]
     return tau, w
 
 

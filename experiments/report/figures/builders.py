@@ -21,7 +21,7 @@ from experiments.report.analysis import (FCA, FCA_TRAIN, MAP_METHODS, BudgetRow,
                                          hparams_suffix, in_fca_family, known_methods, label, method_rows, metric_value,
                                          ordered, paper_step_row, percent, seed_values, thousands)
 from experiments.report.figures.primitives import COLUMNS, DPI, Bars, Grid, Lines, bars, grid_axes, heatmap, lines
-from experiments.report.paper import PAPER_STEP, PAPER_TAU
+from experiments.report.paper import PAPER_STEP, PAPER_STEP_LABEL, PAPER_TAU
 
 
 def grid_figure(m: Group) -> Figure | None:
@@ -74,7 +74,7 @@ def returns_figure(merged: Merged) -> Figure | None:
     envs = [(k, m) for k, m in ordered(merged) if k.protocol == FCA or not in_fca_family(k.protocol)]
     known = known_methods(merged)
     baselines = [b for b in extra_methods(merged) if any(method_rows(m, b) for _, m in envs)]
-    labels = ["BC-SO", "BC-OH", "Ours, step THR 10% W 5", "Ours, best softmax",
+    labels = ["BC-SO", "BC-OH", PAPER_STEP_LABEL, "Ours, best softmax",
               *(label(known, b, online=False) for b in baselines)]
     panels = []
     for _, m in envs:
@@ -105,7 +105,7 @@ def curves_figure(merged: Merged) -> Figure | None:
     for _, m in ordered(merged):
         series = []
         best_soft = best_of(method_rows(m, "ours-softmax"))
-        for name, row in (("BC-OH", best_of(method_rows(m, "bc-oh"))), ("Ours, step THR 10% W 5", paper_step_row(m)),
+        for name, row in (("BC-OH", best_of(method_rows(m, "bc-oh"))), (PAPER_STEP_LABEL, paper_step_row(m)),
                           ("Ours, best softmax" + hparams_suffix(best_soft), best_soft)):
             runs = [r["train_curve"] for r in m.runs if row is not None and r["status"] == "ok"
                     and config_key(r) == config_key(row) and r.get("train_curve")]

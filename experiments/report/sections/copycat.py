@@ -107,7 +107,8 @@ def extended_map_section(ctx: Context) -> list[Section]:
              "split by rows as its code does; a history other than the protocol's 2 observations is named there), "
              "the frame skip, the training-set size, and the budget (the run's length, and for runs evaluated during "
              "training each iteration they were evaluated at). Per cell, BC-SO, "
-             "BC-OH and Ours (step THR 10% W 5) in % of expert (mean ± std over seeds), and BC-OH − BC-SO in points "
+             f"BC-OH and Ours (step THR {percent(PAPER_STEP['thr'])} W {PAPER_STEP['w']:g}) in % of expert (mean ± "
+             "std over seeds), and BC-OH − BC-SO in points "
              "with its 95% bootstrap interval (bold where it excludes 0): copycat was inferred from a small or "
              "negative BC-OH − BC-SO.")
     drawn = ctx.figure("copycat-map-extended.png", "Where copycat appears: the history's benefit and BC-OH's "

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from experiments.report import figures
-from experiments.report.analysis import APE_SCALES, BRAX, Key, Merged, WeightShares, sensitivity, weight_shares
-from experiments.report.paper import PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W
+from experiments.report.analysis import APE_SCALES, BRAX, Key, Merged, WeightShares, percent, sensitivity, weight_shares
+from experiments.report.paper import PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP
 from experiments.report.sections.common import Context, Section, norm_cell, return_cell
 
 
@@ -28,7 +28,8 @@ def sensitivity_table(merged: Merged) -> str | None:
         paper = f"Walker2d {PAPER_SENSITIVITY_TAU[t][0]} ± {PAPER_SENSITIVITY_TAU[t][1]}"
         lines.append(f"| softmax τ {t:g} | {return_cell(r).split(' (')[0]} | {norm_cell(r)} | {paper} |")
     for x, r in w:
-        lines.append(f"| step THR 10%, W {x:g} | {return_cell(r).split(' (')[0]} | {norm_cell(r)} | "
+        lines.append(f"| step THR {percent(PAPER_STEP['thr'])}, W {x:g} | {return_cell(r).split(' (')[0]} | "
+                     f"{norm_cell(r)} | "
                      f"driving {PAPER_SENSITIVITY_W[x]}% success |")
     for name, group in (("τ", tau), ("W", w)):
         got = [r for _, r in group if r is not None]
@@ -78,7 +79,8 @@ def sensitivity_section(ctx: Context) -> list[Section]:
     if not table:
         return []
     return [Section("Sensitivity (the supplement's §4)",
-                    f"Walker2d (states, protocol {SENSITIVITY.protocol}), softmax τ and the step weight W at THR 10%, "
+                    f"Walker2d (states, protocol {SENSITIVITY.protocol}), softmax τ and the step weight W at THR "
+                    f"{percent(PAPER_STEP['thr'])}, "
                     "next to the paper's numbers (its W study was on CARLA driving, so only the pattern compares).",
                     [table])]
 

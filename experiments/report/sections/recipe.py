@@ -8,7 +8,7 @@ from experiments.report import figures
 from experiments.report.analysis import (FCA, BudgetRow, Interval, alpha_rows, bootstrap_difference, budget_differences,
                                          budget_rows, diagnostics_thresholds, paper_budget_groups, recipe_diagnostics,
                                          recipe_groups, recipe_rows, thousands, verdict)
-from experiments.report.paper import PAPER_TABLE5
+from experiments.report.paper import PAPER_STEP_LABEL, PAPER_TABLE5
 from experiments.report.sections.common import Context, Section, ci_text, diff_cell, pct_cell, ratio_text
 from experiments.report.sections.diagnostics import diagnostics_lines, thresholds_line
 
@@ -42,7 +42,7 @@ def recipe_section(ctx: Context) -> list[Section]:
         lines = []
         for n in names:
             cells = {r.label: r.cells.get(n) for r in rows}
-            for a, b in (("BC-OH", "BC-SO"), ("Ours, step THR 10% W 5", "BC-OH"), ("FCA (TCA)", "BC-OH"),
+            for a, b in (("BC-OH", "BC-SO"), (PAPER_STEP_LABEL, "BC-OH"), ("FCA (TCA)", "BC-OH"),
                          ("FCA (TCA + IB)", "BC-OH")):
                 if cells.get(a) is not None and cells.get(b) is not None:
                     ci = bootstrap_difference(cells[a].seeds, cells[b].seeds)

@@ -7,7 +7,7 @@ from ape_jax import tasks
 from experiments.report.analysis import (BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, BRAX, FCA, Group, Key, Merged, best_of,
                                          extra_methods, groups_of, headline, hparams_suffix, in_fca_family,
                                          known_methods, label, method_rows, paper_step_row, protocols_of, versus_bcoh)
-from experiments.report.paper import PAPER_TABLE5
+from experiments.report.paper import PAPER_STEP_LABEL, PAPER_TABLE5
 from experiments.report.sections.common import Context, Section, return_cell
 
 
@@ -171,7 +171,7 @@ def paper_table(merged: Merged, protocol: str = BRAX) -> str:
             spread = f" ± {row['return_std']:,.0f}" if same_scale and row is not None else ""
             cells.append("—" if row is None or bcoh is None else
                          f"{row['return_mean']:,.0f}{spread} ({row['return_mean'] / bcoh['return_mean']:.2f}×)")
-        name = "Ours, step THR 10% W 5" if method == "ours" else label(known, fca if method == "fca" else method)
+        name = PAPER_STEP_LABEL if method == "ours" else label(known, fca if method == "fca" else method)
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     if same_scale:
         lines.append("| expert | " + " | ".join(
