@@ -84,7 +84,8 @@ def verdict(ci: Interval, a: str = "Ours", b: str = "BC-OH") -> str:
 
 
 class RecipeCell(NamedTuple):
-    """One method under one recipe: % of expert, the mean over seeds with its 95% bootstrap interval, the seeds."""
+    """A mean over seeds with its 95% bootstrap interval, and the seeds' values: one method under one recipe (% of
+    expert), or one configuration at one iteration (`TrainingPoint`, `BudgetPoint`)."""
 
     mean: float
     low: float
@@ -93,6 +94,7 @@ class RecipeCell(NamedTuple):
 
 
 def mean_cell(values: Sequence[float]) -> RecipeCell | None:
+    """`RecipeCell` of per-seed `values`: their mean with its 95% bootstrap interval; None for no values."""
     return RecipeCell(*bootstrap_mean(values), tuple(values)) if values else None
 
 

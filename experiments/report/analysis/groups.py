@@ -246,6 +246,7 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
 
 
 def config_key(row: dict) -> tuple:
+    """A summary row's or run's configuration, hashable: `(method, ((name, value), ...))`, names sorted."""
     return row["method"], tuple(sorted(row["hparams"].items()))
 
 

@@ -69,6 +69,7 @@ def extra_methods(merged: Merged) -> list[str]:
 # -- selection -----------------------------------------------------------------------------------------------------
 
 def method_rows(m: Group, method: str) -> list[dict]:
+    """Group `m`'s summary rows of `method` that have seeds (a configuration whose every run failed has none)."""
     return [r for r in m.summary if r["method"] == method and r["n_seeds"]]
 
 
@@ -130,6 +131,7 @@ def seed_values(m: Group, row: dict | None, key: str = "return_mean") -> list[fl
 
 
 def ok_runs(m: Group, method: str, hparams: dict) -> list[dict]:
+    """Group `m`'s runs of one configuration (`method`, `hparams`) that finished (`status` ok), in file order."""
     return [r for r in m.runs if r["method"] == method and r["hparams"] == hparams and r["status"] == "ok"]
 
 
@@ -209,15 +211,18 @@ def display_metric(m: Group) -> tuple[str, str]:
 
 
 def metric_value(row: dict, prefix: str) -> tuple[float, float]:
+    """A summary row's `(mean, std)` of `prefix` (`"normalized"` or `"return"`); std NaN where not recorded."""
     mean, std = row[f"{prefix}_mean"], row.get(f"{prefix}_std")
     return float(mean), float(std if std is not None else math.nan)
 
 
 def is_number(v) -> bool:
+    """Whether `v` is an int or float (not a bool)."""
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
 
 def is_finite(v) -> bool:
+    """Whether `v` is a finite number (`is_number`, not NaN or ±inf)."""
     return is_number(v) and math.isfinite(v)
 
 
@@ -247,6 +252,7 @@ class Gap(NamedTuple):
 
 
 def gap(chosen: dict, best: dict, prefix: str) -> Gap:
+    """Summary row `chosen` against the grid's `best`, in `prefix` (`display_metric`): their `Gap`."""
     (cm, cs), (bm, bs) = metric_value(chosen, prefix), metric_value(best, prefix)
     return Gap((cm, cs), (bm, bs), bm - cm, max(cs, bs), chosen is best)
 

@@ -77,6 +77,7 @@ class Context:
 # -- cells and phrases the sections share ----------------------------------------------------------------------
 
 def return_cell(row: dict | None) -> str:
+    """`"1,000 ± 8 (50%)"`: a summary row's mean return ± std over seeds, with its % of expert; "—" for None."""
     if row is None:
         return "—"
     norm = f" ({row['normalized_mean']:.0f}%)" if row.get("normalized_mean") is not None else ""
@@ -84,14 +85,17 @@ def return_cell(row: dict | None) -> str:
 
 
 def norm_cell(row: dict | None) -> str:
+    """A summary row's % of expert, `"50.0"`; "—" for None or where not recorded."""
     return "—" if row is None or row.get("normalized_mean") is None else f"{row['normalized_mean']:.1f}"
 
 
 def pct_cell(cell) -> str:
+    """`"50.0 [49.5, 50.5]"`: a mean over seeds with its 95% bootstrap interval (`RecipeCell`); "—" for None."""
     return "—" if cell is None else f"{cell.mean:.1f} [{cell.low:.1f}, {cell.high:.1f}]"
 
 
 def diff_cell(ci: Interval | None) -> str:
+    """`"+20.0 [+19.5, +20.5]"`: a difference with its interval, bold where `significant`; "—" for None."""
     if ci is None:
         return "—"
     text = f"{ci.diff:+.1f} [{ci.low:+.1f}, {ci.high:+.1f}]"
@@ -111,6 +115,7 @@ def verdict_count(d: PolicyDiagnostics) -> str:
 
 
 def ci_text(ci: Interval, fmt: str = "+.1f") -> str:
+    """`"95% CI [+1.0, +3.0]"`: an interval's bounds in format `fmt`."""
     return f"95% CI [{ci.low:{fmt}}, {ci.high:{fmt}}]"
 
 
