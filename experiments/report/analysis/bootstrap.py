@@ -133,7 +133,8 @@ def _unit_seeds(m: Group, row: dict | None, key: str | None = None, factor: floa
 
 def history_difference(m: Group, key: str | None = None, factor: float | None = None) -> Interval | None:
     """BC-OH − BC-SO over seeds in group `m` (each the best of its rows), by default in `bootstrap_unit(m)`; None if
-    either has no seeds. With `key`/`factor`, of `eval[key] × factor` instead (`"normalized"`, 1: % of expert points)."""
+    either has no seeds. With `key`/`factor`, of `eval[key] × factor` instead (`"normalized"`, 1: % of expert
+    points)."""
     bcoh = _unit_seeds(m, best_of(method_rows(m, "bc-oh")), key, factor)
     bcso = _unit_seeds(m, best_of(method_rows(m, "bc-so")), key, factor)
     return bootstrap_difference(bcoh, bcso) if bcoh and bcso else None

@@ -90,7 +90,8 @@ def returns_figure(merged: Merged) -> Figure | None:
             notes[3] = f"τ {soft['hparams']['tau']:g}"
         panels.append(Bars(
             m.title, unit, [None if r is None else metric_value(r, prefix)[0] for r in rows],
-            [None if r is None else metric_value(r, prefix)[1] for r in rows], [seed_values(m, r, key) for r in rows], notes,
+            [None if r is None else metric_value(r, prefix)[1] for r in rows], [seed_values(m, r, key) for r in rows],
+            notes,
             100.0 if prefix == "normalized" else None, "expert"))
     if not panels:
         return None

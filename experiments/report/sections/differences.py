@@ -150,7 +150,8 @@ def _bcoh_diagnosed(m: Group) -> str:
         return ("BC-OH's policies here were not diagnosed (their files predate the copycat diagnostics), so whether "
                 "it copies is not measured.")
     return (f"BC-OH's copycat diagnostics judge {d.copycats} of {d.read} seeds copycat (median embedding ratio "
-            f"{ratio_text(d.embedding, with_range=False)}, predictability ratio {ratio_text(d.predictability, with_range=False)}).")
+            f"{ratio_text(d.embedding, with_range=False)}, predictability ratio "
+            f"{ratio_text(d.predictability, with_range=False)}).")
 
 
 def longer_table(rows, base: Group, longer: Group) -> str:

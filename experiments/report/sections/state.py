@@ -50,8 +50,8 @@ def state_table(merged: Merged, obs: str = "pos", protocol: str = BRAX) -> str:
 
 
 def versus_table(merged: Merged, obs: str = "pos", protocol: str = BRAX) -> str:
-    """The state table's rows against BC-OH, per task: each method's mean − BC-OH's over seeds (in `bootstrap_unit`), its
-    95% bootstrap CI, bold where the interval excludes 0 with ≥ 2 seeds per arm; "" if no group has BC-OH."""
+    """The state table's rows against BC-OH, per task: each method's mean − BC-OH's over seeds (in `bootstrap_unit`),
+    its 95% bootstrap CI, bold where the interval excludes 0 with ≥ 2 seeds per arm; "" if no group has BC-OH."""
     groups = groups_of(merged, obs, protocol)
     extras = extra_methods({Key(m.env, obs, protocol): m for m in groups})
     known = known_methods(merged)
@@ -160,8 +160,8 @@ def paper_table(merged: Merged, protocol: str = BRAX) -> str:
     # the paper's FCA is the FCA paper's adversary with its information bottleneck: ours with it where it ran
     # (`fca-ib`), else the adversary alone as the FCA code ships it (`fca`); the row names which
     fca = "fca-ib" if any(method_rows(m, "fca-ib") for m in groups) else "fca"
-    ours = [{"bc-so": best_of(method_rows(m, "bc-so")), "bc-oh": best_of(method_rows(m, "bc-oh")), "fca": best_of(method_rows(m, fca)),
-             "ours": paper_step_row(m)} for m in groups]
+    ours = [{"bc-so": best_of(method_rows(m, "bc-so")), "bc-oh": best_of(method_rows(m, "bc-oh")),
+             "fca": best_of(method_rows(m, fca)), "ours": paper_step_row(m)} for m in groups]
     for method in PAPER_TABLE5:
         cells = []
         for m, mine in zip(groups, ours):
