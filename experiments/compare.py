@@ -109,13 +109,13 @@ def match(yours: analysis.Source, against: Sequence[analysis.Source]) -> list[an
                        f"in {'; '.join(diff[:4])}{' …' if len(diff) > 4 else ''}")
 
 
-def _arm(m: dict, row: dict | None, label: str, yours: bool) -> Arm | None:
+def _arm(m: analysis.Group, row: dict | None, label: str, yours: bool) -> Arm | None:
     if row is None:
         return None
-    pct = analysis._seeds(m, row, "normalized")
+    pct = analysis.seed_values(m, row, "normalized")
     if not pct:
         return None
-    return Arm(row["method"], label, np.asarray(pct, float), np.asarray(analysis._seeds(m, row), float),
+    return Arm(row["method"], label, np.asarray(pct, float), np.asarray(analysis.seed_values(m, row), float),
                row["hparams"], yours)
 
 
@@ -125,16 +125,17 @@ def task_arms(yours: Sequence[analysis.Source], references: Sequence[analysis.So
     mine = analysis.merge(yours)
     ref = analysis.merge(references)
     (m,), (r,) = mine.values(), ref.values()  # `match` made each one group
-    known = {**r["methods"], **m["methods"]}
+    known = {**r.methods, **m.methods}
     arms = []
-    for method in dict.fromkeys(row["method"] for row in m["summary"]):
+    for method in dict.fromkeys(row["method"] for row in m.summary):
         if method in REFERENCES:  # the reference files' own stand
             continue
-        arm = _arm(m, analysis._best(analysis._rows(m, method)), analysis.label(known, method), True)
+        arm = _arm(m, analysis.best_of(analysis.method_rows(m, method)), analysis.label(known, method), True)
         if arm is not None:
             arms.append(arm)
     for method in REFERENCES:
-        row = analysis._paper_step(r) if method == "ours-step" else analysis._best(analysis._rows(r, method))
+        row = (analysis.paper_step_row(r) if method == "ours-step"
+               else analysis.best_of(analysis.method_rows(r, method)))
         arm = _arm(r, row, REFERENCE_LABELS[method], False)
         if arm is not None:
             arms.append(arm)

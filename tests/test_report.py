@@ -487,8 +487,8 @@ def test_fca_and_brax_results_of_one_task_are_merged_apart_into_two_tables(tmp_p
     files = _map_files(tmp_path)
     merged = report.merge(files)
     assert sorted(merged) == sorted([("hopper", "pos", p, None) for p in ("fca", "fca-fs2", "fca-fs4", "brax")])
-    assert merged[("hopper", "pos", "brax", None)]["expert"]["return_mean"] == 3000.0   # each group keeps its expert
-    assert [m["title"] for m in merged.values()] == ["Hopper (fca)", "Hopper (fca, frame skip 2)",
+    assert merged[("hopper", "pos", "brax", None)].expert["return_mean"] == 3000.0   # each group keeps its expert
+    assert [m.title for m in merged.values()] == ["Hopper (fca)", "Hopper (fca, frame skip 2)",
                                                      "Hopper (fca, frame skip 4)", "Hopper (brax)"]
     text = report.report(files)
     fca = text[text.index("### MuJoCo-State, the paper's protocol (fca): frame skip 1, 500 standard steps of "
@@ -671,7 +671,9 @@ def test_the_experts_rollout_ape_reference_is_put_on_the_raw_training_means_scal
     from experiments.report import analysis
 
     def group(ape):
-        return {"sources": [Results.from_json({**_results(), "config": {**_results()["config"], "ape": ape}})]}
+        res = Results.from_json({**_results(), "config": {**_results()["config"], "ape": ape}})
+        (m,) = report.merge([res]).values()
+        return m
 
     assert analysis.expert_ape(group({"normalization": "mean", "scale": 0.02, "val_mean": 1.3})) == 1.3
     assert analysis.expert_ape(group({"normalization": "none", "scale": 1.0, "val_mean": 0.026,
@@ -689,7 +691,7 @@ def test_a_longer_run_is_its_own_group_compared_configuration_by_configuration(t
     files.append(_loaded(tmp_path, _schema2(long, protocol=_fca(1)), "long.json"))
     merged = report.merge(files)
     key = ("hopper", "pos", "fca", 100_000)
-    assert key in merged and merged[key]["title"] == "Hopper (fca, 100,000 iterations)"
+    assert key in merged and merged[key].title == "Hopper (fca, 100,000 iterations)"
     text = report.report(files, tmp_path / "figures")
     section = text[text.index("### Training longer"):]
     assert "| Hopper (fca, 100,000 iterations): configuration | 30,000 iterations | seeds | 100,000 iterations |" in section
@@ -809,10 +811,69 @@ def test_the_recipe_table_compares_recipes_under_one_protocol_apart_from_the_who
 
 def test_a_rate_pools_every_episode_with_wilsons_interval():
     """ToyCar's success: 5 of 10 and 10 of 10 episodes are 15 of 20, Wilson's interval around 0.75."""
-    from experiments.report import markdown
+    from experiments.report.sections.task_metrics import wilson_cell
 
     runs = [{"eval": {"success": 0.5, "episodes": 10}}, {"eval": {"success": 1.0, "episodes": 10}}]
     e = stats.wilson(15, 20)
-    assert markdown._wilson_cell(runs, "success") == f"75.00 [{100 * e.low:.2f}, {100 * e.high:.2f}]"
+    assert wilson_cell(runs, "success") == f"75.00 [{100 * e.low:.2f}, {100 * e.high:.2f}]"
     assert 0.5 < e.low < 0.75 < e.high < 0.95
-    assert markdown._wilson_cell([{"eval": {"return_mean": 1.0}}], "success") == "—"
+    assert wilson_cell([{"eval": {"return_mean": 1.0}}], "success") == "—"
+
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+def test_the_committed_report_section_is_what_the_committed_results_give(tmp_path):
+    """Golden snapshot: `build` over the committed `results/*.json` gives BENCHMARKS.md's report section byte for
+    byte (as `python -m experiments.report results/*.json --out BENCHMARKS.md` wrote it), and draws exactly the
+    report's committed figures (here into `tmp_path`, where `build` writes nothing)."""
+    files = [report.load(path) for path in sorted((ROOT / "results").glob("*.json"))]
+    text, drawn = report.build(files, tmp_path / "figures", tmp_path)
+    committed = (ROOT / "BENCHMARKS.md").read_text()
+    start, end = "<!-- report:start -->\n", "<!-- report:end -->"
+    expected = committed[committed.index(start) + len(start):committed.index(end)]
+    if text != expected:
+        got, want = text.splitlines(), expected.splitlines()
+        line = next((i for i, (a, b) in enumerate(zip(got, want)) if a != b), min(len(got), len(want)))
+        pytest.fail(f"the report differs from BENCHMARKS.md from line {line + 1} of its section:\n"
+                    f"  generated: {got[line] if line < len(got) else '(end)'}\n"
+                    f"  committed: {want[line] if line < len(want) else '(end)'}")
+    assert sorted(path.name for path in drawn) == sorted(
+        path.name for path in (ROOT / "figures").glob("*.png") if not path.name.startswith("keyframes-"))
+    assert all(path.parent == tmp_path / "figures" for path in drawn) and not (tmp_path / "figures").exists()
+
+
+def test_a_sections_figure_is_drawn_only_with_a_figure_folder_and_linked_relative_to_the_markdown(tmp_path):
+    from experiments.report.sections import Context, Section
+
+    calls = []
+
+    def draw():
+        calls.append(1)
+        return "a figure"
+
+    none = Context({}, None, tmp_path).figure("x.png", "X", draw)
+    assert none.lines == [] and none.figures == {} and calls == []
+    drawn = Context({}, tmp_path / "out" / "figs", tmp_path / "out").figure("x.png", "X", draw)
+    assert drawn.lines == ["![X](figs/x.png)", ""]
+    assert drawn.figures == {tmp_path / "out" / "figs" / "x.png": "a figure"}
+    assert Section("T", "intro", ["table\n"]).lines() == ["### T", "", "intro", "", "table\n"]
+    assert Section("", "note").lines() == ["note", ""]
+
+
+def test_no_report_module_uses_another_modules_private_names():
+    """What one module of `experiments.report` (or `experiments.compare`) takes from another is public: no
+    `from experiments... import _name`, no `module._name`."""
+    import ast
+
+    paths = [*(ROOT / "experiments" / "report").rglob("*.py"), ROOT / "experiments" / "compare.py"]
+    for path in paths:
+        tree = ast.parse(path.read_text())
+        ours = [node for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)
+                and (node.module or "").startswith("experiments")]
+        modules = {a.asname or a.name for node in ours for a in node.names}
+        private = [a.name for node in ours for a in node.names if a.name.startswith("_")]
+        private += [f"{node.value.id}.{node.attr}" for node in ast.walk(tree) if isinstance(node, ast.Attribute)
+                    and isinstance(node.value, ast.Name) and node.value.id in modules
+                    and node.attr.startswith("_") and not node.attr.startswith("__")]
+        assert not private, f"{path.relative_to(ROOT)} uses {private}"

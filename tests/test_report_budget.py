@@ -1,5 +1,6 @@
-"""The paper's budget in the report (`analysis.paper_budget_groups`, `budget_rows`, `markdown.paper_budget_section`)
-and the extended copycat map (`analysis.extended_map`, `markdown.extended_map_section`).
+"""The paper's budget in the report (`analysis.paper_budget_groups`, `budget_rows`,
+`sections.recipe.paper_budget_section`) and the extended copycat map (`analysis.extended_map`,
+`sections.copycat.extended_map_section`).
 
 The fixture is the committed recipe-fca file (BC-SO, BC-OH, Ours 10% × 5 at 30k, 5 seeds) turned into a `paper`-preset
 file of 300k iterations whose runs were also evaluated at 30k and 100k (`at`), with numbers and diagnostics chosen
@@ -48,7 +49,7 @@ def _normalized(method: str) -> list[float]:
 def test_a_paper_preset_file_is_a_group_of_its_own_beside_the_default_one(tmp_path):
     merged = report.merge([_paper_file(tmp_path), report.load(FCA_BC)])   # the same configurations: never merged
     assert set(merged) == {Key("hopper", "pos", "fca.rows.fca"), Key("hopper", "pos", "fca.rows.fca", 300_000)}
-    assert [m["budget"] for m in paper_budget_groups(merged)] == [300_000]
+    assert [m.budget for m in paper_budget_groups(merged)] == [300_000]
 
 
 def test_budget_rows_hold_every_point_with_table5_beside_its_methods(tmp_path):

@@ -15,7 +15,7 @@ import pytest
 from ape_jax.pipeline import results
 from experiments import report
 from experiments.report.analysis import Spread, diagnostics_rows, policy_diagnostics, spread
-from experiments.report.markdown import thresholds_line
+from experiments.report.sections.diagnostics import thresholds_line
 from experiments.sweep import table
 
 RESULTS = pathlib.Path(__file__).resolve().parents[1] / "results"

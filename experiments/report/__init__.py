@@ -47,9 +47,12 @@ plugin's too), then the method registry; tasks are told apart by their record
 (`ape_jax.tasks`): one judged by a rate is reported in %.
 
 The package: `analysis` (loading, merging per protocol, the rows each table
-picks, the bootstrap, the copycat map, the weights), `markdown` (the tables,
-the generated sentences, provenance, `build`) and `figures` (drawing
-primitives and the report's figures).
+picks, the bootstrap, the copycat map, the weights: one module per concern),
+`paper` (every number of the paper's the report sets beside ours), `sections`
+(each section a function `(Context) -> list[Section]`: its tables, generated
+sentences and figure links), `markdown` (`build`: the sections in order),
+`figures` (drawing primitives and the report's figures) and `stats` (the
+cross-task estimators of `experiments.compare`).
 
 A results file that cannot be read, is not JSON, or lacks a field the tables
 use (or has it with the wrong type), and an `--out` that cannot be written, are
@@ -66,7 +69,8 @@ from experiments._cli import Parser, fail, unwritable, unwritable_file
 from experiments.report.analysis import (ReportError, bootstrap_difference, bootstrap_rows, copycat_map, load, merge,
                                          verdict, weight_shares)
 from experiments.report.figures import save_png
-from experiments.report.markdown import build, provenance
+from experiments.report.markdown import build
+from experiments.report.sections.detail import provenance
 
 __all__ = ["ReportError", "bootstrap_difference", "bootstrap_rows", "build", "copycat_map", "load", "main", "merge",
            "provenance", "report", "verdict", "weight_shares"]

@@ -1,0 +1,64 @@
+"""The report's numbers: results files loaded and merged, the rows each table picks, the bootstrap, the weights.
+
+Nothing here formats markdown or draws: `experiments.report.sections` and `experiments.report.figures` do, from
+what these functions return. One module per concern, each re-exported here:
+
+- `groups`: `load` one results file, `merge` them per `Key(env, obs, protocol, budget)`, the groups in report
+  order and their titles;
+- `selection`: method labels, the rows each table picks (`method_rows`, `best_of`, `paper_step_row`,
+  `headline`, ...), per-seed values (`seed_values`), the paper's settings against the grid (`choices`), longer
+  runs;
+- `bootstrap`: `bootstrap_difference`, `bootstrap_mean`, `verdict`, and per group BC-OH − BC-SO and Ours − BC-OH
+  (`bootstrap_rows`);
+- `diagnostics`: copycat diagnostics per configuration, at the end and over training;
+- `copycat`: the copycat map (`copycat_map`) and the extended map (`extended_map`);
+- `recipe`: the recipe comparison (mlp against fca) and the paper's budget beside Table 5;
+- `weights`: how concentrated each weighting is within a batch (`weight_shares`).
+
+The paper's own numbers are in `experiments.report.paper`.
+"""
+
+from experiments.report.analysis.bootstrap import (BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, Difference, Interval,
+                                                   RecipeCell, bootstrap_difference, bootstrap_mean, bootstrap_rows,
+                                                   bootstrap_unit, history_difference, mean_cell, ours_differences,
+                                                   verdict, versus_bcoh)
+from experiments.report.analysis.copycat import (MAP_METHODS, CopycatMap, MapCell, MapPoint, MapRow, copycat_map,
+                                                 extended_map)
+from experiments.report.analysis.diagnostics import (DiagnosticsRow, PolicyDiagnostics, Spread, TrainingPoint,
+                                                     diagnostics_block, diagnostics_rows, diagnostics_thresholds,
+                                                     has_diagnostics, policy_diagnostics, recipe_diagnostics, run_at,
+                                                     spread, training_points)
+from experiments.report.analysis.groups import (BRAX, FCA, FCA_TRAIN, MUJOCO, Group, Key, Merged, ReportError, Source,
+                                                budget_of, config_key, envs_of, file_stem, group_title, groups_of,
+                                                in_fca_family, is_rate, load, main_metric, merge, ordered,
+                                                other_history, other_setting, protocol_of, protocol_words, protocols_of,
+                                                variant_name)
+from experiments.report.analysis.recipe import (BUDGET_METHODS, RECIPE_METHODS, AlphaRow, BudgetPoint, BudgetRow,
+                                                RecipeRow, alpha_rows, budget_differences, budget_rows,
+                                                paper_budget_groups, recipe_groups, recipe_rows)
+from experiments.report.analysis.selection import (Choice, Gap, LongerRow, best_of, choices, comparisons,
+                                                   copycat_groups, display_metric, expert_ape, extra_methods, gap,
+                                                   headline, hparams_suffix, is_finite, is_number, known_methods,
+                                                   label, longer_runs, loss_rows, method_rows, metric_value,
+                                                   ok_runs, paper_step_row, percent, seed_values, sensitivity,
+                                                   task_metric_rows, thousands)
+from experiments.report.analysis.weights import (APE_SCALES, WeightShares, ape_mean, quantile_mean, raw_quantiles,
+                                                 weight_shares)
+
+__all__ = [
+    "APE_SCALES", "BOOTSTRAP_RESAMPLES", "BOOTSTRAP_SEED", "BRAX", "BUDGET_METHODS", "FCA", "FCA_TRAIN",
+    "MAP_METHODS", "MUJOCO", "RECIPE_METHODS", "AlphaRow", "BudgetPoint", "BudgetRow", "Choice", "CopycatMap",
+    "DiagnosticsRow", "Difference", "Gap", "Group", "Interval", "Key", "LongerRow", "MapCell", "MapPoint", "MapRow",
+    "Merged", "PolicyDiagnostics", "RecipeCell", "RecipeRow", "ReportError", "Source", "Spread", "TrainingPoint",
+    "WeightShares", "alpha_rows", "ape_mean", "best_of", "bootstrap_difference", "bootstrap_mean", "bootstrap_rows",
+    "bootstrap_unit", "budget_differences", "budget_of", "budget_rows", "choices", "comparisons", "config_key",
+    "copycat_groups", "copycat_map", "diagnostics_block", "diagnostics_rows", "diagnostics_thresholds",
+    "display_metric", "envs_of", "expert_ape", "extended_map", "extra_methods", "file_stem", "gap", "group_title",
+    "groups_of", "has_diagnostics", "headline", "history_difference", "hparams_suffix", "in_fca_family", "is_finite",
+    "is_number", "is_rate", "known_methods", "label", "load", "longer_runs", "loss_rows", "main_metric", "mean_cell",
+    "merge", "method_rows", "metric_value", "ok_runs", "ordered", "other_history", "other_setting",
+    "ours_differences", "paper_budget_groups", "paper_step_row", "percent", "policy_diagnostics", "protocol_of",
+    "protocol_words", "protocols_of", "quantile_mean", "raw_quantiles", "recipe_diagnostics", "recipe_groups",
+    "recipe_rows", "run_at", "seed_values", "sensitivity", "spread", "task_metric_rows", "thousands",
+    "training_points", "variant_name", "verdict", "versus_bcoh", "weight_shares",
+]

@@ -1,0 +1,308 @@
+"""Results files loaded and merged into groups: one task, observation mode, protocol and budget each.
+
+- `load` reads one results file (`ape_jax.pipeline.results.load`, the one validator), refusing `--smoke` runs;
+- `merge` joins them per `Key(env, obs, protocol, budget)`: results of one task under two protocols (the paper's
+  `fca`, Brax's own `brax`) are different experiments, on different scales, and never mix;
+- `ordered`, `group_title`, `file_stem`, `groups_of`, `protocols_of`: the groups in report order, and how
+  tables and figure files name them.
+
+Protocols: a file's `protocol["name"]`; schema 1 files record none and ran Brax's own settings, so they are
+`brax`. The *fca family* is `fca` (the paper's MuJoCo-State setting, frame skip 1) and every protocol named
+`fca-...` (the same setting at another frame skip or training-set size, e.g. `fca-fs4`), told apart by the
+`frame_skip` and `train_transitions` they record.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import pathlib
+from typing import Mapping, NamedTuple, Sequence
+
+from ape_jax import tasks
+from ape_jax.pipeline import results as results_lib
+
+
+# The state tables' tasks: those with an expert that are judged by their return (the MuJoCo tasks).
+MUJOCO = tuple(t for t in tasks.sweepable() if tasks.get(t).metric == "return")
+
+
+class ReportError(results_lib.ResultsError):
+    """A results file that cannot be read or merged (one line, naming the file)."""
+
+
+@dataclasses.dataclass
+class Source(results_lib.Results):
+    """One results file as the report read it: its `Results`, and where it came from."""
+
+    path: str = ""
+
+
+def load(path: str | pathlib.Path) -> Source:
+    """Reads and validates one results file (`ReportError`, one line naming it, if it cannot be used)."""
+    try:
+        res = results_lib.load(path)
+    except results_lib.ResultsError as e:
+        raise ReportError(str(e)) from None
+    if res.config.get("smoke"):
+        raise ReportError(f"{path}: a --smoke run (its amounts shrunk to seconds, its numbers mean nothing); "
+                          f"the report takes real runs only")
+    return Source(**{f.name: getattr(res, f.name) for f in dataclasses.fields(results_lib.Results)}, path=str(path))
+
+
+def main_metric(res: results_lib.Results) -> str:
+    """What a results file is judged by: the metric it records, else its task's (schema 1 records none)."""
+    return res.main_metric if "metric" in res.config else tasks.get(res.env).metric
+
+
+BRAX, FCA = "brax", "fca"  # the protocol of files that record none; the paper's MuJoCo-State protocol
+
+
+# fca's training transitions (its protocol record's): the frame-skip rows of the map all have it.
+FCA_TRAIN = tasks.PROTOCOLS[FCA].train_transitions
+
+
+class Key(NamedTuple):
+    """A merged group of results: one task, one observation mode, one protocol (its name), one training budget.
+
+    `budget` is None for files that trained their preset's iterations, else their iterations (a run with
+    `--iterations`, e.g. the long runs that ask whether more training changes a verdict): results at another
+    budget are another experiment, shown apart and compared in "Training longer" (`longer_runs`).
+    """
+
+    env: str
+    obs: str
+    protocol: str
+    budget: int | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class Group:
+    """The merged results of one `Key` (`merge`): every file of one task, observation mode, protocol and budget.
+
+    Attributes:
+      env, obs: the task and its observation mode.
+      protocol: the files' protocol settings, `name` always set (`brax` for schema 1 files; a variant's group name,
+        with `variant_of` and `recipe`, for a variant: `variant_name`).
+      budget: `Key.budget`: None for the preset's iterations, else the iterations.
+      expert: the expert's record (`return_mean`, `return_std`, `random_return_mean`), the same in every file.
+      summary: every file's summary rows (one per configuration), in file order.
+      runs: every file's runs (one per configuration and seed), in file order.
+      sources: the files, in the order given.
+      methods: what the files record of their methods (label, role, online), the first file naming one wins.
+      metric: the main metric (`"return"`, or a rate: `is_rate`).
+      task_metrics: the task's own per-episode metrics (the task-metrics table's columns).
+      shows_protocol: whether titles name the protocol: unless it is `brax` and the only protocol of this task and
+        observation mode.
+      title: how tables name the group (`group_title`, with the budget where it is not the preset's).
+    """
+
+    env: str
+    obs: str
+    protocol: dict
+    budget: int | None
+    expert: dict
+    summary: list[dict]
+    runs: list[dict]
+    sources: list[Source]
+    methods: dict[str, dict]
+    metric: str
+    task_metrics: tuple[str, ...]
+    shows_protocol: bool
+    title: str
+
+
+Merged = Mapping[Key, Group]  # `merge`'s result: the groups by key
+
+
+def budget_of(res: results_lib.Results) -> int | None:
+    """`res`'s iterations where they differ from its base preset's (None: the base's, or a preset this code lacks).
+
+    The base is the file's own preset, except for `paper`, whose base is `default`: a `paper` run is the same
+    experiment trained longer (300k iterations where `default` trains 30k), a group of its own beside the `default`
+    group, never merged into it.
+    """
+    from ape_jax.pipeline.presets import BUDGETS, resolve
+
+    iterations = res.config.get("iterations")
+    if res.preset not in BUDGETS or not isinstance(iterations, int):
+        return None
+    base = "default" if res.preset == "paper" else res.preset
+    return None if iterations == resolve(res.env, res.obs, preset=base).budget.iterations else iterations
+
+
+def in_fca_family(name: str) -> bool:
+    """Whether protocol `name` is the paper's setting or a variant of it at another frame skip (`fca-...`)."""
+    return name == FCA or name.startswith(FCA + "-")
+
+
+def protocol_of(res: results_lib.Results, where: str = "") -> dict:
+    """The protocol `res` ran under, its `name` filled in: `brax` for a file that records none (schema 1).
+
+    Raises:
+      ReportError: a protocol whose name is not a non-empty string, or whose `frame_skip` is not a positive int.
+    """
+    p = {**(res.protocol or {})}
+    name = p.setdefault("name", BRAX)
+    if not isinstance(name, str) or not name:
+        raise ReportError(f"{where}: protocol field 'name' must be a non-empty string, got {name!r:.80}")
+    skip = p.get("frame_skip")
+    if skip is not None and not (isinstance(skip, int) and not isinstance(skip, bool) and skip >= 1):
+        raise ReportError(f"{where}: protocol field 'frame_skip' must be an int >= 1 or null, got {skip!r:.80}")
+    return p
+
+
+def variant_name(res: results_lib.Results, protocol: dict) -> str:
+    """The group name of a file's setting: its protocol's name for files split by episode with the `mlp` recipe (every
+    file before results schema 3), else `NAME.SPLIT.RECIPE` (e.g. `fca.rows.fca`), a group of its own: the recipe
+    section (`recipe_groups`, `recipe_rows`) compares them, and they never join the copycat map or the whole-episode tables."""
+    split, recipe = protocol.get("split") or "episodes", res.recipe_name
+    history, expert = other_history(protocol), protocol.get("expert")
+    if (split, recipe, history, expert) == ("episodes", "mlp", None, None):
+        return protocol["name"]
+    return (f"{protocol['name']}.{split}.{recipe}" + ("" if history is None else f".h{history}")
+            + ("" if expert is None else f".{expert}"))
+
+
+def other_setting(protocol: dict) -> bool:
+    """Whether a variant changes more than the split and the recipe: another history or another expert (such
+    groups stay out of the recipe table and the paper-budget table, and are settings of their own in the map)."""
+    return other_history(protocol) is not None or protocol.get("expert") is not None
+
+
+def other_history(protocol: dict) -> int | None:
+    """The protocol's history where it differs from its named protocol's (`--set protocol.history=7`), else None
+    (the named protocol's, or a protocol this code does not know)."""
+    named = tasks.PROTOCOLS.get(protocol.get("variant_of") or protocol.get("name"))
+    history = protocol.get("history")
+    return history if named is not None and isinstance(history, int) and history != named.history else None
+
+
+def protocol_words(p: dict) -> str:
+    """How titles name a protocol: `"fca"`, `"fca, frame skip 2"`, `"fca, 80,000 training transitions"` (the rest
+    of the fca family, by what differs from fca), `"fca, split by rows, recipe fca"` (a variant, `variant_name`),
+    else its name."""
+    name = p["name"]
+    if p.get("variant_of"):
+        history = other_history(p)
+        return (f"{p['variant_of']}, split by {p.get('split')}, recipe {p.get('recipe')}"
+                + ("" if history is None else f", history {history}")
+                + ("" if p.get("expert") is None else f", expert {p['expert']}"))
+    if not in_fca_family(name) or name == FCA:
+        return name
+    differs = ([f"frame skip {p['frame_skip']}"] if p.get("frame_skip") not in (None, 1) else []) + \
+        ([f"{p['train_transitions']:,} training transitions"]
+         if p.get("train_transitions") not in (None, FCA_TRAIN) else [])
+    return ", ".join([FCA, *differs]) if differs else name
+
+
+def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
+    """Results per `Key(env, obs, protocol name, budget)`: summary rows and runs of all files, with the files they
+    came from, as a `Group` each.
+
+    Raises:
+      ReportError: the same configuration in two files of one group, files of
+        one group with different experts or different protocol settings, or a
+        malformed protocol.
+    """
+    merged: dict[Key, dict] = {}   # the groups' fields, gathered file by file
+    for r in files:
+        where = getattr(r, "path", "") or f"a {r.env} ({r.obs}) results file"
+        protocol = protocol_of(r, where)
+        name = variant_name(r, protocol)
+        if name != protocol["name"]:
+            protocol = {**protocol, "name": name, "variant_of": protocol["name"], "recipe": r.recipe_name}
+        key = Key(r.env, r.obs, name, budget_of(r))
+        m = merged.setdefault(key, {"env": r.env, "obs": r.obs, "protocol": protocol, "budget": key.budget,
+                                    "expert": r.expert,
+                                    "summary": [], "runs": [], "sources": [], "methods": {}, "metric": main_metric(r),
+                                    "task_metrics": tuple(r.config.get("task_metrics", tasks.get(r.env).metrics))})
+        group = f"{r.env} ({r.obs}, protocol {key.protocol}" + (f", {key.budget:,} iterations)" if key.budget else ")")
+        if m["expert"] != r.expert:
+            raise ReportError(f"{where}: its expert differs from another {group} results file's")
+        differ = [k for k in protocol.keys() & m["protocol"].keys()
+                  if protocol[k] is not None and m["protocol"][k] is not None and protocol[k] != m["protocol"][k]]
+        if differ:
+            raise ReportError(f"{where}: its protocol differs from another {group} results file's (" + ", ".join(
+                f"{k} {protocol[k]!r} vs {m['protocol'][k]!r}" for k in sorted(differ)) + ")")
+        seen = {config_key(row) for row in m["summary"]}
+        for row in r.summary:
+            if config_key(row) in seen:
+                raise ReportError(f"{where}: {row['method']} {row['hparams']} is also in another results "
+                                  f"file of {group}; pass one of them")
+        m["summary"] += r.summary
+        m["runs"] += r.runs
+        m["sources"].append(r)
+        m["methods"] = {**r.methods, **m["methods"]}
+        m["protocol"] = {**protocol, **{k: v for k, v in m["protocol"].items() if v is not None}}
+    groups = {}
+    for key, m in merged.items():
+        shows_protocol = key.protocol != BRAX or any(k[:2] == key[:2] and k.protocol != key.protocol for k in merged)
+        title = group_title(key, m["protocol"], shows_protocol)
+        if key.budget:
+            title = title[:-1] + f", {key.budget:,} iterations)" if title.endswith(")") else \
+                title + f" ({key.budget:,} iterations)"
+        groups[key] = Group(**m, shows_protocol=shows_protocol, title=title)
+    return groups
+
+
+def config_key(row: dict) -> tuple:
+    """A summary row's or run's configuration, hashable: `(method, ((name, value), ...))`, names sorted."""
+    return row["method"], tuple(sorted(row["hparams"].items()))
+
+
+def is_rate(m: Group) -> bool:
+    """Whether the merged results of `m` are judged by a rate in [0, 1] (reported in %), not by the return."""
+    return m.metric != "return"
+
+
+# -- groups: order, titles, file names -----------------------------------------------------------------------------
+
+def _protocol_rank(p: dict) -> tuple:
+    """Protocols in report order: the fca family by frame skip (the paper's first), then `brax`, then others."""
+    if in_fca_family(p["name"]):
+        return 0, p.get("frame_skip") or 0, p["name"]
+    return (1, 0, "") if p["name"] == BRAX else (2, 0, p["name"])
+
+
+def ordered(merged: Merged) -> list[tuple[Key, Group]]:
+    """`merged`'s items: the sweepable tasks first in their order (`ape_jax.tasks.sweepable`), then by name; within a
+    task by observation mode, then protocol (`_protocol_rank`)."""
+    order = {e: i for i, e in enumerate(tasks.sweepable())}
+    return sorted(merged.items(), key=lambda kv: (order.get(kv[0][0], len(order)), kv[0][0], kv[0][1],
+                                                  _protocol_rank(kv[1].protocol), kv[0].budget or 0))
+
+
+def group_title(key: Key, protocol: dict, with_protocol: bool, with_obs: bool | None = None) -> str:
+    """A group's title: `"Hopper"`, `"Hopper (image)"`, `"Hopper (fca, frame skip 2)"`, `"Hopper (image, brax)"`;
+    the observation mode unless `with_obs` is False (default: unless a state task's `pos`)."""
+    with_obs = not (key.obs == "pos" and key.env in MUJOCO) if with_obs is None else with_obs
+    parts = [key.obs] if with_obs else []
+    parts += [protocol_words(protocol)] if with_protocol else []
+    return tasks.get(key.env).title + (f" ({', '.join(parts)})" if parts else "")
+
+
+def file_stem(m: Group) -> str:
+    """A group's part of figure file names, unique per group: `hopper`, `hopper-image`, `hopper-fca-fs2`.
+
+    `brax` groups keep the names they had before protocols existed; other protocols append their name.
+    """
+    parts = [m.env] + ([] if m.obs == "pos" else [m.obs])
+    parts += [] if m.protocol["name"] == BRAX else [m.protocol["name"]]
+    parts += [f"{m.budget}it"] if m.budget else []
+    return "-".join(parts)
+
+
+def groups_of(merged: Merged, obs: str, protocol: str) -> list[Group]:
+    """The state tasks' (`MUJOCO`) groups with observations `obs` under `protocol`, in task order."""
+    return [merged[k] for e in MUJOCO if (k := Key(e, obs, protocol)) in merged]
+
+
+def protocols_of(merged: Merged, obs: str) -> list[str]:
+    """The protocols of the state tasks' groups with observations `obs`, in report order (`_protocol_rank`)."""
+    found = {m.protocol["name"]: m.protocol for k, m in ordered(merged) if k.env in MUJOCO and k.obs == obs}
+    return sorted(found, key=lambda n: _protocol_rank(found[n]))
+
+
+def envs_of(merged: Merged, obs: str, protocol: str = BRAX) -> list[str]:
+    """The state tasks (`MUJOCO`) `merged` has results of with observations `obs` under `protocol`, in order."""
+    return [m.env for m in groups_of(merged, obs, protocol)]

@@ -1,0 +1,20 @@
+"""The report's sections, one module per family; each section is a function `(Context) -> list[Section]`.
+
+- `common`: `Section`, `Context` (with `Context.figure`), the cells and phrases the sections share, and the note
+  that figures were not drawn;
+- `state`: MuJoCo-State per protocol (with the rows against BC-OH and Table 5) and MuJoCo-Image;
+- `task_metrics`: a task's own metrics (the supplement's Table 4 protocol);
+- `recipe`: the paper's recipe (mlp against fca) and the paper's budget beside Table 5;
+- `copycat`: the copycat map and the extended map;
+- `differences`: the bootstrap table, the plain reading, training longer;
+- `curves`: the sensitivity study, the training curves and the weights;
+- `diagnostics`: the copycat diagnostics tables the other sections use;
+- `detail`: per group, every configuration, the loss analysis and each file's provenance.
+
+`experiments.report.markdown.SECTIONS` orders them; every sentence that states a result is built from the
+numbers of `experiments.report.analysis`, never typed.
+"""
+
+from experiments.report.sections.common import Context, Drawn, Section
+
+__all__ = ["Context", "Drawn", "Section"]

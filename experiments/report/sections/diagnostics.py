@@ -1,0 +1,129 @@
+"""Copycat diagnostics as tables: per configuration (a group's, or the recipe section's per task and recipe), the
+column explanations once, the thresholds the files record, and the policies over training."""
+
+from __future__ import annotations
+
+from experiments.report.analysis import (DiagnosticsRow, Group, diagnostics_rows, diagnostics_thresholds,
+                                         display_metric, training_points)
+from experiments.report.sections.common import pct_cell, ratio_text, verdict_count
+
+
+# What each column of a diagnostics table shows (`diagnostics_table`), one line each, under its first table.
+DIAGNOSTICS_COLUMNS = (
+    "seeds: the configuration's trained policies; % of expert: their mean",
+    "embedding ratio: a probe's held-out MSE predicting the expert's previous action a_{t−1} from the frozen "
+    "policy's embedding ÷ the same probe's from a_t alone, median over seeds (their range in brackets); below 1 "
+    "the embedding holds a_{t−1} beyond what a_t gives",
+    "velocity 1 − R²: the probe's held-out MSE predicting the true joint velocity from the embedding ÷ the "
+    "velocity's variance, median over seeds; near 0 the policy extracts velocity (— where the data has none)",
+    "predictability ratio: ψ's held-out MSE on the policy's own rollout actions ÷ on the expert's rollouts (as "
+    "many steps), median over seeds (range); below 1 the policy's actions are more predictable than the expert's",
+    "verdict: the seeds judged copycat / the seeds whose diagnostics could be read (— where none could)",
+    "embedding ÷ state (where the files record it): the embedding probe's MSE ÷ the same probe's from the true "
+    "state at t (the expert's observation: joint positions and velocities), median (range). The expert's "
+    "previous action follows from the previous state, which the current one nearly fixes, so reading the state "
+    "well carries a_{t−1} without copying it; but the small probe reads a trained embedding (a feature made to "
+    "predict a_t, which a_{t−1} is close to) more easily than the raw state, so a ratio below 1 is expected even "
+    "without a history: compare it with BC-SO's, which has none",
+)
+
+
+def _diagnostics_cells(row: DiagnosticsRow) -> list[str]:
+    d = row.diagnostics
+    return [", ".join(f"{k} {v:g}" for k, v in row.hparams.items()) or "—", str(row.seeds),
+            "—" if row.normalized is None else f"{row.normalized:.1f}", ratio_text(d.embedding),
+            ratio_text(d.velocity, with_range=False), ratio_text(d.predictability), verdict_count(d)]
+
+
+def diagnostics_table(rows: list[tuple[tuple[str, ...], DiagnosticsRow]], heads: tuple[str, ...] = ("method",),
+                      unit: str = "% of expert") -> str:
+    """Copycat diagnostics per configuration: seeds, % of expert, embedding ratio (median and range over seeds),
+    velocity 1 − R² (median), predictability ratio (median and range) and the verdict count.
+
+    Args:
+      rows: `(leading cells, row)`, the leading cells one per `heads` (`("Hopper", "fca", "BC-OH")`).
+      heads: the leading columns' headings (the method, and in the recipe table the task and recipe first).
+      unit: the heading of the % of expert column (a task judged by a rate: that rate in %).
+    """
+    state = any(row.diagnostics.state is not None for _, row in rows)   # files from before it: no column
+    lines = ["| " + " | ".join(heads) + f" | hparams | seeds | {unit} | embedding ratio | velocity 1 − R² | "
+             "predictability ratio | verdict |" + (" embedding ÷ state |" if state else ""),
+             "|" + "---|" * (len(heads) + 1) + "---:|" * 5 + "---|" + ("---:|" if state else "")]
+    lines += ["| " + " | ".join([*lead, *_diagnostics_cells(row)]) + " |"
+              + (f" {ratio_text(row.diagnostics.state)} |" if state else "") for lead, row in rows]
+    return "\n".join(lines) + "\n"
+
+
+def thresholds_line(thresholds: list[dict]) -> str:
+    """The copycat verdict's criteria as the files record them (`analysis.diagnostics_thresholds`), in one line."""
+    def both(t: dict) -> str:
+        return " and ".join(f"{name} ≤ " + (f"{t[key]:g}" if isinstance(t.get(key), (int, float)) else "?")
+                            for name, key in (("embedding ratio", "embedding_ratio"),
+                                              ("predictability ratio", "predictability_ratio")))
+
+    fixed = "thresholds fixed before any result, `ape_jax.diagnostics.THRESHOLDS`"
+    if not thresholds:
+        return "Copycat = both ratios at or below their thresholds, per seed; the files record no thresholds."
+    if len(thresholds) == 1:
+        return f"Copycat = {both(thresholds[0])}, both, per seed ({fixed})."
+    return (f"Copycat = both ratios at or below their thresholds, per seed ({fixed}); the files record different "
+            "ones: " + "; ".join(both(t) for t in thresholds) + ".")
+
+
+def _absent_lines(rows: list[tuple[tuple[str, ...], DiagnosticsRow]], heads: tuple[str, ...]) -> list[str]:
+    """One bullet per configuration with seeds the diagnostics could not read (shown "—" in the table), with the
+    recorded reason: `"- BC-SO (Hopper, recipe fca): no diagnostics for 1 of 5 seeds: …"`."""
+    out = []
+    for lead, row in rows:
+        where = [f"recipe {v}" if h == "recipe" else v for h, v in zip(heads, lead) if h != "method"]
+        where += [", ".join(f"{k} {v:g}" for k, v in row.hparams.items())] if row.hparams else []
+        for why, n in row.diagnostics.absent:
+            out.append(f"- {row.label}" + (f" ({', '.join(where)})" if where else "")
+                       + f": no diagnostics for {n} of {row.seeds} seed{'s' * (row.seeds != 1)}: {why}")
+    return out
+
+
+def diagnostics_lines(rows: list[tuple[tuple[str, ...], DiagnosticsRow]], thresholds: list[dict], intro: str,
+                      explained: bool, heads: tuple[str, ...] = ("method",), unit: str = "% of expert") -> list[str]:
+    """A diagnostics table with its caption, the column explanations (unless `explained` above), the thresholds
+    once under it and the seeds it could not read; nothing without rows."""
+    if not rows:
+        return []
+    if explained:
+        out = [intro.rstrip(":") + " (the columns as explained under the first such table above):", ""]
+    else:
+        out = [intro, "", *(f"- {c}" for c in DIAGNOSTICS_COLUMNS), ""]
+    absent = _absent_lines(rows, heads)
+    out += [diagnostics_table(rows, heads, unit), thresholds_line(thresholds), ""]
+    return out + (absent + [""] if absent else [])
+
+
+def group_diagnostics(m: Group, explained: bool) -> list[str]:
+    """Group `m`'s copycat diagnostics per configuration (`analysis.diagnostics_rows`); nothing for a group whose
+    files predate them."""
+    rows = [((r.label,), r) for r in diagnostics_rows(m)]
+    unit = display_metric(m)[1] if display_metric(m)[0] == "normalized" else "% of expert"
+    return diagnostics_lines(rows, diagnostics_thresholds(m.sources),
+                             "Copycat diagnostics per trained policy (`ape_jax.diagnostics`), from its embedding "
+                             "and its own rollouts:", explained, unit=unit)
+
+
+def training_table(m: Group) -> list[str]:
+    """Group `m`'s configurations over training (`Budget.eval_at`): per configuration and iteration, % of expert
+    with its 95% bootstrap interval over seeds, the training loss, the copycat diagnostics' medians and the
+    verdict count; nothing for a group evaluated at the end only."""
+    points = training_points(m)
+    if not points:
+        return []
+    unit = display_metric(m)[1] if display_metric(m)[0] == "normalized" else "% of expert"
+    lines = ["The same policies over training (the runs also evaluated at `budget.eval_at`'s iterations, on the "
+             "same episodes, with the same diagnostics; a run's learning-rate schedule is its whole run's):", "",
+             f"| method | hparams | iteration | {unit} [95% CI] | training loss | embedding ratio | "
+             "predictability ratio | verdict |", "|---|---|---:|---:|---:|---:|---:|---|"]
+    for p in points:
+        hps = ", ".join(f"{k} {v:g}" for k, v in p.hparams.items()) or "—"
+        loss = "—" if p.train_loss is None else f"{p.train_loss:.4g}"
+        lines.append(f"| {p.label} | {hps} | {p.iteration:,} | {pct_cell(p.normalized)} | {loss} | "
+                     f"{ratio_text(p.diagnostics.embedding)} | {ratio_text(p.diagnostics.predictability)} | "
+                     f"{verdict_count(p.diagnostics)} |")
+    return [*lines, ""]
