@@ -110,13 +110,13 @@ def main(argv=None) -> int:
         text, drawn = build([load(path) for path in args.results], figure_dir,
                             None if args.out is None else args.out.parent)
     except ReportError as e:
-        return fail(None, str(e))
+        return fail(p, str(e))
     log = sys.stdout if args.out is not None else sys.stderr   # stdout carries the markdown when printing
     for path, fig in drawn.items():
         try:
             size = save_png(fig, path)
         except OSError as e:
-            return fail(None, f"cannot write {path}: {e}")
+            return fail(p, f"cannot write {path}: {e}")
         print(f"wrote {path} ({size / 1024:.0f} KB)", file=log)
     if args.out is None:
         print(text)
@@ -126,7 +126,7 @@ def main(argv=None) -> int:
     try:
         write_section(str(args.out), text, "report")
     except (OSError, UnicodeDecodeError) as e:
-        return fail(None, f"cannot write {args.out}: {e}")
+        return fail(p, f"cannot write {args.out}: {e}")
     print(f"wrote the report section of {args.out} from {len(args.results)} results file(s)")
     return 0
 
