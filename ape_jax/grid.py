@@ -22,8 +22,9 @@ rounds a vmapped batch of another size differently (a 12- and a 20-run
 program gave the same Hopper seed weights 0.16 apart after 30,000 updates),
 so only a fixed width makes a configuration's numbers independent of the
 sweep it is in. `width=None`: the whole grid in one call (the sweep's way
-before `Budget.width`). On a CPU width 1 costs nothing: the state grid
-trained as fast one configuration at a time as vmapped 13 wide.
+before `Budget.width`). On a CPU width 1 costs little in training (one
+`bench_train` run: 0.92-1.30x the whole 13-run grid's updates/s) and more in
+evaluation (0.59x the env steps/s at 8 episodes per policy; BENCHMARKS.md).
 
 `vectorize=False` instead compiles `fn` for one configuration and runs the
 configurations one after another, reusing that one executable: on CPU the
