@@ -38,9 +38,10 @@ import numpy as np
 from experiments._cli import Parser, fail, unwritable
 from experiments.report import analysis
 from experiments.report import stats
+from experiments.report.paper import PAPER_STEP_LABEL
 
 REFERENCES = ("bc-so", "bc-oh", "ours-step", "fca")
-REFERENCE_LABELS = {"bc-so": "BC-SO", "bc-oh": "BC-OH", "ours-step": "Ours, step THR 10% W 5", "fca": "FCA"}
+REFERENCE_LABELS = {"bc-so": "BC-SO", "bc-oh": "BC-OH", "ours-step": PAPER_STEP_LABEL, "fca": "FCA"}
 # the settings that may differ between comparable files: which configurations ran, how many seeds, and amounts
 # that do not change what a configuration computes (chunking, the diagnostics, the width: statistically alike)
 FREE = {"recipe": {"name", "step_grid", "softmax_grid", "fca_alphas", "ib_weights"},
@@ -98,13 +99,13 @@ def _load_all(paths: Sequence[str], what: str) -> list[analysis.Source]:
 
 def match(yours: analysis.Source, against: Sequence[analysis.Source]) -> list[analysis.Source]:
     """The files of `against` comparable with `yours`; `CompareError` naming the nearest file's differences."""
-    same = [r for r in against if not differing(yours, r)]
+    if not against:
+        raise CompareError(f"{yours.path}: no reference results to compare with")
+    diffs = [(r, differing(yours, r)) for r in against]
+    same = [r for r, diff in diffs if not diff]
     if same:
         return same
-    if not against:
-        raise CompareError(f"{getattr(yours, 'path', 'your file')}: no reference results to compare with")
-    nearest = min(against, key=lambda r: len(differing(yours, r)))
-    diff = differing(yours, nearest)
+    nearest, diff = min(diffs, key=lambda rd: len(rd[1]))
     raise CompareError(f"{yours.path}: no reference file matches its settings; the nearest, {nearest.path}, differs "
                        f"in {'; '.join(diff[:4])}{' …' if len(diff) > 4 else ''}")
 
