@@ -109,6 +109,8 @@ def test_evaluate_and_assemble_give_one_record_per_run_in_plan_order(small):
     assert row["metrics"]["success"]["mean"] == pytest.approx(np.mean(seeds))
     assert res.main_metric == "success" and res.methods["bc-so"]["label"] == "BC-SO"
     assert res.protocol["history"] == 2 and res.command is None
+    # it trained 40 iterations where its preset gives more (`--set`): the file says so itself
+    assert res.config["iterations"] == 40 != res.config["preset_iterations"] == spec.settings.preset_iterations
     # every policy carries the copycat diagnostics, with what they mean beside them
     diag = res.config["diagnostics"]
     assert diag["thresholds"] == {"embedding_ratio": 0.5, "predictability_ratio": 0.5} and diag["velocity"] is None

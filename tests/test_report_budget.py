@@ -127,3 +127,37 @@ def test_another_expert_is_a_setting_of_its_own(tmp_path):
     assert [q.setting for q in extended_map(merged)] == ["recipe fca, split by rows",
                                                          "recipe fca, split by rows, expert ppo"]
     assert "| Hopper | fca, rows, expert ppo | 1 | 20,000 | 30k | 30k | " in report.build([report.load(path)])[0]
+
+
+def _with_iterations(tmp_path, name: str, preset: str, iterations: int, recorded: int | None):
+    obj = json.loads(FCA_BC.read_text())
+    obj["preset"], obj["config"]["iterations"] = preset, iterations
+    if recorded is not None:
+        obj["config"]["preset_iterations"] = recorded
+    path = tmp_path / f"{name}.json"
+    path.write_text(json.dumps(obj))
+    return report.load(path)
+
+
+def test_a_files_budget_label_comes_from_what_it_records_not_from_todays_presets(tmp_path):
+    from experiments.report.analysis import budget_of
+
+    # its preset gave 12,345 when it ran (today's default gives 30k): it trained its preset's budget
+    assert budget_of(_with_iterations(tmp_path, "a", "default", 12_345, 12_345)) is None
+    # its iterations were overridden: a budget of its own, whatever today's preset says
+    assert budget_of(_with_iterations(tmp_path, "b", "default", 30_000, 12_345)) == 30_000
+    # a file from before the record is compared with today's preset of its name
+    assert budget_of(_with_iterations(tmp_path, "c", "default", 30_000, None)) is None
+    assert budget_of(_with_iterations(tmp_path, "d", "default", 12_345, None)) == 12_345
+    # a paper run is the default experiment trained longer: its own group always, but the paper-budget table
+    # takes only those that trained the paper preset's iterations
+    short = _with_iterations(tmp_path, "e", "paper", 100_000, 300_000)
+    assert budget_of(short) == 100_000 and not paper_budget_groups(report.merge([short]))
+
+
+def test_the_sweep_records_the_iterations_its_preset_gave_before_overrides():
+    from ape_jax.pipeline.presets import resolve
+
+    base = resolve("hopper", "pos", preset="default")
+    over = resolve("hopper", "pos", preset="default", sets=["budget.iterations=777"])
+    assert over.budget.iterations == 777 and over.preset_iterations == base.budget.iterations == base.preset_iterations

@@ -197,6 +197,9 @@ class Settings:
     recipe: Recipe
     preset: str = "quick"   # the budget's name
     smoke: bool = False     # the preset's amounts shrunk to seconds (`smoke_overrides`): its numbers mean nothing
+    # the iterations the preset gave before `sets` (`--iterations`, `--set budget.iterations=`) were applied, so a
+    # results file says itself whether it trained its preset's budget (None: settings not made by `resolve`)
+    preset_iterations: int | None = None
 
     def learner_config(self, obs_shape, action_dim: int, history: int, task_loss: str,
                        unroll: bool = False) -> LearnerConfig:
@@ -283,6 +286,7 @@ def resolve(env: str, obs: str, protocol: str | None = None, preset: str = "quic
             values[_section_of(key)][key] = value
     for key, value in (smoke_overrides(values) if smoke else {}).items():
         values[_section_of(key)][key] = value
+    preset_iterations = values["budget"]["iterations"]
     explicit = set()
     for item in sets:
         section, field, value = parse_set(item)
@@ -291,7 +295,8 @@ def resolve(env: str, obs: str, protocol: str | None = None, preset: str = "quic
     if "eval_at" not in explicit:  # the preset's points inside the run only, when its length was changed
         budget = values["budget"]
         budget["eval_at"] = tuple(i for i in budget["eval_at"] if i < budget["iterations"])
-    settings = Settings(*(_record(name, values[name]) for name in SECTIONS), preset=preset, smoke=smoke)
+    settings = Settings(*(_record(name, values[name]) for name in SECTIONS), preset=preset, smoke=smoke,
+                        preset_iterations=preset_iterations)
     _check_image_recipe(settings.recipe, obs, settings.protocol.image_size)
     return settings
 

@@ -871,6 +871,8 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
             **{k: blocks["protocol"][k] for k in ("history", "eval_steps", "val_frac", "image_size")},
             "episodes": spec.episodes, "recipe": spec.recipe.name}
     config = {**flat, **({"smoke": True} if spec.settings.smoke else {}),
+              **({"preset_iterations": spec.settings.preset_iterations}
+                 if spec.settings.preset_iterations is not None else {}),
               "methods": list(spec.methods), "loss": spec.recipe.loss or task.loss, "metric": task.metric,
               "task_metrics": list(task.metrics),
               "ape": {"normalization": spec.recipe.ape_normalization, "scale": ape.scale,

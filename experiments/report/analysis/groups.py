@@ -114,20 +114,37 @@ class Group:
 Merged = Mapping[Key, Group]  # `merge`'s result: the groups by key
 
 
-def budget_of(res: results_lib.Results) -> int | None:
-    """`res`'s iterations where they differ from its base preset's (None: the base's, or a preset this code lacks).
+def trained_its_preset(res: results_lib.Results) -> bool:
+    """Whether `res` trained the iterations its preset gave (not changed by `--iterations` or `--set`).
 
-    The base is the file's own preset, except for `paper`, whose base is `default`: a `paper` run is the same
-    experiment trained longer (300k iterations where `default` trains 30k), a group of its own beside the `default`
-    group, never merged into it.
-    """
+    A file says so itself (`config["preset_iterations"]`, what the preset gave before `--iterations`/`--set`);
+    a file from before that record is compared with today's preset of its name (False for a preset this code
+    lacks)."""
     from ape_jax.pipeline.presets import BUDGETS, resolve
 
+    iterations, recorded = res.config.get("iterations"), res.config.get("preset_iterations")
+    if isinstance(recorded, int):
+        return iterations == recorded
+    return res.preset in BUDGETS and iterations == resolve(res.env, res.obs, preset=res.preset).budget.iterations
+
+
+def budget_of(res: results_lib.Results) -> int | None:
+    """`res`'s iterations where it did not train its preset's (None: the preset's, or a file that records none).
+
+    A `paper` run is the `default` experiment trained longer (300k iterations where `default` trains 30k): its
+    iterations always, a group of its own beside the `default` group, never merged into it. A file from before
+    the record of its preset's iterations, of a preset this code lacks, counts as its preset's.
+    """
+    from ape_jax.pipeline.presets import BUDGETS
+
     iterations = res.config.get("iterations")
-    if res.preset not in BUDGETS or not isinstance(iterations, int):
+    if not isinstance(iterations, int):
         return None
-    base = "default" if res.preset == "paper" else res.preset
-    return None if iterations == resolve(res.env, res.obs, preset=base).budget.iterations else iterations
+    if res.preset == "paper":
+        return iterations
+    if "preset_iterations" not in res.config and res.preset not in BUDGETS:
+        return None
+    return None if trained_its_preset(res) else iterations
 
 
 def in_fca_family(name: str) -> bool:

@@ -17,7 +17,7 @@ from ape_jax import tasks
 from experiments.report.analysis.bootstrap import (Interval, RecipeCell, bootstrap_difference, bootstrap_mean,
                                                    mean_cell)
 from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics, run_at
-from experiments.report.analysis.groups import FCA, MUJOCO, Group, Merged, ordered, other_setting
+from experiments.report.analysis.groups import FCA, MUJOCO, Group, Merged, ordered, other_setting, trained_its_preset
 from experiments.report.analysis.selection import is_finite, method_rows, ok_runs, seed_values
 from experiments.report.paper import PAPER_STEP, PAPER_STEP_LABEL, PAPER_TABLE5, PAPER_TAU
 
@@ -147,10 +147,8 @@ class BudgetRow(NamedTuple):
 def paper_budget_groups(merged: Merged) -> list[Group]:
     """The groups of the paper's protocol (fca, any split) under the `fca` recipe trained for the `paper` preset's
     iterations: the issue's 300k table, one group per state task, in task order."""
-    from ape_jax.pipeline.presets import BUDGETS
-
     return [m for key, m in ordered(merged) if key.env in MUJOCO and key.obs == "pos"
-            and key.budget == BUDGETS["paper"].iterations and m.protocol.get("variant_of") == FCA
+            and all(src.preset == "paper" and trained_its_preset(src) for src in m.sources) and m.protocol.get("variant_of") == FCA
             and m.protocol.get("recipe") == "fca" and not other_setting(m.protocol)]
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Mapping, NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from ape_jax import weighting
@@ -80,16 +81,14 @@ def ape_mean(ape: Mapping) -> tuple[float, bool]:
 def weight_shares(merged: Merged, batch: int = 128, batches: int = 400) -> list[WeightShares]:
     """How concentrated the weights are within a batch, per group that records its APE quantiles and ran softmax.
 
-    Batches of `batch` are drawn from the group's training APE distribution (its quantiles, `_quantile_source`)
-    and weighted as the sweep does, with the sweep's own functions (`ape_jax.weighting`): `weighting.softmax`,
-    `batch·softmax(APE/τ)`, at every τ the group ran, and `weighting.uniform`; and the paper's step setting, W
-    for the samples at or above the distribution's (1 − THR) quantile (what `weighting.step`, which ranks a
-    finite training set, gives a training set drawn from this distribution: its batches hold a THR share of
-    such samples on average). Each is computed once on the raw APE and once on the APE ÷ its mean
-    (`ape_mean`). The step and uniform weights depend only on the APE's ranks, so they are the same on both
-    scales; the softmax's are not: dividing the APE by a mean much below 1 multiplies it by much more than 1,
-    and a τ ≤ 1 then gives one sample nearly all of a batch's weight. Each group draws its batches with numpy
-    seed 0.
+    A training set of `batch · batches` APE values is drawn from the group's training APE distribution (its
+    quantiles, `_quantile_source`; numpy seed 0) and cut into `batches` batches of `batch`, and each weighting is
+    computed on it as the sweep computes it, through `ape_jax.weighting`'s two stages (`dataset_weights` over the
+    training set, then `batch_weights` per batch): `batch·softmax(APE/τ)` at every τ the group ran, the paper's
+    step setting (the ⌊THR·N⌋ largest APE values of the training set get W), and uniform. Each is computed once on
+    the raw APE and once on the APE ÷ its mean (`ape_mean`). The step and uniform weights depend only on the APE's
+    ranks, so they are the same on both scales; the softmax's are not: dividing the APE by a mean much below 1
+    multiplies it by much more than 1, and a τ ≤ 1 then gives one sample nearly all of a batch's weight.
 
     Returns:
       `WeightShares` per group, in report order.
@@ -98,7 +97,12 @@ def weight_shares(merged: Merged, batch: int = 128, batches: int = 400) -> list[
         top = -np.sort(-np.asarray(w, np.float64), axis=1)
         return (np.cumsum(top, axis=1) / top.sum(1, keepdims=True)).mean(0)
 
-    softmax = jax.vmap(weighting.softmax, in_axes=(0, None))   # [batches, batch] APE, τ -> weights
+    idx = jnp.arange(batches * batch).reshape(batches, batch)
+
+    def weights(ape: np.ndarray, hp: weighting.Weighting) -> np.ndarray:  # the sweep's two stages -> [batches, batch]
+        scores = jnp.asarray(ape.reshape(-1), jnp.float32)
+        static = weighting.dataset_weights(scores, hp)
+        return np.asarray(jax.vmap(lambda i: weighting.batch_weights(scores, static, i, hp))(idx))
 
     out = []
     for _, m in ordered(merged):
@@ -111,15 +115,11 @@ def weight_shares(merged: Merged, batch: int = 128, batches: int = 400) -> list[
         levels = np.linspace(0, 1, len(q))
         raw = np.interp(np.random.default_rng(0).uniform(size=(batches, batch)), levels, q)
         by_mean = raw / mean if mean > 0 else None
-        step = np.interp(1 - PAPER_STEP["thr"], levels, q)
-        series = [(f"softmax τ {tau:g}", share(softmax(raw, tau)),
-                   None if by_mean is None else share(softmax(by_mean, tau))) for tau in taus]
-        # the distribution's quantile, not `weighting.step` on these draws: ranking the draws (exactly ⌊THR·N⌋ of
-        # them upweighted) would move the shares by up to 0.3 points, and the report's numbers and figure with them
-        weighted = share(np.where(raw >= step, PAPER_STEP["w"], 1.0))
-        series.append((f"step THR {percent(PAPER_STEP['thr'])} W {PAPER_STEP['w']:g}", weighted,
-                       None if by_mean is None else weighted))
-        uniform = share(weighting.uniform(raw))
-        series.append(("uniform (BC-OH)", uniform, uniform))
+        series = []
+        for label, hp in ([(f"softmax τ {tau:g}", weighting.Weighting.make("softmax", tau=tau)) for tau in taus]
+                          + [(f"step THR {percent(PAPER_STEP['thr'])} W {PAPER_STEP['w']:g}",
+                              weighting.Weighting.make("step", thr=PAPER_STEP["thr"], w=PAPER_STEP["w"])),
+                             ("uniform (BC-OH)", weighting.Weighting.make("uniform"))]):
+            series.append((label, share(weights(raw, hp)), None if by_mean is None else share(weights(by_mean, hp))))
         out.append(WeightShares(m.title, src.config["ape"]["normalization"], mean, recorded, series))
     return out
