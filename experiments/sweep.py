@@ -17,7 +17,8 @@ and after each phase, and a rerun with the same `--out` and settings continues
 where it stopped, bit-identically on the same machine (`ape_jax.pipeline.checkpoint`).
 Rerunning a finished sweep reports it; `--fresh` discards what `--out` holds.
 Per-iteration training curves go to `OUT/curves/*.csv` and TensorBoard event
-files to `OUT/tensorboard/` (`ape_jax.pipeline.logs`).
+files to `OUT/tensorboard/` (`ape_jax.pipeline.logs`), appended after every
+chunk while the sweep trains: `tensorboard --logdir OUT/tensorboard` shows it live.
 
 Several processes (`--coordinator HOST:PORT --num-processes N --process-id I`,
 or JAX's own environment, `experiments._distributed`) train one grid sharded
@@ -395,7 +396,7 @@ def _run(args: argparse.Namespace, spec, checkpoint, created: bool) -> int:
         print(f"smoke run: preset {args.preset}'s settings with its amounts shrunk to seconds; it checks that the "
               f"preset runs end to end, its numbers mean nothing (the report refuses them)")
     bar = (lambda **kw: tqdm(disable=True, **kw)) if args.quiet else (lambda **kw: tqdm(dynamic_ncols=True, **kw))
-    hooks = Hooks(bar=bar, log=tqdm.write, curves=lambda *a: logs.write_curves(args.out, *a))
+    hooks = Hooks(bar=bar, log=tqdm.write, curves=lambda *a: logs.CurveLog(args.out, *a))
     try:
         res, policies = run_sweep(spec, hooks, checkpoint)
     except (ExpertError, CheckpointError, DataError, PluginError, ValueError) as e:

@@ -161,3 +161,66 @@ def test_write_curves_refuses_what_it_cannot_write_faithfully(tmp_path, runs, me
     with pytest.raises(ValueError, match=match):
         write_curves(tmp_path, "grid", runs, metrics, tb_points=tb_points)
     assert not any(tmp_path.iterdir())   # refused before writing anything
+
+
+def read_all_events(run_dir):
+    """{tag: {step: value}} over every event file in `run_dir` (a live run's directory holds two)."""
+    out = {}
+    for path in sorted(run_dir.iterdir()):
+        sub = run_dir / ".one"
+        sub.mkdir()
+        try:
+            (sub / path.name).write_bytes(path.read_bytes())
+            for tag, (steps, values) in read_events(sub).items():
+                for step, value in zip(steps.tolist(), values.tolist()):
+                    assert step not in out.setdefault(tag, {}), f"{tag} logged twice at step {step}"
+                    out[tag][step] = value
+        finally:
+            for f in sub.iterdir():
+                f.unlink()
+            sub.rmdir()
+    return out
+
+
+@pytest.mark.parametrize("restored", [0, 7])
+def test_a_curve_log_writes_while_training_and_ends_as_one_write_at_the_end(tmp_path, restored):
+    """`CurveLog`: after every chunk the CSV holds every iteration so far and each run's events every window the
+    iterations so far complete (windows of the whole program's width, none twice); closed, both files are
+    byte for byte / point for point what `write_curves` writes at the end. `restored`: a resumed program's
+    first iterations, given to `start`."""
+    from ape_jax.pipeline.logs import CurveLog
+
+    rng = np.random.default_rng(1)
+    total, tb_points = 23, 5     # windows of 5 iterations, the last of 3
+    loss = rng.normal(size=(3, total)).astype(np.float32)
+    aux = rng.normal(size=(3, total)).astype(np.float32)
+    live, whole = tmp_path / "live", tmp_path / "whole"
+    log = CurveLog(live, "grid", RUNS, total, tb_points=tb_points)
+    log.start({"loss": loss[:, :restored], "aux": aux[:, :restored]} if restored else None)
+    done = restored
+    for n in (4, 6, 1, 12)[: None if not restored else 3]:
+        n = min(n, total - done)
+        log.append({"loss": loss[:, done:done + n], "aux": aux[:, done:done + n]})
+        done += n
+        rows = read_csv(live / "curves" / "grid.csv")
+        assert sorted((r["run"], int(r["iteration"])) for r in rows) == \
+            sorted((run_label(run), i) for run in RUNS for i in range(1, done + 1))
+        for i, run in enumerate(RUNS):
+            events = read_all_events(live / "tensorboard" / run_label(run))
+            ends = [e for e in (5, 10, 15, 20, 23) if e <= done]
+            assert sorted(events.get("train/loss", {})) == ends
+            for end in ends:   # the window's mean, from its first iteration ((end - 1) // 5 * 5, 0-based)
+                window = loss[i, (end - 1) // 5 * 5:end].astype(np.float64)
+                assert events["train/loss"][end] == pytest.approx(window.mean(), rel=1e-6)
+    if done < total:
+        log.append({"loss": loss[:, done:], "aux": aux[:, done:]})
+    log.close()
+    write_curves(whole, "grid", RUNS, {"loss": loss, "aux": aux}, tb_points=tb_points)
+    assert (live / "curves" / "grid.csv").read_bytes() == (whole / "curves" / "grid.csv").read_bytes()
+    for run in RUNS:
+        a, b = read_events(live / "tensorboard" / run_label(run)), read_events(whole / "tensorboard" / run_label(run))
+        assert a.keys() == b.keys()
+        for tag in a:
+            np.testing.assert_array_equal(a[tag][0], b[tag][0])
+            np.testing.assert_array_equal(a[tag][1], b[tag][1])
+    assert sorted(p.name for p in (live / "tensorboard").iterdir()) == sorted(run_label(r) for r in RUNS)

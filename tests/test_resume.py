@@ -92,6 +92,9 @@ def test_a_sweep_killed_mid_training_and_resumed_equals_an_uninterrupted_one_bit
     steps = sorted(int(p.name) for p in (out / "checkpoints" / "train-grid").iterdir() if p.name.isdigit())
     assert steps == [40]  # killed where we meant to: BC-OH and the step grid at 40 of 60 iterations
     assert (out / "checkpoints" / "train-grid-at30.npz").exists()  # the policies at eval_at, kept when passed
+    # the curves were written while it trained: every iteration up to the kill, and a TensorBoard run per configuration
+    live = (out / "curves" / "grid.csv").read_text().splitlines()
+    assert len(live) == 1 + 7 * 40 and len(list((out / "tensorboard").iterdir())) == 7
     resumed = resume(workdir, out, capsys)
     assert all([a["iteration"] for a in r["at"]] == [30] for r in resumed["runs"])
     assert resumed["timing"]["resumed"] and not reference["timing"]["resumed"]

@@ -38,6 +38,16 @@ so where a run diverged stays visible; the CSV has the exact iterations.
 Each run's directory is written to a hidden temporary directory beside it and
 renamed into place, replacing the directory of an earlier write with the same
 label (a resumed sweep) whole, so no stale event files are left behind.
+
+**While a program trains** (`CurveLog`, what `experiments.sweep` passes as
+`Hooks.curves`), both are written as it goes, so `tensorboard --logdir
+OUT/tensorboard` shows a sweep while it trains: `start` writes the curves a
+resumed program restored from its checkpoint (or just the CSV's header), each
+`append` adds a chunk's rows to the CSV (in chunk order: within a chunk, runs in
+order, iterations ascending) and its finished windows to each run's event file
+(the window width is the whole program's, so a window is logged once, when its
+last iteration is in); `close` then rewrites both whole with `write_curves`,
+so a finished program's files are exactly what one write at the end gives.
 """
 
 from __future__ import annotations
@@ -108,6 +118,95 @@ def write_curves(out_dir: pathlib.Path, program: str, runs: Sequence[Any], metri
         _write_tensorboard(tb_root, label, {name: values[i] for name, values in metrics.items()}, tb_points)
 
 
+class CurveLog:
+    """One program's training curves, written while it trains (the module docstring says how).
+
+    `CurveLog(out_dir, program, runs, iterations)` is what `Hooks.curves(program, runs, iterations)` returns in
+    `experiments.sweep`; the sweep calls `start` once, `append` after every chunk and `close` at the program's end.
+
+    Args:
+      out_dir, program, runs, tb_points: as `write_curves`'s.
+      iterations: the program's whole length (every round's), which fixes the TensorBoard windows.
+    """
+
+    def __init__(self, out_dir: pathlib.Path, program: str, runs: Sequence[Any], iterations: int,
+                 tb_points: int = 1000):
+        if iterations < 1:
+            raise ValueError(f"a program of {iterations} iterations has no curves")
+        self.out_dir, self.program, self.runs = pathlib.Path(out_dir), program, list(runs)
+        self.iterations, self.tb_points = iterations, tb_points
+        self._chunks: list[dict[str, np.ndarray]] = []
+        self._labels: list[str] | None = None
+
+    @property
+    def done(self) -> int:
+        """The iterations written so far."""
+        return sum(next(iter(c.values())).shape[1] for c in self._chunks)
+
+    def start(self, restored: dict[str, np.ndarray] | None = None) -> None:
+        """Opens the log: the curves of the iterations a resumed program restored (`[len(runs), n]` per metric), or
+        None for a fresh start (the CSV is written when the first chunk's metrics name its columns)."""
+        if restored is not None and next(iter(restored.values())).shape[1]:
+            self._open({k: np.asarray(v) for k, v in restored.items()})
+
+    def append(self, metrics: dict[str, np.ndarray]) -> None:
+        """Adds the next chunk's metrics (`[len(runs), n]` per metric)."""
+        metrics = {k: np.asarray(v) for k, v in metrics.items()}
+        if self._labels is None:
+            self._open(metrics)
+            return
+        if list(metrics) != list(self._chunks[0]):
+            raise ValueError(f"a chunk's metrics {list(metrics)} are not the program's {list(self._chunks[0])}")
+        first = self.done + 1
+        self._chunks.append(metrics)
+        with open(self.out_dir / "curves" / f"{self.program}.csv", "a", encoding="utf-8", newline="") as f:
+            _write_rows(f, self.runs, self._labels, metrics, first)
+        self._log_windows(first - 1)
+
+    def close(self) -> None:
+        """Rewrites both files whole (`write_curves`), as one write at the end would."""
+        if self._chunks:
+            metrics = _concat_chunks(self._chunks)
+            write_curves(self.out_dir, self.program, self.runs, metrics, self.tb_points)
+
+    def _open(self, metrics: dict[str, np.ndarray]) -> None:
+        """The first curves: the CSV and every run's event file written whole, then kept open for appending."""
+        self._labels = _check(self.program, self.runs, metrics, self.tb_points)
+        self._chunks = [metrics]
+        _write_csv(self.out_dir / "curves" / f"{self.program}.csv", self.runs, self._labels, metrics)
+        tb_root = self.out_dir / "tensorboard"
+        tb_root.mkdir(parents=True, exist_ok=True)
+        for i, label in enumerate(self._labels):
+            _write_tensorboard(tb_root, label, {name: v[i] for name, v in metrics.items()}, self.tb_points,
+                               self.iterations)
+
+    def _log_windows(self, before: int) -> None:
+        """Logs the windows that end after iteration `before` and that the curves so far complete: one more event
+        file per run, named after the chunk's first iteration, closed at once (TensorBoard reads them all)."""
+        from tensorboardX import SummaryWriter
+
+        metrics = _concat_chunks(self._chunks)
+        for i, label in enumerate(self._labels):
+            points = []
+            for name, values in metrics.items():
+                steps, means = _window_means(values[i], self.tb_points, self.iterations)
+                points += [(f"train/{name}", mean, step) for step, mean in zip(steps.tolist(), means.tolist())
+                           if step > before]
+            if points:
+                writer = SummaryWriter(logdir=str(self.out_dir / "tensorboard" / label), flush_secs=3600,
+                                       filename_suffix=f".{before + 1}")
+                try:
+                    for tag, mean, step in points:
+                        writer.add_scalar(tag, mean, step)
+                finally:
+                    writer.close()
+
+
+def _concat_chunks(chunks: Sequence[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """Per-chunk metrics `[R, n]` joined along the iteration axis."""
+    return {k: np.concatenate([c[k] for c in chunks], axis=1) for k in chunks[0]}
+
+
 def _label_value(v: Any) -> str:
     if isinstance(v, (bool, np.bool_)):
         return str(bool(v))
@@ -153,41 +252,56 @@ def _csv_fields(fields: list[Any]) -> str:
     return buf.getvalue()
 
 
-def _write_csv(path: pathlib.Path, runs: Sequence[Any], labels: list[str], metrics: dict[str, np.ndarray]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
+def _write_rows(f, runs: Sequence[Any], labels: list[str], metrics: dict[str, np.ndarray], first: int = 1) -> None:
+    """The CSV rows of `metrics` (`[len(runs), n]`), iterations counted from `first`, runs in order."""
     n_iterations = next(iter(metrics.values())).shape[1]
-    iteration = np.arange(1, n_iterations + 1, dtype=np.float64)
+    iteration = np.arange(first, first + n_iterations, dtype=np.float64)
+    for i, (run, label) in enumerate(zip(runs, labels)):
+        hparams = json.dumps(run.hparams, sort_keys=True, separators=(",", ":"), default=_json_default)
+        prefix = _csv_fields([label, run.method, hparams, int(run.seed)]).replace("%", "%%")
+        row = prefix + ",%d" + ",%.9g" * len(metrics) + "\n"
+        # [iterations, 1 + metrics] float64 holds every float32 and iteration count exactly;
+        # one `%` over a whole chunk of rows formats in C rather than row by row in Python.
+        block = np.column_stack([iteration] + [np.asarray(v[i], np.float64) for v in metrics.values()])
+        for start in range(0, n_iterations, _ROWS_PER_CHUNK):
+            chunk = block[start:start + _ROWS_PER_CHUNK]
+            f.write((row * len(chunk)) % tuple(chunk.ravel().tolist()))
+
+
+def _write_csv(path: pathlib.Path, runs: Sequence[Any], labels: list[str], metrics: dict[str, np.ndarray] | None,
+               names: Sequence[str] | None = None) -> None:
+    """The whole CSV, atomically: the header (`names`: the metrics', default `metrics`'s), then `metrics`'s rows."""
+    path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
         with open(fd, "w", encoding="utf-8", newline="") as f:
-            f.write(_csv_fields([*_FIXED_COLUMNS, *metrics]) + "\n")
-            for i, (run, label) in enumerate(zip(runs, labels)):
-                hparams = json.dumps(run.hparams, sort_keys=True, separators=(",", ":"), default=_json_default)
-                prefix = _csv_fields([label, run.method, hparams, int(run.seed)]).replace("%", "%%")
-                row = prefix + ",%d" + ",%.9g" * len(metrics) + "\n"
-                # [iterations, 1 + metrics] float64 holds every float32 and iteration count exactly;
-                # one `%` over a whole chunk of rows formats in C rather than row by row in Python.
-                block = np.column_stack([iteration] + [np.asarray(v[i], np.float64) for v in metrics.values()])
-                for start in range(0, n_iterations, _ROWS_PER_CHUNK):
-                    chunk = block[start:start + _ROWS_PER_CHUNK]
-                    f.write((row * len(chunk)) % tuple(chunk.ravel().tolist()))
+            f.write(_csv_fields([*_FIXED_COLUMNS, *(names if names is not None else metrics)]) + "\n")
+            if metrics is not None:
+                _write_rows(f, runs, labels, metrics)
         os.replace(tmp, path)
     except BaseException:
         os.unlink(tmp)
         raise
 
 
-def _window_means(values: np.ndarray, tb_points: int) -> tuple[np.ndarray, np.ndarray]:
-    """`[T]` -> (steps `[P] int`, means `[P] float64`), P = ceil(T / ceil(T / tb_points)) <= tb_points."""
+def _window_means(values: np.ndarray, tb_points: int, total: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """`[T]` -> (steps `[P] int`, means `[P] float64`) of the windows of a `total`-iteration curve (default `T`)
+    that `values`, its first T iterations, complete: windows of `ceil(total / tb_points)` iterations, the last
+    one shorter, so P <= tb_points."""
     n = len(values)
-    width = math.ceil(n / tb_points)
-    starts = np.arange(0, n, width)
-    ends = np.minimum(starts + width, n)
-    means = np.add.reduceat(np.asarray(values, np.float64), starts) / (ends - starts)
+    total = n if total is None else total
+    width = math.ceil(total / tb_points)
+    starts = np.arange(0, total, width)
+    ends = np.minimum(starts + width, total)
+    starts, ends = starts[ends <= n], ends[ends <= n]
+    if not len(starts):
+        return ends, np.zeros(0)
+    means = np.add.reduceat(np.asarray(values[:ends[-1]], np.float64), starts) / (ends - starts)
     return ends, means  # a window's last iteration, counting from 1, is its end index
 
 
-def _write_tensorboard(tb_root: pathlib.Path, label: str, curves: dict[str, np.ndarray], tb_points: int) -> None:
+def _write_tensorboard(tb_root: pathlib.Path, label: str, curves: dict[str, np.ndarray], tb_points: int,
+                       total: int | None = None) -> None:
     # Imported here: tensorboardX imports torch when it is installed (~2 s), which
     # importers of this module that never write curves should not pay.
     from tensorboardX import SummaryWriter
@@ -197,7 +311,7 @@ def _write_tensorboard(tb_root: pathlib.Path, label: str, curves: dict[str, np.n
         writer = SummaryWriter(logdir=str(staging), flush_secs=3600)
         try:
             for name, values in curves.items():
-                steps, means = _window_means(values, tb_points)
+                steps, means = _window_means(values, tb_points, total)
                 for step, mean in zip(steps.tolist(), means.tolist()):
                     writer.add_scalar(f"train/{name}", mean, step)
         finally:

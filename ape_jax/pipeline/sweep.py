@@ -106,13 +106,14 @@ class Hooks:
       bar: `bar(desc=..., total=..., unit=...)`, a context manager with
         `update(n)` (e.g. `tqdm.tqdm`); one per phase.
       log: receives one-line progress messages.
-      curves: `curves(program, runs, metrics)` after each program trains, with
-        its per-iteration metrics `[len(runs), iterations]` (e.g. `logs.write_curves`).
+      curves: `curves(program, runs, iterations)` before each program trains: a sink for its per-iteration
+        metrics (e.g. `logs.CurveLog`), told `start(restored)` with the curves a resumed program restored
+        (`[len(runs), n]` per metric, or None), `append(metrics)` after every chunk, and `close()` at the end.
     """
 
     bar: Callable[..., Any] = _NoBar
     log: Callable[[str], None] = print
-    curves: Callable[[str, Sequence["Run"], dict], None] | None = None
+    curves: Callable[[str, Sequence["Run"], int], Any] | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -499,7 +500,7 @@ class Trained:
 
 def train_program(program: Program, hparams: Any, budget, data: Data, progress: Callable[[int], None],
                   chunk: int | None = None, vectorize: bool = True,
-                  checkpoint: ProgramCheckpoint | None = None) -> tuple[Any, dict, dict[int, Any]]:
+                  checkpoint: ProgramCheckpoint | None = None, curves: Any = None) -> tuple[Any, dict, dict[int, Any]]:
     """Trains a program's runs vmapped and sharded over devices, in chunks of iterations.
 
     Round-based learners (boosting, DAgger) get `next_round` between rounds.
@@ -510,7 +511,8 @@ def train_program(program: Program, hparams: Any, budget, data: Data, progress: 
     rounds) stops there, and the policies are kept (a snapshot).
     With a `checkpoint`, training continues from its latest save and saves
     the state and curves after every chunk that passes a multiple of its
-    interval, and at the end; snapshots are saved when taken.
+    interval, and at the end; snapshots are saved when taken. `curves` (a `Hooks.curves` sink) is started with
+    the restored curves and gets every chunk's metrics as it finishes.
 
     Returns:
       (params, metrics, snapshots): the policies' parameters, leaves `[len(runs), ...]`;
@@ -533,12 +535,14 @@ def train_program(program: Program, hparams: Any, budget, data: Data, progress: 
     at = tuple(getattr(budget, "eval_at", ()))
     snapshots = {}
     if saved is not None:
-        start, state, curves = saved
-        metrics.append(curves)
+        start, state, restored = saved
+        metrics.append(restored)
         progress(start)
         if checkpoint is not None:  # process 0's: the others never evaluate
             like = trim(learner.policy_params(state))
             snapshots = {i: checkpoint.load_snapshot(i, like) for i in at if i <= start}
+    if curves is not None:
+        curves.start(trim(metrics[0]) if metrics else None)
     total = learner.rounds * learner.round_iterations
     runners = {}
     for r in range(learner.rounds):
@@ -558,6 +562,8 @@ def train_program(program: Program, hparams: Any, budget, data: Data, progress: 
                                          width=width)
             state, m = runners[n](state, hps, data)
             metrics.append(jax.device_get(m))
+            if curves is not None:
+                curves.append(trim(metrics[-1]))
             done += n
             if first + done in at:
                 snapshots[first + done] = trim(learner.policy_params(state))
@@ -635,17 +641,19 @@ def train(programs: Sequence[Program], spec: SweepSpec, prepared: Prepared, data
                 b.update(n)
 
             t0 = time.perf_counter()
+            iterations = program.learner.rounds * program.learner.round_iterations
+            curves = None if hooks.curves is None else hooks.curves(program.name, program.runs, iterations)
             params, metrics, snapshots = train_program(
                 program, traced_hparams(program.runs, spec.recipe.lr, rows), spec.budget, data, tick,
                 chunk=CPU_IMAGE_CHUNK if sequential else None, vectorize=not sequential,
-                checkpoint=None if checkpoint is None else checkpoint.program(program.name))
+                checkpoint=None if checkpoint is None else checkpoint.program(program.name), curves=curves)
             jax.block_until_ready(params)
             chunk_times = np.diff([t0, *stamps])
             steady = float(np.median(chunk_times[1:])) if len(chunk_times) > 1 else 0.0
             compile_s = max(0.0, float(chunk_times[0]) - steady) if len(chunk_times) else 0.0
             out.append(Trained(program, params, metrics, compile_s, float(sum(chunk_times)) - compile_s, snapshots))
-            if hooks.curves is not None:
-                hooks.curves(program.name, program.runs, metrics)
+            if curves is not None:
+                curves.close()
     return out
 
 
