@@ -67,20 +67,29 @@ def machine() -> str:
     return f"{cpu()}, jax {jax.__version__} ({jax.default_backend()}), mujoco {version('mujoco')}"
 
 
+def splice_section(old: str | None, text: str, name: str) -> str:
+    """`old` with the section between `<!-- NAME:start -->` and `<!-- NAME:end -->` replaced by `text`, or
+    with the section appended; None (no file yet) starts a new `# Benchmarks` file."""
+    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
+    block = f"{start}\n{text}{end}\n"
+    old = "# Benchmarks\n\n" if old is None else old
+    if start in old and end in old:
+        return old[: old.index(start)] + block + old[old.index(end) + len(end) + 1 :]
+    return old.rstrip("\n") + "\n\n" + block
+
+
+def write_text_atomic(path: str, text: str) -> None:
+    """Writes `text` to `path` through a temporary file and a rename, so a reader sees the old or the new file."""
+    tmp = path + ".tmp"
+    with open(tmp, "w") as f:
+        f.write(text)
+    os.replace(tmp, path)
+
+
 def write_section(path: str, text: str, name: str = "bench_envs") -> None:
     """Replaces the section of `path` between `<!-- NAME:start -->` and `<!-- NAME:end -->`
     (or appends it), atomically."""
-    start, end = f"<!-- {name}:start -->", f"<!-- {name}:end -->"
-    block = f"{start}\n{text}{end}\n"
-    old = open(path).read() if os.path.exists(path) else "# Benchmarks\n\n"
-    if start in old and end in old:
-        new = old[: old.index(start)] + block + old[old.index(end) + len(end) + 1 :]
-    else:
-        new = old.rstrip("\n") + "\n\n" + block
-    tmp = path + ".tmp"
-    with open(tmp, "w") as f:
-        f.write(new)
-    os.replace(tmp, path)
+    write_text_atomic(path, splice_section(open(path).read() if os.path.exists(path) else None, text, name))
 
 
 def run_benchmark(parser, argv, counts: tuple[str, ...], table, section: str,
@@ -94,7 +103,7 @@ def run_benchmark(parser, argv, counts: tuple[str, ...], table, section: str,
     """
     from experiments._cli import unwritable_file
 
-    parser.add_argument("--write", metavar="BENCHMARKS.md", help="replace the section in this file")
+    parser.add_argument("--write", metavar="docs/speed.md", help="replace the section in this file")
     args = parser.parse_args(argv)
     if min(getattr(args, c.lstrip("-").replace("-", "_")) for c in counts) < 1:
         parser.error(f"{', '.join(counts)} must be >= 1")

@@ -5,7 +5,8 @@ task, observation mode and protocol (several files of one group are joined,
 e.g. the main grid and a `--methods baselines` run; schema 1 files, which
 record no protocol, are `brax`). Results of one task under two protocols are
 different experiments and never mix. It prints, or with `--out` writes into
-the file's `report` section:
+the file's `report` section (and rebuilds the file's table of contents, when it
+has one between `<!-- toc:start -->` and `<!-- toc:end -->`: `experiments.report.toc`):
 
 - MuJoCo-State per protocol: first the paper's (`fca`: frame skip 1, 500
   standard steps of simulated time), every method per task as return mean ±
@@ -51,8 +52,9 @@ picks, the bootstrap, the copycat map, the weights: one module per concern),
 `paper` (every number of the paper's the report sets beside ours), `sections`
 (each section a function `(Context) -> list[Section]`: its tables, generated
 sentences and figure links), `markdown` (`build`: the sections in order),
-`figures` (drawing primitives and the report's figures) and `stats` (the
-cross-task estimators of `experiments.compare`).
+`figures` (drawing primitives and the report's figures), `stats` (the
+cross-task estimators of `experiments.compare`) and `toc` (the file's table of
+contents).
 
 A results file that cannot be read, is not JSON, or lacks a field the tables
 use (or has it with the wrong type), and an `--out` that cannot be written, are
@@ -66,6 +68,7 @@ import pathlib
 import sys
 
 from experiments._cli import Parser, fail, unwritable, unwritable_file
+from experiments.report import toc
 from experiments.report.analysis import (ReportError, bootstrap_difference, bootstrap_rows, copycat_map, load, merge,
                                          verdict, weight_shares)
 from experiments.report.figures import save_png
@@ -121,10 +124,12 @@ def main(argv=None) -> int:
     if args.out is None:
         print(text)
         return 0
-    from experiments._timing import write_section
+    from experiments._timing import splice_section, write_text_atomic
 
     try:
-        write_section(str(args.out), text, "report")
+        # the report section, then the table of contents from the new file's headings: one write
+        old = args.out.read_text() if args.out.exists() else None
+        write_text_atomic(str(args.out), toc.refresh(splice_section(old, text, "report")))
     except (OSError, UnicodeDecodeError) as e:
         return fail(p, f"cannot write {args.out}: {e}")
     print(f"wrote the report section of {args.out} from {len(args.results)} results file(s)")
