@@ -1,7 +1,7 @@
 """Environment throughput: MJX vs native MuJoCo, renderer frames/s, ToyCar with images.
 
     python -m experiments.bench_envs                      # print the table
-    python -m experiments.bench_envs --write BENCHMARKS.md  # also replace its section
+    python -m experiments.bench_envs --write docs/speed.md  # also replace its section
 
 Every figure is a median over `--repeats` timed runs after a separate first
 (compiling) call; compile time is reported on its own. Native MuJoCo runs

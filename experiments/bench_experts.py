@@ -1,7 +1,7 @@
 """Experts and demonstration collection: the shipped experts' cards, and collection throughput.
 
     python -m experiments.bench_experts                        # print the tables
-    python -m experiments.bench_experts --write BENCHMARKS.md  # also replace its section
+    python -m experiments.bench_experts --write docs/speed.md  # also replace its section
 
 The expert table is read from the cards written by `experiments.train_expert`
 (returns measured there over 100 episodes of `envs.make(env, obs="full")`).

@@ -1,7 +1,7 @@
 """Image policies' training and evaluation speed, and memory: `python -m experiments.bench_images`.
 
     python -m experiments.bench_images                        # print the table
-    python -m experiments.bench_images --write BENCHMARKS.md  # also replace its section
+    python -m experiments.bench_images --write docs/speed.md  # also replace its section
 
 For the image policies the sweep trains (frames stacked on channels, history
 2, batch 128, random uint8 frames):

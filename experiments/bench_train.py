@@ -1,7 +1,7 @@
 """Training and evaluation speed: the vmapped grid vs one-after-another JAX vs plain PyTorch; FLOP/s; evaluation.
 
     python -m experiments.bench_train                        # print the tables
-    python -m experiments.bench_train --write BENCHMARKS.md  # also replace its section
+    python -m experiments.bench_train --write docs/speed.md  # also replace its section
 
 Everything runs in one process, one after another, on the same data (the
 hopper `pos` demonstrations shapes: input 2 × 5, action 3, batch 128):

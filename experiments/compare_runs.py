@@ -6,8 +6,8 @@
 hold (the same method, hyperparameters and seed, hence the same PRNG key), it prints the two mean returns and
 how far apart the saved parameters are (largest absolute difference over all weights), then a summary: the
 median and largest return difference, and how many runs have bit-identical parameters. A run's key does not
-fix its float rounding, which can depend on how many runs a program vmaps over (BENCHMARKS.md, "Seeds are not
-bit-reproducible across program sizes").
+fix its float rounding, which can depend on how many runs a program vmaps over (docs/reliability.md, "Seeds are
+not bit-reproducible across program sizes").
 """
 
 from __future__ import annotations

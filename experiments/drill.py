@@ -8,7 +8,7 @@ ones bit for bit, what the interruptions cost in time, and how long the
 checkpoints took to save. Everything runs as `python -m experiments.sweep`
 subprocesses (extra sweep flags after `--`); outputs go under `--out`.
 
-This is what BENCHMARKS.md's "Reliability" section reports; the tests run a
+This is what docs/reliability.md's "Faults tried" section reports; the tests run a
 shrunken version (`tests/test_resume.py`).
 """
 

@@ -877,3 +877,38 @@ def test_no_report_module_uses_another_modules_private_names():
                     and isinstance(node.value, ast.Name) and node.value.id in modules
                     and node.attr.startswith("_") and not node.attr.startswith("__")]
         assert not private, f"{path.relative_to(ROOT)} uses {private}"
+
+
+def test_the_committed_contents_are_what_the_committed_headings_give():
+    """BENCHMARKS.md's table of contents cannot go stale: rebuilding it from the committed file changes nothing."""
+    from experiments.report import toc
+
+    committed = (ROOT / "BENCHMARKS.md").read_text()
+    assert toc.START in committed and toc.END in committed
+    assert toc.refresh(committed) == committed
+    assert "- [Sweep results: MuJoCo-State (issues 4 and 5)](#sweep-results-mujoco-state-issues-4-and-5)\n" in committed
+    assert committed.count("  - Every configuration: [") == 1
+
+
+def test_the_speed_sections_live_in_docs_speed_md():
+    """`python -m experiments.bench_NAME --write docs/speed.md` replaces its section there, never appends one."""
+    speed, benchmarks = (ROOT / "docs" / "speed.md").read_text(), (ROOT / "BENCHMARKS.md").read_text()
+    for name in ("bench_envs", "bench_experts", "bench_train", "bench_images"):
+        assert speed.count(f"<!-- {name}:start -->\n") == speed.count(f"<!-- {name}:end -->\n") == 1, name
+        assert f"<!-- {name}:" not in benchmarks, name
+
+
+def test_the_cli_refreshes_the_contents_of_a_file_that_has_them_and_adds_none_to_one_that_does_not(tmp_path):
+    from experiments.report import toc
+
+    main = _write(tmp_path, "main.json", _results())
+    with_toc, without = tmp_path / "with.md", tmp_path / "without.md"
+    with_toc.write_text(f"# Benchmarks\n\n{toc.START}\n- [Gone](#gone)\n{toc.END}\n\n## Hand-written\n\nprose\n")
+    without.write_text("# Benchmarks\n\n## Hand-written\n\nprose\n")
+    for out in (with_toc, without):
+        assert report.main([str(main), "--out", str(out)]) == 0
+    text = with_toc.read_text()
+    assert "Gone" not in text and toc.refresh(text) == text
+    assert "- [Hand-written](#hand-written)\n" in text and "  - Every configuration: [Hopper, `pos` observations" in text
+    assert text.index(toc.END) < text.index("## Hand-written") < text.index("<!-- report:start -->")
+    assert "toc:" not in without.read_text() and "<!-- report:start -->" in without.read_text()
