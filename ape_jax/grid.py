@@ -24,7 +24,7 @@ so only a fixed width makes a configuration's numbers independent of the
 sweep it is in. `width=None`: the whole grid in one call (the sweep's way
 before `Budget.width`). On a CPU width 1 costs little in training (one
 `bench_train` run: 0.92-1.30x the whole 13-run grid's updates/s) and more in
-evaluation (0.59x the env steps/s at 8 episodes per policy; BENCHMARKS.md).
+evaluation (0.59x the env steps/s at 8 episodes per policy; docs/reliability.md).
 
 `vectorize=False` instead compiles `fn` for one configuration and runs the
 configurations one after another, reusing that one executable: on CPU the

@@ -8,6 +8,13 @@ existed), from the policies in
 `OUT/params/`, on the same episodes (`ape_jax.pipeline.reevaluate`). Every run's return
 and recorded metric must come out as recorded, or nothing is written (exit 2). The file is
 replaced atomically; `--out FILE` writes elsewhere and leaves it alone.
+
+`--video METHOD[:SEED]` instead writes a GIF of one of the policy's evaluation
+episodes (`--episode`, default 0) to `RUN/videos/` (or `--video-out FILE.gif`),
+rendered as the sweep's evaluation saw it, with its return in the caption
+(`ape_jax.pipeline.watch`); a method that ran several settings shows its best
+(by mean return), at its first seed unless SEED is given. `results.json` is
+left alone.
 """
 
 from __future__ import annotations
@@ -26,8 +33,17 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=pathlib.Path, default=None,
                    help="write the completed results here (default: replace RUN/results.json)")
     p.add_argument("--data-dir", type=pathlib.Path, default=None, help=f"demonstration cache (default: {data.cache_dir()})")
+    p.add_argument("--video", default=None, metavar="METHOD[:SEED]",
+                   help="write a GIF of this policy's evaluation episode instead (results.json is left alone)")
+    p.add_argument("--episode", type=int, default=0, help="with --video: which evaluation episode (default 0)")
+    p.add_argument("--video-out", type=pathlib.Path, default=None, metavar="FILE.gif",
+                   help="with --video: where (default RUN/videos/METHOD-seedSEED-episodeN.gif)")
     add_compile_cache_flag(p)
     args = p.parse_args(argv)
+    if args.video is None and (args.video_out is not None or args.episode != 0):
+        fail(p, "--episode and --video-out go with --video METHOD[:SEED]")
+    if args.video_out is not None and args.video_out.suffix != ".gif":
+        fail(p, f"--video-out must name a .gif file, got {args.video_out}")
     use_compile_cache(args)
     source = args.run / "results.json"
     from ape_jax.pipeline import results as results_lib
@@ -38,6 +54,8 @@ def main(argv=None) -> int:
         res = results_lib.load(source)
     except results_lib.ResultsError as e:
         fail(p, str(e))
+    if args.video is not None:
+        return _video(p, args, res)
     target = args.out or source
     if (why := unwritable_file(target)) is not None:
         fail(p, why)
@@ -54,6 +72,30 @@ def main(argv=None) -> int:
     print(f"wrote {target}: " + (f"added {', '.join(added)}" if added else "nothing was missing")
           + f" ({new.reevaluated['eval_s']:.0f} s, of which diagnostics {new.reevaluated['diagnostics_s']:.0f} s); "
           "every recorded return and metric came out as recorded")
+    return 0
+
+
+def _video(p, args, res) -> int:
+    """`--video`: one evaluation episode of a saved policy as a captioned GIF."""
+    from ape_jax.pipeline import watch
+
+    try:
+        method, seed = watch.parse_choice(args.video)
+        record = watch.choose_run(res, method, seed)
+    except watch.WatchError as e:
+        return fail(p, str(e))
+    target = args.video_out or (args.run / "videos" / f"{method}-seed{record['seed']}-episode{args.episode}.gif")
+    if (why := unwritable_file(target)) is not None:
+        return fail(p, f"cannot write the video to {target}: {why}")
+    from envs.experts import ExpertError
+
+    try:
+        clip = watch.episode_of(res, args.run / "params", method, record["seed"], args.episode, args.data_dir)
+    except (watch.WatchError, ExpertError, ValueError) as e:
+        return fail(p, str(e))
+    watch.write_gif(clip, target)
+    print(f"wrote {target}: {clip.title}, {clip.metric} {clip.episode_metric:,.4g} (the evaluation's mean "
+          f"{clip.mean_metric:,.4g}), {len(clip.frames)} frames at {clip.fps} per second")
     return 0
 
 

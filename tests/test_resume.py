@@ -15,6 +15,7 @@ import signal
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from experiments import sweep
@@ -274,3 +275,42 @@ def test_evaluating_saved_policies_again_adds_the_missing_fields_and_refuses_oth
     with pytest.raises(SystemExit):
         evaluate.main([str(run), "--data-dir", str(workdir / "data")])
     assert "seed 0 diagnostics embedding_ratio" in capsys.readouterr().err
+
+
+def test_a_saved_policy_is_watched_as_a_captioned_gif_of_its_evaluation_episode(workdir, reference, tmp_path, capsys):
+    """`experiments.evaluate RUN --video METHOD[:SEED]`: a GIF of one of the policy's evaluation episodes, the same
+    episodes the sweep evaluated (their mean metric is the recorded one), captioned; bad choices are refused in
+    one line, and results.json is left alone."""
+    from PIL import Image
+
+    from experiments import evaluate
+
+    run = tmp_path / "run"
+    shutil.copytree(workdir / "reference" / "params", run / "params")
+    shutil.copy(workdir / "reference" / "results.json", run / "results.json")
+    before = (run / "results.json").read_bytes()
+    data = ["--data-dir", str(workdir / "data")]
+    assert evaluate.main([str(run), "--video", "ours-step:0", "--episode", "1", *data]) == 0
+    out = capsys.readouterr().out
+    gif = run / "videos" / "ours-step-seed0-episode1.gif"
+    assert f"wrote {gif}" in out and (run / "results.json").read_bytes() == before
+    recorded = [r for r in reference["runs"] if r["method"] == "ours-step" and r["seed"] == 0]
+    best = max(recorded, key=lambda r: r["eval"]["return_mean"])   # one seed: the best setting is its best run
+    assert f"thr {best['hparams']['thr']:g}" in out
+    mean = float(out.split("the evaluation's mean ")[1].split(")")[0])
+    assert mean == pytest.approx(best["eval"]["success"], abs=1e-3)   # ToyCar is judged by success
+    with Image.open(gif) as im:
+        assert im.n_frames > 10 and im.width == 256 and im.height > 256   # a caption below the frame
+        im.seek(im.n_frames // 2)
+        frame = np.asarray(im.convert("RGB"))
+    assert frame[:256].std() > 5 and (frame[256:] < 100).any()   # a picture, and dark caption text
+    for argv, message in ((["--video", "nope"], "no trained policy of method 'nope' in this sweep; it ran: bc-oh, ours-step"),
+                          (["--video", "bc-oh:7"], "has no seed 7"),
+                          (["--video", "bc-oh:x"], "must be an integer"),
+                          (["--video", "bc-oh", "--episode", "5"], "episode 5 is not one of the evaluation's 2"),
+                          (["--video", "bc-oh", "--video-out", str(tmp_path / "a.mp4")], "must name a .gif"),
+                          (["--episode", "1"], "go with --video")):
+        with pytest.raises(SystemExit) as e:
+            evaluate.main([str(run), *argv, *data])
+        assert e.value.code == 2 and message in capsys.readouterr().err, argv
+    assert (run / "results.json").read_bytes() == before

@@ -227,6 +227,8 @@ def group_sections(ctx: Context) -> list[Section]:
         diagnostics = group_diagnostics(m, explained)
         body += diagnostics + training_table(m)
         explained = explained or bool(diagnostics)
-        out.append(Section(f"{tasks.get(key.env).title}, `{key.obs}` observations{protocol}: every configuration",
+        budget = f", {key.budget:,} iterations" if key.budget else ""   # a longer run of a group is a group apart
+        out.append(Section(f"{tasks.get(key.env).title}, `{key.obs}` observations{protocol}{budget}: every "
+                           "configuration",
                            body=body, figures=grid.figures))
     return out
