@@ -187,13 +187,25 @@ def export_minari(args, demos, meta, path) -> None:
     if target.exists() and not args.force:
         print(f"minari dataset: {target} (exported before)")
         return
+    from ape_jax import tasks
+    from ape_jax.pipeline import collect
+    from envs.experts import ExpertError
+
     env = envs.make(args.env, obs=args.obs, **args.overrides)
+    try:   # the reference scores of minari.get_normalized_score: the protocol's random policy and expert
+        ref = collect.reference_returns(args.env, tasks.get(args.env).protocol(args.protocol, args.obs))
+        why = "its expert is rule-based (no returns to normalise by)" if ref is None else None
+    except ExpertError as e:
+        ref, why = None, str(e)
+    refs = {} if ref is None else {"ref_min_score": ref["random_return_mean"], "ref_max_score": ref["return_mean"]}
     try:
         target = minari_io.to_minari(demos, meta, dataset_id, args.out, action_bounds=env.action_bounds,
-                                     overwrite=True)
+                                     overwrite=True, **refs)
     except OSError as e:
         fail(None, f"--out {args.out}: cannot write the Minari dataset ({e.strerror or e})")
     print(f"minari dataset: {target} (id {dataset_id!r}; MINARI_DATASETS_PATH={args.out} to load it by id)")
+    print(f"reference scores: random {refs['ref_min_score']:,.1f}, expert {refs['ref_max_score']:,.1f} "
+          "(minari.get_normalized_score works on it)" if refs else f"no reference scores: {why}")
 
 
 def write_preview(args, demos) -> None:

@@ -197,6 +197,7 @@ def test_collect_format_minari_exports_the_collected_dataset(tmp_path, capsys):
     bounds = minari.MinariDataset(path / "data").action_space
     np.testing.assert_array_equal(bounds.low, [0, 0])
     np.testing.assert_array_equal(bounds.high, [1, 1])
+    assert "no reference scores: its expert is rule-based" in out
     assert collect_cli.main(argv) == 0 and "(exported before)" in capsys.readouterr().out
 
 
@@ -210,3 +211,32 @@ def test_collect_refuses_bad_export_options_with_exit_code_2(tmp_path, argv, mes
     with pytest.raises(SystemExit) as exc:
         collect_cli.main(["--env", "toycar", "--obs", "full", *argv(tmp_path)])
     assert exc.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_reference_scores_make_minaris_normalised_score_the_tables_normalisation(tmp_path, monkeypatch):
+    """`ref_min_score`/`ref_max_score` (the protocol's random policy and expert): Minari's own
+    `get_normalized_score` then gives (return − random) ÷ (expert − random), as the project's tables do."""
+    path = minari_io.to_minari(hand_demos(), {}, "toy/refs-v0", root=tmp_path, ref_min_score=-10.0, ref_max_score=90.0)
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
+    dataset = minari.load_dataset("toy/refs-v0")
+    np.testing.assert_allclose(minari.get_normalized_score(dataset, np.array([-10.0, 40.0, 90.0])), [0.0, 0.5, 1.0])
+    assert_same(hand_demos(), minari_io.from_minari(path))   # the data are unchanged by the scores
+    for kw, match in (({"ref_min_score": 1.0}, "both reference scores"), ({"ref_min_score": 1.0, "ref_max_score": 1.0},
+                                                                          "must be finite and differ")):
+        with pytest.raises(ValueError, match=match):
+            minari_io.to_minari(hand_demos(), {}, "toy/bad-v0", root=tmp_path, **kw)
+    without = minari_io.to_minari(hand_demos(), {}, "toy/plain-v0", root=tmp_path)
+    with pytest.raises(ValueError, match="Reference score not provided"):
+        minari.get_normalized_score(minari.MinariDataset(without / "data"), np.array([1.0]))
+
+
+def test_the_reference_returns_are_the_protocols_normalisation_and_none_for_a_rule_based_expert():
+    from ape_jax import tasks
+    from ape_jax.pipeline import collect
+    from envs import experts
+
+    hopper = tasks.get("hopper")
+    for name in ("fca", "brax"):
+        ref = collect.reference_returns("hopper", hopper.protocol(name, "pos"))
+        assert ref == experts.reference("hopper", name) and ref["return_mean"] > ref["random_return_mean"]
+    assert collect.reference_returns("toycar", tasks.get("toycar").protocol(None, "full")) is None

@@ -72,6 +72,21 @@ def protocol_setup(env_name: str, obs: str, protocol: str | tasks.Protocol | Non
     return ProtocolSetup(proto.name, settings, proto.env_overrides(standard), episodes, proto.expert)
 
 
+def reference_returns(env_name: str, protocol: tasks.Protocol) -> dict | None:
+    """The returns results are normalised by under `protocol` (`envs.experts.reference`: the expert's mean return
+    `return_mean` and a random policy's `random_return_mean`, measured under the protocol), None for a task
+    whose expert has no card (a rule-based one, e.g. ToyCar's).
+
+    Raises:
+      envs.experts.ExpertError: no reference measured under the protocol (naming the command that measures it).
+    """
+    if not tasks.get(env_name).has_card:
+        return None
+    from envs import experts
+
+    return experts.reference(protocol.expert_name(env_name), protocol.reference or protocol.name)
+
+
 def expert_for(env: envs.Env, variant: str | None = None) -> tuple[Callable[[jax.Array], jax.Array], dict]:
     """The expert of `env` as `full_obs -> action`, and a description of it for metadata.
 

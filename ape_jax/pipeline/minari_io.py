@@ -149,7 +149,8 @@ def _buffers(demos: Demonstrations) -> list:
 
 
 def to_minari(demos: Demonstrations, meta: dict | None, dataset_id: str,
-              root: str | os.PathLike | None = None, *, action_bounds=None, overwrite: bool = False) -> pathlib.Path:
+              root: str | os.PathLike | None = None, *, action_bounds=None, overwrite: bool = False,
+              ref_min_score: float | None = None, ref_max_score: float | None = None) -> pathlib.Path:
     """Writes `demos` as a local Minari dataset (hdf5), one Minari episode per episode.
 
     Args:
@@ -161,17 +162,30 @@ def to_minari(demos: Demonstrations, meta: dict | None, dataset_id: str,
       action_bounds: `(low, high)` of the environment's actions (`env.action_bounds`),
         each `[A]` or scalar; the action space is unbounded without them.
       overwrite: replace an existing dataset of that id instead of refusing.
+      ref_min_score, ref_max_score: a random policy's and the expert's mean episode return under the dataset's
+        protocol (`collect.reference_returns`), stored as Minari's reference scores so that
+        `minari.get_normalized_score(dataset, returns)` gives (return − random) ÷ (expert − random), the
+        normalisation of this project's tables; give both or neither.
 
     Returns:
       The dataset's directory, `root/dataset_id` (load it with `from_minari`).
 
     Raises:
-      ValueError: an invalid id or metadata that is not JSON-able.
+      ValueError: an invalid id, metadata that is not JSON-able, or one reference score without the other (or
+        scores that are not finite, or equal).
       FileExistsError: the dataset exists and `overwrite` is False.
     """
     import minari
 
     check_dataset_id(dataset_id)
+    refs = {}
+    if (ref_min_score is None) != (ref_max_score is None):
+        raise ValueError("to_minari: give both reference scores (ref_min_score and ref_max_score) or neither")
+    if ref_min_score is not None:
+        low, high = float(ref_min_score), float(ref_max_score)
+        if not (np.isfinite(low) and np.isfinite(high) and low != high):
+            raise ValueError(f"to_minari: reference scores must be finite and differ, got {low} and {high}")
+        refs = {"ref_min_score": low, "ref_max_score": high}
     if len(demos) == 0:
         raise ValueError("to_minari: no transitions to export")
     try:
@@ -193,7 +207,7 @@ def to_minari(demos: Demonstrations, meta: dict | None, dataset_id: str,
                 algorithm_name="expert",
                 description="Expert demonstrations exported by ape_jax (ape_jax.pipeline.minari_io).",
                 data_format="hdf5", jpeg_encoding=False)
-            dataset.storage.update_metadata({META_KEY: meta_json})
+            dataset.storage.update_metadata({META_KEY: meta_json, **refs})
         # a namespace is a directory with a metadata file: keep those Minari made
         parts = pathlib.PurePosixPath(dataset_id).parts[:-1]
         for level in (pathlib.Path(*parts[:i]) for i in range(1, len(parts) + 1)):

@@ -301,7 +301,6 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
     normaliser. Raises `ValueError` (one line) for demonstrations that do not fit the environment or are too few.
     """
     import envs
-    from envs import experts
 
     env = envs.make(spec.env, obs=spec.obs, **spec.env_overrides())
     settings = spec.data_settings()
@@ -325,8 +324,7 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
         raise ValueError(f"the training split has {len(train)} transitions, fewer than the batch size "
                          f"{spec.recipe.batch_size}; collect more episodes")
     expert, _ = collect.expert_for(env, protocol.expert)
-    card = (experts.reference(protocol.expert_name(spec.env), protocol.reference or protocol.name)
-            if spec.task.has_card else None)
+    card = collect.reference_returns(spec.env, protocol)
     return Prepared(env=env, task=spec.task, train=train, val=val, normalizer=Normalizer.fit(train.obs),
                     expert=expert, card=card, data_path=str(path), source=source, settings=settings)
 
