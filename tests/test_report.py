@@ -211,24 +211,35 @@ def test_the_report_tabulates_the_bootstrap_per_environment(tmp_path):
 
 # -- the grid search: the paper's choices -------------------------------------------------------------------------
 
-def test_the_paper_choice_sentences_name_the_numbers(tmp_path):
-    text = report.report([_loaded(tmp_path, _results())])    # step THR 10% W 5: 75%; best THR 20% W 3: 80%
-    assert ("- Step, the paper's THR 10% W 5: 75.0 ± 0.5% vs the best, THR 20% W 3, 80.0 ± 0.5%: 5.0 points "
-            "lower, more than one std over seeds (0.5) below the best: not near it.") in text
-    assert "- Softmax, the paper's τ 0.2: not run." in text   # the fixture has τ 5 only
+def test_the_papers_settings_are_set_against_the_grids_best_in_numbers(tmp_path):
+    """`analysis.choices` and `gap`: the numbers the paper-choice sentences are built from (the golden snapshot
+    pins how they read)."""
+    from experiments.report.analysis import choices, gap
+
+    (m,) = report.merge([_loaded(tmp_path, _results())]).values()   # THR 10% W 5: 75%; THR 20% W 3: 80%
+    step, softmax = choices(m)
+    assert softmax.chosen is None and softmax.paper == {"tau": 0.2}   # it ran τ 5, not the paper's 0.2 (Hopper)
+    assert step.kind == "step" and step.chosen["hparams"] == {"thr": 0.1, "w": 5.0}
+    assert step.best["hparams"] == {"thr": 0.2, "w": 3.0} and step.closest is None
+    g = gap(step.chosen, step.best, "normalized")
+    assert (g.chosen, g.best, g.gap, g.noise, g.is_best, g.within) == ((75.0, 0.5), (80.0, 0.5), 5.0, 0.5, False, False)
+
     methods = (("bc-oh", {}, 1000.0), ("ours-step", {"thr": 0.1, "w": 5.0}, 1500.0),
                ("ours-step", {"thr": 0.2, "w": 3.0}, 1505.0),
                ("ours-softmax", {"tau": 0.2}, 100.0), ("ours-softmax", {"tau": 10.0}, 1400.0))
     r = _results(env="walker2d", methods=methods)
     r["config"]["ape"] = {"normalization": "mean", "scale": 0.025}
+    (m,) = report.merge([_loaded(tmp_path, r)]).values()
+    step, softmax = choices(m)
+    assert gap(step.chosen, step.best, "normalized").gap == pytest.approx(0.25)
+    assert gap(step.chosen, step.best, "normalized").within                    # 0.25 points, std 0.5
+    # the paper's τ acts on raw APE: τ 0.2 ÷ 0.025 = 8 on this file's scale, nearest grid value τ 10 (the best)
+    assert softmax.chosen["hparams"] == {"tau": 0.2} and softmax.scale == 0.025
+    assert softmax.equivalent == pytest.approx(8.0) and softmax.closest is softmax.best
+    assert softmax.best["hparams"] == {"tau": 10.0}
+    assert gap(softmax.chosen, softmax.best, "normalized").gap == pytest.approx(65.0)
     text = report.report([_loaded(tmp_path, r)])
-    assert ("- Step, the paper's THR 10% W 5: 75.0 ± 0.5% vs the best, THR 20% W 3, 75.2 ± 0.5%: 0.2 points "
-            "lower, within one std over seeds (0.5) of the best.") in text
-    # the paper's τ acts on raw APE: τ 0.2 / 0.025 = 8 here, nearest grid value τ 10
-    assert ("- Softmax, the paper's τ 0.2: 5.0 ± 0.5% vs the best, τ 10, 70.0 ± 0.5%: 65.0 points lower, more "
-            "than one std over seeds (0.5) below the best: not near it. But our τ acts on the APE divided by its "
-            "training-set mean (0.0250)") in text
-    assert "so its τ 0.2 is about τ 8.0 here" in text and "nearest grid value, τ 10: 70.0 ± 0.5%, the best" in text
+    assert "so its τ 0.2 is about τ 8.0 here" in text   # the sentence uses those numbers
 
 
 # -- figures ------------------------------------------------------------------------------------------------------
@@ -426,21 +437,29 @@ def _sandbox(success, stuck, deltas=(0, 1, 2, 3, 4)):
 
 
 def test_the_sandbox_reading_says_whether_ours_beats_bc_oh_and_whether_inertia_appears(tmp_path):
+    """`analysis.rate_reading`: the numbers of a rate-judged task's reading (the golden snapshot pins its words)."""
+    from experiments.report.analysis import rate_reading, verdict
+
     success = {"bc-so": [0.92, 0.93, 0.91, 0.94, 0.92], "bc-oh": [0.80, 0.82, 0.79, 0.81, 0.80],
                "ours-step": [0.88, 0.90, 0.89, 0.87, 0.91]}
     stuck = {"bc-so": [0.0] * 5, "bc-oh": [0.05, 0.0, 0.1, 0.05, 0.0], "ours-step": [0.0] * 5}
-    text = report.report([_loaded(tmp_path, _sandbox(success, stuck))])
-    assert "BC-SO success: 92.4% [91.6, 93.2] over 5 seeds × 200 evaluation episodes — a plain BC-SO policy has " \
-           "learned the task." in text
-    assert "BC-OH − BC-SO: -12.0 points of success (95% CI [-13.2, -10.8]): BC-SO better." in text and "BC-SO better." in text
-    assert "Ours − BC-OH: +8.6 points of success (95% CI [" in text and "Ours better." in text
-    assert "BC-OH 4.0% of episodes [" in text and "(BC-SO 0.0%, Ours 0.0%) — it appears." in text
-    # the same seeds with no stuck episode, and an unlearned BC-SO: the reading follows
+    (m,) = report.merge([_loaded(tmp_path, _sandbox(success, stuck))]).values()
+    r = rate_reading(m)
+    assert r.metric == "success" and r.episodes == 200 and r.learned
+    assert r.bcso == pytest.approx((92.4, 91.6, 93.2, 5), abs=0.05)
+    (a, b, history), (c, d, ours) = r.differences
+    assert (a, b, c, d) == ("bc-oh", "bc-so", "ours-step", "bc-oh")
+    assert (history.diff, history.low, history.high) == pytest.approx((-12.0, -13.2, -10.8), abs=0.05)
+    assert verdict(history, "BC-OH", "BC-SO") == "BC-SO better"
+    assert ours.diff == pytest.approx(8.6) and verdict(ours) == "Ours better"
+    assert r.inertia.mean == pytest.approx(4.0) and r.others == {"bc-so": 0.0, "ours-step": 0.0}
+    # the same seeds with no stuck episode, and an unlearned BC-SO
     flat = {k: [0.0] * 5 for k in stuck}
-    low = {**success, "bc-so": [0.80] * 5}
-    text = report.report([_loaded(tmp_path, _sandbox(low, flat), "flat.json")])
-    assert "below 90%: the policies have not learned the task" in text
-    assert "— it does not appear in these episodes." in text
+    (m,) = report.merge([_loaded(tmp_path, _sandbox({**success, "bc-so": [0.80] * 5}, flat), "flat.json")]).values()
+    r = rate_reading(m)
+    assert r.bcso.mean == pytest.approx(80.0) and not r.learned and r.inertia.mean == 0.0
+    # a task judged by a return has no such reading
+    assert rate_reading(next(iter(report.merge([_loaded(tmp_path, _results(), "ret.json")]).values()))) is None
 
 
 def test_a_plugin_and_the_baselines_are_listed_by_their_recorded_labels(tmp_path):

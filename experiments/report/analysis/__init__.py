@@ -13,6 +13,7 @@ what these functions return. One module per concern, each re-exported here:
 - `diagnostics`: copycat diagnostics per configuration, at the end and over training;
 - `copycat`: the copycat map (`copycat_map`) and the extended map (`extended_map`);
 - `recipe`: the recipe comparison (mlp against fca) and the paper's budget beside Table 5;
+- `rates`: the numbers of a rate-judged task's reading (`rate_reading`);
 - `weights`: how concentrated each weighting is within a batch (`weight_shares`).
 
 The paper's own numbers are in `experiments.report.paper`.
@@ -33,6 +34,7 @@ from experiments.report.analysis.groups import (BRAX, FCA, FCA_TRAIN, MUJOCO, Gr
                                                 in_fca_family, is_rate, load, main_metric, merge, ordered,
                                                 other_history, other_setting, protocol_of, protocol_words, protocols_of,
                                                 variant_name)
+from experiments.report.analysis.rates import LEARNED, Estimate, RateReading, per_seed, rate_reading
 from experiments.report.analysis.recipe import (BUDGET_METHODS, RECIPE_METHODS, AlphaRow, BudgetPoint, BudgetRow,
                                                 RecipeRow, alpha_rows, budget_differences, budget_rows,
                                                 paper_budget_groups, recipe_groups, recipe_rows)
@@ -46,7 +48,7 @@ from experiments.report.analysis.weights import (APE_SCALES, WeightShares, ape_m
                                                  weight_shares)
 
 __all__ = [
-    "APE_SCALES", "BOOTSTRAP_RESAMPLES", "BOOTSTRAP_SEED", "BRAX", "BUDGET_METHODS", "FCA", "FCA_TRAIN",
+    "APE_SCALES", "BOOTSTRAP_RESAMPLES", "LEARNED", "Estimate", "RateReading", "per_seed", "rate_reading", "BOOTSTRAP_SEED", "BRAX", "BUDGET_METHODS", "FCA", "FCA_TRAIN",
     "MAP_METHODS", "MUJOCO", "RECIPE_METHODS", "AlphaRow", "BudgetPoint", "BudgetRow", "Choice", "CopycatMap",
     "DiagnosticsRow", "Difference", "Gap", "Group", "Interval", "Key", "LongerRow", "MapCell", "MapPoint", "MapRow",
     "Merged", "PolicyDiagnostics", "RecipeCell", "RecipeRow", "ReportError", "Source", "Spread", "TrainingPoint",

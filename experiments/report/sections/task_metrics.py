@@ -3,17 +3,16 @@ rate's Wilson interval over every episode, and a plain reading for a task judged
 
 from __future__ import annotations
 
-import numpy as np
-
 from ape_jax import tasks
 from experiments.report import stats
-from experiments.report.analysis import (Group, bootstrap_difference, bootstrap_mean, group_title, is_rate, ordered,
-                                         task_metric_rows, verdict)
+from experiments.report.analysis import (LEARNED, Group, bootstrap_mean, group_title, is_rate, ordered, per_seed,
+                                         rate_reading, task_metric_rows, verdict)
 from experiments.report.sections.common import Context, Section, ci_text
 
 
 # How the task-metrics table heads a task's own metrics, and the factor it shows them at (rates in %); a metric
 # not listed is headed by its name, and a task's main metric (a rate) is shown in %.
+NAMES = {"bc-so": "BC-SO", "bc-oh": "BC-OH", "ours-step": "Ours"}   # how the reading names the methods it compares
 METRIC_HEADINGS = {"red_light_violations": ("red-light violations", 1.0), "avg_speed": ("average speed", 1.0),
                    "stuck": ("stuck %", 100.0)}
 
@@ -42,7 +41,7 @@ def task_table(m: Group) -> str | None:
     for lab, method, runs in rows:
         cells = []
         for key, (_, scale) in zip(metrics, heads):
-            v = _per_seed(runs, key, scale)
+            v = per_seed(runs, key, scale)
             if not len(v):
                 cells.append("—")
                 continue
@@ -68,40 +67,31 @@ def wilson_cell(runs: list[dict], metric: str) -> str:
     return f"{100 * e.value:.2f} [{100 * e.low:.2f}, {100 * e.high:.2f}]"
 
 
-def _per_seed(runs: list[dict], key: str, scale: float = 1.0) -> np.ndarray:
-    return np.array([r["eval"][key] for r in runs if key in r["eval"]], float) * scale
-
-
 def task_reading(m: Group) -> list[str]:
-    """Plain sentences under a rate-judged task's table (ToyCar): whether BC-SO learned the task, Ours − BC-OH
-    and BC-OH − BC-SO on the main rate with their bootstrap intervals and verdicts, and whether BC-OH's inertia
-    (`stuck`: standing still while free to go) appears; empty for a task judged by a return."""
-    if not is_rate(m):
+    """Plain sentences under a rate-judged task's table (ToyCar), from `analysis.rate_reading`: whether BC-SO
+    learned the task, Ours − BC-OH and BC-OH − BC-SO on the main rate with their bootstrap intervals and
+    verdicts, and whether BC-OH's inertia (`stuck`: standing still while free to go) appears; empty for a task
+    judged by a return."""
+    r = rate_reading(m)
+    if r is None:
         return []
-    rows = {method: runs for _, method, runs in task_metric_rows(m)}
-    metric, out = m.metric, []
-    episodes = sorted({int(r["eval"]["episodes"]) for runs in rows.values() for r in runs if "episodes" in r["eval"]})
-    if "bc-so" in rows:
-        mean, low, high = bootstrap_mean(_per_seed(rows["bc-so"], metric, 100.0))
-        out.append(f"BC-SO {metric}: {mean:.1f}% [{low:.1f}, {high:.1f}] over {len(rows['bc-so'])} seeds"
-                   + (f" × {episodes[0]:,} evaluation episodes" if len(episodes) == 1 else "")
-                   + (" — a plain BC-SO policy has learned the task." if low >= 90.0 else
-                      " — at least 90% on average." if mean >= 90.0 else " — below 90%: the policies have not "
-                      "learned the task at this budget, and the comparisons below say little."))
-    for a, b, name_a, name_b in (("bc-oh", "bc-so", "BC-OH", "BC-SO"), ("ours-step", "bc-oh", "Ours", "BC-OH")):
-        if a in rows and b in rows:
-            ci = bootstrap_difference(_per_seed(rows[a], metric, 100.0), _per_seed(rows[b], metric, 100.0))
-            out.append(f"{name_a} − {name_b}: {ci.diff:+.1f} points of {metric} ({ci_text(ci)}): "
-                       f"{verdict(ci, name_a, name_b)}.")
-    stuck = {method: _per_seed(runs, "stuck", 100.0) for method, runs in rows.items()}
-    if "bc-oh" in stuck and len(stuck["bc-oh"]):
-        others = ", ".join(f"{lab} {stuck[k].mean():.1f}%" for lab, k in (("BC-SO", "bc-so"), ("Ours", "ours-step"))
-                           if k in stuck and len(stuck[k]))
-        oh = stuck["bc-oh"]
-        _, low, high = bootstrap_mean(oh)
+    out = []
+    if r.bcso is not None:
+        b = r.bcso
+        out.append(f"BC-SO {r.metric}: {b.mean:.1f}% [{b.low:.1f}, {b.high:.1f}] over {b.seeds} seeds"
+                   + (f" × {r.episodes:,} evaluation episodes" if r.episodes is not None else "")
+                   + (" — a plain BC-SO policy has learned the task." if r.learned else
+                      f" — at least {LEARNED:.0f}% on average." if b.mean >= LEARNED else f" — below {LEARNED:.0f}%: "
+                      "the policies have not learned the task at this budget, and the comparisons below say little."))
+    for a, b, ci in r.differences:
+        out.append(f"{NAMES[a]} − {NAMES[b]}: {ci.diff:+.1f} points of {r.metric} ({ci_text(ci)}): "
+                   f"{verdict(ci, NAMES[a], NAMES[b])}.")
+    if r.inertia is not None:
+        others = ", ".join(f"{NAMES[k]} {v:.1f}%" for k, v in r.others.items())
+        i = r.inertia
         out.append(f"Inertia (standing still for {tasks.get(m.env).title}'s stuck time while free to go): BC-OH "
-                   f"{oh.mean():.1f}% of episodes [{low:.1f}, {high:.1f}]" + (f" ({others})" if others else "")
-                   + (" — it appears." if oh.mean() > 0 else " — it does not appear in these episodes."))
+                   f"{i.mean:.1f}% of episodes [{i.low:.1f}, {i.high:.1f}]" + (f" ({others})" if others else "")
+                   + (" — it appears." if i.mean > 0 else " — it does not appear in these episodes."))
     return out
 
 
