@@ -635,41 +635,46 @@ def test_the_weight_table_compares_raw_and_mean_normalised_ape(tmp_path):
 
 
 def test_the_plain_reading_follows_the_numbers(tmp_path):
-    def reading(**fs):
-        text = report.report(_map_files(tmp_path, **fs))
+    """The plain reading's numbers are `analysis.history_difference`, `ours_differences` and the copycat map's; its
+    branch follows their verdicts (the golden snapshot pins its words on the committed files)."""
+    from experiments.report.analysis import Key, history_difference, ours_differences, verdict
+
+    def fca_group(files):
+        return report.merge(files)[Key("hopper", "pos", "fca")]
+
+    def reading(files):
+        text = report.report(files)
         return text[text.index("### Does keyframe weighting help where the history does not?"):text.index("### Hopper, `pos`")]
 
-    def ci(a, b):
-        return report.bootstrap_difference(a, b)
-
-    # BC-OH ≈ BC-SO under fca: copycat; Ours well above BC-OH
-    text = reading()
-    history = ci([600.0, 610.0, 620.0], [590.0, 600.0, 610.0])
-    assert (f"Under fca BC-OH is not significantly above BC-SO (+10 return, 95% CI [{history.low:+,.0f}, "
-            f"{history.high:+,.0f}]): the history adds nothing, the return signature the paper attributes to copycat.") \
-        in text
-    assert ("BC-OH's policies here were not diagnosed (their files predate the copycat diagnostics), so whether it "
-            "copies is not measured.") in text
-    assert "Ours at the paper's step setting (THR 10%, W 5) − BC-OH: +390 return" in text
-    assert ": keyframe weighting beats BC-OH." in text
-    assert ("So where the history does not help, keyframe weighting at the paper's setting beats BC-OH on these "
-            "seeds.") in text
-    assert ("In % of expert: at frame skip 4 the history lifts BC-OH 60.0 points of expert above BC-SO (95% CI "
-            "[+59.0, +61.0]), against +0.5 at frame skip 1") in text
-    assert "under Brax's own frame skip (brax) it lifts BC-OH 35.0 points of expert above BC-SO" in text
-    # the history helping under fca, and Ours below BC-OH: every verdict flips
-    flipped = reading(fs1=(300.0, 1000.0, 900.0))
-    assert "Under fca BC-OH is significantly above BC-SO (+700 return, 95% CI [+687, +713]): the history helps." \
-        in flipped
-    assert "− BC-OH: -100 return (95% CI [-113, -87]): BC-OH beats it." in flipped
+    # BC-OH ≈ BC-SO under fca: the return signature of copycat; Ours well above BC-OH
+    files = _map_files(tmp_path)
+    m = fca_group(files)
+    history = history_difference(m)
+    assert history.diff == pytest.approx(10.0) and history == report.bootstrap_difference([600.0, 610.0, 620.0],
+                                                                                          [590.0, 600.0, 610.0])
+    assert verdict(history, "BC-OH", "BC-SO").startswith("not significant")
+    (label, row, paper), *grids = ours_differences(m)
+    assert row["hparams"] == {"thr": 0.1, "w": 5.0} and paper.diff == pytest.approx(390.0) and verdict(paper) == "Ours better"
+    text = reading(files)
+    assert "the history adds nothing, the return signature the paper attributes to copycat" in text
+    assert "whether it copies is not measured" in text   # the fixture's runs record no diagnostics: never inferred
+    assert "keyframe weighting at the paper's setting beats BC-OH on these seeds" in text
+    assert "at frame skip 4 the history lifts BC-OH 60.0 points of expert above BC-SO" in text   # the map's numbers
+    # the history helping under fca, and Ours below BC-OH: the branch flips with the verdicts
+    files = _map_files(tmp_path, fs1=(300.0, 1000.0, 900.0))
+    m = fca_group(files)
+    assert verdict(history_difference(m), "BC-OH", "BC-SO") == "BC-OH better"
+    assert verdict(ours_differences(m)[0][2]) == "BC-OH better"
+    flipped = reading(files)
+    assert "the history helps" in flipped and "BC-OH beats it" in flipped
     assert "the return signature the paper attributes" not in flipped and "So where the history does not help" not in flipped
-    # the best of the grids is the softmax τ 0.2 row here, said to be optimistic
-    worse = reading(fs1=(600.0, 610.0, 500.0))
-    assert ("The best of our step and softmax grids, softmax τ 0.2 (selected after the fact on these evaluation "
-            "returns, so optimistic): +290 return (95% CI [+277, +303]): it beats BC-OH.") in worse
-    assert ("− BC-OH: -110 return (95% CI [-123, -97]): BC-OH beats it. " in worse
-            and "keyframe weighting at the paper's setting does worse than BC-OH on these seeds." in worse)
-    assert "does not detectably beat BC-OH on these seeds." in reading(fs1=(600.0, 610.0, 615.0))
+    # the best of the grids is the softmax τ 0.2 row here, named as selected after the fact
+    files = _map_files(tmp_path, fs1=(600.0, 610.0, 500.0))
+    best = max(ours_differences(fca_group(files))[1:], key=lambda x: x[2].diff)
+    assert best[1]["hparams"] == {"tau": 0.2} and best[2].diff == pytest.approx(290.0)
+    worse = reading(files)
+    assert "softmax τ 0.2 (selected after the fact" in worse and "does worse than BC-OH on these seeds" in worse
+    assert "does not detectably beat BC-OH on these seeds." in reading(_map_files(tmp_path, fs1=(600.0, 610.0, 615.0)))
     # no fca results: nothing to read
     assert "### Does keyframe weighting" not in report.report([_loaded(tmp_path, _results(), "brax.json")])
 
