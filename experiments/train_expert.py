@@ -1,6 +1,6 @@
 """Trains an expert: `python -m experiments.train_expert --env hopper`.
 
-Soft actor-critic (`ape_jax.pipeline.sac`, built from Brax's SAC parts) on the
+Soft actor-critic (`ape_jax.experts.sac`, built from Brax's SAC parts) on the
 **full** observation of the MJX environment. Every `epoch_steps` environment
 steps the run evaluates its deterministic policy (Brax's Evaluator, 16
 episodes), keeps the best one and checkpoints everything (networks, optimiser
@@ -103,7 +103,7 @@ def parse(argv=None) -> argparse.Namespace:
 
 
 def make_config(args):
-    from ape_jax.pipeline.sac import SACConfig
+    from ape_jax.experts.sac import SACConfig
 
     kw = dict(CONFIGS.get(args.env, {}), seed=args.seed)
     if args.steps is not None:  # a short run: shrink the warm-up and the epoch to fit
@@ -123,7 +123,7 @@ def main(argv=None) -> int:
     from tqdm import tqdm
 
     import envs
-    from ape_jax.pipeline.sac import Checkpoints, make_trainer, run_epoch
+    from ape_jax.experts.sac import Checkpoints, make_trainer, run_epoch
 
     cfg = make_config(args)
     env = envs.make(args.env, obs="full", episode_length=cfg.episode_length)
@@ -235,7 +235,7 @@ class PpoSettings:
     hidden_layer_sizes: tuple
 
 
-def export(args, cfg, env, params, meta, algorithm: str = "SAC (ape_jax.pipeline.sac, from brax.training's SAC parts)",
+def export(args, cfg, env, params, meta, algorithm: str = "SAC (ape_jax.experts.sac, from brax.training's SAC parts)",
            activation: str = "relu") -> int:
     """Measures the best policy over `--eval-episodes` episodes and writes it with its card."""
     import jax

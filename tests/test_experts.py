@@ -14,7 +14,7 @@ from envs import experts
 from envs.experts import ExpertError
 import dataclasses
 
-from ape_jax.pipeline.sac import Checkpoints, SACConfig, make_trainer, run_epoch
+from ape_jax.experts.sac import Checkpoints, SACConfig, make_trainer, run_epoch
 from experiments import train_expert
 
 

@@ -42,7 +42,7 @@ def test_the_driving_sandbox_is_named_only_in_its_environment_and_its_task_recor
 def test_no_mujoco_log_is_written_into_the_working_directory(tmp_path):
     """MuJoCo writes MUJOCO_LOG.TXT wherever it runs unless a warning handler is installed first; the SAC
     trainer imports Brax, and HalfCheetah's model warns when compiled."""
-    code = ("from ape_jax.pipeline import sac\n"
+    code = ("from ape_jax.experts import sac\n"
             "from brax import envs\n"
             "envs.get_environment('halfcheetah', backend='mjx')\n")
     proc = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=300)

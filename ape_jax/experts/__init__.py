@@ -1,0 +1,7 @@
+"""Training the experts: soft actor-critic from `brax.training`'s parts, resumable (`sac`).
+
+`python -m experiments.train_expert --env NAME` drives it and exports the best policy into
+`envs/experts/NAME/`; the shipped experts, their files and loading them (no training code)
+are `envs.experts`'. Apart from the jit-pure core and the sweep's pipeline: nothing else
+imports it, and it imports neither.
+"""
