@@ -2,6 +2,6 @@
 
 `python -m experiments.train_expert --env NAME` drives it and exports the best policy into
 `envs/experts/NAME/`; the shipped experts, their files and loading them (no training code)
-are `envs.experts`'. Apart from the jit-pure core and the sweep's pipeline: nothing else
-imports it, and it imports neither.
+are `envs.experts`'. Apart from the jit-pure core and the sweep's pipeline: neither imports
+it, and it imports neither.
 """

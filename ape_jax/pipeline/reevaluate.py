@@ -31,8 +31,10 @@ import numpy as np
 
 from ape_jax import diagnostics as diagnostics_lib
 from ape_jax.pipeline import checkpoint as ckpt_lib
+from ape_jax.pipeline import results as results_lib
 from ape_jax.pipeline import sweep as sweep_lib
 from ape_jax.pipeline.results import Results
+from ape_jax.pipeline.spec import Run, SweepSpec
 
 
 class ReevaluationError(ValueError):
@@ -59,11 +61,11 @@ def _same(a, b, rtol: float) -> bool:
     return a == b
 
 
-def spec_of(results: Results, data_dir=None) -> sweep_lib.SweepSpec:
+def spec_of(results: Results, data_dir=None) -> SweepSpec:
     """The `SweepSpec` that produced `results` (its methods need not be registered: only evaluated here)."""
     settings = results.config["data"]["settings"]
-    return sweep_lib.SweepSpec(results.env, results.obs, results.records(), (), dataset=settings.get("dataset"),
-                               data_dir=data_dir)
+    return SweepSpec(results.env, results.obs, results.records(), (), dataset=settings.get("dataset"),
+                     data_dir=data_dir)
 
 
 def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, log: Callable[[str], None] = print,
@@ -106,7 +108,7 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
     records = {_key(r): r for r in results.runs}
     new = Results.from_json(results.to_json())  # a deep copy: `results` is left as it was
     new_records = {_key(r): r for r in new.runs}
-    metrics = (*prepared.task.metrics, *sweep_lib.COPYCAT_METRICS)
+    metrics = (*prepared.task.metrics, *results_lib.COPYCAT_METRICS)
     added, differ, diag_config, diag_s = set(), [], None, 0.0
     t0 = time.perf_counter()
     for name, saved in policies.items():
@@ -114,7 +116,7 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
         if saved["obs_mean"] is not None and mean is not None and not np.allclose(saved["obs_mean"], mean, rtol=1e-5):
             raise ReevaluationError(f"the saved policies' observation statistics ({name}) are not those of the "
                                     "demonstrations: they were trained on other data")
-        runs = tuple(sweep_lib.Run(r["method"], r["hparams"], r["seed"]) for r in saved["runs"])
+        runs = tuple(Run(r["method"], r["hparams"], r["seed"]) for r in saved["runs"])
         group = sweep_lib.PolicyGroup(history, prepared.learner_config(spec.settings, history), runs, saved["params"])
         log(f"evaluating {len(runs)} saved policies with history {history} ({episodes} episodes each)")
         lacking = any(_lacks(records.get(_key(r), {})) for r in saved["runs"])
@@ -125,14 +127,14 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
         out, _, seconds = sweep_lib.evaluate_group(prepared, ape, episodes, group, steps if lacking else 0,
                                                        spec.budget.width)
         diag_s += seconds
-        diag_config = diag_config or sweep_lib.diagnostics_config(prepared, [out])
+        diag_config = diag_config or results_lib.diagnostics_config(prepared, [out])
         for j, run in enumerate(saved["runs"]):
             key = _key(run)
             if key not in records:
                 raise ReevaluationError(f"a saved policy ({run['method']} {run['hparams']} seed {run['seed']}) "
                                         "has no run in results.json: the params and the results are of different sweeps")
             was, ev = records[key].get("eval") or {}, new_records[key].setdefault("eval", {})
-            diag = sweep_lib.diagnostics_record(out, j) if lacking else None
+            diag = results_lib.diagnostics_record(out, j) if lacking else None
             if diag is not None and "diagnostics" not in records[key]:
                 new_records[key]["diagnostics"] = diag
                 added.add("diagnostics")

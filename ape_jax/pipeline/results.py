@@ -1,8 +1,16 @@
-"""`results.json`: the one reader, writer and validator of a sweep's results.
+"""`results.json`: the one reader, writer and validator of a sweep's results, and the records it holds.
 
     res = results.load("runs/sweep/hopper-pos-quick/results.json")   # validated, schema 1 upgraded
     res.label("ours-step"), res.records(), res.fingerprint()
     results.save(path, res)                                           # atomic
+
+What goes into it is built here too: each run's record (`run_record`, with its `eval_record`,
+`diagnostics_record` and, at `Budget.eval_at`'s iterations, `snapshot_record`; the
+training curve cut to `CURVE_POINTS` window means) from a group's evaluation outputs,
+which the sweep's `assemble` phase calls, and `fingerprint`, the settings that identify
+a sweep: `SweepSpec.fingerprint` (a checkpoint's `sweep.json`) and `Results.fingerprint`
+(a finished file) both build it, so a rerun compares like with like. Where the file
+lives in a sweep's output folder is `rundir.RunDir`'s.
 
 The layout is `DESIGN.md`'s. Schema 2 (written since the method registry)
 adds, beside schema 1's fields:
@@ -38,12 +46,18 @@ import io
 import json
 import math
 import pathlib
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
+from ape_jax import diagnostics as diagnostics_lib
+from ape_jax import methods as methods_lib
 from ape_jax.pipeline.data import write_atomic
 from ape_jax.pipeline.presets import SECTIONS, Settings
+
+if TYPE_CHECKING:
+    from ape_jax.pipeline.spec import Run
+    from ape_jax.pipeline.sweep import Prepared
 
 SCHEMA = 3
 READS = (1, 2, 3)
@@ -130,15 +144,35 @@ class Results:
         return (self.settings.get("protocol") or {}).get("split") or "episodes"
 
     def fingerprint(self) -> dict:
-        """The settings that identify the sweep (what `ape_jax.pipeline.sweep.SweepSpec.fingerprint` gives)."""
-        return {"env": self.env, "obs": self.obs, "preset": self.preset, "settings": self.settings,
-                "methods": self.config.get("methods"), "data": self.config.get("data", {}).get("settings"),
-                "protocol": self.protocol}
+        """The settings that identify the sweep (`fingerprint`; what its `SweepSpec.fingerprint` gave)."""
+        return fingerprint(self.env, self.obs, self.preset, self.settings, self.config.get("methods"),
+                           self.config.get("data", {}).get("settings"), self.protocol)
 
     @property
     def main_metric(self) -> str:
         """`"return"`, or the task metric the sweep is judged by (ToyCar: `"success"`)."""
         return self.config.get("metric", "return")
+
+
+def fingerprint(env: str, obs: str, preset: str, settings: dict, methods: Sequence[str] | None, data: dict | None,
+                protocol: dict) -> dict:
+    """The settings that identify a sweep: what a checkpoint (`checkpoint.SweepCheckpoint`, its `sweep.json`) and
+    a finished results.json (`Results.fingerprint`) are compared by before a sweep resumes or reruns.
+
+    Args:
+      env, obs, preset: the task, the observation mode and the budget's name.
+      settings: the three records as JSON (`presets.Settings.to_json`, results.json's `settings`).
+      methods: the method names asked for, in order (results.json's `config.methods`).
+      data: what names the demonstrations (`SweepSpec.data_settings`, results.json's `config.data.settings`).
+      protocol: the protocol as it applies to the environment (`SweepSpec.protocol_settings`, results.json's
+        `protocol`).
+
+    Returns:
+      `{"env", "obs", "preset", "settings", "methods", "data", "protocol"}`, in that order (a checkpoint's
+      `sweep.json` holds exactly this).
+    """
+    return {"env": env, "obs": obs, "preset": preset, "settings": settings,
+            "methods": None if methods is None else list(methods), "data": data, "protocol": protocol}
 
 
 _REQUIRED = ("schema", "env", "obs", "preset", "config", "expert", "runs", "summary", "system")
@@ -164,11 +198,9 @@ def legacy_settings(obj: dict) -> dict:
 
 def method_info(name: str) -> dict:
     """What `results.json` records of a method: label, role, program, online (from the registry if it knows it)."""
-    from ape_jax import methods
-
     try:
-        m = methods.get(name)
-    except methods.MethodError:
+        m = methods_lib.get(name)
+    except methods_lib.MethodError:
         return {"label": name, "role": "plugin", "program": None, "online": False}
     return {"label": m.label, "role": m.role, "program": m.program, "online": m.online}
 
@@ -207,6 +239,106 @@ def write_csv(path: str | pathlib.Path, results: Results) -> None:
                     row["n_seeds"], *(ms.get(m, {}).get(s) for m in metrics for s in ("mean", "std")),
                     row["return_mean"], row["return_std"], row["normalized_mean"], row["normalized_std"]])
     write_atomic(pathlib.Path(path), lambda f: f.write(rows.getvalue().encode()))
+
+
+# -- the records of a run (what the sweep's assemble phase writes) --------------------------------------------------
+
+COPYCAT_METRICS = ("imitation_error", "rollout_ape")  # the copycat diagnostics (`ape_jax.evaluate`)
+DIAG = "diag_"  # the prefix of the diagnostics' arrays among a group's evaluation outputs
+CURVE_POINTS = 100  # points of each run's training curve in results.json (the full curves: OUT/curves/)
+
+
+def diagnostics_record(out: dict, j: int) -> dict | None:
+    """Run `j`'s `diagnostics` in results.json from its group's outputs, None where the group has none (outputs
+    saved before them, or a sweep that is not `sweep.diagnosable`)."""
+    if f"{DIAG}absent" in out:
+        return {"absent": "the policy's network gives no embedding (it takes no return_embedding)"}
+    if f"{DIAG}copycat" not in out:
+        return None
+    value = {k: float(out[DIAG + k][j]) for k in diagnostics_lib.FIELDS if k != "copycat" and DIAG + k in out}
+    value = {k: v if np.isfinite(v) else None for k, v in value.items()}  # e.g. no velocity: null, never 0
+    value["predictability_steps"] = int(value["predictability_steps"])
+    value["verdict"] = diagnostics_lib.COPYCAT if bool(out[f"{DIAG}copycat"][j]) else diagnostics_lib.NOT_COPYCAT
+    return value
+
+
+def eval_record(out: dict, j: int, prepared: Prepared) -> dict:
+    """Row `j`'s `eval` block in results.json from its group's evaluation outputs `out`."""
+    returns = np.asarray(out["return"][j], np.float64)
+    ev = {"episodes": int(len(returns)), "return_mean": float(returns.mean()), "return_std": float(returns.std())}
+    if prepared.card is not None:
+        from ape_jax import evaluate as evaluate_lib  # here: it imports the environments, which reading does not need
+
+        ev["normalized"] = float(evaluate_lib.normalized(returns.mean(), prepared.card["return_mean"],
+                                                         prepared.card["random_return_mean"]))
+    for k in (*prepared.task.metrics, *COPYCAT_METRICS):
+        if k in out:
+            ev[k] = float(np.mean(out[k][j]))
+    if prepared.task.metric != "return":
+        ev.setdefault("normalized", 100.0 * ev[prepared.task.metric])  # a rate, in % (no return to normalise)
+    return ev
+
+
+def run_record(run: Run, j: int, out: dict, losses: dict, curves: dict, prepared: Prepared) -> dict:
+    """Run `run`'s record in results.json; `j` is its row in the evaluation outputs `out` and `losses`; `curves`
+    its per-iteration training metrics (`"loss"` and the learner's others, e.g. FCA's `adversary_loss`)."""
+    returns = np.asarray(out["return"][j], np.float64)
+    record = {"method": run.method, "hparams": run.hparams, "seed": run.seed, "status": "ok", "error": None,
+              "online": methods_lib.get(run.method).online}
+    loss_curve = np.asarray(curves["loss"])
+    bad = np.flatnonzero(~np.isfinite(loss_curve))
+    if len(bad):
+        record.update(status="failed", error=f"training loss became non-finite at iteration {int(bad[0])}")
+    elif not np.all(np.isfinite(returns)):
+        record.update(status="failed", error="evaluation returns are non-finite")
+    record["eval"] = eval_record(out, j, prepared)
+    if (diag := diagnostics_record(out, j)) is not None:
+        record["diagnostics"] = diag
+    record["losses"] = {split: {k: float(v[j]) for k, v in losses[split].items()} for split in losses}
+    record["train_loss_final"] = float(np.mean(loss_curve[-100:]))
+    # every training metric over the last 1% of the run (at least 100 minibatches): e.g. FCA's adversary against
+    # its reference predictor of a_{t-1} from a_t alone
+    tail = max(100, len(loss_curve) // 100)
+    record["train_final"] = {k: float(np.mean(np.asarray(v)[-tail:])) for k, v in curves.items()}
+    record["train_curve"] = window_means(loss_curve, CURVE_POINTS)
+    return record
+
+
+def snapshot_record(iteration: int, j: int, out: dict, losses: dict, curves: dict, prepared: Prepared) -> dict:
+    """One entry of a run's `at` list in results.json: its policy at `iteration` (`Budget.eval_at`) evaluated as
+    at the end (`eval`, `diagnostics`, `losses`), and its training loss over the 100 minibatches before."""
+    loss = np.asarray(curves["loss"])[max(0, iteration - 100):iteration]
+    record = {"iteration": iteration, "eval": eval_record(out, j, prepared),
+              "losses": {split: {k: float(v[j]) for k, v in losses[split].items()} for split in losses},
+              "train_loss": float(np.mean(loss)) if len(loss) else None}
+    if (diag := diagnostics_record(out, j)) is not None:
+        record["diagnostics"] = diag
+    return record
+
+
+def window_means(values: np.ndarray, points: int) -> list[float]:
+    """`values` cut into `points` consecutive windows of equal length (the last takes the rest), each window's mean."""
+    values = np.asarray(values, np.float64)
+    width = max(1, len(values) // points)
+    ends = [*range(width, len(values), width)][: points - 1] + [len(values)]
+    return [float(values[a:b].mean()) for a, b in zip([0, *ends[:-1]], ends)]
+
+
+def diagnostics_config(prepared: Prepared, outputs: Sequence[dict]) -> dict | None:
+    """What the runs' `diagnostics` mean (results.json's `config.diagnostics`), None where no group's evaluation
+    `outputs` have them."""
+    out = next((o for o in outputs if f"{DIAG}probe_rows_train" in o), None)
+    if out is None:
+        return None
+    demos = prepared.train.demos
+    return {"thresholds": dataclasses.asdict(diagnostics_lib.THRESHOLDS),
+            "probe_steps": int(out[f"{DIAG}probe_steps"][0]),
+            "probe_rows": {"train": int(out[f"{DIAG}probe_rows_train"][0]),
+                           "val": int(out[f"{DIAG}probe_rows_val"][0])},
+            "expert_rollouts": f"the demonstrations' {demos.num_episodes} training episodes, cut to each policy's "
+                               "step count",
+            "velocity": "qvel" if "qvel" in demos.sim else None,
+            "state": "qpos[1:], qvel (the expert's observation)" if {"qpos", "qvel"} <= set(demos.sim) else None}
 
 
 # -- the summary ----------------------------------------------------------------------------------------------------

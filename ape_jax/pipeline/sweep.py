@@ -16,9 +16,9 @@ fix everything else (`ape_jax.pipeline.presets.Settings`: protocol, budget, reci
    into the compiled programs they train in (`ape_jax.methods`: BC-OH, the
    weighting grids and the weighting baselines share the grid program; BC-SO,
    with a history of one, is a second; Boosting, FCA and DAgger have their
-   own); `train_program` → `Trained`: one program trained vmapped over its
-   runs and sharded over devices, in chunks so progress moves and checkpoints
-   can be taken;
+   own); `train` → `[Trained]`: each program trained vmapped over its runs and
+   sharded over devices (`training.train_program`), in chunks so progress moves
+   and checkpoints can be taken;
 4. `evaluate` → `Evaluated`: every policy on the same episodes, with the copycat
    diagnostics (the rollouts' `imitation_error` and `rollout_ape`, `ape_jax.evaluate`;
    the embedding probe, own-rollout predictability and verdict, `ape_jax.diagnostics`)
@@ -32,14 +32,20 @@ program vmapped over more runs may round differently, which long training and
 chaotic rollouts amplify). Host concerns come in through `Hooks` (progress bars,
 messages, training curves); files are written by `ape_jax.pipeline.checkpoint` and
 `ape_jax.pipeline.results`, not here.
+
+This module holds the phases and their typed outputs. What they read and write lives
+beside it: `spec` (the `SweepSpec`, its `Run`s and the checks that refuse it early),
+`training` (the training driver: `Program`, `train_program` with its checkpointed
+chunks and rounds and the restore on every process), `ape_jax.scores` (the score table
+the weighted learner reads) and `results` (the records `assemble` writes, the
+fingerprint). Their public names are importable from here too (`__all__`), as they
+were when they lived here.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
 import inspect
-import pathlib
 import resource
 import time
 from typing import Any, Callable, Sequence
@@ -53,35 +59,40 @@ from ape_jax import diagnostics as diagnostics_lib
 from ape_jax import evaluate as evaluate_lib
 from ape_jax import methods as methods_lib
 from ape_jax import tasks
-from ape_jax.grid import differing_processes, from_process_zero, grid_runner, pad_grid
-from ape_jax.learner import Data, Learner, LearnerConfig, make_train
-from ape_jax.models import IMAGE_ENCODERS
+from ape_jax.grid import differing_processes
+from ape_jax.learner import Data, LearnerConfig, make_train
 from ape_jax.pipeline import checkpoint as ckpt_lib
 from ape_jax.pipeline import collect, minari_io
 from ape_jax.pipeline import results as results_lib
-from ape_jax.pipeline.checkpoint import ProgramCheckpoint, SweepCheckpoint
+from ape_jax.pipeline.checkpoint import SweepCheckpoint
 from ape_jax.pipeline import data as data_lib
-from ape_jax.pipeline.data import Demonstrations, Part
-from ape_jax.pipeline.presets import Settings, resolve
+from ape_jax.pipeline.data import Part
+from ape_jax.pipeline.presets import Settings
+from ape_jax.pipeline.results import (COPYCAT_METRICS, CURVE_POINTS, DIAG, diagnostics_config, diagnostics_record,
+                                      eval_record, run_record, snapshot_record, window_means)
+from ape_jax.pipeline.spec import PROTOCOL_KEYS, Run, SweepSpec, check_fits, check_protocol, grid_runs
+from ape_jax.pipeline.training import (CPU_IMAGE_CHUNK, Program, traced_hparams, train_program,
+                                       trains_sequentially)
+from ape_jax.scores import method_scores, score_rows, score_table
 
-# Image policies on CPU: XLA:CPU runs convolution gradients inside a loop ~50x slower than
-# outside one, and vmapped (grouped) ones ~3x slower per model, so there every
-# configuration of a convolutional encoder trains one after another through one compiled,
-# fully unrolled chunk. An encoder of matrix products only (`loop_friendly`, e.g. "patch")
-# trains as states do: the grid vmapped, in scanned chunks of the budget's size.
-CPU_IMAGE_CHUNK = 10
+__all__ = [
+    # the phases and their outputs
+    "Hooks", "Normalizer", "Prepared", "prepare", "ApeFit", "part_errors", "fit_ape", "plan", "Trained", "train",
+    "PolicyGroup", "Evaluated", "diagnosable", "group_diagnostics", "evaluate_group", "evaluate", "assemble",
+    "policies", "train_sweep", "run_sweep", "EVAL_SEED", "DIAGNOSTICS_SEED",
+    # the spec and its checks (`spec`)
+    "SweepSpec", "Run", "grid_runs", "check_protocol", "check_fits", "PROTOCOL_KEYS",
+    # the training driver (`training`)
+    "Program", "train_program", "traced_hparams", "trains_sequentially", "CPU_IMAGE_CHUNK",
+    # the score table (`ape_jax.scores`)
+    "score_rows", "method_scores", "score_table",
+    # the records of results.json (`results`)
+    "run_record", "snapshot_record", "eval_record", "diagnostics_record", "diagnostics_config", "window_means",
+    "CURVE_POINTS", "COPYCAT_METRICS", "DIAG",
+]
+
 EVAL_SEED = 12345  # every policy is evaluated on the same episodes
-COPYCAT_METRICS = ("imitation_error", "rollout_ape")  # the copycat diagnostics (`ape_jax.evaluate`)
 DIAGNOSTICS_SEED = 0  # the embedding probes' and ψ's key in `ape_jax.diagnostics.diagnose`
-DIAG = "diag_"  # the prefix of the diagnostics' arrays among a group's evaluation outputs
-CURVE_POINTS = 100  # points of each run's training curve in results.json (the full curves: OUT/curves/)
-
-
-def trains_sequentially(obs_shape: Sequence[int], encoder: str) -> bool:
-    """Whether a sweep trains policies of `encoder` on `obs_shape` observations one configuration after another,
-    `CPU_IMAGE_CHUNK` unrolled iterations per call: images through a convolutional encoder on a CPU."""
-    return (len(obs_shape) == 3 and jax.default_backend() == "cpu"
-            and not IMAGE_ENCODERS[encoder].loop_friendly)
 
 
 class _NoBar:
@@ -113,123 +124,7 @@ class Hooks:
 
     bar: Callable[..., Any] = _NoBar
     log: Callable[[str], None] = print
-    curves: Callable[[str, Sequence["Run"], int], Any] | None = None
-
-
-@dataclasses.dataclass(frozen=True)
-class Run:
-    """One trained configuration: method, hyperparameters, seed (its identity, and so its PRNG key)."""
-
-    method: str
-    hparams: dict
-    seed: int
-
-    @property
-    def key(self) -> jax.Array:
-        return methods_lib.run_key(self.seed, self.method, self.hparams)
-
-    @property
-    def ident(self) -> tuple:
-        """A hashable identity: `(method, sorted hparams items, seed)`."""
-        return self.method, tuple(sorted(self.hparams.items())), self.seed
-
-
-@dataclasses.dataclass(frozen=True)
-class SweepSpec:
-    """Everything that fixes a sweep before it starts (its checkpoint fingerprint).
-
-    Attributes:
-      env, obs: the task and observation mode.
-      settings: the protocol, budget and recipe (`presets.resolve(env, obs, ...)`).
-      methods: registered method names (`ape_jax.methods`).
-      dataset: train from this dataset (`minari_io.load_dataset`) instead of
-        the shipped expert's demonstrations; it must fit `env`/`obs`.
-      data_dir: the demonstration cache (None: `ape_jax.pipeline.data.cache_dir()`).
-      command: the command line, recorded in results.json.
-    """
-
-    env: str
-    obs: str
-    settings: Settings
-    methods: tuple[str, ...]
-    dataset: str | None = None
-    data_dir: pathlib.Path | None = None
-    command: tuple[str, ...] | None = None
-
-    def __post_init__(self):
-        for m in self.methods:
-            methods_lib.get(m)  # MethodError for an unknown name
-        self.setup  # ValueError for a protocol the task cannot take
-
-    @classmethod
-    def make(cls, env: str, obs: str | None = None, methods: Sequence[str] | None = None, protocol: str | None = None,
-             preset: str = "quick", recipe: str | None = None, sets: Sequence[str] = (), **kw) -> "SweepSpec":
-        """A spec from names, as the command line gives them (defaults: the task's observation mode and protocol,
-        the default methods, the protocol's recipe); `kw`: `dataset`, `data_dir`, `command`."""
-        obs = obs or tasks.get(env).default_obs
-        settings = resolve(env, obs, protocol=protocol, preset=preset, recipe=recipe, sets=sets)
-        return cls(env, obs, settings, tuple(methods if methods is not None else methods_lib.default()), **kw)
-
-    @property
-    def task(self) -> tasks.Task:
-        return tasks.get(self.env)
-
-    @property
-    def protocol(self) -> tasks.Protocol:
-        return self.settings.protocol
-
-    @property
-    def budget(self):
-        return self.settings.budget
-
-    @property
-    def recipe(self):
-        return self.settings.recipe
-
-    @property
-    def preset_name(self) -> str:
-        return self.settings.preset
-
-    @functools.cached_property
-    def setup(self) -> collect.ProtocolSetup:
-        """The protocol as it applies to this environment (`collect.protocol_setup`), resolved once: a protocol
-        without an episode length of its own makes the environment to read it."""
-        return collect.protocol_setup(self.env, self.obs, self.protocol)
-
-    @property
-    def episodes(self) -> int:
-        """Expert episodes collected: as many as the protocol's expert steps take, else its or the task's count."""
-        return self.setup.episodes
-
-    def protocol_settings(self) -> dict:
-        """Every field of the protocol as it applies to this environment (results.json's `protocol`)."""
-        return dict(self.setup.settings)
-
-    def collection_overrides(self) -> dict:
-        """The `envs.make` settings demonstrations are collected with: the protocol's, and the image size."""
-        size = self.protocol.image_size
-        image = {"image_size": size} if self.obs == "image" and size else {}
-        return {**self.setup.env_overrides, **image}
-
-    def env_overrides(self) -> dict:
-        """The `envs.make` settings policies are evaluated with: the collection's, and the protocol's `eval_steps`."""
-        steps = self.protocol.eval_steps
-        return {**self.collection_overrides(), **({"episode_length": steps} if steps is not None else {})}
-
-    def data_settings(self) -> dict:
-        """What names the demonstrations: the collection settings, or the dataset file's path and size."""
-        if self.dataset is None:
-            return collect.settings(self.env, self.obs, self.episodes, seed=0, expert=self.protocol.expert,
-                                    **self.collection_overrides())
-        path = pathlib.Path(self.dataset)
-        files = ([path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
-                 if path.is_dir() else [])
-        return {"dataset": str(path.absolute()), "bytes": sum(p.stat().st_size for p in files)}
-
-    def fingerprint(self) -> dict:
-        """Everything that determines the results (`checkpoint.SweepCheckpoint` compares these)."""
-        return {"env": self.env, "obs": self.obs, "preset": self.preset_name, "settings": self.settings.to_json(),
-                "methods": list(self.methods), "data": self.data_settings(), "protocol": self.protocol_settings()}
+    curves: Callable[[str, Sequence[Run], int], Any] | None = None
 
 
 # -- 1. prepare -----------------------------------------------------------------------------------------------------
@@ -329,36 +224,6 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
                     expert=expert, card=card, data_path=str(path), source=source, settings=settings)
 
 
-PROTOCOL_KEYS = ("n_frames", "episode_length", "reward_scale")  # the collection settings a protocol fixes
-
-
-def check_protocol(recorded: dict | None, spec: SweepSpec, where: str) -> None:
-    """Refuses (ValueError, one line) a dataset whose recorded collection settings are of another protocol.
-
-    `recorded`: the dataset's collection settings (`minari_io.dataset_settings`); None (a dataset that
-    records none, e.g. your own or a Minari one) cannot be checked and passes.
-    """
-    if recorded is None:
-        return
-    had = {k: v for k, v in (recorded.get("env_overrides") or {}).items() if k in PROTOCOL_KEYS}
-    want = {k: v for k, v in spec.collection_overrides().items() if k in PROTOCOL_KEYS}
-    if had != want:
-        raise ValueError(f"{where} was collected with {had or 'the environment defaults'}, not under the "
-                         f"{spec.protocol.name!r} protocol's {want or 'environment defaults'}; pass the --protocol it "
-                         "was collected under, or collect it again")
-
-
-def check_fits(demos: Demonstrations, env, where: str) -> None:
-    """Refuses (ValueError, one line) demonstrations whose observations or actions the environment cannot take."""
-    obs_shape, action_dim = tuple(np.shape(demos.obs)[1:]), int(np.shape(demos.action)[1])
-    if obs_shape != tuple(env.observation_shape) or action_dim != env.action_size:
-        raise ValueError(f"{where}: observations {list(obs_shape)} and {action_dim}-d actions do not fit "
-                         f"{env.name!r}, which has observations {list(env.observation_shape)} and "
-                         f"{env.action_size}-d actions; pick the matching --env/--obs")
-    if len(env.observation_shape) == 3 and np.asarray(demos.obs).dtype != np.uint8:
-        raise ValueError(f"{where}: image observations must be uint8, got {np.asarray(demos.obs).dtype}")
-
-
 # -- 2. fit APE -----------------------------------------------------------------------------------------------------
 
 @dataclasses.dataclass(frozen=True)
@@ -413,44 +278,6 @@ def fit_ape(prepared: Prepared, settings: Settings, hooks: Hooks = Hooks(),
 
 # -- 3. plan and train ----------------------------------------------------------------------------------------------
 
-@dataclasses.dataclass(frozen=True)
-class Program:
-    """Runs that train in one compiled program, with its config and learner."""
-
-    name: str
-    cfg: LearnerConfig
-    runs: tuple[Run, ...]
-    learner: Learner
-
-
-def grid_runs(names: Sequence[str], seeds: int, ctx: methods_lib.GridContext) -> list[Run]:
-    """Every (method, hparams, seed) of the sweep: methods in registry order, then settings, then seeds."""
-    order = [m for m in methods_lib.names() if m in names]
-    return [Run(m, settings, seed) for m in order for settings in methods_lib.get(m).settings(ctx)
-            for seed in range(seeds)]
-
-
-def score_rows(names: Sequence[str]) -> tuple[str, ...]:
-    """Rows of the score table the weighted learner reads: `"ape"`, then each method with scores of its own."""
-    return ("ape", *(m for m in methods_lib.names() if m in names and methods_lib.get(m).score is not None))
-
-
-def method_scores(names: Sequence[str], train: Part) -> jax.Array:
-    """`[len(score_rows(names)) - 1, N] float32`: each weighting method's scores of the training rows (the rows
-    after the APE). A method scores the whole episodes (its `t` and actions in order), read at the part's rows.
-
-    Raises `methods.PluginError` for scores that are not `[M]` finite float32.
-    """
-    action, t = jnp.asarray(train.demos.action), jnp.asarray(train.demos.t)
-    rows = [train.own(methods_lib.get(m).score(methods_lib.score_key(m), action, t)) for m in score_rows(names)[1:]]
-    return jnp.asarray(np.stack(rows)) if rows else jnp.zeros((0, len(train)), jnp.float32)
-
-
-def score_table(ape: jax.Array, scores: jax.Array) -> jax.Array:
-    """The table the weighted learner reads: the APE (row 0) above the methods' scores (`method_scores`)."""
-    return jnp.concatenate([jnp.asarray(ape, jnp.float32)[None], scores])
-
-
 def plan(spec: SweepSpec, prepared: Prepared) -> list[Program]:
     """Phase 3a: the sweep's runs, grouped by the program they train in (in registry order)."""
     recipe = spec.recipe
@@ -475,15 +302,6 @@ def plan(spec: SweepSpec, prepared: Prepared) -> list[Program]:
     return programs
 
 
-def traced_hparams(runs: Sequence[Run], lr: float, rows: Sequence[str]) -> Any:
-    """The runs' traced hyperparameters stacked along a leading axis (`Method.hparams`, each with its score row)."""
-    def one(r: Run):
-        method = methods_lib.get(r.method)
-        return method.hparams(r.hparams, lr, rows.index(r.method) if method.score is not None else 0)
-
-    return jax.tree.map(lambda *xs: jnp.stack(xs), *[one(r) for r in runs])
-
-
 @dataclasses.dataclass(frozen=True)
 class Trained:
     """One program's output: its policies (leaves `[len(runs), ...]`), per-iteration metrics, and times."""
@@ -494,120 +312,6 @@ class Trained:
     compile_s: float
     train_s: float
     snapshots: dict = dataclasses.field(default_factory=dict)  # {iteration: params} at `Budget.eval_at`
-
-
-def train_program(program: Program, hparams: Any, budget, data: Data, progress: Callable[[int], None],
-                  chunk: int | None = None, vectorize: bool = True,
-                  checkpoint: ProgramCheckpoint | None = None, curves: Any = None) -> tuple[Any, dict, dict[int, Any]]:
-    """Trains a program's runs vmapped and sharded over devices, in chunks of iterations.
-
-    Round-based learners (boosting, DAgger) get `next_round` between rounds.
-    `chunk` overrides the budget's iterations per compiled call; `vectorize=False`
-    trains the runs one after another instead of vmapped (`grid.grid_runner`);
-    vmapped, the runs train `budget.width` per device at a time (0: all at once).
-    A chunk that would pass an iteration of `budget.eval_at` (counted over all
-    rounds) stops there, and the policies are kept (a snapshot).
-    With a `checkpoint`, training continues from its latest save and saves
-    the state and curves after every chunk that passes a multiple of its
-    interval, and at the end; snapshots are saved when taken. `curves` (a `Hooks.curves` sink) is started with
-    the restored curves and gets every chunk's metrics as it finishes.
-
-    Returns:
-      (params, metrics, snapshots): the policies' parameters, leaves `[len(runs), ...]`;
-      metrics `[len(runs), rounds * round_iterations]`; `{iteration: params}` at `budget.eval_at`.
-    """
-    learner, runs = program.learner, program.runs
-    keys = jnp.stack([r.key for r in runs])
-    chunk = chunk or budget.chunk
-    width = getattr(budget, "width", 0) or None
-    init = grid_runner(learner.init, vectorize=vectorize, width=width)
-    pad = -len(runs) % len(init.devices)  # padded once, so the chunk runners never pad or trim
-    hps = pad_grid(hparams, pad)
-    state = init(pad_grid(keys, pad), hps, data)
-    start, metrics = 0, []
-    if jax.process_count() == 1:
-        saved = checkpoint.restore(state) if checkpoint is not None else None
-    else:
-        saved = _restore_on_every_process(checkpoint, state, learner, hps, data)
-    trim = functools.partial(jax.tree.map, lambda x: x[: len(runs)])
-    at = tuple(getattr(budget, "eval_at", ()))
-    snapshots = {}
-    if saved is not None:
-        start, state, restored = saved
-        metrics.append(restored)
-        progress(start)
-        if checkpoint is not None:  # process 0's: the others never evaluate
-            like = trim(learner.policy_params(state))
-            snapshots = {i: checkpoint.load_snapshot(i, like) for i in at if i <= start}
-    if curves is not None:
-        curves.start(trim(metrics[0]) if metrics else None)
-    total = learner.rounds * learner.round_iterations
-    runners = {}
-    for r in range(learner.rounds):
-        first = r * learner.round_iterations  # this round's first iteration, counted over all rounds
-        if start >= first + learner.round_iterations:
-            continue  # finished before the checkpoint
-        if r and start <= first:
-            runners.setdefault("next_round", grid_runner(learner.next_round, vectorize=vectorize,
-                                                                  width=width))
-            state = runners["next_round"](state, hps, data)
-        done = max(0, start - first)
-        while done < learner.round_iterations:
-            n = min(chunk - done % chunk, learner.round_iterations - done)  # chunks end at multiples of chunk
-            n = min([n, *(i - first - done for i in at if i > first + done)])  # and stop at a snapshot
-            if n not in runners:
-                runners[n] = grid_runner(lambda s, hp, d, n=n: learner.run(s, hp, d, n), vectorize=vectorize,
-                                         width=width)
-            state, m = runners[n](state, hps, data)
-            metrics.append(jax.device_get(m))
-            if curves is not None:
-                curves.append(trim(metrics[-1]))
-            done += n
-            if first + done in at:
-                snapshots[first + done] = trim(learner.policy_params(state))
-                if checkpoint is not None:
-                    checkpoint.save_snapshot(first + done, snapshots[first + done])
-            if checkpoint is not None and (checkpoint.due(first + done) or first + done == total):
-                metrics = [_concat(metrics)]
-                checkpoint.save(first + done, state, metrics[0])
-            progress(n)
-    return trim(learner.policy_params(state)), trim(_concat(metrics)), snapshots
-
-
-def _restore_on_every_process(checkpoint: ProgramCheckpoint | None, state: Any, learner: Learner, hparams: Any,
-                               data: Data) -> tuple[int, Any, dict] | None:
-    """`checkpoint.restore(state)` as process 0 has it, on every process of a multi-process run.
-
-    Only process 0 reads checkpoints (the others get none), but every process
-    must run the same training chunks: the iteration it resumes from, the
-    state and the curves so far are sent from it to the others, bit for bit.
-    """
-    failure, saved = None, None
-    if checkpoint is not None:
-        try:
-            saved = checkpoint.restore(state)
-        except ckpt_lib.CheckpointError as e:  # told to the others before raising, or they would wait forever
-            failure = e
-    start = int(from_process_zero(np.int64(-1 if failure else saved[0] if saved else 0)))
-    if start < 0:
-        raise failure or ckpt_lib.CheckpointError("process 0 could not read its checkpoint of this program "
-                                                  "(its output says why)")
-    if start == 0:
-        return None
-    # the others know the curves' names and dtypes from the program's output, not from a file
-    shapes = jax.eval_shape(jax.vmap(lambda s, hp, d: learner.run(s, hp, d, 1), in_axes=(0, 0, None)),
-                            state, hparams, data)[1]
-    curves = {k: np.zeros((v.shape[0], start), v.dtype) for k, v in shapes.items()}
-    if saved is not None:
-        state = saved[1]
-        curves = {k: np.asarray(saved[2][k], v.dtype) for k, v in curves.items()}
-    state, curves = from_process_zero((jax.tree.map(np.asarray, state), curves))
-    return start, state, curves
-
-
-def _concat(metrics: list[dict]) -> dict:
-    """Per-chunk metrics `[G, n]` joined along the iteration axis."""
-    return jax.tree.map(lambda *xs: np.concatenate(xs, axis=1), *metrics)
 
 
 def train(programs: Sequence[Program], spec: SweepSpec, prepared: Prepared, data: Data, hooks: Hooks = Hooks(),
@@ -780,81 +484,7 @@ def evaluate(trained: Sequence[Trained], prepared: Prepared, ape: ApeFit, episod
                      {i: tuple(v) for i, v in snapshots.items()})
 
 
-def diagnostics_record(out: dict, j: int) -> dict | None:
-    """Run `j`'s `diagnostics` in results.json from its group's outputs, None where the group has none (outputs
-    saved before them, or a sweep that is not `diagnosable`)."""
-    if f"{DIAG}absent" in out:
-        return {"absent": "the policy's network gives no embedding (it takes no return_embedding)"}
-    if f"{DIAG}copycat" not in out:
-        return None
-    value = {k: float(out[DIAG + k][j]) for k in diagnostics_lib.FIELDS if k != "copycat" and DIAG + k in out}
-    value = {k: v if np.isfinite(v) else None for k, v in value.items()}  # e.g. no velocity: null, never 0
-    value["predictability_steps"] = int(value["predictability_steps"])
-    value["verdict"] = diagnostics_lib.COPYCAT if bool(out[f"{DIAG}copycat"][j]) else diagnostics_lib.NOT_COPYCAT
-    return value
-
-
 # -- 5. assemble ----------------------------------------------------------------------------------------------------
-
-def eval_record(out: dict, j: int, prepared: Prepared) -> dict:
-    """Row `j`'s `eval` block in results.json from its group's evaluation outputs `out`."""
-    returns = np.asarray(out["return"][j], np.float64)
-    ev = {"episodes": int(len(returns)), "return_mean": float(returns.mean()), "return_std": float(returns.std())}
-    if prepared.card is not None:
-        ev["normalized"] = float(evaluate_lib.normalized(returns.mean(), prepared.card["return_mean"],
-                                                         prepared.card["random_return_mean"]))
-    for k in (*prepared.task.metrics, *COPYCAT_METRICS):
-        if k in out:
-            ev[k] = float(np.mean(out[k][j]))
-    if prepared.task.metric != "return":
-        ev.setdefault("normalized", 100.0 * ev[prepared.task.metric])  # a rate, in % (no return to normalise)
-    return ev
-
-
-def run_record(run: Run, j: int, out: dict, losses: dict, curves: dict, prepared: Prepared) -> dict:
-    """Run `run`'s record in results.json; `j` is its row in the evaluation outputs `out` and `losses`; `curves`
-    its per-iteration training metrics (`"loss"` and the learner's others, e.g. FCA's `adversary_loss`)."""
-    returns = np.asarray(out["return"][j], np.float64)
-    record = {"method": run.method, "hparams": run.hparams, "seed": run.seed, "status": "ok", "error": None,
-              "online": methods_lib.get(run.method).online}
-    loss_curve = np.asarray(curves["loss"])
-    bad = np.flatnonzero(~np.isfinite(loss_curve))
-    if len(bad):
-        record.update(status="failed", error=f"training loss became non-finite at iteration {int(bad[0])}")
-    elif not np.all(np.isfinite(returns)):
-        record.update(status="failed", error="evaluation returns are non-finite")
-    record["eval"] = eval_record(out, j, prepared)
-    if (diag := diagnostics_record(out, j)) is not None:
-        record["diagnostics"] = diag
-    record["losses"] = {split: {k: float(v[j]) for k, v in losses[split].items()} for split in losses}
-    record["train_loss_final"] = float(np.mean(loss_curve[-100:]))
-    # every training metric over the last 1% of the run (at least 100 minibatches): e.g. FCA's adversary against
-    # its reference predictor of a_{t-1} from a_t alone
-    tail = max(100, len(loss_curve) // 100)
-    record["train_final"] = {k: float(np.mean(np.asarray(v)[-tail:])) for k, v in curves.items()}
-    record["train_curve"] = window_means(loss_curve, CURVE_POINTS)
-    return record
-
-
-def snapshot_record(iteration: int, j: int, out: dict, losses: dict, curves: dict, prepared: Prepared) -> dict:
-    """One entry of a run's `at` list in results.json: its policy at `iteration` (`Budget.eval_at`) evaluated as
-    at the end (`eval`, `diagnostics`, `losses`), and its training loss over the 100 minibatches before."""
-    loss = np.asarray(curves["loss"])[max(0, iteration - 100):iteration]
-    record = {"iteration": iteration, "eval": eval_record(out, j, prepared),
-              "losses": {split: {k: float(v[j]) for k, v in losses[split].items()} for split in losses},
-              "train_loss": float(np.mean(loss)) if len(loss) else None}
-    if (diag := diagnostics_record(out, j)) is not None:
-        record["diagnostics"] = diag
-    return record
-
-
-def window_means(values: np.ndarray, points: int) -> list[float]:
-    """`values` cut into `points` consecutive windows of equal length (the last takes the rest), each window's mean."""
-    values = np.asarray(values, np.float64)
-    width = max(1, len(values) // points)
-    ends = [*range(width, len(values), width)][: points - 1] + [len(values)]
-    return [float(values[a:b].mean()) for a, b in zip([0, *ends[:-1]], ends)]
-
 
 def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence[Trained], evaluated: Evaluated,
              timing: dict) -> results_lib.Results:
@@ -907,23 +537,6 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
         command=list(spec.command) if spec.command is not None else None,
         protocol=spec.protocol_settings(), settings=blocks,
         methods={m: results_lib.method_info(m) for m in dict.fromkeys(r["method"] for r in runs)})
-
-
-def diagnostics_config(prepared: Prepared, outputs: Sequence[dict]) -> dict | None:
-    """What the runs' `diagnostics` mean (results.json's `config.diagnostics`), None where no group's evaluation
-    `outputs` have them."""
-    out = next((o for o in outputs if f"{DIAG}probe_rows_train" in o), None)
-    if out is None:
-        return None
-    demos = prepared.train.demos
-    return {"thresholds": dataclasses.asdict(diagnostics_lib.THRESHOLDS),
-            "probe_steps": int(out[f"{DIAG}probe_steps"][0]),
-            "probe_rows": {"train": int(out[f"{DIAG}probe_rows_train"][0]),
-                           "val": int(out[f"{DIAG}probe_rows_val"][0])},
-            "expert_rollouts": f"the demonstrations' {demos.num_episodes} training episodes, cut to each policy's "
-                               "step count",
-            "velocity": "qvel" if "qvel" in demos.sim else None,
-            "state": "qpos[1:], qvel (the expert's observation)" if {"qpos", "qvel"} <= set(demos.sim) else None}
 
 
 def policies(evaluated: Evaluated, prepared: Prepared) -> dict[str, dict]:
