@@ -35,6 +35,7 @@ from typing import Sequence
 
 import numpy as np
 
+from ape_jax.pipeline.rundir import RunDir
 from experiments._cli import Parser, fail, unwritable
 from experiments.report import analysis
 from experiments.report import stats
@@ -85,8 +86,8 @@ def _load_all(paths: Sequence[str], what: str) -> list[analysis.Source]:
     for p in map(pathlib.Path, paths):
         if p.is_dir():
             # a sweep folder; else a folder of results files (the shipped results/) or of sweep folders
-            found = ([p / "results.json"] if (p / "results.json").exists()
-                     else sorted(p.glob("*.json")) + sorted(p.glob("*/results.json")))
+            found = ([RunDir(p).results] if RunDir(p).results.exists()
+                     else sorted(p.glob("*.json")) + sorted(p.glob(f"*/{RunDir.RESULTS}")))
             if not found:
                 raise CompareError(f"{what} {p}: a folder with no results.json, *.json or */results.json")
         elif p.exists():

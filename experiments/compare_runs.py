@@ -2,7 +2,8 @@
 
     python -m experiments.compare_runs RUN_A RUN_B
 
-`RUN_A` and `RUN_B` are sweep `--out` folders (each with `results.json` and `params/`). For every run both
+`RUN_A` and `RUN_B` are sweep `--out` folders (each with `results.json`, read and validated by
+`ape_jax.pipeline.results.load`, and `params/`: `ape_jax.pipeline.rundir.RunDir`). For every run both
 hold (the same method, hyperparameters and seed, hence the same PRNG key), it prints the two mean returns and
 how far apart the saved parameters are (largest absolute difference over all weights), then a summary: the
 median and largest return difference, and how many runs have bit-identical parameters. A run's key does not
@@ -19,6 +20,7 @@ import sys
 
 import numpy as np
 
+from ape_jax.pipeline.rundir import RunDir
 from experiments._cli import Parser, fail
 
 
@@ -27,7 +29,9 @@ def _ident(run: dict) -> tuple:
 
 
 def _returns(folder: pathlib.Path) -> dict[tuple, float]:
-    runs = json.loads((folder / "results.json").read_text())["runs"]
+    from ape_jax.pipeline import results as results_lib
+
+    runs = results_lib.load(RunDir(folder).results).runs
     return {_ident(r): r["eval"]["return_mean"] for r in runs if r["status"] == "ok"}
 
 
@@ -38,7 +42,7 @@ def _params(folder: pathlib.Path) -> dict[tuple, list[np.ndarray]]:
     from ape_jax.pipeline.checkpoint import load_policies
 
     out = {}
-    for group in load_policies(folder / "params").values():
+    for group in load_policies(RunDir(folder).params).values():
         leaves = [np.asarray(x) for x in jax.tree.leaves(group["params"])]
         for i, run in enumerate(group["runs"]):
             out[_ident(run)] = [x[i] for x in leaves]
@@ -65,11 +69,15 @@ def main(argv=None) -> int:
     parser.add_argument("run_a", type=pathlib.Path, help="a sweep's --out folder")
     parser.add_argument("run_b", type=pathlib.Path, help="another sweep's --out folder")
     args = parser.parse_args(argv)
+    from ape_jax.pipeline.results import ResultsError
+
     for folder in (args.run_a, args.run_b):
-        if not (folder / "results.json").is_file() or not (folder / "params").is_dir():
+        if not RunDir(folder).finished():
             fail(parser, f"{folder} is not a finished sweep's --out folder (results.json and params/)")
     try:
         rows = compare(args.run_a, args.run_b)
+    except ResultsError as e:  # one line naming the file
+        fail(parser, str(e))
     except Exception as e:  # noqa: BLE001 - damaged files: say which, never a traceback
         fail(parser, f"could not read the sweeps: {type(e).__name__}: {e}")
     if not rows:

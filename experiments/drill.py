@@ -23,6 +23,7 @@ import subprocess
 import sys
 import time
 
+from ape_jax.pipeline.rundir import RunDir
 from experiments._cli import Parser, fail, unwritable
 
 
@@ -46,7 +47,7 @@ def parse(argv=None):
 
 def _saved_steps(out: pathlib.Path) -> int:
     """How many training checkpoints the sweep in `out` has completed, over all programs (latest kept each)."""
-    ckpt = out / "checkpoints"
+    ckpt = RunDir(out).checkpoints
     return sum(int(step.name) for prog in ckpt.glob("train-*") for step in prog.iterdir() if step.name.isdigit()) \
         if ckpt.exists() else 0
 
@@ -96,8 +97,9 @@ def main(argv=None) -> int:
     if proc.returncode:
         return fail(None, f"the resumed sweep failed (exit {proc.returncode}); see {args.out / 'drill.log'}")
 
-    a = json.loads((reference / "results.json").read_text())
-    b = json.loads((drilled / "results.json").read_text())
+    # the files as written, not as a reader upgrades them: the drill compares what the sweeps wrote
+    a = json.loads(RunDir(reference).results.read_text())
+    b = json.loads(RunDir(drilled).results.read_text())
     same = _numbers(a) == _numbers(b)
     print(f"\n{args.env}, preset {args.preset}: killed {args.kills}× with SIGKILL and resumed -> results.json "
           f"numbers {'IDENTICAL' if same else 'DIFFERENT'} to the uninterrupted run\n"

@@ -22,6 +22,7 @@ from __future__ import annotations
 import pathlib
 import sys
 
+from ape_jax.pipeline.rundir import RunDir
 from experiments._cli import Parser, add_compile_cache_flag, fail, unwritable_file, use_compile_cache
 
 
@@ -45,9 +46,10 @@ def main(argv=None) -> int:
     if args.video_out is not None and args.video_out.suffix != ".gif":
         fail(p, f"--video-out must name a .gif file, got {args.video_out}")
     use_compile_cache(args)
-    source = args.run / "results.json"
     from ape_jax.pipeline import results as results_lib
 
+    run = RunDir(args.run)
+    source = run.results
     if not source.exists():
         fail(p, f"{source} does not exist: RUN must be a finished sweep's --out directory")
     try:
@@ -64,7 +66,7 @@ def main(argv=None) -> int:
     from experiments._provenance import system
 
     try:
-        new = reevaluate(res, args.run / "params", args.data_dir, system=system())
+        new = reevaluate(res, run.params, args.data_dir, system=system())
     except (ReevaluationError, ExpertError, ValueError) as e:
         fail(p, str(e))
     results_lib.save(target, new)
@@ -79,18 +81,19 @@ def _video(p, args, res) -> int:
     """`--video`: one evaluation episode of a saved policy as a captioned GIF."""
     from ape_jax.pipeline import watch
 
+    run = RunDir(args.run)
     try:
         method, seed = watch.parse_choice(args.video)
         record = watch.choose_run(res, method, seed)
     except watch.WatchError as e:
         return fail(p, str(e))
-    target = args.video_out or (args.run / "videos" / f"{method}-seed{record['seed']}-episode{args.episode}.gif")
+    target = args.video_out or run.video(method, record["seed"], args.episode)
     if (why := unwritable_file(target)) is not None:
         return fail(p, f"cannot write the video to {target}: {why}")
     from envs.experts import ExpertError
 
     try:
-        clip = watch.episode_of(res, args.run / "params", method, record["seed"], args.episode, args.data_dir)
+        clip = watch.episode_of(res, run.params, method, record["seed"], args.episode, args.data_dir)
     except (watch.WatchError, ExpertError, ValueError) as e:
         return fail(p, str(e))
     watch.write_gif(clip, target)

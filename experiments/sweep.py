@@ -270,9 +270,6 @@ def _pm(mean, std, scale: float, unit: str) -> str:
     return f"{scale * mean:,.{1 if scale != 1 else 2}f}{unit} ± {scale * std:,.{1 if scale != 1 else 2}f}{unit}"
 
 
-OUTPUTS = ("results.json", "results.csv", "params", "curves", "tensorboard", "checkpoints")
-
-
 def main(argv=None) -> int:
     procs = _distributed.start(PROG, argv)  # first: JAX's distributed runtime must start before JAX computes
     fp, opened, verdict = None, None, None
@@ -316,11 +313,12 @@ def _open_out(args: argparse.Namespace, fp: dict):
     (reported). Refuses (exit 2) a finished sweep of other settings and a checkpoint it cannot resume."""
     from ape_jax.pipeline import results as results_lib
     from ape_jax.pipeline.checkpoint import CheckpointError, SweepCheckpoint, differences
+    from ape_jax.pipeline.rundir import RunDir
 
-    results_path = args.out / "results.json"
+    out = RunDir(args.out)
+    results_path = out.results
     if args.fresh:
-        for name in OUTPUTS:
-            path = args.out / name
+        for path in out.sweep_outputs:
             shutil.rmtree(path) if path.is_dir() else path.unlink(missing_ok=True)
     elif results_path.exists():
         try:
@@ -334,7 +332,7 @@ def _open_out(args: argparse.Namespace, fp: dict):
         print(f"{results_path} already holds this sweep; not rerunning (--fresh to train it again).\n")
         print(table(old))
         return 0
-    checkpoint = SweepCheckpoint(args.out / "checkpoints", fp, args.checkpoint_every)
+    checkpoint = SweepCheckpoint(out.checkpoints, fp, args.checkpoint_every)
     try:
         if checkpoint.open():
             print(f"resuming from {checkpoint.directory}")
@@ -378,6 +376,7 @@ def _run(args: argparse.Namespace, spec, checkpoint, created: bool) -> int:
     from ape_jax.pipeline import results as results_lib
     from ape_jax.pipeline.checkpoint import CheckpointError
     from ape_jax.pipeline.data import DataError
+    from ape_jax.pipeline.rundir import RunDir
     from ape_jax.pipeline.sweep import Hooks, run_sweep
     from ape_jax.methods import PluginError
     from envs.experts import ExpertError
@@ -385,7 +384,7 @@ def _run(args: argparse.Namespace, spec, checkpoint, created: bool) -> int:
 
     b, r = spec.budget, spec.recipe
     started = system()  # at the start: the code that runs, not what is checked out when it ends
-    results_path = args.out / "results.json"
+    out = RunDir(args.out)
     proto = spec.protocol_settings()
     print(f"sweep: {args.env} ({args.obs}), protocol {spec.protocol.name} (frame skip {proto['frame_skip'] or '-'}, "
           f"{proto['episode_length']:,}-step episodes, split by {spec.protocol.split}), preset {args.preset}: "
@@ -405,17 +404,16 @@ def _run(args: argparse.Namespace, spec, checkpoint, created: bool) -> int:
             args.out.rmdir()
         return fail(None, str(e))
     res.system = started
-    ckpt_lib.save_policies(args.out / "params", policies)
-    results_lib.write_csv(args.out / "results.csv", res)
-    results_lib.save(results_path, res)  # last: its presence means the sweep finished
+    ckpt_lib.save_policies(out.params, policies)
+    results_lib.write_csv(out.csv, res)
+    results_lib.save(out.results, res)  # last: its presence means the sweep finished
     checkpoint.clear()  # the outputs hold everything now
     t = res.timing
     print()
     print(table(res))
     print(f"\ntime: {t['total_s']:.0f} s in all{' (resumed)' if t['resumed'] else ''} (compile ~{t['compile_s']:.0f} s, "
           f"train {t['train_s']:.0f} s, evaluate {t['eval_s']:.0f} s)\n"
-          f"wrote {results_path}, {args.out / 'results.csv'}, {args.out / 'params'}/, training curves in "
-          f"{args.out / 'curves'}/ and {args.out / 'tensorboard'}/")
+          f"wrote {out.results}, {out.csv}, {out.params}/, training curves in {out.curves}/ and {out.tensorboard}/")
     return 0
 
 

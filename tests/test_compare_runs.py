@@ -1,10 +1,9 @@
 """`experiments.compare_runs`: the runs two sweeps share, their returns and how far their parameters are apart."""
 
-import json
-
 import numpy as np
 import pytest
 
+from ape_jax.pipeline import results
 from ape_jax.pipeline.checkpoint import save_policies
 from experiments import compare_runs
 
@@ -12,9 +11,14 @@ from experiments import compare_runs
 def _sweep(folder, runs, weights):
     """A finished sweep's --out folder: results.json with `runs` (identity, return) and their parameters."""
     folder.mkdir()
-    records = [{"method": m, "hparams": hp, "seed": s, "status": "ok", "eval": {"return_mean": ret}}
-               for m, hp, s, ret in runs]
-    (folder / "results.json").write_text(json.dumps({"runs": records}))
+    losses = {"unweighted": 0.0, "changepoint": 0.0, "copycat": 0.0}
+    records = [{"method": m, "hparams": hp, "seed": s, "status": "ok", "eval": {"return_mean": ret},
+                "losses": {"train": losses, "val": losses}} for m, hp, s, ret in runs]
+    # the smallest file `results.load` accepts: compare_runs reads it through the one reader
+    results.save(folder / "results.json", results.Results(
+        env="hopper", obs="pos", preset="quick", config={"iterations": 1, "seeds": 1, "eval_episodes": 1},
+        expert={"return_mean": None, "return_std": None, "random_return_mean": None}, runs=records, summary=[],
+        settings={"protocol": {}, "budget": {}, "recipe": {}}, system={}))
     save_policies(folder / "params", {"h2": {"runs": [{"method": m, "hparams": hp, "seed": s} for m, hp, s, _ in runs],
                                              "params": {"w": np.asarray(weights, np.float32)},
                                              "obs_mean": np.zeros(3, np.float32), "obs_std": np.ones(3, np.float32)}})

@@ -2,7 +2,7 @@
 
 Resuming after any interruption, bit-exact:
 
-Everything lives in `OUT/checkpoints/`:
+Everything lives in `OUT/checkpoints/` (`rundir.RunDir.checkpoints`):
 
 - `sweep.json`: the sweep's *fingerprint* (environment, observations, every
   preset setting, methods, data). A directory whose fingerprint differs, or
@@ -22,7 +22,7 @@ Training runs in fixed chunks and the state holds every random key, so
 continuing from a saved state runs the same compiled chunks on the same inputs
 as an uninterrupted run: on one machine the results are bit-identical.
 
-The finished sweep's policies go to `OUT/params/` (`save_policies`,
+The finished sweep's policies go to `OUT/params/` (`RunDir.params`; `save_policies`,
 `load_policies`): per history `h<H>/` (orbax: the parameters, leaves
 `[len(runs), ...]`, and the observation statistics) beside `h<H>.json` (the
 runs, in order), which `experiments.evaluate` evaluates again.

@@ -1,6 +1,6 @@
 """Per-iteration training curves of one program, as CSV and as TensorBoard event files.
 
-A program (`ape_jax.pipeline.sweep`) trains a group of runs together and returns, per
+A program (`ape_jax.pipeline.training`) trains a group of runs together and returns, per
 metric, a `[len(runs), iterations]` float32 array. `write_curves` writes it twice:
 
     write_curves(out, "grid", runs, {"loss": loss, "unweighted_loss": unweighted})
@@ -65,6 +65,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from ape_jax.pipeline.rundir import RunDir
+
 _UNSAFE = re.compile(r"[^A-Za-z0-9._=-]")
 _METRIC_NAME = re.compile(r"[A-Za-z0-9_.-]+")
 _FIXED_COLUMNS = ("run", "method", "hparams", "seed", "iteration")
@@ -81,7 +83,7 @@ def run_label(run: Any) -> str:
     `write_curves` refuses that.
 
     Args:
-      run: an `ape_jax.pipeline.sweep.Run` (anything with `method`, `hparams`, `seed`).
+      run: an `ape_jax.pipeline.spec.Run` (anything with `method`, `hparams`, `seed`).
 
     Returns:
       e.g. `"ours-step_thr=0.1_w=5_seed0"`, `"bc-oh_seed2"`.
@@ -100,7 +102,7 @@ def write_curves(out_dir: pathlib.Path, program: str, runs: Sequence[Any], metri
     Args:
       out_dir: the sweep's output directory; `curves/` and `tensorboard/` are created in it.
       program: the program's name (`"grid"`, `"bc-so"`, ...), the CSV's file name.
-      runs: the program's runs, `ape_jax.pipeline.sweep.Run`, in the order of the metrics' rows.
+      runs: the program's runs, `ape_jax.pipeline.spec.Run`, in the order of the metrics' rows.
       metrics: name -> `[len(runs), iterations] float32`, one value per training iteration;
         may hold NaN/inf. Names must match `[A-Za-z0-9_.-]+`.
       tb_points: the most points written per TensorBoard curve (>= 1).
@@ -110,9 +112,9 @@ def write_curves(out_dir: pathlib.Path, program: str, runs: Sequence[Any], metri
         iterations, a bad metric or program name, two runs with one label, `tb_points < 1`.
     """
     labels = _check(program, runs, metrics, tb_points)
-    out_dir = pathlib.Path(out_dir)
-    _write_csv(out_dir / "curves" / f"{program}.csv", runs, labels, metrics)
-    tb_root = out_dir / "tensorboard"
+    out = RunDir(out_dir)
+    _write_csv(out.curve_csv(program), runs, labels, metrics)
+    tb_root = out.tensorboard
     tb_root.mkdir(parents=True, exist_ok=True)
     for i, label in enumerate(labels):
         _write_tensorboard(tb_root, label, {name: values[i] for name, values in metrics.items()}, tb_points)
@@ -134,6 +136,7 @@ class CurveLog:
         if iterations < 1:
             raise ValueError(f"a program of {iterations} iterations has no curves")
         self.out_dir, self.program, self.runs = pathlib.Path(out_dir), program, list(runs)
+        self._out = RunDir(out_dir)
         self.iterations, self.tb_points = iterations, tb_points
         self._chunks: list[dict[str, np.ndarray]] = []
         self._labels: list[str] | None = None
@@ -159,7 +162,7 @@ class CurveLog:
             raise ValueError(f"a chunk's metrics {list(metrics)} are not the program's {list(self._chunks[0])}")
         first = self.done + 1
         self._chunks.append(metrics)
-        with open(self.out_dir / "curves" / f"{self.program}.csv", "a", encoding="utf-8", newline="") as f:
+        with open(self._out.curve_csv(self.program), "a", encoding="utf-8", newline="") as f:
             _write_rows(f, self.runs, self._labels, metrics, first)
         self._log_windows(first - 1)
 
@@ -173,8 +176,8 @@ class CurveLog:
         """The first curves: the CSV and every run's event file written whole, then kept open for appending."""
         self._labels = _check(self.program, self.runs, metrics, self.tb_points)
         self._chunks = [metrics]
-        _write_csv(self.out_dir / "curves" / f"{self.program}.csv", self.runs, self._labels, metrics)
-        tb_root = self.out_dir / "tensorboard"
+        _write_csv(self._out.curve_csv(self.program), self.runs, self._labels, metrics)
+        tb_root = self._out.tensorboard
         tb_root.mkdir(parents=True, exist_ok=True)
         for i, label in enumerate(self._labels):
             _write_tensorboard(tb_root, label, {name: v[i] for name, v in metrics.items()}, self.tb_points,
@@ -193,7 +196,7 @@ class CurveLog:
                 points += [(f"train/{name}", mean, step) for step, mean in zip(steps.tolist(), means.tolist())
                            if step > before]
             if points:
-                writer = SummaryWriter(logdir=str(self.out_dir / "tensorboard" / label), flush_secs=3600,
+                writer = SummaryWriter(logdir=str(self._out.tensorboard / label), flush_secs=3600,
                                        filename_suffix=f".{before + 1}")
                 try:
                     for tag, mean, step in points:
