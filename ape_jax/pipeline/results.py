@@ -131,8 +131,10 @@ class Results:
         return self.methods.get(method, {}).get("role") or "plugin"
 
     def records(self) -> Settings:
-        """The protocol, budget and recipe this sweep ran with."""
-        return Settings.from_json(self.settings, preset=self.preset)
+        """The protocol, budget and recipe this sweep ran with, and the iterations its preset gave before overrides
+        (`config.preset_iterations`; None in a file from before it), as `presets.resolve` built them."""
+        return dataclasses.replace(Settings.from_json(self.settings, preset=self.preset),
+                                   preset_iterations=self.config.get("preset_iterations"))
 
     @property
     def recipe_name(self) -> str:
