@@ -125,7 +125,7 @@ class ImagePolicy(nn.Module):
     channels: Sequence[int] = (32, 64, 64)
     norm: str = "none"
     # XLA:CPU runs these convolutions' gradients ~50x slower inside a loop and ~2x slower per model under vmap
-    # (`ape_jax.pipeline.sweep.CPU_IMAGE_CHUNK`): on a CPU the sweep trains it unrolled, one model at a time
+    # (`ape_jax.pipeline.training.CPU_IMAGE_CHUNK`): on a CPU the sweep trains it unrolled, one model at a time
     loop_friendly: ClassVar[bool] = False
 
     @nn.compact

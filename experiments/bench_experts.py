@@ -68,7 +68,7 @@ def collection_row(name: str, obs: str, overrides: dict, batch: int, repeats: in
 def table(args) -> str:
     lines = ["## Experts", "", "From the experts' cards (`envs/experts/<env>/card.json`), written by "
              "`python -m experiments.train_expert --env <env>`; returns over 100 episodes of 1000 steps, "
-             "deterministic policy, full observation. Training: `envs/experts/sac.py` with the settings in "
+             "deterministic policy, full observation. Training: `ape_jax/experts/sac.py` with the settings in "
              "`experiments/train_expert.py` (update-to-data 0.5, batch 256, 256×256 MLPs), stopped once the "
              "16-episode evaluation return passed 1.1× the target; the step count is when the best policy was "
              "seen. Wall time is the sum of training epochs and evaluations, measured while other work shared "

@@ -9,7 +9,7 @@ For the image policies the sweep trains (frames stacked on channels, history
 1. model-updates/s per encoder and image size, trained the way the sweep
    trains that encoder on this backend (`ape_jax.pipeline.sweep.trains_sequentially`):
    a convolutional encoder on a CPU one configuration at a time, one chunk of
-   `ape_jax.pipeline.sweep.CPU_IMAGE_CHUNK` unrolled iterations per call (XLA:CPU is slow
+   `ape_jax.pipeline.training.CPU_IMAGE_CHUNK` unrolled iterations per call (XLA:CPU is slow
    at convolution gradients inside loops and under vmap); otherwise scanned
    chunks of `SCAN_CHUNK` iterations. With `--grid G` also `G` configurations
    as one vmapped program in the same chunks (the sweep's way for a loop-friendly

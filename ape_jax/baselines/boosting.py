@@ -17,7 +17,7 @@ regression, with the weighted BC learner as the weak learner:
 After `rounds` rounds (default 3) the **final round's policy** is reported (not
 the AdaBoost ensemble, whose history-dependent members would all have to run
 at evaluation). All rounds run inside one compiled program (`train`), or round
-by round with `next_round` between (`ape_jax.pipeline.sweep`, for progress bars).
+by round with `next_round` between (`ape_jax.pipeline.training`, for progress bars).
 """
 
 from __future__ import annotations
