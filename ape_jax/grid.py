@@ -41,7 +41,8 @@ several processes or hosts after `jax.distributed.initialize()`; on CPU,
 from __future__ import annotations
 
 import zlib
-from typing import Any, Callable, Sequence
+from typing import Any
+from collections.abc import Callable, Sequence
 
 import jax
 import jax.numpy as jnp

@@ -46,7 +46,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Callable, NamedTuple
+from typing import Any, NamedTuple
+from collections.abc import Callable
 
 import flax.linen as nn
 import jax
@@ -157,7 +158,7 @@ class Hparams:
 
     @classmethod
     def make(cls, kind: str = "uniform", lr: float = 2e-4, history_dropout: float = 0.0,
-             **weighting_kw) -> "Hparams":
+             **weighting_kw) -> Hparams:
         if not 0.0 <= history_dropout < 1.0:
             raise ValueError(f"history dropout must be in [0, 1), got {history_dropout}")
         if not lr > 0.0:

@@ -26,7 +26,8 @@ the parameters are the same either way.
 
 from __future__ import annotations
 
-from typing import ClassVar, Sequence
+from typing import ClassVar
+from collections.abc import Sequence
 
 import flax.linen as nn
 import jax

@@ -17,7 +17,8 @@ from __future__ import annotations
 import dataclasses
 import re
 from types import MappingProxyType
-from typing import Any, Mapping
+from typing import Any
+from collections.abc import Mapping
 
 
 SPLITS = ("rows", "episodes")

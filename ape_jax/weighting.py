@@ -98,7 +98,7 @@ class Weighting:
     source: jax.Array  # [] int32, the score row
 
     @classmethod
-    def make(cls, kind: str, thr: float = 0.1, w: float = 1.0, tau: float = 1.0, source: int = 0) -> "Weighting":
+    def make(cls, kind: str, thr: float = 0.1, w: float = 1.0, tau: float = 1.0, source: int = 0) -> Weighting:
         """A configuration; raises `ValueError` for an unknown kind or invalid values."""
         if kind not in KINDS:
             raise ValueError(f"unknown weighting {kind!r}; valid: {sorted(KINDS)}")

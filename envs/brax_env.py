@@ -62,7 +62,7 @@ class BraxConfig:
     brax_kwargs: tuple[tuple[str, object], ...] = ()
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _supports_mjx(name: str) -> bool:
     try:
         _build_brax(name, "mjx", ())
@@ -71,7 +71,7 @@ def _supports_mjx(name: str) -> bool:
     return True
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def default_frame_skip(name: str) -> int:
     """Simulator steps per control step that Brax's `name` takes by default (its `n_frames`: 4 for Hopper)."""
     return int(_build_brax(name, default_config(name).backend, ())._n_frames)
@@ -85,7 +85,7 @@ def default_config(name: str) -> BraxConfig:
     return BraxConfig(backend=backend)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def constructor_params(name: str) -> tuple[str, ...]:
     """Keyword arguments the Brax environment `name`'s constructor accepts."""
     cls = brax_envs._envs[name]
@@ -132,12 +132,12 @@ def parse_image_size(value) -> tuple[int, int]:
     return int(size[0]), int(size[1])
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _build_brax(name: str, backend: str, brax_kwargs: tuple):
     return brax_envs.get_environment(name, backend=backend, **dict(brax_kwargs))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def positional_dims(name: str, backend: str, brax_kwargs: tuple) -> tuple[int, ...]:
     """Indices of Brax's observation that depend on positions only.
 

@@ -35,8 +35,12 @@ import json
 import pathlib
 import sys
 import time
+from typing import TYPE_CHECKING
 
 from experiments._cli import Parser, fail, unwritable_file
+
+if TYPE_CHECKING:
+    import numpy as np
 
 PROG = "python -m experiments.pose_probe"
 TARGETS = ("pose", "velocity", "action")
@@ -105,7 +109,7 @@ def _ints(p, flag: str, text: str) -> tuple[int, ...]:
     return values
 
 
-def targets_of(demos, names) -> tuple[dict[str, slice], "np.ndarray"]:
+def targets_of(demos, names) -> tuple[dict[str, slice], np.ndarray]:
     """`({name: columns}, [N, D] float32)`: the named targets of every row of `demos`, side by side."""
     import numpy as np
 

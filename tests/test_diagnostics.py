@@ -8,7 +8,8 @@ says nothing about `a_t`, a history of two gives `a_{t−1} = x_t − x_{t−1}`
 
 import dataclasses
 import math
-from typing import Callable, NamedTuple
+from typing import NamedTuple
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp

@@ -45,7 +45,7 @@ def _assert_finite(tree):
             assert np.all(np.isfinite(leaf))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _jitted(name, obs):
     """`(env, jit(env.reset), jit(env.step))` for `envs.make(name, obs=obs, **SMALL)`.
 

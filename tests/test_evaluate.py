@@ -28,7 +28,7 @@ def assert_close_in_ulps(actual, desired, ulps=512):
     assert np.abs(actual - desired).max() <= bound, (np.abs(actual - desired).max(), bound)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _policies():
     """Three briefly trained policies, stacked: trained once per test process, in one vmapped program."""
     learner = make_train(CFG)

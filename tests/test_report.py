@@ -392,7 +392,7 @@ def test_image_results_and_a_task_judged_by_a_rate_get_their_tables(tmp_path):
     sandbox["expert"] = {"return_mean": None, "return_std": None, "random_return_mean": None}
     sandbox["config"] = {**sandbox["config"],   # its task's default preset budget
                          "iterations": resolve(car.name, "image", preset="default").budget.iterations}
-    for i, run in enumerate(sandbox["runs"]):
+    for run in sandbox["runs"]:
         run["eval"].update(success=0.9 + 0.05 * run["seed"], red_light_violations=0.0, progress=0.8,
                            avg_speed=0.5, stuck=0.1 * run["seed"])
     for row in sandbox["summary"]:  # as the sweep summarises it: normalized = 100 · success

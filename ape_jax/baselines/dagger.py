@@ -77,7 +77,8 @@ rounds run in one compiled `train`, or round by round with `next_round`
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp

@@ -140,7 +140,8 @@ bottleneck's KL (0 for TCA).
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 import flax.linen as nn
 import jax
@@ -185,7 +186,7 @@ class FcaHparams:
 
     @classmethod
     def make(cls, alpha: float, lr: float = 2e-4, adversary_lr: float | None = None,
-             ib_weight: float = 0.0) -> "FcaHparams":
+             ib_weight: float = 0.0) -> FcaHparams:
         """Validated hyperparameters; `adversary_lr=None` takes `lr`."""
         adversary_lr = lr if adversary_lr is None else adversary_lr
         if not 0.0 <= alpha < float("inf"):

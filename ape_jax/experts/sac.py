@@ -28,7 +28,8 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
-from typing import Any, Callable, NamedTuple
+from typing import Any, NamedTuple
+from collections.abc import Callable
 
 import flax
 import jax

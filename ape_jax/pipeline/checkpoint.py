@@ -147,7 +147,7 @@ class SweepCheckpoint:
             raise CheckpointError(f"{path} is unreadable ({type(e).__name__}: {e}); delete it to redo that "
                                   "phase, or pass --fresh to start over") from e
 
-    def program(self, name: str) -> "ProgramCheckpoint":
+    def program(self, name: str) -> ProgramCheckpoint:
         return ProgramCheckpoint(self.directory / f"train-{name}", self.every, self)
 
 

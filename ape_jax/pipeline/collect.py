@@ -18,7 +18,8 @@ import hashlib
 import json
 import time
 from importlib.metadata import version
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp

@@ -32,7 +32,6 @@ import zipfile
 from typing import Any, NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
@@ -47,8 +46,8 @@ class DataError(ValueError):
 class Split(NamedTuple):
     """A dataset split by episode."""
 
-    train: "Demonstrations"
-    val: "Demonstrations"
+    train: Demonstrations
+    val: Demonstrations
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,7 +59,7 @@ class Part:
     part); a split by rows (the FCA code's) keeps every collected episode and names its rows.
     """
 
-    demos: "Demonstrations"
+    demos: Demonstrations
     rows: np.ndarray | None = None
 
     def __len__(self) -> int:
@@ -84,7 +83,7 @@ class Part:
         return int(len(np.unique(self.own(self.demos.episode))))
 
 
-def split_parts(demos: "Demonstrations", kind: str, train: int | None, val: int | None, val_frac: float = 0.2,
+def split_parts(demos: Demonstrations, kind: str, train: int | None, val: int | None, val_frac: float = 0.2,
                 seed: int = 0) -> tuple[Part, Part]:
     """The training and validation `Part`s of `demos`, as a protocol says.
 
@@ -142,11 +141,11 @@ class Demonstrations:
     def num_episodes(self) -> int:
         return int(len(self.episode_ids))
 
-    def take(self, idx) -> "Demonstrations":
+    def take(self, idx) -> Demonstrations:
         """Rows `idx` (any NumPy index) of every field."""
         return jax.tree.map(lambda x: x[idx], self)
 
-    def select_episodes(self, ids) -> "Demonstrations":
+    def select_episodes(self, ids) -> Demonstrations:
         """The transitions of episodes `ids`, in their original order."""
         return self.take(np.flatnonzero(np.isin(np.asarray(self.episode), np.asarray(ids))))
 

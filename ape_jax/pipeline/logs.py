@@ -61,7 +61,8 @@ import pathlib
 import re
 import shutil
 import tempfile
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 import numpy as np
 

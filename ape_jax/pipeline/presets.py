@@ -24,7 +24,8 @@ import dataclasses
 import math
 import types
 import typing
-from typing import Any, Iterable, Mapping
+from typing import Any
+from collections.abc import Iterable, Mapping
 
 from ape_jax import tasks
 from ape_jax.ape import NORMALIZATIONS
@@ -219,7 +220,7 @@ class Settings:
         return {name: _jsonable(dataclasses.asdict(getattr(self, name))) for name in SECTIONS}
 
     @classmethod
-    def from_json(cls, blocks: Mapping[str, Mapping[str, Any]], preset: str = "quick") -> "Settings":
+    def from_json(cls, blocks: Mapping[str, Mapping[str, Any]], preset: str = "quick") -> Settings:
         """The settings results.json's three blocks record (fields a block predates: the defaults)."""
         return cls(*(_record(name, blocks.get(name) or {}) for name in SECTIONS), preset=preset)
 

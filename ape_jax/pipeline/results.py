@@ -46,7 +46,8 @@ import io
 import json
 import math
 import pathlib
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -89,7 +90,7 @@ class Results:
 
     # -- reading --------------------------------------------------------------------------------------------------
     @classmethod
-    def from_json(cls, obj: Any, where: str = "results") -> "Results":
+    def from_json(cls, obj: Any, where: str = "results") -> Results:
         """Validates `obj` (a parsed results.json) and returns it, schema 1 upgraded to 2."""
         if not isinstance(obj, dict):
             raise ResultsError(f"{where}: not a sweep results file (a JSON object is expected)")

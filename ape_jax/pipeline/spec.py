@@ -17,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import pathlib
-from typing import Sequence
+from collections.abc import Sequence
 
 import jax
 import numpy as np
@@ -73,11 +73,11 @@ class SweepSpec:
     def __post_init__(self):
         for m in self.methods:
             methods_lib.get(m)  # MethodError for an unknown name
-        self.setup  # ValueError for a protocol the task cannot take
+        _ = self.setup  # ValueError for a protocol the task cannot take
 
     @classmethod
     def make(cls, env: str, obs: str | None = None, methods: Sequence[str] | None = None, protocol: str | None = None,
-             preset: str = "quick", recipe: str | None = None, sets: Sequence[str] = (), **kw) -> "SweepSpec":
+             preset: str = "quick", recipe: str | None = None, sets: Sequence[str] = (), **kw) -> SweepSpec:
         """A spec from names, as the command line gives them (defaults: the task's observation mode and protocol,
         the default methods, the protocol's recipe); `kw`: `dataset`, `data_dir`, `command`."""
         obs = obs or tasks.get(env).default_obs

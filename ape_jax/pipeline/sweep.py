@@ -48,7 +48,8 @@ import dataclasses
 import inspect
 import resource
 import time
-from typing import Any, Callable, Sequence
+from typing import Any
+from collections.abc import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -137,7 +138,7 @@ class Normalizer:
     std: np.ndarray | None
 
     @classmethod
-    def fit(cls, obs: np.ndarray) -> "Normalizer":
+    def fit(cls, obs: np.ndarray) -> Normalizer:
         obs = np.asarray(obs)
         if obs.dtype == np.uint8:
             return cls(None, None)

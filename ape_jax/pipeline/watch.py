@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import pathlib
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import numpy as np

@@ -8,7 +8,7 @@ builders (`experiments.report.figures`) for the figures it links. `build` writes
 from __future__ import annotations
 
 import pathlib
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 from matplotlib.figure import Figure
 

@@ -16,7 +16,8 @@ from __future__ import annotations
 
 import dataclasses
 import pathlib
-from typing import Mapping, NamedTuple, Sequence
+from typing import NamedTuple
+from collections.abc import Mapping, Sequence
 
 from ape_jax import tasks
 from ape_jax.pipeline import results as results_lib

@@ -14,7 +14,8 @@ not the return) is shown in %.
 from __future__ import annotations
 
 import math
-from typing import Mapping, NamedTuple, Sequence
+from typing import NamedTuple
+from collections.abc import Mapping, Sequence
 
 from ape_jax import methods as methods_lib
 from experiments.report.analysis.groups import Group, Key, Merged, config_key, is_rate, ordered

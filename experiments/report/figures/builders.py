@@ -10,7 +10,7 @@ mean), `copycat_map_figure` (% of expert against frame skip: where the history s
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 from matplotlib.figure import Figure

@@ -23,7 +23,8 @@ from __future__ import annotations
 import math
 import os
 import pathlib
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
+from collections.abc import Sequence
 
 import numpy as np
 from matplotlib.colors import Normalize

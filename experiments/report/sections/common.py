@@ -11,7 +11,8 @@ from __future__ import annotations
 import dataclasses
 import os
 import pathlib
-from typing import Callable, Mapping, NamedTuple, Sequence
+from typing import NamedTuple
+from collections.abc import Callable, Mapping, Sequence
 
 from matplotlib.figure import Figure
 
