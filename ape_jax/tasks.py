@@ -205,7 +205,8 @@ class Task:
         if self.loss not in ("l1", "l2"):
             raise ValueError(f"task {self.name!r}: loss must be 'l1' or 'l2', got {self.loss!r}")
         if self.metric != "return" and self.metric not in self.metrics:
-            raise ValueError(f"task {self.name!r}: metric {self.metric!r} is neither 'return' nor one of {self.metrics}")
+            raise ValueError(f"task {self.name!r}: metric {self.metric!r} is neither 'return' nor one of "
+                             f"{self.metrics}")
         if self.expert not in ("shipped", "rule-based"):
             raise ValueError(f"task {self.name!r}: expert must be 'shipped' or 'rule-based', got {self.expert!r}")
 

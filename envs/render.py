@@ -125,7 +125,8 @@ def camera_for_model(model, height: int = 64, width: int = 64) -> Camera:
     half_extent = max(hi_x - lo_x, hi_z) / 2
     fov = 45.0
     distance = max(half_extent / 0.6 / math.tan(math.radians(fov) / 2), 1.0)
-    return Camera(height=height, width=width, distance=float(distance), elevation=float(max(hi_z / 2, 0.3)), fov_deg=fov)
+    return Camera(height=height, width=width, distance=float(distance), elevation=float(max(hi_z / 2, 0.3)),
+                  fov_deg=fov)
 
 
 def _local_normal(gtype: jax.Array, size: jax.Array, p: jax.Array, ray_dir_local: jax.Array) -> jax.Array:

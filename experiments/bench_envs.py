@@ -75,7 +75,8 @@ def render_fps(name: str, size: int, batch: int, repeats: int) -> dict:
     for _ in range(repeats):
         t0 = time.perf_counter()
         for _ in range(frames):
-            mujoco.mj_multiRay(model, data, origin, dirs.ravel(), None, 1, -1, geomid, dist, None, len(dirs), mujoco.mjMAXVAL)
+            mujoco.mj_multiRay(model, data, origin, dirs.ravel(), None, 1, -1, geomid, dist, None, len(dirs),
+                               mujoco.mjMAXVAL)
         rates.append(frames / (time.perf_counter() - t0))
     return {"compile_s": compile_s, "fps": batch / steady_s, "native_fps": statistics.median(rates)}
 
@@ -84,7 +85,8 @@ def table(args) -> str:
     lines = [
         "## Environment throughput",
         "",
-        f"Command: `python -m experiments.bench_envs --batch {args.batch} --steps {args.steps} --repeats {args.repeats}`  ",
+        f"Command: `python -m experiments.bench_envs --batch {args.batch} --steps {args.steps} "
+        f"--repeats {args.repeats}`  ",
         f"Machine: {machine()}  ",
         f"Medians of {args.repeats} runs after one compiling call; compile time apart. "
         "MJX: `envs.rollout` of a uniform-random policy, vmapped over the batch, scanned over steps "
@@ -96,12 +98,13 @@ def table(args) -> str:
     for name in envs.MUJOCO_TASKS:
         m = mjx_steps(name, "pos", args.batch, args.steps, args.repeats)
         n = native_steps(name, args.steps * 4, args.repeats)
-        lines.append(f"| {name} (pos) | {args.batch} | {m['steps_per_s']:,.0f} | {m['compile_s']:.1f} | {n['steps_per_s']:,.0f} | {n['substeps']} |")
+        lines.append(f"| {name} (pos) | {args.batch} | {m['steps_per_s']:,.0f} | {m['compile_s']:.1f} | "
+                     f"{n['steps_per_s']:,.0f} | {n['substeps']} |")
         print(lines[-1], file=sys.stderr)
     lines += [
         "",
-        f"Rendering (hopper, batch {args.render_batch} of reset states, `jit(vmap(env.render))`); native: `mujoco.mj_multiRay` "
-        "with the same rays, one frame at a time, ray casting only (no shading):",
+        f"Rendering (hopper, batch {args.render_batch} of reset states, `jit(vmap(env.render))`); "
+        "native: `mujoco.mj_multiRay` with the same rays, one frame at a time, ray casting only (no shading):",
         "",
         "| size | MJX frames/s | compile s | native mj_multiRay frames/s |",
         "|---|---:|---:|---:|",

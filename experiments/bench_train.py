@@ -253,15 +253,16 @@ def table(args) -> str:
           for name, r in recipes.items()],
     ]
     if args.results:
-        lines += ["", "| sweep (results.json) | total s | compile s | train s | evaluate s |", "|---|---:|---:|---:|---:|"]
+        lines += ["", "| sweep (results.json) | total s | compile s | train s | evaluate s |",
+                  "|---|---:|---:|---:|---:|"]
         for path in args.results:
             r = json.loads(pathlib.Path(path).read_text())
             tm = r["timing"]
             c = r["config"]
             cmd = (f"python -m experiments.sweep --env {r['env']} --obs {r['obs']} --preset {r['preset']} "
                    f"--iterations {c['iterations']} --seeds {c['seeds']} --eval-episodes {c['eval_episodes']}")
-            lines.append(f"| `{cmd}` | "
-                         f"{tm['total_s']:,.0f} | {tm['compile_s']:,.0f} | {tm['train_s']:,.0f} | {tm['eval_s']:,.0f} |")
+            lines.append(f"| `{cmd}` | {tm['total_s']:,.0f} | {tm['compile_s']:,.0f} | "
+                         f"{tm['train_s']:,.0f} | {tm['eval_s']:,.0f} |")
     for line in lines[6:]:
         print(line, file=sys.stderr)
     return "\n".join(lines) + "\n"

@@ -104,7 +104,8 @@ def main(argv=None) -> int:
     print(f"\n{args.env}, preset {args.preset}: killed {args.kills}× with SIGKILL and resumed -> results.json "
           f"numbers {'IDENTICAL' if same else 'DIFFERENT'} to the uninterrupted run\n"
           f"  uninterrupted: {uninterrupted_s:.0f} s (checkpoint saves {a['timing']['checkpoint_s']:.1f} s of it)\n"
-          f"  killed + resumed: {drilled_s:.0f} s in all (last leg's checkpoint saves {b['timing']['checkpoint_s']:.1f} s)")
+          f"  killed + resumed: {drilled_s:.0f} s in all (last leg's checkpoint saves "
+          f"{b['timing']['checkpoint_s']:.1f} s)")
     return 0 if same else 1
 
 

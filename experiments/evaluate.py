@@ -33,7 +33,8 @@ def main(argv=None) -> int:
     p.add_argument("run", type=pathlib.Path, help="a sweep's --out directory (results.json and params/)")
     p.add_argument("--out", type=pathlib.Path, default=None,
                    help="write the completed results here (default: replace RUN/results.json)")
-    p.add_argument("--data-dir", type=pathlib.Path, default=None, help=f"demonstration cache (default: {data.cache_dir()})")
+    p.add_argument("--data-dir", type=pathlib.Path, default=None,
+                   help=f"demonstration cache (default: {data.cache_dir()})")
     p.add_argument("--video", default=None, metavar="METHOD[:SEED]",
                    help="write a GIF of this policy's evaluation episode instead (results.json is left alone)")
     p.add_argument("--episode", type=int, default=0, help="with --video: which evaluation episode (default 0)")

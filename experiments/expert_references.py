@@ -7,8 +7,9 @@ was trained at (`brax`); this measures them under another protocol (default
 `fca`: frame skip 1, 500 standard steps of simulated time, rewards on the
 standard-step scale) over `--episodes` episodes each, and writes them into
 `envs/experts/<env>/references.json` (atomically; other protocols' entries
-are kept); `--expert ppo` measures the variant shipped beside it, `envs/experts/<env>-ppo/`. The card itself is left as it is, so the datasets and checkpoints
-named by its hash stay valid.
+are kept); `--expert ppo` measures the variant shipped beside it,
+`envs/experts/<env>-ppo/`. The card itself is left as it is, so the datasets
+and checkpoints named by its hash stay valid.
 """
 
 from __future__ import annotations

@@ -50,7 +50,8 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--out", type=pathlib.Path, default=None,
                    help="the PNG to write (default: figures/keyframes-ENV.png)")
     p.add_argument("--frames", type=int, default=4, help="keyframes to render (default: 4)")
-    p.add_argument("--ordinary", type=int, default=1, help="ordinary (low-APE) frames rendered for contrast (default: 1)")
+    p.add_argument("--ordinary", type=int, default=1,
+                   help="ordinary (low-APE) frames rendered for contrast (default: 1)")
     p.add_argument("--min-gap", type=int, default=None,
                    help="fewest steps between two rendered frames (default: episode length / (2 x frames shown))")
     p.add_argument("--zoom", type=int, default=150,
@@ -156,8 +157,8 @@ def main(argv=None) -> int:
     # nearly equal (a high frame rate), and the keyframes are then the few steps it cannot extrapolate
     explained = 1.0 - float(np.mean(ape_raw)) / float(np.sum(np.var(np.asarray(demos.action), axis=0)))
     note = (f"keyframes = top {args.thr:.0%} APE over all {len(demos):,} steps of the {demos.num_episodes} "
-            f"demonstrations (APE model fitted on all of them, {args.ape_steps} Adam steps; APE ÷ its mean {scale:.3g}; "
-            f"ψ explains {explained:.1%} of the actions' variance)")
+            f"demonstrations (APE model fitted on all of them, {args.ape_steps} Adam steps; "
+            f"APE ÷ its mean {scale:.3g}; ψ explains {explained:.1%} of the actions' variance)")
     fig = figures.keyframes(ape_ep, actions, threshold, frames, pick.steps, keyframe=key_ep, title=title, note=note,
                             action_names=keyframes.action_names(env), frame_is_key=pick.is_key, window=pick.window)
     try:

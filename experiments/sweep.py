@@ -79,8 +79,9 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
                         "paper's THR 10%%/20%% x W 3/5/10)")
     p.add_argument("--softmax-grid", default=None, metavar="TAU,...",
                    help="the softmax weightings' temperatures, e.g. 0.1,0.2,0.5 (default: the preset's)")
-    p.add_argument("--out", type=pathlib.Path, default=None, help="output directory (default: runs/sweep/ENV-OBS-PRESET, or ENV-OBS-PROTOCOL-PRESET for a protocol "
-                        "other than the task's default)")
+    p.add_argument("--out", type=pathlib.Path, default=None,
+                   help="output directory (default: runs/sweep/ENV-OBS-PRESET, or ENV-OBS-PROTOCOL-PRESET for a "
+                        "protocol other than the task's default)")
     p.add_argument("--resume", action="store_true",
                    help="continue the sweep in --out where it stopped, or report it if finished (also what a "
                         "rerun with the same --out and settings does without this flag)")
@@ -97,7 +98,8 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
                         "iterations, 1 seed, 2 evaluation episodes): checks that it runs end to end, e.g. --preset "
                         "paper --obs image on a CPU; its numbers mean nothing and the report refuses them")
     p.add_argument("--quiet", action="store_true", help="no progress bars (for CI logs); messages and the table only")
-    p.add_argument("--data-dir", type=pathlib.Path, default=None, help=f"demonstration cache (default: {data.cache_dir()})")
+    p.add_argument("--data-dir", type=pathlib.Path, default=None,
+                   help=f"demonstration cache (default: {data.cache_dir()})")
     _distributed.add_flags(p)
     add_compile_cache_flag(p)
     args = p.parse_args(argv)
@@ -228,7 +230,8 @@ def table(res) -> str:
                      for m in shown]
         else:
             cells = [f"{r['return_mean']:,.1f} ± {r['return_std']:,.1f}"]
-        line = f"{mark}{r['method']:<17}{hp:<30}{r['n_seeds']:>5}  " + "  ".join(f"{c:>{w}}" for c, w in zip(cells, width))
+        line = (f"{mark}{r['method']:<17}{hp:<30}{r['n_seeds']:>5}  "
+                + "  ".join(f"{c:>{w}}" for c, w in zip(cells, width)))
         if metric == "return":
             line += f"  {r['normalized_mean']:>10.1f}%"
         if diagnosed:
@@ -411,8 +414,8 @@ def _run(args: argparse.Namespace, spec, checkpoint, created: bool) -> int:
     t = res.timing
     print()
     print(table(res))
-    print(f"\ntime: {t['total_s']:.0f} s in all{' (resumed)' if t['resumed'] else ''} (compile ~{t['compile_s']:.0f} s, "
-          f"train {t['train_s']:.0f} s, evaluate {t['eval_s']:.0f} s)\n"
+    print(f"\ntime: {t['total_s']:.0f} s in all{' (resumed)' if t['resumed'] else ''} "
+          f"(compile ~{t['compile_s']:.0f} s, train {t['train_s']:.0f} s, evaluate {t['eval_s']:.0f} s)\n"
           f"wrote {out.results}, {out.csv}, {out.params}/, training curves in {out.curves}/ and {out.tensorboard}/")
     return 0
 

@@ -1,4 +1,5 @@
-"""Computes APE and the sample weights of a demonstration dataset: `python -m experiments.weights --dataset PATH --out weights.npz`.
+"""Computes APE and the sample weights of a demonstration dataset:
+`python -m experiments.weights --dataset PATH --out weights.npz`.
 
 The dataset is the project's own (`NAME.npz` beside `NAME.json`, see
 `ape_jax.pipeline.data`) or a Minari dataset (its directory, or its id under
@@ -38,10 +39,11 @@ FORMATS = ("auto", "npz", "minari")
 
 
 def parse(argv=None) -> argparse.Namespace:
-    p = Parser(prog="python -m experiments.weights", description=__doc__.splitlines()[0])
+    p = Parser(prog="python -m experiments.weights", description=__doc__.split("\n\n")[0])
     p.add_argument("--dataset", required=True, help="NAME.npz (the project's format), or a Minari dataset "
                    "directory or id")
-    p.add_argument("--out", required=True, type=pathlib.Path, help="the .npz file to write (its directory is made if missing)")
+    p.add_argument("--out", required=True, type=pathlib.Path,
+                   help="the .npz file to write (its directory is made if missing)")
     p.add_argument("--format", choices=FORMATS, default="auto",
                    help="auto (default): .npz files are the project's format, anything else Minari")
     p.add_argument("--ape-steps", type=int, default=5000, help="Adam steps fitting the APE model (default: 5000)")

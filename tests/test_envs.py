@@ -84,7 +84,8 @@ def test_reset_and_step_jit_shapes_and_determinism(name, obs):
     # the same key gives the same trajectory, bit for bit
     r1 = step(reset(k_reset), _action(env, k_act))
     jax.tree.map(lambda a, b: np.testing.assert_array_equal(np.asarray(a), np.asarray(b)), s1, r1)
-    moved = jax.tree.map(lambda a, b: bool(np.any(np.asarray(a) != np.asarray(b))), s0.pipeline_state, s2.pipeline_state)
+    moved = jax.tree.map(lambda a, b: bool(np.any(np.asarray(a) != np.asarray(b))), s0.pipeline_state,
+                         s2.pipeline_state)
     assert any(jax.tree.leaves(moved)), "two steps changed nothing"
 
 

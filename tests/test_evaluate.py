@@ -82,7 +82,8 @@ def test_normalized_score():
 
 def test_loss_analysis_splits_changepoint_and_copycat_samples():
     cfg = LearnerConfig(obs_shape=(1,), action_dim=1, history=1, batch_size=2)
-    params = {"params": jax.tree.map(jnp.zeros_like, cfg.model().init(jax.random.PRNGKey(0), jnp.zeros((1, 1))))["params"]}
+    params = {"params": jax.tree.map(jnp.zeros_like,
+                                     cfg.model().init(jax.random.PRNGKey(0), jnp.zeros((1, 1))))["params"]}
     # the zero network predicts 0: the loss of a sample is its squared action
     data = Data(obs=jnp.zeros((10, 1)), action=jnp.arange(10.0)[:, None], t=jnp.arange(10),
                 ape=jnp.array([0, 0, 0, 0, 0, 0, 0, 0, 0, 9.0]))
@@ -94,7 +95,8 @@ def test_loss_analysis_splits_changepoint_and_copycat_samples():
 
 
 def test_copycat_diagnostics_equal_a_step_by_step_reference():
-    """imitation_error: the policy's action vs the expert's on the policy's own states; rollout_ape: ψ on its actions."""
+    """imitation_error: the policy's action vs the expert's on the policy's own states; rollout_ape: ψ on its
+    actions."""
     from ape_jax import ape as ape_lib
 
     env = envs.make("toycar", obs="full", episode_length=30)

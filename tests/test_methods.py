@@ -124,7 +124,8 @@ def test_the_readme_plugin_runs_from_outside_the_repository_in_the_grid_program(
     """The README's example, as a user would run it: a module in another folder, the sweep started there."""
     plugins = _plugin_dir(tmp_path, "my_weighting", PLUGIN)
     out = tmp_path / "run"
-    proc = _run_sweep(["--plugins", "my_weighting", "--methods", "bc-oh,action-norm", "--env", "toycar", "--obs", "full",
+    proc = _run_sweep(["--plugins", "my_weighting", "--methods", "bc-oh,action-norm",
+                       "--env", "toycar", "--obs", "full",
                        "--iterations", "20", "--eval-episodes", "1", "--step-grid", "0.1:5,0.2:3", "--quiet",
                        "--set", "budget.probe_steps=0",  # no copycat diagnostics: not this test's subject
                        "--out", str(out), "--data-dir", str(tmp_path / "data")], tmp_path, plugins)

@@ -172,7 +172,8 @@ def _a_file(root):
     (_edit_metadata(lambda m: [m]), "not a Minari dataset \\(metadata.json holds a list, not an object\\)"),
     (_edit_metadata(lambda m: {k: v for k, v in m.items() if k not in ("action_space", "data_format")}),
      "not a Minari dataset \\(metadata.json lacks data_format, action_space\\)"),
-    (_edit_metadata(lambda m: {**m, "data_format": "parquet9"}), "not a readable Minari dataset \\(KeyError: 'parquet9'"),
+    (_edit_metadata(lambda m: {**m, "data_format": "parquet9"}),
+     "not a readable Minari dataset \\(KeyError: 'parquet9'"),
     (_edit_metadata(lambda m: {**m, "total_episodes": 99}), "unreadable Minari episodes \\(KeyError"),
 ])
 def test_from_minari_refuses_bad_datasets_with_one_line_naming_the_path(tmp_path, make, message):

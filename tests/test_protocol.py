@@ -20,7 +20,8 @@ from experiments import sweep
 def test_the_fca_protocol_resolves_per_task_from_brax_frame_skips():
     hopper = S.SweepSpec.make("hopper", "pos", ("bc-oh",))
     p = hopper.protocol_settings()
-    assert hopper.protocol.name == "fca" and p["split"] == "rows" and (p["frame_skip"], p["standard_frame_skip"]) == (1, 4)
+    assert hopper.protocol.name == "fca" and p["split"] == "rows" and \
+        (p["frame_skip"], p["standard_frame_skip"]) == (1, 4)
     assert (p["episode_length"], p["reward_scale"], p["train_transitions"], p["val_transitions"]) == \
         (2000, 0.25, 20_000, 4_000)
     assert hopper.episodes == 25   # 50,000 expert steps
@@ -77,7 +78,8 @@ def test_split_sizes_gives_exact_sizes_from_disjoint_episodes():
 
 
 def test_an_unknown_protocol_or_one_the_task_cannot_take_is_refused(capsys):
-    for argv, message in ((["--protocol", "gym"], "unknown protocol 'gym' for hopper; valid: fca, fca-fs2, fca-fs4, fca-train5k, fca-train80k, brax"),
+    for argv, message in ((["--protocol", "gym"], "unknown protocol 'gym' for hopper; valid: fca, fca-fs2, fca-fs4, "
+                                                  "fca-train5k, fca-train80k, brax"),
                           (["--env", "toycar", "--protocol", "fca"], "unknown protocol 'fca' for toycar; valid: brax")):
         with pytest.raises(SystemExit) as exc:
             sweep.parse(argv)

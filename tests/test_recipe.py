@@ -48,7 +48,8 @@ def test_smoke_shrinks_the_amounts_and_keeps_what_a_step_computes():
     assert (smoke.recipe.batch_size, smoke.recipe.step_grid, smoke.recipe.softmax_grid) == (4, ((0.1, 3.0),), (0.1,))
     assert (smoke.protocol.episodes, smoke.protocol.horizon) == (3, 20)
     rows = resolve("hopper", "pos", preset="paper", smoke=True).protocol   # the fca protocol splits by rows
-    assert (rows.split, rows.collect_transitions, rows.train_transitions, rows.val_transitions) == ("rows", 240, 144, 48)
+    assert (rows.split, rows.collect_transitions, rows.train_transitions, rows.val_transitions) == \
+        ("rows", 240, 144, 48)
     assert resolve("hopper", "pos", smoke=True, sets=["budget.iterations=8"]).budget.iterations == 8  # --set wins
     assert resolve("hopper", "pos", preset="default", smoke=True, sets=["budget.probe_steps=0"]).budget.probe_steps == 0
 

@@ -61,7 +61,8 @@ def _fca(frame_skip=1, standard=4, train=20_000):
     """The fca family's protocol dict as `ape_jax.tasks.Protocol.settings` records it: `fca` at frame skip 1, else
     `fca-fs<N>`, 500 standard steps of simulated time, `train` / 4,000 training / validation transitions
     (`-train<N>k` in the name where `train` is not fca's 20,000)."""
-    name = ("fca" if frame_skip == 1 else f"fca-fs{frame_skip}") + ("" if train == 20_000 else f"-train{train // 1000}k")
+    name = ("fca" if frame_skip == 1 else f"fca-fs{frame_skip}") + (
+        "" if train == 20_000 else f"-train{train // 1000}k")
     return {"name": name, "frame_skip": frame_skip,
             "standard_frame_skip": standard, "episode_length": 500 * standard // frame_skip,
             "reward_scale": frame_skip / standard, "collect_transitions": max(50_000, train + 10_000),
@@ -487,8 +488,8 @@ def test_a_plugin_and_the_baselines_are_listed_by_their_recorded_labels(tmp_path
     assert "`python -m experiments.sweep --env hopper --plugins my_plugin` — " in text   # its recorded command
     fig = figures.returns_figure(report.merge(files))
     labels = [t.get_text() for t in fig.axes[0].get_yticklabels()]
-    assert labels == ["BC-SO", "BC-OH", "Ours, step THR 10% W 5", "Ours, best softmax", "DAgger", "FCA (TCA)", "My plugin",
-                      "My online plugin"]
+    assert labels == ["BC-SO", "BC-OH", "Ours, step THR 10% W 5", "Ours, best softmax", "DAgger", "FCA (TCA)",
+                      "My plugin", "My online plugin"]
 
 
 def test_python_m_experiments_report_runs(tmp_path):
@@ -644,7 +645,8 @@ def test_the_plain_reading_follows_the_numbers(tmp_path):
 
     def reading(files):
         text = report.report(files)
-        return text[text.index("### Does keyframe weighting help where the history does not?"):text.index("### Hopper, `pos`")]
+        return text[text.index("### Does keyframe weighting help where the history does not?"):
+                    text.index("### Hopper, `pos`")]
 
     # BC-OH ≈ BC-SO under fca: the return signature of copycat; Ours well above BC-OH
     files = _map_files(tmp_path)
@@ -654,7 +656,8 @@ def test_the_plain_reading_follows_the_numbers(tmp_path):
                                                                                           [590.0, 600.0, 610.0])
     assert verdict(history, "BC-OH", "BC-SO").startswith("not significant")
     (label, row, paper), *grids = ours_differences(m)
-    assert row["hparams"] == {"thr": 0.1, "w": 5.0} and paper.diff == pytest.approx(390.0) and verdict(paper) == "Ours better"
+    assert row["hparams"] == {"thr": 0.1, "w": 5.0} and paper.diff == pytest.approx(390.0) and \
+        verdict(paper) == "Ours better"
     text = reading(files)
     assert "the history adds nothing, the return signature the paper attributes to copycat" in text
     assert "whether it copies is not measured" in text   # the fixture's runs record no diagnostics: never inferred
@@ -667,7 +670,8 @@ def test_the_plain_reading_follows_the_numbers(tmp_path):
     assert verdict(ours_differences(m)[0][2]) == "BC-OH better"
     flipped = reading(files)
     assert "the history helps" in flipped and "BC-OH beats it" in flipped
-    assert "the return signature the paper attributes" not in flipped and "So where the history does not help" not in flipped
+    assert "the return signature the paper attributes" not in flipped and \
+        "So where the history does not help" not in flipped
     # the best of the grids is the softmax τ 0.2 row here, named as selected after the fact
     files = _map_files(tmp_path, fs1=(600.0, 610.0, 500.0))
     best = max(ours_differences(fca_group(files))[1:], key=lambda x: x[2].diff)
@@ -718,7 +722,8 @@ def test_a_longer_run_is_its_own_group_compared_configuration_by_configuration(t
     assert key in merged and merged[key].title == "Hopper (fca, 100,000 iterations)"
     text = report.report(files, tmp_path / "figures")
     section = text[text.index("### Training longer"):]
-    assert "| Hopper (fca, 100,000 iterations): configuration | 30,000 iterations | seeds | 100,000 iterations |" in section
+    assert ("| Hopper (fca, 100,000 iterations): configuration | 30,000 iterations | seeds | "
+            "100,000 iterations |") in section
     assert "| BC-OH | 610 ± 8 (30%) | 3 | 700 ± 10 (35%) | 2 |" in section
     assert "| Ours (step), THR 10% W 5 | 1,000 ± 8 (50%) | 3 | 1,300 ± 10 (65%) | 2 |" in section
     assert (tmp_path / "figures" / "grid-hopper-fca-100000it.png").exists()
@@ -752,7 +757,8 @@ def test_the_copycat_map_adds_training_set_sizes_at_frame_skip_1(tmp_path):
 
 def test_the_plain_reading_names_no_best_of_a_grid_that_did_not_run(tmp_path):
     """A sweep of BC-SO, BC-OH and the paper's step setting alone selected nothing: no "best of our grids"."""
-    only = _results("hopper", (("bc-so", {}, 600.0), ("bc-oh", {}, 610.0), ("ours-step", {"thr": 0.1, "w": 5.0}, 1000.0)))
+    only = _results("hopper", (("bc-so", {}, 600.0), ("bc-oh", {}, 610.0),
+                               ("ours-step", {"thr": 0.1, "w": 5.0}, 1000.0)))
     text = report.report([_loaded(tmp_path, _schema2(only, protocol=_fca(1)), "only.json")])
     reading = text[text.index("### Does keyframe weighting help where the history does not?"):]
     assert "Ours at the paper's step setting (THR 10%, W 5) − BC-OH: +390 return" in reading
@@ -805,7 +811,8 @@ def test_the_recipe_table_compares_recipes_under_one_protocol_apart_from_the_who
     from experiments.report.analysis import recipe_groups, recipe_rows
 
     methods = (("bc-so", {}, 300.0), ("bc-oh", {}, 1000.0), ("ours-step", {"thr": 0.1, "w": 5.0}, 900.0),
-               ("fca", {"alpha": 2.0, "adversary_lr": 4e-4}, 800.0), ("fca", {"alpha": 0.1, "adversary_lr": 4e-4}, 1100.0))
+               ("fca", {"alpha": 2.0, "adversary_lr": 4e-4}, 800.0),
+               ("fca", {"alpha": 0.1, "adversary_lr": 4e-4}, 1100.0))
     mlp = _schema3(_results(methods=methods, deltas=(-10.0, 0.0, 10.0)), "mlp")
     fca = _schema3(_results(methods=tuple((m, hp, r + 400.0) for m, hp, r in methods), deltas=(-10.0, 0.0, 10.0)),
                    "fca")
@@ -933,6 +940,7 @@ def test_the_cli_refreshes_the_contents_of_a_file_that_has_them_and_adds_none_to
         assert report.main([str(main), "--out", str(out)]) == 0
     text = with_toc.read_text()
     assert "Gone" not in text and toc.refresh(text) == text
-    assert "- [Hand-written](#hand-written)\n" in text and "  - Every configuration: [Hopper, `pos` observations" in text
+    assert "- [Hand-written](#hand-written)\n" in text and \
+        "  - Every configuration: [Hopper, `pos` observations" in text
     assert text.index(toc.END) < text.index("## Hand-written") < text.index("<!-- report:start -->")
     assert "toc:" not in without.read_text() and "<!-- report:start -->" in without.read_text()

@@ -107,7 +107,8 @@ def test_a_longer_history_is_a_setting_of_its_own_in_the_map_and_stays_out_of_th
     merged = report.merge(files)   # the same configurations as the history-2 file: a group of its own, not merged
     assert Key("hopper", "pos", "fca.rows.fca.h7") in merged
     settings = [q.setting for q in extended_map(merged)]
-    assert settings == ["recipe mlp, split by rows", "recipe fca, split by rows", "recipe fca, split by rows, history 7"]
+    assert settings == ["recipe mlp, split by rows", "recipe fca, split by rows",
+                        "recipe fca, split by rows, history 7"]
     text, _ = report.build(files)
     recipe = text[text.index("### The paper's recipe"):]
     recipe = recipe[:recipe.index("\n### ")]

@@ -26,7 +26,8 @@ ARGS = ["--env", "toycar", "--obs", "full", "--iterations", "60", "--checkpoint-
         "--set", "budget.probe_steps=100"]   # the diagnostics' fits shortened (quick's: 500 steps)
 
 # Runs the sweep's command line and SIGKILLs itself right after the KILL_AT-th save of kind KILL_KIND:
-# "train" (a training state, orbax) or "phase" (saved arrays: the APE fit, policies kept at eval_at, an evaluation group).
+# "train" (a training state, orbax) or "phase" (saved arrays: the APE fit, policies kept at eval_at, an evaluation
+# group).
 KILLER = """
 import os, signal, sys
 from ape_jax.pipeline import checkpoint
@@ -304,7 +305,8 @@ def test_a_saved_policy_is_watched_as_a_captioned_gif_of_its_evaluation_episode(
         im.seek(im.n_frames // 2)
         frame = np.asarray(im.convert("RGB"))
     assert frame[:256].std() > 5 and (frame[256:] < 100).any()   # a picture, and dark caption text
-    for argv, message in ((["--video", "nope"], "no trained policy of method 'nope' in this sweep; it ran: bc-oh, ours-step"),
+    for argv, message in ((["--video", "nope"], "no trained policy of method 'nope' in this sweep; it ran: "
+                                                "bc-oh, ours-step"),
                           (["--video", "bc-oh:7"], "has no seed 7"),
                           (["--video", "bc-oh:x"], "must be an integer"),
                           (["--video", "bc-oh", "--episode", "5"], "episode 5 is not one of the evaluation's 2"),

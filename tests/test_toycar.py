@@ -154,8 +154,8 @@ def _drive(env, act, state, steps):
 
 def test_a_small_bc_so_trained_on_a_few_hundred_samples_stops_for_a_red_light_and_goes_on_green():
     """Behaviour, not a falling loss: BC-SO (one frame of the full state, the project's learner, ToyCar's L1 loss)
-    trained on 720 expert steps stops before a red light at a place it never saw in training, never crosses it in 15 s, and
-    drives through a green one."""
+    trained on 720 expert steps stops before a red light at a place it never saw in training, never crosses it in 15 s,
+    and drives through a green one."""
     from ape_jax import methods
     from ape_jax.learner import Data, LearnerConfig, make_train
 
@@ -185,6 +185,7 @@ def test_a_small_bc_so_trained_on_a_few_hundred_samples_stops_for_a_red_light_an
 
     red, _ = drive(env, policy, _held(env, 3.0, 7.0, 52.0, 0.0), 150)   # a red light at 52 m for 15 s
     assert float(red.x.max()) < 52.0, "the policy ran the red light"
-    assert float(red.v.min()) < 0.05 and float(red.x[-1]) > 45.0, (float(red.v.min()), float(red.x[-1]))  # stops near it
+    # stops near it
+    assert float(red.v.min()) < 0.05 and float(red.x[-1]) > 45.0, (float(red.v.min()), float(red.x[-1]))
     green, _ = drive(env, policy, _held(env, 3.0, 7.0, 52.0, 1.0), 100)  # the same light held green
     assert float(green.x[-1]) > 80.0, float(green.x[-1])

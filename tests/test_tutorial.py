@@ -115,7 +115,8 @@ def test_the_runner_executes_in_this_venv_and_names_the_cell_that_fails(tmp_path
     assert path.read_bytes() == before   # the notebook itself is never written
     executed = nbformat.read(tmp_path / "executed.ipynb", as_version=4)
     printed = "".join(o.get("text", "") for o in executed.cells[1].outputs).split("\n")
-    assert printed[0] == sys.prefix and printed[1] == str(path.parent.resolve())   # this venv's kernel, in the notebook's folder
+    # this venv's kernel, in the notebook's folder
+    assert printed[0] == sys.prefix and printed[1] == str(path.parent.resolve())
     assert executed.cells[3].outputs == []
 
     nb.cells = nb.cells[:2]
@@ -129,7 +130,8 @@ def test_the_runner_refuses_a_kernel_of_another_environment_before_the_first_cel
     """A `python3` kernel spec found before the venv's (here through JUPYTER_PATH) runs another Python: refused."""
     spec = tmp_path / "jupyter" / "kernels" / "python3"
     spec.mkdir(parents=True)
-    elsewhere = "import sys; sys.prefix = '/elsewhere'; from ipykernel import kernelapp; kernelapp.launch_new_instance()"
+    elsewhere = ("import sys; sys.prefix = '/elsewhere'; from ipykernel import kernelapp; "
+                 "kernelapp.launch_new_instance()")
     (spec / "kernel.json").write_text(json.dumps({"argv": [sys.executable, "-c", elsewhere, "-f", "{connection_file}"],
                                                   "display_name": "another", "language": "python"}))
     path = tmp_path / "one.ipynb"

@@ -122,7 +122,8 @@ def test_weights_refuses_an_out_that_cannot_be_written(dataset, tmp_path, capsys
 
 @pytest.mark.parametrize("make, message", [
     (_raw(_set("reward", lambda r: r.astype(str))), "'reward' must be numbers (bool, int or float), got <U"),
-    (_raw(_set("done", lambda d: d.astype(np.complex64))), "'done' must be numbers (bool, int or float), got complex64"),
+    (_raw(_set("done", lambda d: d.astype(np.complex64))),
+     "'done' must be numbers (bool, int or float), got complex64"),
     (_raw(_set("sim/q", lambda q: q.astype(str))), "'sim/q' must be numbers"),
     (_raw(_set("executed", lambda e: e.astype(str))), "'executed' must be a float array shaped like 'action' [55, 2]"),
     (_raw(_set("executed", lambda e: e[:, :1])), "'executed' must be a float array shaped like 'action' [55, 2], "

@@ -96,7 +96,8 @@ class SweepCheckpoint:
         self.save_s = 0.0     # seconds spent saving, phase outputs and training states
 
     def open(self) -> bool:
-        """Validates an existing directory or creates a new one; True (and `resumed`) when there is something to resume."""
+        """Validates an existing directory or creates a new one; True (and `resumed`) when there is something to
+        resume."""
         path = self.directory / FINGERPRINT
         if self.directory.exists():
             try:

@@ -191,8 +191,9 @@ class Demonstrations:
             held += sizes[int(e)]
         rest = [int(e) for e in ids if int(e) not in val_ids]
         if sum(sizes[e] for e in rest) < train:
-            raise ValueError(f"the validation split's {len(val_ids)} whole episodes leave {sum(sizes[e] for e in rest):,} "
-                             f"transitions, fewer than {train:,} for training; collect more episodes")
+            raise ValueError(f"the validation split's {len(val_ids)} whole episodes leave "
+                             f"{sum(sizes[e] for e in rest):,} transitions, fewer than {train:,} for training; "
+                             "collect more episodes")
 
         def rows(episodes, n):
             idx = np.concatenate([np.flatnonzero(episode == e) for e in episodes])

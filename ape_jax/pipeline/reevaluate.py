@@ -132,7 +132,8 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
             key = _key(run)
             if key not in records:
                 raise ReevaluationError(f"a saved policy ({run['method']} {run['hparams']} seed {run['seed']}) "
-                                        "has no run in results.json: the params and the results are of different sweeps")
+                                        "has no run in results.json: the params and the results are of different "
+                                        "sweeps")
             was, ev = records[key].get("eval") or {}, new_records[key].setdefault("eval", {})
             diag = results_lib.diagnostics_record(out, j) if lacking else None
             if diag is not None and "diagnostics" not in records[key]:

@@ -415,7 +415,8 @@ _TEXT = (lambda v: isinstance(v, str), "a string")
 _OBJECT = (lambda v: isinstance(v, dict), "an object")
 _SUMMARY = {"method": _TEXT, "hparams": (_hparams, "an object of numbers"),
             "n_seeds": (_count, "an int >= 0"),
-            "return_mean": (_optional(_number), "a number or null"), "return_std": (_optional(_number), "a number or null")}
+            "return_mean": (_optional(_number), "a number or null"),
+            "return_std": (_optional(_number), "a number or null")}
 _RUN = {"method": _TEXT, "hparams": (_hparams, "an object of numbers"), "status": _TEXT}
 _EVAL = {"return_mean": (lambda v: _number(v) and math.isfinite(v), "a finite number"),
          "normalized": (_optional(_number), "a number or null")}
@@ -423,7 +424,8 @@ _DIAGNOSTICS = {"verdict": (lambda v: v in ("copycat", "not copycat"), "'copycat
                 **{k: (_optional(_number), "a number or null")
                    for k in ("embedding_ratio", "prev_from_embedding", "prev_from_action", "velocity_ratio",
                              "predictability_ratio", "policy_mse", "expert_mse")}}
-_LATER_DIAGNOSTICS = {k: (_optional(_number), "a number or null") for k in ("prev_from_state", "state_ratio")}  # optional
+_LATER_DIAGNOSTICS = {k: (_optional(_number), "a number or null")
+                      for k in ("prev_from_state", "state_ratio")}  # optional
 _LOSSES = {s: (lambda v: isinstance(v, dict) and all(
     _number(v.get(k)) for k in ("unweighted", "changepoint", "copycat")), "an object with numbers unweighted, "
     "changepoint and copycat") for s in ("train", "val")}
@@ -441,7 +443,8 @@ def validate(obj: dict, where: str = "results") -> None:
     if obj.get("schema") == 3:
         _row(f"{where}:", obj, {"settings": _OBJECT})
         _row(f"{where}: settings", obj["settings"], {k: _OBJECT for k in SECTIONS})
-    _row(f"{where}: config", obj["config"], {k: (_count, "an int >= 0") for k in ("iterations", "seeds", "eval_episodes")})
+    _row(f"{where}: config", obj["config"], {k: (_count, "an int >= 0")
+                                             for k in ("iterations", "seeds", "eval_episodes")})
     _row(f"{where}: expert", obj["expert"], {k: (_optional(_number), "a number or null")
                                              for k in ("return_mean", "return_std", "random_return_mean")})
     for i, row in enumerate(obj["summary"]):

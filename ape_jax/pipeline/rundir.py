@@ -6,7 +6,7 @@
 
 | path | what | written by |
 |---|---|---|
-| `results.json` | the record of every run and the summary | `results.save`, last: its presence means the sweep finished |
+| `results.json` | every run's record and the summary | `results.save`, last: its presence means the sweep finished |
 | `results.csv` | one summary row per configuration | `results.write_csv` |
 | `params/` | the trained policies, `h<H>/` (orbax) beside `h<H>.json` | `checkpoint.save_policies` |
 | `checkpoints/` | a running sweep's state, deleted when it finishes | `checkpoint.SweepCheckpoint` |

@@ -113,7 +113,8 @@ def main(argv=None) -> int:
     info["matmul_n"] = n
     info["matmul_peak_flops_s"] = {name: matmul_peak(args.repeats, (n,), dtype)[n]
                                    for name, dtype in (("float32", jnp.float32), ("bfloat16", jnp.bfloat16))}
-    print(f"matmul {n}×{n}: " + ", ".join(f"{k} {v / 1e12:,.2f} TFLOP/s" for k, v in info["matmul_peak_flops_s"].items()),
+    print(f"matmul {n}×{n}: "
+          + ", ".join(f"{k} {v / 1e12:,.2f} TFLOP/s" for k, v in info["matmul_peak_flops_s"].items()),
           flush=True)
     grid = grid_throughput(sizes["iters"], 1 if args.smoke else args.seeds, args.repeats)
     grid["fraction_of_float32_peak"] = grid["flops_s"] / info["matmul_peak_flops_s"]["float32"]

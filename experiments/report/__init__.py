@@ -1,4 +1,5 @@
-"""Tables and figures for BENCHMARKS.md: `python -m experiments.report RESULTS... [--out BENCHMARKS.md] [--figures DIR]`.
+"""Tables and figures for BENCHMARKS.md:
+`python -m experiments.report RESULTS... [--out BENCHMARKS.md] [--figures DIR]`.
 
 Reads `results.json` files written by `experiments.sweep` and merges them per
 task, observation mode and protocol (several files of one group are joined,
@@ -88,7 +89,7 @@ def report(files: list, figure_dir: pathlib.Path | None = None, base: pathlib.Pa
 
 
 def main(argv=None) -> int:
-    p = Parser(prog="python -m experiments.report", description=__doc__.splitlines()[0])
+    p = Parser(prog="python -m experiments.report", description=__doc__.split("\n\n")[0])
     p.add_argument("results", nargs="+", type=pathlib.Path, help="results.json files of experiments.sweep")
     p.add_argument("--out", type=pathlib.Path, default=None,
                    help="write into this file's `report` section (BENCHMARKS.md) instead of printing")

@@ -48,7 +48,8 @@ from experiments.report.analysis.weights import (APE_SCALES, WeightShares, ape_m
                                                  weight_shares)
 
 __all__ = [
-    "APE_SCALES", "BOOTSTRAP_RESAMPLES", "LEARNED", "Estimate", "RateReading", "per_seed", "rate_reading", "BOOTSTRAP_SEED", "BRAX", "BUDGET_METHODS", "FCA", "FCA_TRAIN",
+    "APE_SCALES", "BOOTSTRAP_RESAMPLES", "LEARNED", "Estimate", "RateReading", "per_seed", "rate_reading",
+    "BOOTSTRAP_SEED", "BRAX", "BUDGET_METHODS", "FCA", "FCA_TRAIN",
     "MAP_METHODS", "MUJOCO", "RECIPE_METHODS", "AlphaRow", "BudgetPoint", "BudgetRow", "Choice", "CopycatMap",
     "DiagnosticsRow", "Difference", "Gap", "Group", "Interval", "Key", "LongerRow", "MapCell", "MapPoint", "MapRow",
     "Merged", "PolicyDiagnostics", "RecipeCell", "RecipeRow", "ReportError", "Source", "Spread", "TrainingPoint",

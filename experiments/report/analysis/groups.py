@@ -172,7 +172,8 @@ def protocol_of(res: results_lib.Results, where: str = "") -> dict:
 def variant_name(res: results_lib.Results, protocol: dict) -> str:
     """The group name of a file's setting: its protocol's name for files split by episode with the `mlp` recipe (every
     file before results schema 3), else `NAME.SPLIT.RECIPE` (e.g. `fca.rows.fca`), a group of its own: the recipe
-    section (`recipe_groups`, `recipe_rows`) compares them, and they never join the copycat map or the whole-episode tables."""
+    section (`recipe_groups`, `recipe_rows`) compares them, and they never join the copycat map or the whole-episode
+    tables."""
     split, recipe = protocol.get("split") or "episodes", res.recipe_name
     history, expert = other_history(protocol), protocol.get("expert")
     if (split, recipe, history, expert) == ("episodes", "mlp", None, None):

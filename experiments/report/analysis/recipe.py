@@ -149,7 +149,8 @@ def paper_budget_groups(merged: Merged) -> list[Group]:
     """The groups of the paper's protocol (fca, any split) under the `fca` recipe trained for the `paper` preset's
     iterations: the issue's 300k table, one group per state task, in task order."""
     return [m for key, m in ordered(merged) if key.env in MUJOCO and key.obs == "pos"
-            and all(src.preset == "paper" and trained_its_preset(src) for src in m.sources) and m.protocol.get("variant_of") == FCA
+            and all(src.preset == "paper" and trained_its_preset(src) for src in m.sources)
+            and m.protocol.get("variant_of") == FCA
             and m.protocol.get("recipe") == "fca" and not other_setting(m.protocol)]
 
 

@@ -25,7 +25,8 @@ from experiments.report.paper import PAPER_STEP, PAPER_STEP_LABEL, PAPER_TAU
 
 
 def grid_figure(m: Group) -> Figure | None:
-    """The grid search of one group (task, observation mode, protocol) as heatmaps (step THR × W, softmax τ), or None if neither was run."""
+    """The grid search of one group (task, observation mode, protocol) as heatmaps (step THR × W, softmax τ), or None if
+    neither was run."""
     prefix, unit = display_metric(m)
     panels = []
     step = {(r["hparams"]["thr"], r["hparams"]["w"]): r for r in method_rows(m, "ours-step")

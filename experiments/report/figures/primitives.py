@@ -136,8 +136,8 @@ def heatmap(title: str, panels: Sequence[Grid], center: float | None, unit: str 
 
 class Lines(NamedTuple):
     """One line panel: `series` of `(label, x, y, band)` or `(label, x, y, band, style)`, `band` the ± half-width
-    around y, a tuple `(lower, upper)` of the band's edges, or None, `style` matplotlib line keywords (e.g. `{"ls": "--", "color": "C0"}`); a series whose
-    label is "" stays out of the legend."""
+    around y, a tuple `(lower, upper)` of the band's edges, or None, `style` matplotlib line keywords (e.g.
+    `{"ls": "--", "color": "C0"}`); a series whose label is "" stays out of the legend."""
 
     title: str
     xlabel: str
@@ -330,7 +330,8 @@ def keyframes(ape: np.ndarray, actions: np.ndarray, threshold: float, frames: np
     for run_start, run_stop in _runs(keyframe[start:stop]):
         ax_act.axvspan(start + run_start - 0.5, start + run_stop - 0.5, color=KEY_COLOR, alpha=0.18, lw=0)
     for i in range(actions.shape[1]):
-        ax_act.plot(t, actions[start:stop, i], lw=1.0, label=names[i], marker="." if stop - start <= 300 else None, ms=2.5)
+        ax_act.plot(t, actions[start:stop, i], lw=1.0, label=names[i], marker="." if stop - start <= 300 else None,
+                    ms=2.5)
     ax_act.set_ylabel("expert action")
     ax_act.set_xlabel("step t in the episode")
     ax_act.set_xlim(start - 0.5, stop - 0.5)

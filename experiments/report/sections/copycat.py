@@ -31,7 +31,8 @@ def copycat_map_table(maps: list[CopycatMap]) -> str:
             if r.history_ci is not None:
                 history += f" [{r.history_ci.low:+.1f}, {r.history_ci.high:+.1f}]"
             train = "—" if r.train_transitions is None else f"{r.train_transitions:,}"
-            lines.append(f"| {cm.title} | {r.frame_skip} | {train} | {r.protocol} | " + " | ".join(map(_map_cell, r.cells))
+            lines.append(f"| {cm.title} | {r.frame_skip} | {train} | {r.protocol} | "
+                         + " | ".join(map(_map_cell, r.cells))
                          + " | " + " / ".join("—" if c is None else str(c.n) for c in r.cells) + f" | {history} | "
                          + ("—" if r.ceiling is None else f"{r.ceiling:.1f}") + " |")
     return "\n".join(lines) + "\n"
@@ -114,15 +115,16 @@ def extended_map_section(ctx: Context) -> list[Section]:
     drawn = ctx.figure("copycat-map-extended.png", "Where copycat appears: the history's benefit and BC-OH's "
                        "diagnostics along each axis", lambda: figures.extended_map_figure(points))
     out = list(drawn.lines)
-    lead = "| task | recipe, split | frame skip | training transitions | run | at | "  # and a history not the protocol's
+    # the "recipe, split" column also names a history not the protocol's
+    lead = "| task | recipe, split | frame skip | training transitions | run | at | "
     out += [lead + " | ".join(names) + " | BC-OH − BC-SO [95% CI] |", "|---|---|---:|---:|---:|---:|"
             + "---:|" * (len(names) + 1)]
 
     def cells(q: MapPoint) -> str:
         history = ("" if q.observations is None else f", history {q.observations}") + (
             "" if q.expert is None else f", expert {q.expert}")
-        return (f"| {tasks.get(q.env).title} | {q.recipe}, {q.split}{history} | {q.frame_skip} | {q.train_transitions:,} | "
-                f"{thousands(q.run)} | {thousands(q.iteration)} | ")
+        return (f"| {tasks.get(q.env).title} | {q.recipe}, {q.split}{history} | {q.frame_skip} | "
+                f"{q.train_transitions:,} | {thousands(q.run)} | {thousands(q.iteration)} | ")
 
     out += [cells(q) + " | ".join(map(_map_cell, q.cells)) + f" | {diff_cell(q.history)} |" for q in points]
     out += [""]

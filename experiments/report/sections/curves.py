@@ -37,7 +37,8 @@ def sensitivity_table(merged: Merged) -> str | None:
             spread = max(r["return_mean"] for r in got) - min(r["return_mean"] for r in got)
             std = max(r["return_std"] for r in got)
             word = "within" if spread <= std else "beyond"
-            lines.append(f"\nOver {name}: the means span {spread:,.0f}, {word} the largest std over seeds ({std:,.0f}).")
+            lines.append(f"\nOver {name}: the means span {spread:,.0f}, {word} the largest std over seeds "
+                         f"({std:,.0f}).")
     return "\n".join(lines) + "\n"
 
 

@@ -99,8 +99,8 @@ def paper_choices(m: Group) -> list[str]:
             return f"{_fmt(*g.chosen, prefix)}, the best of the {len(rows)} {kind} settings"
         where = (f"within one std over seeds ({g.noise:.1f}) of the best" if g.within else
                  f"more than one std over seeds ({g.noise:.1f}) below the best: not near it")
-        return (f"{_fmt(*g.chosen, prefix)} vs the best, {SETTING_WORDS[kind](best['hparams'])}, {_fmt(*g.best, prefix)}: "
-                f"{g.gap:.1f}{pts} lower, {where}")
+        return (f"{_fmt(*g.chosen, prefix)} vs the best, {SETTING_WORDS[kind](best['hparams'])}, "
+                f"{_fmt(*g.best, prefix)}: {g.gap:.1f}{pts} lower, {where}")
 
     out = []
     for c in choices(m):

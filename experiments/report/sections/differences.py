@@ -72,8 +72,8 @@ def plain_reading(merged: Merged, maps: list[CopycatMap]) -> list[str]:
             meaning = ("the history helps" if not copycat else
                        "the history hurts, the return signature the paper attributes to copycat" if history.high < 0
                        else "the history adds nothing, the return signature the paper attributes to copycat")
-            text.append(f"Under fca BC-OH is {where} BC-SO ({history.diff:+{number}} {unit}, {ci_text(history, '+,.0f')}):"
-                        f" {meaning}.")
+            text.append(f"Under fca BC-OH is {where} BC-SO ({history.diff:+{number}} {unit}, "
+                        f"{ci_text(history, '+,.0f')}): {meaning}.")
         text.append(_bcoh_diagnosed(m))
         ours = ours_differences(m)
         paper = next(((row, ci) for _, row, ci in ours if row["method"] == "ours-step"

@@ -36,7 +36,8 @@ def recipe_section(ctx: Context) -> list[Section]:
         out += [f"**{title}**, protocol {setting}:", "",
                 "| method | " + " | ".join(f"recipe {n}" for n in names) + " | fca − mlp |",
                 "|---|" + "---:|" * (len(names) + 1)]
-        out += [f"| {r.label} | " + " | ".join(pct_cell(r.cells.get(n)) for n in names) + f" | {diff_cell(r.difference)} |"
+        out += [f"| {r.label} | " + " | ".join(pct_cell(r.cells.get(n)) for n in names)
+                + f" | {diff_cell(r.difference)} |"
                 for r in rows]
         out += [""]
         lines = []
@@ -100,7 +101,8 @@ def _budget_reading(rows: list[BudgetRow], diffs: list[tuple[str, dict[int, Inte
     bcoh = by.get("bc-oh")
     if bcoh is not None:
         seen = [(p.iteration, p) for p in bcoh.points if p.normalized is not None]
-        parts.append("BC-OH reaches " + ", ".join(f"{p.normalized.mean:.1f}% of expert at {thousands(i)}" for i, p in seen))
+        parts.append("BC-OH reaches " + ", ".join(f"{p.normalized.mean:.1f}% of expert at {thousands(i)}"
+                                                  for i, p in seen))
         judged = [(i, p.diagnostics) for i, p in seen if p.diagnostics.read]
         if judged:
             parts.append("it is judged copycat in " + ", ".join(f"{d.copycats} of {d.read} seeds at {thousands(i)}"
@@ -156,16 +158,17 @@ def paper_budget_section(ctx: Context) -> list[Section]:
                        + " | " + ("—" if ret is None else f"{ret.mean:,.0f} [{ret.low:,.0f}, {ret.high:,.0f}]")
                        + f" | {ratio} | {paper} | {paper_ratio} |")
     out += ["", "Differences over seeds in points of % of expert at each iteration: BC-OH − BC-SO (what the history "
-            "adds; the paper reads copycat from it not helping) and each other method − BC-OH (does it beat BC-OH?), with "
-            "95% bootstrap intervals (each arm's seeds resampled independently), bold where the interval excludes "
-            "0.", "", "| task | difference | " + " | ".join(f"at {i:,}" for i in its) + " |",
+            "adds; the paper reads copycat from it not helping) and each other method − BC-OH (does it beat BC-OH?), "
+            "with 95% bootstrap intervals (each arm's seeds resampled independently), bold where the interval "
+            "excludes 0.", "", "| task | difference | " + " | ".join(f"at {i:,}" for i in its) + " |",
             "|---|---|" + "---:|" * len(its)]
     diffs = [budget_differences(task) for task in rows]
     state = any(p.diagnostics.state is not None for task in rows for r in task for p in r.points)
     for task, d in zip(rows, diffs):
         out += [f"| {tasks.get(task[0].env).title} | {lab} | " + " | ".join(diff_cell(ci.get(i)) for i in its) + " |"
                 for lab, ci in d]
-    out += ["", "The copycat diagnostics at each iteration (medians over seeds, " + " → ".join(thousands(i) for i in its)
+    out += ["", "The copycat diagnostics at each iteration (medians over seeds, "
+            + " → ".join(thousands(i) for i in its)
             + "): the embedding ratio (the embedding probe's held-out error on a_{t−1} ÷ the same probe's from a_t "
             "alone: below 1 the embedding carries the previous action beyond what the current one gives), the "
             "predictability ratio (a ψ-architecture predictor's held-out error on the policy's own rollout actions ÷ "
@@ -174,7 +177,8 @@ def paper_budget_section(ctx: Context) -> list[Section]:
             + ("; and beside them, where recorded, the embedding probe's error ÷ the same probe's from the true "
                "state at t (below 1: the embedding carries a_{t−1} beyond what the state itself tells)" if state
                else "") + ".", "",
-            "| task | method | embedding ratio | predictability ratio | copycat |" + (" embedding ÷ state |" if state else ""),
+            "| task | method | embedding ratio | predictability ratio | copycat |"
+            + (" embedding ÷ state |" if state else ""),
             "|---|---|---:|---:|---:|" + ("---:|" if state else "")]
     for task in rows:
         title = tasks.get(task[0].env).title
