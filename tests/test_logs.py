@@ -224,3 +224,25 @@ def test_a_curve_log_writes_while_training_and_ends_as_one_write_at_the_end(tmp_
             np.testing.assert_array_equal(a[tag][0], b[tag][0])
             np.testing.assert_array_equal(a[tag][1], b[tag][1])
     assert sorted(p.name for p in (live / "tensorboard").iterdir()) == sorted(run_label(r) for r in RUNS)
+
+
+def test_a_curve_log_gathers_tiny_chunks_into_at_most_fifty_writes(tmp_path):
+    """A CPU image sweep hands over a chunk every 10 iterations: `CurveLog` writes once `iterations / 50` have
+    gathered, so a run's directory gets at most ~50 event files while training, and every row still lands."""
+    from ape_jax.pipeline.logs import FLUSHES, CurveLog
+
+    total, chunk = 5_000, 10
+    loss = np.random.default_rng(2).normal(size=(3, total)).astype(np.float32)
+    log = CurveLog(tmp_path, "grid", RUNS, total)
+    log.start(None)
+    assert log.flush_every == total // FLUSHES == 100
+    for start in range(0, total, chunk):
+        log.append({"loss": loss[:, start:start + chunk]})
+        if start + chunk == 2_000:   # mid-training: all but the last < 100 iterations written, every run alike
+            rows = read_csv(tmp_path / "curves" / "grid.csv")
+            assert 3 * (2_000 - 100) < len(rows) <= 3 * 2_000 and len(rows) % 3 == 0
+    events = list((tmp_path / "tensorboard" / run_label(RUNS[0])).iterdir())
+    assert len(events) <= FLUSHES + 1
+    log.close()
+    assert len(read_csv(tmp_path / "curves" / "grid.csv")) == 3 * total
+    assert len(list((tmp_path / "tensorboard" / run_label(RUNS[0])).iterdir())) == 1   # rewritten whole

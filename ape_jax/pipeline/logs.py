@@ -44,7 +44,8 @@ label (a resumed sweep) whole, so no stale event files are left behind.
 OUT/tensorboard` shows a sweep while it trains: `start` writes the curves a
 resumed program restored from its checkpoint (or just the CSV's header), each
 `append` adds a chunk's rows to the CSV (in chunk order: within a chunk, runs in
-order, iterations ascending) and its finished windows to each run's event file
+order, iterations ascending; chunks shorter than 1/50 of the program are gathered
+first, so a program is written at most 50 times) and its finished windows to each run's event file
 (the window width is the whole program's, so a window is logged once, when its
 last iteration is in); `close` then rewrites both whole with `write_curves`,
 so a finished program's files are exactly what one write at the end gives.
@@ -72,6 +73,7 @@ _UNSAFE = re.compile(r"[^A-Za-z0-9._=-]")
 _METRIC_NAME = re.compile(r"[A-Za-z0-9_.-]+")
 _FIXED_COLUMNS = ("run", "method", "hparams", "seed", "iteration")
 _ROWS_PER_CHUNK = 8192  # bounds the size of one formatted block (the paper preset has 300k iterations)
+FLUSHES = 50  # `CurveLog` writes at most this many times per program (plus the first write and the last)
 
 
 def run_label(run: Any) -> str:
@@ -139,7 +141,10 @@ class CurveLog:
         self.out_dir, self.program, self.runs = pathlib.Path(out_dir), program, list(runs)
         self._out = RunDir(out_dir)
         self.iterations, self.tb_points = iterations, tb_points
+        # at most FLUSHES writes per program: a CPU image sweep hands over a chunk every 10 iterations
+        self.flush_every = max(1, math.ceil(iterations / FLUSHES))
         self._chunks: list[dict[str, np.ndarray]] = []
+        self._written = 0   # the iterations on disk
         self._labels: list[str] | None = None
 
     @property
@@ -154,18 +159,26 @@ class CurveLog:
             self._open({k: np.asarray(v) for k, v in restored.items()})
 
     def append(self, metrics: dict[str, np.ndarray]) -> None:
-        """Adds the next chunk's metrics (`[len(runs), n]` per metric)."""
+        """Adds the next chunk's metrics (`[len(runs), n]` per metric); written once `flush_every` iterations
+        have gathered since the last write (every chunk of a state sweep)."""
         metrics = {k: np.asarray(v) for k, v in metrics.items()}
         if self._labels is None:
             self._open(metrics)
             return
         if list(metrics) != list(self._chunks[0]):
             raise ValueError(f"a chunk's metrics {list(metrics)} are not the program's {list(self._chunks[0])}")
-        first = self.done + 1
         self._chunks.append(metrics)
+        if self.done - self._written >= self.flush_every:
+            self._flush()
+
+    def _flush(self) -> None:
+        """Appends the iterations not yet on disk: their CSV rows, and the TensorBoard windows they complete."""
+        pending = _concat_chunks(self._chunks)
+        pending = {k: v[:, self._written:] for k, v in pending.items()}
         with open(self._out.curve_csv(self.program), "a", encoding="utf-8", newline="") as f:
-            _write_rows(f, self.runs, self._labels, metrics, first)
-        self._log_windows(first - 1)
+            _write_rows(f, self.runs, self._labels, pending, self._written + 1)
+        self._log_windows(self._written)
+        self._written = self.done
 
     def close(self) -> None:
         """Rewrites both files whole (`write_curves`), as one write at the end would."""
@@ -174,9 +187,10 @@ class CurveLog:
             write_curves(self.out_dir, self.program, self.runs, metrics, self.tb_points)
 
     def _open(self, metrics: dict[str, np.ndarray]) -> None:
-        """The first curves: the CSV and every run's event file written whole, then kept open for appending."""
+        """The first curves: the CSV and every run's event file written whole (what later writes append to)."""
         self._labels = _check(self.program, self.runs, metrics, self.tb_points)
         self._chunks = [metrics]
+        self._written = self.done
         _write_csv(self._out.curve_csv(self.program), self.runs, self._labels, metrics)
         tb_root = self._out.tensorboard
         tb_root.mkdir(parents=True, exist_ok=True)
