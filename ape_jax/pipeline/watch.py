@@ -68,8 +68,9 @@ def parse_choice(text: str) -> tuple[str, int | None]:
 
 
 def choose_run(results: Results, method: str, seed: int | None) -> dict:
-    """The run record to show: `method`'s (its configuration with the best mean return over seeds where it ran
-    several, as the report's "best" rows choose), at `seed` (default: its first)."""
+    """The run record to show: `method`'s (its configuration with the best mean over seeds of the task's main
+    metric, `results.main_metric`, where it ran several, as the report's "best" rows choose), at `seed`
+    (default: its first)."""
     runs = [r for r in results.runs if r["method"] == method and r.get("status", "ok") == "ok"]
     if not runs:
         ran = sorted({r["method"] for r in results.runs})
@@ -77,7 +78,8 @@ def choose_run(results: Results, method: str, seed: int | None) -> dict:
     settings = {}
     for r in runs:
         settings.setdefault(json_key(r["hparams"]), []).append(r)
-    best = max(settings.values(), key=lambda rs: np.mean([r["eval"]["return_mean"] for r in rs]))
+    key = "return_mean" if results.main_metric == "return" else results.main_metric
+    best = max(settings.values(), key=lambda rs: np.mean([r["eval"][key] for r in rs]))
     if seed is None:
         return min(best, key=lambda r: r["seed"])
     chosen = [r for r in best if r["seed"] == seed]
