@@ -138,8 +138,7 @@ class CurveLog:
                  tb_points: int = 1000):
         if iterations < 1:
             raise ValueError(f"a program of {iterations} iterations has no curves")
-        self.out_dir, self.program, self.runs = pathlib.Path(out_dir), program, list(runs)
-        self._out = RunDir(out_dir)
+        self._out, self.program, self.runs = RunDir(out_dir), program, list(runs)
         self.iterations, self.tb_points = iterations, tb_points
         # at most FLUSHES writes per program: a CPU image sweep hands over a chunk every 10 iterations
         self.flush_every = max(1, math.ceil(iterations / FLUSHES))
@@ -184,7 +183,7 @@ class CurveLog:
         """Rewrites both files whole (`write_curves`), as one write at the end would."""
         if self._chunks:
             metrics = _concat_chunks(self._chunks)
-            write_curves(self.out_dir, self.program, self.runs, metrics, self.tb_points)
+            write_curves(self._out.root, self.program, self.runs, metrics, self.tb_points)
 
     def _open(self, metrics: dict[str, np.ndarray]) -> None:
         """The first curves: the CSV and every run's event file written whole (what later writes append to)."""
