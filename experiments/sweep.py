@@ -71,7 +71,9 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
     p.add_argument("--methods", default="default",
                    help="comma list of method names, or the shortcuts all, baselines, default, plugins "
                         f"(default: {','.join(methods.default())}); built-in: {', '.join(methods.names())}")
-    p.add_argument("--seeds", type=int, default=None, help="seeds per configuration (default: the preset's)")
+    p.add_argument("--seeds", type=int, default=None,
+                   help="seeds per configuration (default: the preset's); with --set budget.first_seed=K the seeds K, "
+                        "..., K+N-1, to split a long sweep into files the report merges")
     p.add_argument("--iterations", type=int, default=None, help="training iterations (default: the preset's)")
     p.add_argument("--eval-episodes", type=int, default=None, help="evaluation episodes (default: the preset's)")
     p.add_argument("--step-grid", default=None, metavar="THR:W,...",
@@ -361,6 +363,14 @@ def _train_share(spec, procs: _distributed.Processes) -> int:
     return 0
 
 
+def _seed_words(budget) -> str:
+    """`"3 seed(s)"`, or `"seeds 4-7"` for a sweep that starts past seed 0."""
+    if not budget.first_seed:
+        return f"{budget.seeds} seed(s)"
+    return f"seed {budget.first_seed}" if budget.seeds == 1 else \
+        f"seeds {budget.first_seed}-{budget.first_seed + budget.seeds - 1}"
+
+
 def _network(recipe, obs: str) -> str:
     """The policy network the run line names: the state network, or the image encoder with its settings."""
     if obs != "image":
@@ -391,7 +401,7 @@ def _run(args: argparse.Namespace, spec, checkpoint, created: bool) -> int:
     proto = spec.protocol_settings()
     print(f"sweep: {args.env} ({args.obs}), protocol {spec.protocol.name} (frame skip {proto['frame_skip'] or '-'}, "
           f"{proto['episode_length']:,}-step episodes, split by {spec.protocol.split}), preset {args.preset}: "
-          f"{b.iterations:,} iterations, {b.seeds} seed(s), {b.eval_episodes} evaluation episodes; recipe {r.name} "
+          f"{b.iterations:,} iterations, {_seed_words(b)}, {b.eval_episodes} evaluation episodes; recipe {r.name} "
           f"({_network(r, args.obs)}, Adam {r.lr:g} β1 {r.beta1:g}, batch {r.batch_size}); methods "
           f"{', '.join(args.methods)}")
     if spec.settings.smoke:

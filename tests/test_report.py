@@ -10,7 +10,7 @@ import pytest
 
 from ape_jax import tasks
 from ape_jax.pipeline.presets import resolve
-from ape_jax.pipeline.results import Results
+from ape_jax.pipeline.results import Results, summarize
 from experiments import report
 from experiments.report import figures, stats
 
@@ -177,6 +177,39 @@ def test_the_same_configuration_in_two_files_is_refused(tmp_path, capsys):
 
 
 # -- Ours − BC-OH: bootstrap over seeds --------------------------------------------------------------------------
+
+def _seeds_from(obj, first):
+    """`obj`'s runs numbered from seed `first`, as `--set budget.first_seed=first` numbers them."""
+    obj = json.loads(json.dumps(obj))
+    for run in obj["runs"]:
+        run["seed"] += first
+    return obj
+
+
+def test_one_sweep_split_by_seeds_merges_into_the_rows_of_all_its_seeds(tmp_path, capsys):
+    whole = report.merge([_loaded(tmp_path, _results(deltas=(-10.0, 10.0, 30.0, 70.0)), "whole.json")])
+    parts = [_loaded(tmp_path, _results(deltas=(-10.0, 10.0)), "a.json"),
+             _loaded(tmp_path, _seeds_from(_results(deltas=(30.0, 70.0)), 2), "b.json")]
+    split = report.merge(parts)
+    (w,), (s,) = whole.values(), split.values()
+    assert len(s.runs) == 20 and sorted({r["seed"] for r in s.runs}) == [0, 1, 2, 3]
+    expected = summarize(w.runs)  # what the sweep writes for all four seeds (the fixture's own rows are round)
+    assert [(r["method"], r["hparams"]) for r in s.summary] == [(r["method"], r["hparams"]) for r in expected]
+    for a, b in zip(s.summary, expected):
+        assert a["n_seeds"] == b["n_seeds"] == 4
+        assert a["return_mean"] == pytest.approx(b["return_mean"]) and a["return_std"] == pytest.approx(b["return_std"])
+    bc_oh = next(r for r in s.summary if r["method"] == "bc-oh")
+    assert bc_oh["return_mean"] == pytest.approx(1025.0)   # 1000 + mean(-10, 10, 30, 70), neither file's mean
+    # the same seed twice, or the same configuration run with other settings, is refused
+    with pytest.raises(report.ReportError, match="b.json: bc-so {} is also in another results file of .* "
+                                                 "with seed\\(s\\) 1; pass one of them"):
+        report.merge([parts[0], _loaded(tmp_path, _seeds_from(_results(deltas=(30.0, 70.0)), 1), "b.json")])
+    other = _results(deltas=(30.0, 70.0))
+    other["config"]["lr"] = 1e-3
+    with pytest.raises(report.ReportError, match="c.json: bc-so {} is also in another results file .* with other "
+                                                 "settings"):
+        report.merge([parts[0], _loaded(tmp_path, _seeds_from(other, 2), "c.json")])
+
 
 def test_the_bootstrap_ci_excludes_zero_for_a_clear_difference_and_contains_it_for_overlapping_seeds():
     ours, bcoh = [1000.0, 1012.0, 990.0], [500.0, 515.0, 480.0]

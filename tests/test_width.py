@@ -21,9 +21,9 @@ NARROW = ("recipe.step_grid=0.1:5",)                                            
 WIDE = ("recipe.step_grid=0.1:3,0.1:5,0.1:10,0.2:3,0.2:5,0.2:10",)               # BC-OH + 6
 
 
-def _bc_oh(data_dir, *sets, evaluate=True):
+def _bc_oh(data_dir, *sets, evaluate=True, seed=None):
     """BC-OH's parameters, returns and validation losses in a sweep of BC-OH and the step grid `sets` (without
-    `evaluate`: its parameters alone)."""
+    `evaluate`: its parameters alone); of its run of `seed` (default: its first)."""
     spec = S.SweepSpec.make("hopper", "pos", ("bc-oh", "ours-step"), protocol="brax", recipe="mlp",
                             sets=(*SETS, *sets), data_dir=data_dir)
     prepared = S.prepare(spec)
@@ -31,12 +31,12 @@ def _bc_oh(data_dir, *sets, evaluate=True):
     ape = S.fit_ape(prepared, spec.settings)
     data = prepared.data(prepared.train, ape.train)
     trained = S.train(programs, spec, prepared, data)
+    runs = [r for r in trained[0].program.runs if r.method == "bc-oh" and seed in (None, r.seed)]
+    j = trained[0].program.runs.index(runs[0])
     if not evaluate:
-        j = [r.method for r in trained[0].program.runs].index("bc-oh")
         return jax.tree.map(lambda x: np.asarray(x[j]), trained[0].params)
     evaluated = S.evaluate(trained, prepared, ape, spec.budget.eval_episodes, width=spec.budget.width)
     (done,), (group,), (out,), (losses,) = trained, evaluated.groups, evaluated.outputs, evaluated.losses
-    j = [r.method for r in done.program.runs].index("bc-oh")
     assert group.runs[j].method == "bc-oh"
     return (len(done.program.runs), jax.tree.map(lambda x: np.asarray(x[j]), done.params),
             np.asarray(out["return"][j]), float(losses["val"]["unweighted"][j]))
@@ -64,6 +64,17 @@ def test_without_a_fixed_width_the_same_configuration_differs(data_dir):
     if all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(whole2), jax.tree.leaves(whole7))):
         pytest.skip("this machine's XLA rounds both widths alike here (the 2-core AMD EPYC does not): the "
                     "bit-identity above shows nothing on it")
+
+
+def test_a_seed_run_from_first_seed_is_bit_identical_to_the_same_seed_of_a_longer_sweep(data_dir):
+    """`budget.first_seed`: a long sweep split by seeds into files computes what one sweep of them all does."""
+    n2, params2, returns2, loss2 = _bc_oh(data_dir, *NARROW, "budget.seeds=2", seed=1)
+    n1, params1, returns1, loss1 = _bc_oh(data_dir, *NARROW, "budget.seeds=1", "budget.first_seed=1", seed=1)
+    assert (n2, n1) == (4, 2)
+    for x, y in zip(jax.tree.leaves(params2), jax.tree.leaves(params1)):
+        np.testing.assert_array_equal(x, y)
+    np.testing.assert_array_equal(returns2, returns1)
+    assert loss2 == loss1
 
 
 def test_in_blocks_calls_one_shape_and_drops_the_padding():

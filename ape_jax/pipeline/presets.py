@@ -66,12 +66,16 @@ class Budget:
     # each is computed by the same program whatever else the sweep holds; 0: a whole program at once (every file
     # before this field: XLA rounds another width differently, so such numbers depend on the sweep's size)
     width: int = 1
+    # the seeds run are first_seed, ..., first_seed + seeds - 1: a run's key depends on its seed alone
+    # (`methods.run_key`), so a long sweep split by seeds into several files computes what one sweep of all the
+    # seeds would, and the report merges the files (`experiments.report`'s `analysis.groups.merge`)
+    first_seed: int = 0
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
             if f.name == "eval_at":
                 continue
-            least = 0 if f.name in ("probe_steps", "width") else 1
+            least = 0 if f.name in ("probe_steps", "width", "first_seed") else 1
             _check(isinstance(getattr(self, f.name), int) and getattr(self, f.name) >= least,
                    f"budget.{f.name} must be an integer >= {least}, got {getattr(self, f.name)!r}")
         at = self.eval_at

@@ -147,11 +147,12 @@ class SweepSpec:
                                        self.data_settings(), self.protocol_settings())
 
 
-def grid_runs(names: Sequence[str], seeds: int, ctx: methods_lib.GridContext) -> list[Run]:
-    """Every (method, hparams, seed) of the sweep: methods in registry order, then settings, then seeds."""
+def grid_runs(names: Sequence[str], seeds: int, ctx: methods_lib.GridContext, first_seed: int = 0) -> list[Run]:
+    """Every (method, hparams, seed) of the sweep, seeds `first_seed, ..., first_seed + seeds - 1`: methods in
+    registry order, then settings, then seeds."""
     order = [m for m in methods_lib.names() if m in names]
     return [Run(m, settings, seed) for m in order for settings in methods_lib.get(m).settings(ctx)
-            for seed in range(seeds)]
+            for seed in range(first_seed, first_seed + seeds)]
 
 
 PROTOCOL_KEYS = ("n_frames", "episode_length", "reward_scale")  # the collection settings a protocol fixes

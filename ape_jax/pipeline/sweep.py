@@ -285,7 +285,7 @@ def plan(spec: SweepSpec, prepared: Prepared) -> list[Program]:
     ctx = methods_lib.GridContext(task=prepared.task, step_grid=recipe.step_grid, softmax_grid=recipe.softmax_grid,
                                   n_train=len(prepared.train), fca_alphas=recipe.fca_alphas,
                                   ib_weights=recipe.ib_weights)
-    runs = grid_runs(spec.methods, spec.budget.seeds, ctx)
+    runs = grid_runs(spec.methods, spec.budget.seeds, ctx, spec.budget.first_seed)
     if not runs:
         raise ValueError(f"nothing to train: the recipe's grids are empty for {', '.join(spec.methods)}")
     programs = []

@@ -218,10 +218,14 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
     """Results per `Key(env, obs, protocol name, budget)`: summary rows and runs of all files, with the files they
     came from, as a `Group` each.
 
+    One configuration's seeds may come from several files of one sweep split by seeds (`--set
+    budget.first_seed=K`, the same settings otherwise): its runs are joined and its summary row computed from them
+    all (`results.summarize`).
+
     Raises:
-      ReportError: the same configuration in two files of one group, files of
-        one group with different experts or different protocol settings, or a
-        malformed protocol.
+      ReportError: the same configuration and seed in two files of one group, or the same configuration in two
+        files with other settings; files of one group with different experts or different protocol settings, or
+        a malformed protocol.
     """
     merged: dict[Key, dict] = {}   # the groups' fields, gathered file by file
     for r in files:
@@ -234,6 +238,7 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
         m = merged.setdefault(key, {"env": r.env, "obs": r.obs, "protocol": protocol, "budget": key.budget,
                                     "expert": r.expert,
                                     "summary": [], "runs": [], "sources": [], "methods": {}, "metric": main_metric(r),
+                                    "split": set(),
                                     "task_metrics": tuple(r.config.get("task_metrics", tasks.get(r.env).metrics))})
         group = f"{r.env} ({r.obs}, protocol {key.protocol}" + (f", {key.budget:,} iterations)" if key.budget else ")")
         if m["expert"] != r.expert:
@@ -246,15 +251,19 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
         seen = {config_key(row) for row in m["summary"]}
         for row in r.summary:
             if config_key(row) in seen:
-                raise ReportError(f"{where}: {row['method']} {row['hparams']} is also in another results "
-                                  f"file of {group}; pass one of them")
-        m["summary"] += r.summary
+                _check_seed_split(r, row, m, where, group)
+                m["split"].add(config_key(row))
+        m["summary"] += [row for row in r.summary if config_key(row) not in seen]
         m["runs"] += r.runs
         m["sources"].append(r)
         m["methods"] = {**r.methods, **m["methods"]}
         m["protocol"] = {**protocol, **{k: v for k, v in m["protocol"].items() if v is not None}}
     groups = {}
     for key, m in merged.items():
+        if split := m.pop("split"):  # one configuration's seeds in several files: its row, from all its runs
+            rows = {config_key(row): row for row in results_lib.summarize(
+                [run for run in m["runs"] if config_key(run) in split], m["task_metrics"])}
+            m["summary"] = [rows.get(config_key(row), row) for row in m["summary"]]
         shows_protocol = key.protocol != BRAX or any(k[:2] == key[:2] and k.protocol != key.protocol for k in merged)
         title = group_title(key, m["protocol"], shows_protocol)
         if key.budget:
@@ -262,6 +271,28 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
                 title + f" ({key.budget:,} iterations)"
         groups[key] = Group(**m, shows_protocol=shows_protocol, title=title)
     return groups
+
+
+def _settings_but_seeds(res: results_lib.Results) -> dict:
+    """What decides a file's runs beside their seeds: its settings with `budget.seeds` and `budget.first_seed`
+    left out, and its data."""
+    budget = {k: v for k, v in (res.settings.get("budget") or {}).items() if k not in ("seeds", "first_seed")}
+    return {**res.settings, "budget": budget, "data": res.config.get("data", {}).get("settings")}
+
+
+def _check_seed_split(res: results_lib.Results, row: dict, m: dict, where: str, group: str) -> None:
+    """Refuses (`ReportError`) a configuration `res` shares with a file already in `m` unless the two are one
+    sweep split by seeds (`--set budget.first_seed=K`): the same settings but the seeds, and no seed in both."""
+    key = config_key(row)
+    other = next(s for s in m["sources"] if key in {config_key(x) for x in s.summary})
+    if _settings_but_seeds(res) != _settings_but_seeds(other):
+        raise ReportError(f"{where}: {row['method']} {row['hparams']} is also in another results file of {group} "
+                          f"({getattr(other, 'path', '') or 'unnamed'}) with other settings; pass one of them")
+    seeds = {run["seed"] for run in res.runs if config_key(run) == key}
+    both = seeds & {run["seed"] for run in m["runs"] if config_key(run) == key}
+    if both:
+        raise ReportError(f"{where}: {row['method']} {row['hparams']} is also in another results file of {group} "
+                          f"with seed(s) {', '.join(map(str, sorted(both)))}; pass one of them")
 
 
 def config_key(row: dict) -> tuple:
