@@ -40,15 +40,23 @@ H, BATCH, ACT = 2, 128, 3
 SCAN_CHUNK = 100  # iterations per call of a scanned chunk
 
 
+def split_encoder(name: str) -> tuple[str, str]:
+    """`"patch+group"` -> `("patch", "group")`: an encoder and its normalisation (`recipe.encoder_norm`)."""
+    encoder, _, norm = name.partition("+")
+    return encoder, norm or "none"
+
+
 def train_rate(encoder: str, size: int, repeats: int, grid: int = 1) -> tuple[float, float, str]:
-    """(compile_s, model-updates/s, chunk) of `grid` configurations at `size`×`size` (vmapped if `grid > 1`)."""
+    """(compile_s, model-updates/s, chunk) of `grid` configurations at `size`×`size` (vmapped if `grid > 1`);
+    `encoder` may name its normalisation, `"patch+group"`."""
     from ape_jax.learner import Data, Hparams, LearnerConfig, make_train, stack_hparams
     from ape_jax.pipeline.sweep import CPU_IMAGE_CHUNK, trains_sequentially
 
+    encoder, norm = split_encoder(encoder)
     unroll = trains_sequentially((size, size, 3), encoder)
     chunk = CPU_IMAGE_CHUNK if unroll else SCAN_CHUNK
     cfg = LearnerConfig(obs_shape=(size, size, 3), action_dim=ACT, history=H, batch_size=BATCH, unroll=unroll,
-                        encoder=encoder)
+                        encoder=encoder, encoder_norm=norm)
     rng = np.random.default_rng(0)
     n = 2_000
     data = Data(obs=jnp.asarray(rng.integers(0, 256, (n, size, size, 3), np.uint8)),
@@ -75,7 +83,9 @@ def eval_rate(size: int, encoder: str, policies: int, episodes: int, steps: int,
     from ape_jax.learner import LearnerConfig
 
     env = envs.make("hopper", obs="image", image_size=(size, size))
-    cfg = LearnerConfig(obs_shape=env.observation_shape, action_dim=env.action_size, history=H, encoder=encoder)
+    encoder, norm = split_encoder(encoder)
+    cfg = LearnerConfig(obs_shape=env.observation_shape, action_dim=env.action_size, history=H, encoder=encoder,
+                        encoder_norm=norm)
     keys = jax.random.split(jax.random.PRNGKey(0), policies)
     params = jax.vmap(lambda k: cfg.model().init(k, jnp.zeros((1, size, size, 3 * H))))(keys)
     run = evaluate.make_evaluator(env, cfg, None, None, episodes, steps=steps)
@@ -121,8 +131,9 @@ def main(argv=None) -> int:
     p.add_argument("--sizes", type=lambda s: [int(x) for x in s.split(",")], default=[32, 64],
                    help="image sides, comma list (default: 32,64; the first is also evaluated)")
     p.add_argument("--encoders", type=lambda s: s.split(","), default=["small", "patch"],
-                   help="comma list of image encoders (`ape_jax.models.IMAGE_ENCODERS`; default: small,patch; the "
-                        "first is the reference of the last column; resnet18 takes seconds per update on a CPU)")
+                   help="comma list of image encoders (`ape_jax.models.IMAGE_ENCODERS`), each with `+group` for "
+                        "GroupNorm (`recipe.encoder_norm`), e.g. small,patch,patch+group (default: small,patch); the "
+                        "first is the reference of the last column; resnet18 takes seconds per update on a CPU")
     p.add_argument("--grid", type=int, default=1,
                    help="also time this many configurations trained as one vmapped program (default: 1, none)")
     p.add_argument("--policies", type=int, default=3, help="policies evaluated at once")
@@ -133,12 +144,17 @@ def main(argv=None) -> int:
 
 
 def _check(args) -> str | None:
-    from ape_jax.models import IMAGE_ENCODERS
+    from ape_jax.models import IMAGE_ENCODERS, NORMS
 
     if not args.sizes or min(args.sizes) < 8 or max(args.sizes) > 512:
         return f"--sizes must be image sides in [8, 512], got {args.sizes}"
-    unknown = [e for e in args.encoders if e not in IMAGE_ENCODERS]
-    return f"--encoders: unknown {unknown}; valid: {', '.join(IMAGE_ENCODERS)}" if unknown else None
+    unknown = [e for e in args.encoders if split_encoder(e)[0] not in IMAGE_ENCODERS]
+    if unknown:
+        return f"--encoders: unknown {unknown}; valid: {', '.join(IMAGE_ENCODERS)}, each with +group"
+    norms = [e for e in args.encoders if split_encoder(e)[1] not in NORMS or
+             (split_encoder(e)[1] != "none" and split_encoder(e)[0] == "resnet18")]
+    return f"--encoders: {norms}: the small and patch encoders take +{', +'.join(n for n in NORMS if n != 'none')}" \
+        if norms else None
 
 
 if __name__ == "__main__":

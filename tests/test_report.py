@@ -11,6 +11,7 @@ import pytest
 from ape_jax import tasks
 from ape_jax.pipeline.presets import resolve
 from ape_jax.pipeline.results import Results, summarize
+from experiments.report.analysis import former_preset
 from experiments import report
 from experiments.report import figures, stats
 
@@ -455,6 +456,24 @@ def test_image_results_and_a_task_judged_by_a_rate_get_their_tables(tmp_path):
             in text)
     assert f"({car.title}: in success rate)" in text
     assert "### MuJoCo-State" not in text
+
+
+def test_the_first_image_presets_files_are_a_table_of_their_own_beside_todays_preset(tmp_path):
+    first = {**_results(), "obs": "image"}
+    first["config"] = {**first["config"], "iterations": 5000, "encoder": "small"}   # as the shipped files record it
+    today = _schema2({**_results(methods=(("bc-so", {}, 600.0), ("bc-oh", {}, 1400.0))), "obs": "image"})
+    budget = resolve("hopper", "image", preset="default")
+    today["config"].update(iterations=budget.budget.iterations, preset_iterations=budget.budget.iterations)
+    files = [_loaded(tmp_path, first, "first.json"), _loaded(tmp_path, today, "today.json")]
+    assert [former_preset(f) for f in files] == ["first image preset", None]
+    text = report.report(files)
+    now = text[text.index("### MuJoCo-Image\n"):text.index("### MuJoCo-Image, the first image preset")]
+    old = text[text.index("### MuJoCo-Image, the first image preset"):]
+    assert "| BC-OH | 1,400 ± 10 (70%) |" in now and "1,000 ± 10" not in now
+    assert "| BC-OH | 1,000 ± 10 (50%) |" in old and "small conv encoder" in old
+    assert "| Hopper (image, brax, first image preset) | BC-OH − BC-SO (does the history help?) |" in text
+    assert ("`python -m experiments.sweep --env hopper --obs image --preset default` (rebuilt from its settings"
+            in text and "`--preset default` being the first image preset then" in text)
 
 
 def _sandbox(success, stuck, deltas=(0, 1, 2, 3, 4)):

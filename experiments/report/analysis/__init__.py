@@ -29,8 +29,9 @@ from experiments.report.analysis.diagnostics import (DiagnosticsRow, PolicyDiagn
                                                      diagnostics_block, diagnostics_rows, diagnostics_thresholds,
                                                      has_diagnostics, policy_diagnostics, recipe_diagnostics, run_at,
                                                      spread, training_points)
-from experiments.report.analysis.groups import (BRAX, FCA, FCA_TRAIN, MUJOCO, Group, Key, Merged, ReportError, Source,
-                                                budget_of, config_key, envs_of, file_stem, group_title, groups_of,
+from experiments.report.analysis.groups import (BRAX, FCA, FCA_TRAIN, FIRST_IMAGE_PRESET, MUJOCO, Group, Key, Merged,
+                                                ReportError, Source, budget_of, config_key, envs_of, file_stem,
+                                                former_preset, group_title, groups_of,
                                                 in_fca_family, is_rate, load, main_metric, merge, ordered,
                                                 other_history, other_setting, protocol_of, protocol_words, protocols_of,
                                                 variant_name)
@@ -49,7 +50,7 @@ from experiments.report.analysis.weights import (APE_SCALES, WeightShares, ape_m
 
 __all__ = [
     "APE_SCALES", "BOOTSTRAP_RESAMPLES", "LEARNED", "Estimate", "RateReading", "per_seed", "rate_reading",
-    "BOOTSTRAP_SEED", "BRAX", "BUDGET_METHODS", "FCA", "FCA_TRAIN",
+    "BOOTSTRAP_SEED", "BRAX", "BUDGET_METHODS", "FCA", "FCA_TRAIN", "FIRST_IMAGE_PRESET", "former_preset",
     "MAP_METHODS", "MUJOCO", "RECIPE_METHODS", "AlphaRow", "BudgetPoint", "BudgetRow", "Choice", "CopycatMap",
     "DiagnosticsRow", "Difference", "Gap", "Group", "Interval", "Key", "LongerRow", "MapCell", "MapPoint", "MapRow",
     "Merged", "PolicyDiagnostics", "RecipeCell", "RecipeRow", "ReportError", "Source", "Spread", "TrainingPoint",

@@ -169,11 +169,29 @@ def protocol_of(res: results_lib.Results, where: str = "") -> dict:
     return p
 
 
+# The MuJoCo tasks' `default` image preset until issue 26 (the small conv encoder, 25 demonstrations, 5,000
+# iterations, softmax τ 10): its files are a setting of their own, never merged with today's `default`.
+FIRST_IMAGE_PRESET = "first image preset"
+
+
+def former_preset(res: results_lib.Results) -> str | None:
+    """The name of the retired preset `res` ran, else None. A MuJoCo image file of preset `default` with the small
+    conv encoder that records no `preset_iterations` (every file of today's image preset records it) ran the
+    first image preset."""
+    if not (res.obs == "image" and res.env in MUJOCO and res.preset == "default"
+            and "preset_iterations" not in res.config):
+        return None
+    encoder = ((res.settings or {}).get("recipe") or {}).get("encoder") or res.config.get("encoder") or "small"
+    return FIRST_IMAGE_PRESET if encoder == "small" else None
+
+
 def variant_name(res: results_lib.Results, protocol: dict) -> str:
     """The group name of a file's setting: its protocol's name for files split by episode with the `mlp` recipe (every
     file before results schema 3), else `NAME.SPLIT.RECIPE` (e.g. `fca.rows.fca`), a group of its own: the recipe
     section (`recipe_groups`, `recipe_rows`) compares them, and they never join the copycat map or the whole-episode
-    tables."""
+    tables. A retired preset's files (`former_preset`) are `NAME.first`, a group of their own too."""
+    if former_preset(res) is not None:
+        return f"{protocol['name']}.first"
     split, recipe = protocol.get("split") or "episodes", res.recipe_name
     history, expert = other_history(protocol), protocol.get("expert")
     if (split, recipe, history, expert) == ("episodes", "mlp", None, None):
@@ -183,9 +201,10 @@ def variant_name(res: results_lib.Results, protocol: dict) -> str:
 
 
 def other_setting(protocol: dict) -> bool:
-    """Whether a variant changes more than the split and the recipe: another history or another expert (such
-    groups stay out of the recipe table and the paper-budget table, and are settings of their own in the map)."""
-    return other_history(protocol) is not None or protocol.get("expert") is not None
+    """Whether a variant changes more than the split and the recipe: another history or another expert, or a retired
+    preset (such groups stay out of the recipe table and the paper-budget table, and are settings of their own in
+    the map)."""
+    return other_history(protocol) is not None or protocol.get("expert") is not None or "preset" in protocol
 
 
 def other_history(protocol: dict) -> int | None:
@@ -201,6 +220,8 @@ def protocol_words(p: dict) -> str:
     of the fca family, by what differs from fca), `"fca, split by rows, recipe fca"` (a variant, `variant_name`),
     else its name."""
     name = p["name"]
+    if p.get("preset"):
+        return f"{p['variant_of']}, {p['preset']}"
     if p.get("variant_of"):
         history = other_history(p)
         return (f"{p['variant_of']}, split by {p.get('split')}, recipe {p.get('recipe')}"
@@ -233,8 +254,9 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
         protocol = protocol_of(r, where)
         name = variant_name(r, protocol)
         if name != protocol["name"]:
-            protocol = {**protocol, "name": name, "variant_of": protocol["name"], "recipe": r.recipe_name}
-        key = Key(r.env, r.obs, name, budget_of(r))
+            protocol = {**protocol, "name": name, "variant_of": protocol["name"], "recipe": r.recipe_name,
+                        **({"preset": former} if (former := former_preset(r)) else {})}
+        key = Key(r.env, r.obs, name, None if former_preset(r) else budget_of(r))
         m = merged.setdefault(key, {"env": r.env, "obs": r.obs, "protocol": protocol, "budget": key.budget,
                                     "expert": r.expert,
                                     "summary": [], "runs": [], "sources": [], "methods": {}, "metric": main_metric(r),

@@ -11,7 +11,8 @@ from ape_jax import tasks
 from ape_jax.pipeline import results as results_lib
 from experiments.report import figures
 from experiments.report.analysis import (BRAX, Group, best_of, choices, copycat_groups, display_metric, expert_ape,
-                                         file_stem, gap, is_rate, label, loss_rows, ordered, protocol_words,
+                                         file_stem, former_preset, gap, is_rate, label, loss_rows, ordered,
+                                         protocol_words,
                                          recipe_diagnostics, recipe_groups)
 from experiments.report.sections.common import SETTING_WORDS, Context, Section
 from experiments.report.sections.diagnostics import group_diagnostics, training_table
@@ -143,6 +144,8 @@ def _rebuilt_command(r: results_lib.Results) -> str:
     cmd = f"python -m experiments.sweep --env {r.env} --obs {r.obs} --preset {r.preset}"
     if cfg.get("methods") != list(methods_lib.default()):
         cmd += f" --methods {','.join(cfg['methods'])}"
+    if former_preset(r) is not None:  # its preset's settings are not today's: the command as it ran then
+        return cmd
     # the budget and the grids of its preset (schema 1/2 files ran the mlp recipe, whose grids every recipe shares)
     preset = resolve(r.env, r.obs, preset=r.preset, recipe="mlp") if r.preset in BUDGETS else None
     for key, flag in (("iterations", "--iterations"), ("seeds", "--seeds"), ("eval_episodes", "--eval-episodes")):
@@ -172,6 +175,8 @@ def provenance(r: results_lib.Results) -> str:
                "before seeds were derived from run identity: its numbers came from position-based keys)")
     else:
         cmd = f"`{_rebuilt_command(r)}` (rebuilt from its settings: the sweep ran from Python)"
+    if (former := former_preset(r)) is not None:
+        cmd += f", `--preset {r.preset}` being the {former} then"
     s, t = r.system or {}, r.timing or {}
     machine = s.get("machine") or "machine not recorded in the file"
     commit = f"`{s.get('commit')}`" + (" with uncommitted changes" if s.get("dirty") else "")
