@@ -92,6 +92,17 @@ def test_a_bad_set_is_refused_in_one_line_before_anything_compiles(item, message
     assert code.value.code == 2 and message in err and err.count("\n") == 1
 
 
+@pytest.mark.parametrize("obs, history, length", [("image", 1_001, 1_000), ("pos", 2_001, 2_000)])
+def test_a_history_longer_than_an_episode_is_refused_before_anything_compiles(obs, history, length, tmp_path,
+                                                                            capsys):
+    with pytest.raises(SystemExit) as code:
+        sweep.main(["--obs", obs, "--set", f"protocol.history={history}", "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert code.value.code == 2 and err.count("\n") == 1 and not (tmp_path / "run").exists()
+    assert f"protocol.history {history} is longer than an episode ({length:,} steps)" in err
+    S.SweepSpec.make("hopper", obs, sets=[f"protocol.history={length}"])  # one whole episode is fine
+
+
 @pytest.mark.parametrize("obs, item, message", [
     ("image", "recipe.augment_shift=9", "recipe.augment_shift must be at most a quarter of the image's shorter side "
                                         "(32: 8), got 9"),

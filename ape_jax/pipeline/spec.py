@@ -74,6 +74,10 @@ class SweepSpec:
         for m in self.methods:
             methods_lib.get(m)  # MethodError for an unknown name
         _ = self.setup  # ValueError for a protocol the task cannot take
+        length, history = self.setup.settings.get("episode_length"), self.protocol.history
+        if isinstance(length, int) and history > length:
+            raise ValueError(f"protocol.history {history} is longer than an episode ({length:,} steps): a history "
+                             f"can hold at most the frames one episode stores")
 
     @classmethod
     def make(cls, env: str, obs: str | None = None, methods: Sequence[str] | None = None, protocol: str | None = None,
