@@ -1,45 +1,5 @@
-"""Where a result came from: versions, devices, machine, and the git commit of the code that ran."""
+"""Where a result came from (`ape_jax.pipeline.provenance`, whose names the command-line tools import from here too)."""
 
-from __future__ import annotations
+from ape_jax.pipeline.provenance import ROOT, machine, system
 
-import os
-import pathlib
-import platform
-import re
-import subprocess
-
-import jax
-
-import ape_jax
-
-ROOT = pathlib.Path(__file__).resolve().parent.parent
-
-
-def system() -> dict:
-    """Versions (this package's and jax's), devices, machine, and the git commit of the code (`dirty`: tracked
-    files modified).
-
-    Take it when a job starts: the code that runs, not what is checked out when it ends.
-    """
-    def git(*args):
-        return subprocess.run(["git", *args], capture_output=True, text=True, timeout=10, cwd=ROOT).stdout.strip()
-
-    try:
-        commit, dirty = git("rev-parse", "--short", "HEAD") or None, bool(git("status", "--porcelain", "-uno"))
-    except (OSError, subprocess.SubprocessError):
-        commit, dirty = None, None
-    return {"ape_jax": ape_jax.__version__, "jax": jax.__version__, "backend": jax.default_backend(),
-            "devices": jax.device_count(), "commit": commit, "dirty": dirty, "machine": machine()}
-
-
-def machine() -> str:
-    """The CPU model and core count (and the accelerator, if any), for provenance lines."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            names = re.findall(r"model name\s*:\s*(.*)", f.read())
-        cpu = names[0].strip() if names else cpu
-    except OSError:
-        pass
-    accel = "" if jax.default_backend() == "cpu" else f", {jax.devices()[0].device_kind}"
-    return f"{cpu}, {os.cpu_count()} cores{accel}"
+__all__ = ["ROOT", "machine", "system"]

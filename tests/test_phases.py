@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from ape_jax import methods, tasks
+from ape_jax.pipeline import provenance
 from ape_jax.pipeline import sweep as S
 from ape_jax.pipeline.presets import resolve
 
@@ -153,6 +154,9 @@ def test_run_sweep_from_python_needs_only_the_task_and_defaults_the_cache(tmp_pa
     assert [r["method"] for r in res.runs] == ["bc-oh"] and res.runs[0]["status"] == "ok"
     assert res.settings["budget"]["iterations"] == 20 and list(policies) == ["h2"]
     assert len(list((tmp_path / "cache").glob("toycar-full-*.npz"))) == 1   # collected into the default cache
+    # it says which code made it, as the command line's results do (this checkout's commit)
+    assert res.system["commit"] == provenance.system()["commit"] and res.system["machine"]
+    assert res.system["jax"] == jax.__version__
 
 
 def test_policies_kept_at_eval_at_are_the_training_state_there_and_leave_training_unchanged(small, tmp_path):

@@ -81,7 +81,7 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
       params_dir: the sweep's `params/`.
       data_dir: the demonstration cache (default: `ape_jax.pipeline.data.cache_dir()`).
       rtol: how closely each run's mean return must come out as recorded.
-      system: provenance of this evaluation (`experiments._provenance.system()`), recorded beside the fields added.
+      system: provenance of this evaluation (`ape_jax.pipeline.provenance.system()`), recorded beside the fields added.
 
     Raises:
       ReevaluationError: the policies are missing, the demonstrations or ψ

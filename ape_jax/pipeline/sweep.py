@@ -63,7 +63,7 @@ from ape_jax import tasks
 from ape_jax.grid import differing_processes
 from ape_jax.learner import Data, LearnerConfig, make_train
 from ape_jax.pipeline import checkpoint as ckpt_lib
-from ape_jax.pipeline import collect, minari_io
+from ape_jax.pipeline import collect, minari_io, provenance
 from ape_jax.pipeline import results as results_lib
 from ape_jax.pipeline.checkpoint import SweepCheckpoint
 from ape_jax.pipeline import data as data_lib
@@ -570,7 +570,7 @@ def run_sweep(spec: SweepSpec, hooks: Hooks = Hooks(),
     With an opened `SweepCheckpoint`, every finished phase and the training
     states are saved there, and what it already holds is reused.
     """
-    t_start = time.perf_counter()
+    t_start, started = time.perf_counter(), provenance.system()  # the code that runs, taken when it starts
     prepared, ape, trained = train_sweep(spec, hooks, checkpoint)
     evaluated = evaluate(trained, prepared, ape, spec.budget.eval_episodes, hooks, checkpoint,
                          spec.budget.probe_steps, spec.budget.width)
@@ -581,4 +581,6 @@ def run_sweep(spec: SweepSpec, hooks: Hooks = Hooks(),
               # included in the phases' times
               "checkpoint_s": checkpoint.save_s if checkpoint is not None else 0.0,
               "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}  # this process's peak
-    return assemble(spec, prepared, ape, trained, evaluated, timing), policies(evaluated, prepared)
+    res = assemble(spec, prepared, ape, trained, evaluated, timing)
+    res.system = started
+    return res, policies(evaluated, prepared)
