@@ -466,6 +466,11 @@ def test_the_first_image_presets_files_are_a_table_of_their_own_beside_todays_pr
     today["config"].update(iterations=budget.budget.iterations, preset_iterations=budget.budget.iterations)
     files = [_loaded(tmp_path, first, "first.json"), _loaded(tmp_path, today, "today.json")]
     assert [former_preset(f) for f in files] == ["first image preset", None]
+    # a file that records its preset's 5,000 iterations ran the first preset too; today's with the small encoder
+    # set by hand did not
+    for iterations, former in ((5000, "first image preset"), (budget.budget.iterations, None)):
+        obj = _schema2({**first, "config": {**first["config"], "preset_iterations": iterations}})
+        assert former_preset(_loaded(tmp_path, obj, f"{iterations}.json")) == former
     text = report.report(files)
     now = text[text.index("### MuJoCo-Image\n"):text.index("### MuJoCo-Image, the first image preset")]
     old = text[text.index("### MuJoCo-Image, the first image preset"):]

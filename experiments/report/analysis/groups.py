@@ -171,15 +171,15 @@ def protocol_of(res: results_lib.Results, where: str = "") -> dict:
 
 # The MuJoCo tasks' `default` image preset until issue 26 (the small conv encoder, 25 demonstrations, 5,000
 # iterations, softmax τ 10): its files are a setting of their own, never merged with today's `default`.
-FIRST_IMAGE_PRESET = "first image preset"
+FIRST_IMAGE_PRESET, FIRST_IMAGE_ITERATIONS = "first image preset", 5_000
 
 
 def former_preset(res: results_lib.Results) -> str | None:
     """The name of the retired preset `res` ran, else None. A MuJoCo image file of preset `default` with the small
-    conv encoder that records no `preset_iterations` (every file of today's image preset records it) ran the
-    first image preset."""
+    conv encoder whose preset gave 5,000 iterations (`config.preset_iterations`; files from before that record:
+    all of them then) ran the first image preset."""
     if not (res.obs == "image" and res.env in MUJOCO and res.preset == "default"
-            and "preset_iterations" not in res.config):
+            and res.config.get("preset_iterations", FIRST_IMAGE_ITERATIONS) == FIRST_IMAGE_ITERATIONS):
         return None
     encoder = ((res.settings or {}).get("recipe") or {}).get("encoder") or res.config.get("encoder") or "small"
     return FIRST_IMAGE_PRESET if encoder == "small" else None
