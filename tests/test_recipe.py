@@ -14,7 +14,7 @@ from ape_jax.learner import Data, Hparams, LearnerConfig, learning_rate, lr_boun
 from ape_jax.pipeline import data as data_lib
 from ape_jax.pipeline import sweep as S
 from ape_jax.pipeline.checkpoint import CheckpointError, SweepCheckpoint
-from ape_jax.pipeline.presets import RECIPES, SettingsError, parse_set, resolve
+from ape_jax.pipeline.presets import RECIPES, SettingsError, arguments, format_set, parse_set, resolve
 from experiments import sweep
 from _compare import UPDATE_RTOL, update_mismatch
 
@@ -66,6 +66,35 @@ def test_set_changes_any_field_parsed_by_its_type():
     with pytest.raises(dataclasses.FrozenInstanceError):
         s.recipe.lr = 1.0   # nothing rewrites a record after it is built
     assert parse_set("budget.chunk=100") == ("budget", "chunk", 100)
+
+
+@pytest.mark.parametrize("env, obs, protocol, preset, recipe, sets, smoke", [
+    ("hopper", "pos", None, "default", None, [], False),
+    ("hopper", "pos", "fca-fs2", "paper", "mlp", ["recipe.batch_size=32", "recipe.lr=1e-3", "budget.seeds=4",
+                                                  "recipe.step_grid=0.1:4,0.2:6", "recipe.fca_alphas=",
+                                                  "recipe.lr_decay_at=0.25", "recipe.loss=none",
+                                                  "budget.iterations=50000", "budget.first_seed=4"], False),
+    ("walker2d", "pos", "brax", "quick", "fca", ["protocol.history=3", "budget.eval_at=2"], True),
+    ("halfcheetah", "image", None, "default", None, ["protocol.image_size=16x24", "recipe.encoder=small",
+                                                     "recipe.encoder_norm=none", "recipe.augment_shift=2"], False),
+])
+def test_the_arguments_of_recorded_settings_resolve_to_them_again(env, obs, protocol, preset, recipe, sets, smoke):
+    """`arguments` (a Python-run file's command, rebuilt by the report) is `resolve`'s inverse through the sweep's
+    command line, and sets nothing the preset, protocol or recipe already gives."""
+    target = resolve(env, obs, protocol, preset, recipe, sets=sets, smoke=smoke)
+    args = arguments(env, obs, target)
+    again = sweep.parse(["--env", env, "--obs", obs, *args], writes=False).settings
+    assert dataclasses.replace(again, preset_iterations=None) == dataclasses.replace(target, preset_iterations=None)
+    given = [a for prev, a in zip(args, args[1:]) if prev == "--set"]
+    for item in given:  # each one needed
+        rest = [g for g in given if g != item]
+        assert resolve(env, obs, protocol, preset, recipe, sets=rest, smoke=smoke) != target, item
+    if not sets:
+        assert args == ["--preset", preset]
+    for section, field, value in [("recipe", "step_grid", ((0.1, 4.0), (0.2, 6.0))), ("recipe", "lr", 2e-4 / 3),
+                                  ("protocol", "image_size", (16, 24)), ("recipe", "loss", None),
+                                  ("recipe", "fca_alphas", ()), ("budget", "chunk", 500)]:
+        assert parse_set(format_set(section, field, value)) == (section, field, value)
 
 
 @pytest.mark.parametrize("item, message", [

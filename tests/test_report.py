@@ -134,6 +134,15 @@ def test_provenance_quotes_the_recorded_command():
     assert "rebuilt" not in line and "schema" not in line
     from_python = report.provenance(Results.from_json(_schema2(_results())))   # schema 2, run from Python
     assert "--seeds 2` (rebuilt from its settings: the sweep ran from Python)" in from_python
+    # a schema-3 one records its settings whole: it is given the arguments that resolve to them, its dataset too
+    settings = resolve("hopper", "pos", "fca", "default", sets=["recipe.batch_size=32", "budget.seeds=2"])
+    obj = _schema2(_results(), protocol=_fca(), methods={"bc-so": {}})
+    obj = {**obj, "schema": 3, "preset": "default", "settings": settings.to_json(),
+           "config": {**obj["config"], "methods": ["bc-so"], "data": {"settings": {"dataset": "my data.npz"}}}}
+    assert report.provenance(Results.from_json(obj)).startswith(
+        "`python -m experiments.sweep --env hopper --obs pos --preset default --set budget.seeds=2 "
+        "--set recipe.batch_size=32 --methods bc-so --dataset 'my data.npz'` (rebuilt from its settings: the sweep "
+        "ran from Python)")
 
 
 def test_the_cli_writes_the_report_section_and_keeps_the_rest(tmp_path, capsys):

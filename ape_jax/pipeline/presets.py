@@ -349,6 +349,44 @@ def parse_set(item: str) -> tuple[str, str, Any]:
         raise SettingsError(f"--set {item!r}: {section}.{field} takes {_describe(hint)}: {e}") from None
 
 
+def format_set(section: str, field: str, value: Any) -> str:
+    """`"SECTION.FIELD=VALUE"` that `parse_set` reads back as `value` (its inverse)."""
+    return f"{section}.{field}={_format(typing.get_type_hints(_RECORDS[section])[field], value)}"
+
+
+def arguments(env: str, obs: str, target: Settings) -> list[str]:
+    """The sweep's arguments (`--preset`, `--protocol`, `--recipe`, `--smoke`, `--set`) under which `resolve`
+    gives `target`'s records: the command line of a results file that records its settings but not its command
+    (a sweep run from Python). Only what differs from the preset's, the protocol's and the recipe's own values
+    is set.
+
+    Raises:
+      SettingsError: no arguments give `target` (its preset, protocol or recipe is no longer known).
+    """
+    proto = target.protocol.name
+    args = ["--preset", target.preset]
+    if proto != tasks.get(env).protocol(None, obs).name:
+        args += ["--protocol", proto]
+    if target.recipe.name != default_recipe(target.protocol, obs):
+        args += ["--recipe", target.recipe.name]
+    if target.smoke:
+        args.append("--smoke")
+
+    def differences(settings: Settings, skip: tuple[str, ...] = ()) -> list[str]:
+        return [format_set(section, f, getattr(getattr(target, section), f)) for section in SECTIONS
+                for f in fields(section) if f not in skip
+                and getattr(getattr(settings, section), f) != getattr(getattr(target, section), f)]
+
+    def rebuild(sets: list[str]) -> Settings:
+        return resolve(env, obs, proto, target.preset, target.recipe.name, sets=sets, smoke=target.smoke)
+
+    # eval_at last: a changed budget.iterations trims the preset's points by itself (`resolve`)
+    sets = differences(rebuild([]), skip=("eval_at",))
+    sets += differences(rebuild(sets))
+    _check(not differences(rebuild(sets)), f"no --set gives the recorded settings of {env} ({obs})")
+    return args + [x for item in sets for x in ("--set", item)]
+
+
 # -- internals ------------------------------------------------------------------------------------------------------
 
 def _section_of(key: str) -> str:
@@ -445,6 +483,29 @@ def _parse(hint: Any, text: str) -> Any:
     if hint is float:
         return float(text)
     return text
+
+
+def _format(hint: Any, value: Any) -> str:
+    """`value` as command-line text that `_parse(hint, ...)` reads back."""
+    args = [a for a in typing.get_args(hint) if a is not type(None)]
+    if value is None:
+        return "none"
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        return _format(args[0], value)
+    if origin is tuple:
+        inner = typing.get_args(hint)
+        if len(inner) == 2 and inner[1] is Ellipsis:
+            if typing.get_origin(inner[0]) is tuple:  # pairs: THR:W
+                return ",".join(":".join(_format(h, v) for h, v in zip(typing.get_args(inner[0]), pair))
+                                for pair in value)
+            return ",".join(_format(inner[0], v) for v in value)
+        return ",".join(_format(h, v) for h, v in zip(inner, value))
+    if hint is bool:
+        return "true" if value else "false"
+    if hint is float:
+        return str(int(value)) if float(value).is_integer() and abs(value) < 1e15 else repr(float(value))
+    return str(value)
 
 
 def _pair(text: str) -> list[str]:

@@ -4,10 +4,12 @@ diagnostics."""
 
 from __future__ import annotations
 
+import dataclasses
 import shlex
 
 from ape_jax import methods as methods_lib
 from ape_jax import tasks
+from ape_jax.pipeline import presets
 from ape_jax.pipeline import results as results_lib
 from experiments.report import figures
 from experiments.report.analysis import (BRAX, Group, best_of, choices, copycat_groups, display_metric, expert_ape,
@@ -137,17 +139,28 @@ def _protocol_provenance(r: results_lib.Results) -> str:
 
 
 def _rebuilt_command(r: results_lib.Results) -> str:
-    """The sweep command of a file that does not record its own (schema 1, or a sweep run from Python)."""
-    from ape_jax.pipeline.presets import BUDGETS, resolve
-
+    """The sweep command of a file that does not record its own: a sweep run from Python is given the arguments
+    under which today's `presets.resolve` gives the settings it records (`presets.arguments`), its methods and its
+    dataset; a schema 1 file (or one whose settings no arguments give) the command as it ran, from its config."""
     cfg = r.config
+    methods = [] if cfg.get("methods") == list(methods_lib.default()) else ["--methods", ",".join(cfg["methods"])]
+    dataset = ((cfg.get("data") or {}).get("settings") or {}).get("dataset")
+    if r.protocol and former_preset(r) is None:  # run from Python: every setting it records, as today's arguments
+        try:
+            records = dataclasses.replace(r.records(), smoke=bool(cfg.get("smoke")))
+            args = presets.arguments(r.env, r.obs, records)
+        except presets.SettingsError:  # a file from before schema 3 records part of them: rebuilt from config below
+            pass
+        else:
+            return shlex.join(["python", "-m", "experiments.sweep", "--env", r.env, "--obs", r.obs, *args, *methods,
+                               *(["--dataset", dataset] if dataset else [])])
     cmd = f"python -m experiments.sweep --env {r.env} --obs {r.obs} --preset {r.preset}"
-    if cfg.get("methods") != list(methods_lib.default()):
-        cmd += f" --methods {','.join(cfg['methods'])}"
+    if methods:
+        cmd += f" --methods {methods[1]}"
     if former_preset(r) is not None:  # its preset's settings are not today's: the command as it ran then
         return cmd
     # the budget and the grids of its preset (schema 1/2 files ran the mlp recipe, whose grids every recipe shares)
-    preset = resolve(r.env, r.obs, preset=r.preset, recipe="mlp") if r.preset in BUDGETS else None
+    preset = presets.resolve(r.env, r.obs, preset=r.preset, recipe="mlp") if r.preset in presets.BUDGETS else None
     for key, flag in (("iterations", "--iterations"), ("seeds", "--seeds"), ("eval_episodes", "--eval-episodes")):
         if preset is not None and cfg.get(key) != getattr(preset.budget, key):
             cmd += f" {flag} {cfg[key]}"
