@@ -5,6 +5,14 @@
 #   experiments/device/fetch_wheels.sh               # here, once: the packages the GPU image lacks, into .whl/
 #   experiments/device/run.sh                        # there (the device tool, carry [".whl"]): H200, ~8 min
 #   experiments/device/run.sh --smoke                # here: tiny sizes on the CPU, to check the script
+#   experiments/device/run.sh --plan paper-fca       # there: FCA (TCA and TCA+IB) at the paper's budget (issue 25)
+#
+# Plans: `default` (above); `paper-fca`: FCA and FCA-IB under `--preset paper --recipe fca` on Hopper (8 seeds)
+# and HalfCheetah (3 seeds) side by side on the one card, each program's configurations as one block
+# (`budget.width`), then the image encoders' training speed at 128x128 (ResNet-18 against the CPU default's
+# patch encoder) in what is left. Collect their demonstrations here first, so the device trains on the
+# same rows as this machine's runs (`.devdata/`, which the script makes `APE_JAX_CACHE` when it exists;
+# carry it too):  APE_JAX_CACHE=.devdata python -m experiments.collect --env hopper --obs pos  (and halfcheetah)
 #
 # Everything it keeps goes under $OUT (default: runs/device, or runs/device-smoke): measure.json
 # (versions, devices, matmul peak, grid FLOP/s, MJX steps/s), nvidia-smi.txt, and per sweep its
@@ -18,13 +26,20 @@
 set -uo pipefail
 cd "$(dirname "$0")/../.."
 SMOKE=0
-for arg in "$@"; do
-  case "$arg" in
+PLAN=default
+while [ $# -gt 0 ]; do
+  case "$1" in
     --smoke) SMOKE=1 ;;
-    -h|--help) sed -n '2,17p' "$0"; exit 0 ;;
-    *) echo "run.sh: error: unknown argument $arg (valid: --smoke)" >&2; exit 2 ;;
+    --plan) PLAN=${2:-}; shift ;;
+    -h|--help) sed -n '2,26p' "$0"; exit 0 ;;
+    *) echo "run.sh: error: unknown argument $1 (valid: --smoke, --plan default|paper-fca)" >&2; exit 2 ;;
   esac
+  shift
 done
+case "$PLAN" in
+  default|paper-fca) ;;
+  *) echo "run.sh: error: unknown plan '$PLAN' (valid: default, paper-fca)" >&2; exit 2 ;;
+esac
 START=$(date +%s)
 if [ "$SMOKE" = 1 ]; then BUDGET_S=${BUDGET_S:-1500}; else BUDGET_S=${BUDGET_S:-420}; fi
 PAPER_S=${PAPER_S:-300}
@@ -33,6 +48,9 @@ WORK=${WORK:-/tmp/ape_device}
 mkdir -p "$OUT" "$WORK" || { echo "run.sh: error: cannot make $OUT or $WORK" >&2; exit 2; }
 PY=${PYTHON:-python3}
 export PYTHONUNBUFFERED=1
+if [ -d .devdata ] && [ -z "${APE_JAX_CACHE:-}" ]; then export APE_JAX_CACHE=$PWD/.devdata; fi
+# The device tool brings back at most 8 files: everything kept is also packed into $OUT/device.tgz after each stage.
+pack() { local tmp="$WORK/device.$BASHPID.tgz"; tar -czf "$tmp" -C "$OUT" --exclude device.tgz . && mv "$tmp" "$OUT/device.tgz"; }
 
 # 1. The carried wheels (experiments/device/fetch_wheels.sh put them in .whl/), then the repository.
 PYVER=$($PY -c 'import sys; print(f"{sys.version_info[0]}.{sys.version_info[1]}")') \
@@ -65,12 +83,31 @@ stage() {
   local done=false; [ -f "$OUT/$name/results.json" ] && done=true
   printf '{"stage": "%s", "rc": %d, "wall_s": %d, "limit_s": %d, "finished": %s, "args": "%s"}\n' \
     "$name" "$rc" "$wall" "$limit" "$done" "$*" > "$OUT/$name/timings.json"
+  pack
   if [ "$done" = true ]; then echo "== $name: finished in ${wall} s"
   else echo "== $name: stopped after ${wall} s (rc $rc) before it finished; its progress is in $OUT/$name/log.txt"; fi
 }
 
 # 2. Versions, the device, the matmul peak, the grid's FLOP/s, MJX steps/s.
-if [ "$SMOKE" = 1 ]; then
+if [ "$PLAN" = paper-fca ]; then
+  # FCA's two variants share one program: 16 (Hopper) and 6 (HalfCheetah) configurations, each trained as one block.
+  export XLA_PYTHON_CLIENT_MEM_FRACTION=${XLA_PYTHON_CLIENT_MEM_FRACTION:-0.4}  # two processes share the card
+  fca=(--obs pos --recipe fca --methods fca,fca-ib --step-grid 0.1:5)
+  if [ "$SMOKE" = 1 ]; then fca+=(--smoke); else fca+=(--preset paper); fi
+  stage hopper-pos-paper-fca "$(( $(left) - 60 ))" --env hopper "${fca[@]}" --seeds 8 --softmax-grid 0.2 \
+    --set budget.width=16 &
+  stage halfcheetah-pos-paper-fca "$(( $(left) - 60 ))" --env halfcheetah "${fca[@]}" --seeds 3 --softmax-grid 0.1 \
+    --set budget.width=6 &
+  wait
+  bench=$(( $(left) - 20 ))
+  if [ "$SMOKE" = 0 ] && [ "$bench" -gt 60 ]; then
+    echo "== bench_images: up to ${bench} s"
+    mkdir -p "$OUT/bench-images"
+    timeout --signal=INT --kill-after=15 "$bench" $PY -m experiments.bench_images --sizes 128 \
+      --encoders resnet18,patch+group --repeats 3 > "$OUT/bench-images/log.txt" 2>&1
+    tail -n 30 "$OUT/bench-images/log.txt"; pack
+  fi
+elif [ "$SMOKE" = 1 ]; then
   $PY -m experiments.device.measure --out "$OUT" --smoke --repeats 1 || exit $?
   stage hopper-pos-paper "$(( $(left) - 20 ))" --env hopper --obs pos --preset quick --iterations 20 --seeds 1 \
     --eval-episodes 1 --methods bc-so,bc-oh,ours-step --step-grid 0.1:5
@@ -86,4 +123,5 @@ else
   stage hopper-image-paper "$(( $(left) - 20 ))" --env hopper --obs image --preset paper --seeds 1 \
     --methods bc-oh,ours-step --step-grid 0.1:5 --iterations "${IMAGE_ITERS:-20000}" --eval-episodes 10
 fi
-echo "== run.sh: $(( $(date +%s) - START )) s in all; files under $OUT"
+pack
+echo "== run.sh: $(( $(date +%s) - START )) s in all; files under $OUT (and packed in $OUT/device.tgz)"
