@@ -48,6 +48,8 @@ def test_the_wheels_list_pins_one_version_of_each_package():
 def test_run_sh_refuses_an_unknown_argument():
     out = subprocess.run(["bash", str(RUN), "--fast"], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "unknown argument --fast" in out.stderr
+    out = subprocess.run(["bash", str(RUN), "--plan", "everything"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "unknown plan 'everything'" in out.stderr
 
 
 @pytest.mark.slow
