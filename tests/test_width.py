@@ -47,6 +47,9 @@ def data_dir(tmp_path_factory):
     return tmp_path_factory.mktemp("data")
 
 
+# The two MJX sweeps below take ~90 s of the default run's ~10 minutes on 2 cores: `pytest -m slow` runs them;
+# `test_in_blocks_calls_one_shape_and_drops_the_padding` keeps the mechanism in the default run.
+@pytest.mark.slow
 def test_a_configuration_is_bit_identical_in_a_2_run_and_a_7_run_program_of_an_mjx_task(data_dir):
     n2, params2, returns2, loss2 = _bc_oh(data_dir, *NARROW)
     n7, params7, returns7, loss7 = _bc_oh(data_dir, *WIDE)
@@ -57,6 +60,7 @@ def test_a_configuration_is_bit_identical_in_a_2_run_and_a_7_run_program_of_an_m
     assert loss2 == loss7 and np.all(np.isfinite(returns2))
 
 
+@pytest.mark.slow
 def test_without_a_fixed_width_the_same_configuration_differs(data_dir):
     """The control: the whole program at once (`budget.width=0`), the same two sweeps round differently."""
     whole2 = _bc_oh(data_dir, *NARROW, "budget.width=0", evaluate=False)
