@@ -5,6 +5,7 @@ import os
 import pathlib
 import subprocess
 import sys
+import tarfile
 
 import pytest
 
@@ -64,3 +65,20 @@ def test_run_sh_smoke_measures_and_finishes_both_sweeps(tmp_path):
         assert timing["finished"] is True, out.stdout[-3000:]
         results = json.loads((tmp_path / "out" / stage / "results.json").read_text())
         assert all(r["status"] == "ok" for r in results["runs"])
+
+
+@pytest.mark.slow
+def test_run_sh_paper_fca_plan_smoke_finishes_both_sweeps_and_packs_them(tmp_path):
+    """`--plan paper-fca --smoke`: FCA and FCA-IB on Hopper (8 seeds) and HalfCheetah (3) side by side, packed."""
+    env = {**os.environ, "OUT": str(tmp_path / "out"), "WORK": str(tmp_path / "work"), "PYTHON": sys.executable,
+           "APE_JAX_CACHE": str(tmp_path / "data")}
+    out = subprocess.run(["bash", str(RUN), "--smoke", "--plan", "paper-fca"], capture_output=True, text=True,
+                         timeout=1800, env=env)
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    with tarfile.open(tmp_path / "out" / "device.tgz") as packed:
+        names = set(packed.getnames())
+    for stage, seeds in (("hopper-pos-paper-fca", 8), ("halfcheetah-pos-paper-fca", 3)):
+        assert f"./{stage}/results.json" in names
+        results = json.loads((tmp_path / "out" / stage / "results.json").read_text())
+        assert {r["method"] for r in results["runs"]} == {"fca", "fca-ib"}
+        assert len(results["runs"]) == 2 * seeds and all(r["status"] == "ok" for r in results["runs"])

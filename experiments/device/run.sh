@@ -88,7 +88,8 @@ stage() {
   else echo "== $name: stopped after ${wall} s (rc $rc) before it finished; its progress is in $OUT/$name/log.txt"; fi
 }
 
-# 2. Versions, the device, the matmul peak, the grid's FLOP/s, MJX steps/s.
+# 2. The plan's stages. paper-fca: the two FCA sweeps, then the image encoders' speed; default: versions, the
+#    device, the matmul peak, the grid's FLOP/s, MJX steps/s, then the paper sweeps.
 if [ "$PLAN" = paper-fca ]; then
   # FCA's two variants share one program: 16 (Hopper) and 6 (HalfCheetah) configurations, each trained as one block.
   export XLA_PYTHON_CLIENT_MEM_FRACTION=${XLA_PYTHON_CLIENT_MEM_FRACTION:-0.4}  # two processes share the card
