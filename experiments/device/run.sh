@@ -106,7 +106,7 @@ if [ "$PLAN" = paper-fca ]; then
     mkdir -p "$OUT/bench-images"
     timeout --signal=INT --kill-after=15 "$bench" $PY -m experiments.bench_images --sizes 128 \
       --encoders resnet18,patch+group --repeats 3 > "$OUT/bench-images/log.txt" 2>&1
-    tail -n 30 "$OUT/bench-images/log.txt"; pack
+    tail -n 30 "$OUT/bench-images/log.txt"
   fi
 elif [ "$SMOKE" = 1 ]; then
   $PY -m experiments.device.measure --out "$OUT" --smoke --repeats 1 || exit $?
