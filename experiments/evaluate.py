@@ -9,6 +9,14 @@ existed), from the policies in
 and recorded metric must come out as recorded, or nothing is written (exit 2). The file is
 replaced atomically; `--out FILE` writes elsewhere and leaves it alone.
 
+`--replaces FILE` is for a results file whose policies were never kept: RUN is
+FILE's sweep trained again (the same task, protocol, recipe, budget, grids and
+runs; refused with exit 2 otherwise). RUN's policies are evaluated as above and
+RUN's completed results are written to FILE (or `--out`), with what FILE
+recorded (command, provenance, summary, each run's return) kept under
+`replaces`; RUN's own `results.json` is left alone. It prints each
+configuration's mean return before and after.
+
 `--video METHOD[:SEED]` instead writes a GIF of one of the policy's evaluation
 episodes (`--episode`, default 0) to `RUN/videos/` (or `--video-out FILE.gif`),
 rendered as the sweep's evaluation saw it, with its return in the caption
@@ -33,6 +41,9 @@ def main(argv=None) -> int:
     p.add_argument("run", type=pathlib.Path, help="a sweep's --out directory (results.json and params/)")
     p.add_argument("--out", type=pathlib.Path, default=None,
                    help="write the completed results here (default: replace RUN/results.json)")
+    p.add_argument("--replaces", type=pathlib.Path, default=None, metavar="FILE",
+                   help="RUN is FILE's sweep trained again (FILE's policies were not kept): write RUN's completed "
+                        "results to FILE (or --out), FILE's own record kept under `replaces`")
     p.add_argument("--data-dir", type=pathlib.Path, default=None,
                    help=f"demonstration cache (default: {data.cache_dir()})")
     p.add_argument("--video", default=None, metavar="METHOD[:SEED]",
@@ -58,8 +69,21 @@ def main(argv=None) -> int:
     except results_lib.ResultsError as e:
         fail(p, str(e))
     if args.video is not None:
+        if args.replaces is not None:
+            fail(p, "--replaces writes results; --video writes a GIF: give one of them")
         return _video(p, args, res)
-    target = args.out or source
+    old = None
+    if args.replaces is not None:
+        if args.replaces.resolve() == source.resolve():
+            fail(p, f"--replaces names RUN's own results ({source}): give the file RUN was trained again to replace")
+        try:
+            old = results_lib.load(args.replaces)
+        except results_lib.ResultsError as e:
+            fail(p, str(e))
+        if differ := results_lib.retraining_differences(old, res):
+            fail(p, f"{source} is not {args.replaces}'s sweep trained again: {differ[0]}"
+                    + (f" (and {len(differ) - 1} more)" if len(differ) > 1 else ""))
+    target = args.out or args.replaces or source
     if (why := unwritable_file(target)) is not None:
         fail(p, why)
     from ape_jax.pipeline.reevaluate import ReevaluationError, reevaluate
@@ -70,12 +94,32 @@ def main(argv=None) -> int:
         new = reevaluate(res, run.params, args.data_dir, system=system())
     except (ReevaluationError, ExpertError, ValueError) as e:
         fail(p, str(e))
+    if old is not None:
+        new.replaces = results_lib.replaced_record(old, args.replaces.name)
     results_lib.save(target, new)
+    if old is not None:
+        print(_before_and_after(old, new))
     added = new.reevaluated["fields"]
     print(f"wrote {target}: " + (f"added {', '.join(added)}" if added else "nothing was missing")
           + f" ({new.reevaluated['eval_s']:.0f} s, of which diagnostics {new.reevaluated['diagnostics_s']:.0f} s); "
           "every recorded return and metric came out as recorded")
     return 0
+
+
+def _before_and_after(old, new) -> str:
+    """Each configuration's mean return in `old` (the first training) and in `new` (trained again), a line each."""
+    def key(row):
+        return row["method"], tuple(sorted(row["hparams"].items()))
+
+    was = {key(r): r for r in old.summary}
+    lines = [f"mean return over seeds, first training (commit {(old.system or {}).get('commit')}) -> trained again:"]
+    for row in new.summary:
+        hp = ", ".join(f"{k} {v:g}" for k, v in row["hparams"].items())
+        before = (was.get(key(row)) or {}).get("return_mean")
+        lines.append(f"  {new.label(row['method'])}{f', {hp}' if hp else ''}: "
+                     + (f"{before:,.1f}" if before is not None else "—") + " -> "
+                     + (f"{row['return_mean']:,.1f}" if row["return_mean"] is not None else "failed"))
+    return "\n".join(lines)
 
 
 def _video(p, args, res) -> int:

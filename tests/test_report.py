@@ -1010,3 +1010,27 @@ def test_the_cli_refreshes_the_contents_of_a_file_that_has_them_and_adds_none_to
         "  - Every configuration: [Hopper, `pos` observations" in text
     assert text.index(toc.END) < text.index("## Hand-written") < text.index("<!-- report:start -->")
     assert "toc:" not in without.read_text() and "<!-- report:start -->" in without.read_text()
+
+
+def test_a_file_trained_again_shows_the_first_trainings_returns_beside_its_own(tmp_path):
+    """A file written by `experiments.evaluate RUN --replaces FILE` carries the replaced file's record: the grid gains
+    a "first training" column (the replaced summary, matched by configuration) and the provenance says why."""
+    first = _schema2(_results(methods=(("bc-so", {}, 300.0), ("bc-oh", {}, 1000.0))),
+                     command=["python", "-m", "experiments.sweep", "--env", "hopper"])
+    again = _schema2(_results(methods=(("bc-so", {}, 320.0), ("bc-oh", {}, 950.0),
+                                       ("ours-step", {"thr": 0.1, "w": 5.0}, 990.0))),
+                     command=["python", "-m", "experiments.sweep", "--env", "hopper", "--out", "runs/again"])
+    again["replaces"] = {"file": "r.json", "command": first["command"], "system": {"commit": "f4e2e9a"},
+                         "timing": first["timing"], "summary": first["summary"], "runs": []}
+    text = report.report([_loaded(tmp_path, again)])
+    assert "| return | % of expert | first training |" in text
+    assert "| BC-SO | — | 2 | 320.0 ± 10.0 | 16.0 | 300.0 ± 10.0 |" in text
+    assert "| BC-OH | — | 2 | 950.0 ± 10.0 | 47.5 | 1,000.0 ± 10.0 |" in text    # the new numbers are the table's
+    assert "| **Ours (step)** | thr 0.1, w 5 | 2 | **990.0 ± 10.0** | 49.5 | — |" in text   # not in the first one
+    line = report.provenance(Results.from_json(again))
+    assert "trained again with its policies kept, to replace the file of commit `f4e2e9a`" in line
+    assert "that file's command `python -m experiments.sweep --env hopper`" in line
+    assert "first training" not in report.report([_loaded(tmp_path, first, "f.json")])  # only where a file replaced
+    bad = {**again, "replaces": {"summary": [{"method": "bc-oh"}]}}
+    with pytest.raises(report.ReportError, match="replaces.summary"):
+        _loaded(tmp_path, bad, "bad.json")

@@ -278,6 +278,55 @@ def test_evaluating_saved_policies_again_adds_the_missing_fields_and_refuses_oth
     assert "seed 0 diagnostics embedding_ratio" in capsys.readouterr().err
 
 
+def test_a_sweep_trained_again_replaces_a_file_whose_policies_were_not_kept(workdir, reference, tmp_path, capsys):
+    """`experiments.evaluate RUN --replaces FILE`: RUN's policies evaluated (its returns must come out again), its
+    results written over FILE with FILE's own record kept under `replaces`; a RUN of another sweep is refused in one
+    line and FILE left as it was."""
+    import copy
+
+    from experiments import evaluate
+
+    run = tmp_path / "run"
+    shutil.copytree(workdir / "reference" / "params", run / "params")
+    (run / "results.json").write_text(json.dumps(reference))
+    kept = (run / "results.json").read_bytes()
+    first = copy.deepcopy(reference)   # the first training: other numbers, no diagnostics, no policies
+    for r in first["runs"]:
+        r["eval"]["return_mean"] += 3.0
+        del r["diagnostics"]
+    for row in first["summary"]:
+        row["return_mean"] += 3.0
+    first["system"] = {**first["system"], "commit": "f4e2e9a"}
+    old = tmp_path / "results" / "toycar-full-default.json"
+    old.parent.mkdir()
+    old.write_text(json.dumps(first))
+    assert evaluate.main([str(run), "--replaces", str(old), "--data-dir", str(workdir / "data")]) == 0
+    printed = capsys.readouterr().out
+    assert "first training (commit f4e2e9a) -> trained again:" in printed
+    row = reference["summary"][0]
+    assert f"{row['return_mean'] + 3.0:,.1f} -> {row['return_mean']:,.1f}" in printed
+    assert (run / "results.json").read_bytes() == kept              # RUN's own file is left alone
+    now = json.loads(old.read_text())
+    assert numbers({k: v for k, v in now.items() if k not in ("reevaluated", "replaces")}) == numbers(reference)
+    assert now["replaces"]["file"] == old.name and now["replaces"]["system"]["commit"] == "f4e2e9a"
+    assert now["replaces"]["summary"] == first["summary"] and now["replaces"]["command"] == first["command"]
+    assert [r["return_mean"] for r in now["replaces"]["runs"]] == [r["eval"]["return_mean"] for r in first["runs"]]
+    assert now["reevaluated"]["fields"] == []   # nothing was missing: the retrained sweep has its diagnostics
+    # a file that is not RUN's sweep (another budget) is refused, and left as it was
+    other = copy.deepcopy(first)
+    other["config"]["iterations"] = 90
+    old.write_text(json.dumps(other))
+    before = old.read_bytes()
+    with pytest.raises(SystemExit) as e:
+        evaluate.main([str(run), "--replaces", str(old), "--data-dir", str(workdir / "data")])
+    assert e.value.code == 2
+    assert f"is not {old}'s sweep trained again: iterations 90 against 60" in capsys.readouterr().err
+    assert old.read_bytes() == before
+    with pytest.raises(SystemExit):   # nor may it replace itself
+        evaluate.main([str(run), "--replaces", str(run / "results.json")])
+    assert "--replaces names RUN's own results" in capsys.readouterr().err
+
+
 def test_a_saved_policy_is_watched_as_a_captioned_gif_of_its_evaluation_episode(workdir, reference, tmp_path, capsys):
     """`experiments.evaluate RUN --video METHOD[:SEED]`: a GIF of one of the policy's evaluation episodes, the same
     episodes the sweep evaluated (their mean metric is the recorded one), captioned; bad choices are refused in

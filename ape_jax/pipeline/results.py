@@ -30,6 +30,10 @@ the frame skip, episode length and reward scale the environment gives it, and th
 split), `budget` and `recipe`; and each run's `train_final`, the mean of every
 training metric over the run's last 1%.
 
+Optional at any schema: `reevaluated` (what `experiments.evaluate` added later) and
+`replaces` (`replaced_record`: the file this sweep was trained again to replace, because
+that one's policies were not kept: its command, provenance, summary and per-run returns).
+
 Schema 1 and 2 files still load: `settings` is rebuilt from their flat `config`
 (recipe `mlp`, a split by episode: what every sweep ran before schema 3), and a
 schema 1 file's `methods` come from the registry (or the name), its `command`
@@ -86,6 +90,7 @@ class Results:
     settings: dict = dataclasses.field(default_factory=dict)
     methods: dict[str, dict] = dataclasses.field(default_factory=dict)
     reevaluated: dict | None = None
+    replaces: dict | None = None
     schema: int = SCHEMA
 
     # -- reading --------------------------------------------------------------------------------------------------
@@ -120,6 +125,8 @@ class Results:
                "timing": self.timing, "system": self.system}
         if self.reevaluated is not None:
             out["reevaluated"] = self.reevaluated
+        if self.replaces is not None:
+            out["replaces"] = self.replaces
         return _finite_or_none(out)
 
     def label(self, method: str) -> str:
@@ -242,6 +249,53 @@ def write_csv(path: str | pathlib.Path, results: Results) -> None:
                     row["n_seeds"], *(ms.get(m, {}).get(s) for m in metrics for s in ("mean", "std")),
                     row["return_mean"], row["return_std"], row["normalized_mean"], row["normalized_std"]])
     write_atomic(pathlib.Path(path), lambda f: f.write(rows.getvalue().encode()))
+
+
+# -- a sweep trained again to replace a file whose policies were not kept ---------------------------------------------
+
+# What must agree for one sweep to stand for another trained again: the `config` fields and the protocol's (those both
+# files record: older ones record fewer).
+_SAME_CONFIG = ("iterations", "seeds", "eval_episodes", "batch_size", "lr", "history", "methods", "step_grid",
+                "softmax_grid", "image_size", "encoder", "loss", "metric")
+_SAME_PROTOCOL = ("name", "frame_skip", "episode_length", "reward_scale", "collect_transitions", "train_transitions",
+                  "val_transitions", "history", "split")
+
+
+def retraining_differences(old: Results, new: Results) -> list[str]:
+    """Why `new` is not `old`'s sweep trained again (empty when it is): the task, observation mode, preset, recipe,
+    protocol, budget, grids and methods must agree wherever both files record them, and so must the runs (method,
+    hparams, seed). The code, and so the numbers, may differ: that is what training again means."""
+    out = [f"{k} {getattr(old, k)!r} against {getattr(new, k)!r}" for k in ("env", "obs", "preset")
+           if getattr(old, k) != getattr(new, k)]
+    if old.recipe_name != new.recipe_name:
+        out.append(f"recipe {old.recipe_name!r} against {new.recipe_name!r}")
+    if old.split != new.split:
+        out.append(f"split {old.split!r} against {new.split!r}")
+    out += [f"protocol {k} {old.protocol[k]!r} against {new.protocol[k]!r}" for k in _SAME_PROTOCOL
+            if k in old.protocol and k in new.protocol and old.protocol[k] != new.protocol[k]]
+    out += [f"{k} {old.config[k]!r} against {new.config[k]!r}" for k in _SAME_CONFIG
+            if k in old.config and k in new.config and old.config[k] != new.config[k]]
+    was = {(r["method"], json.dumps(r["hparams"], sort_keys=True), r["seed"]) for r in old.runs}
+    now = {(r["method"], json.dumps(r["hparams"], sort_keys=True), r["seed"]) for r in new.runs}
+    if was != now:
+        gone, extra = sorted(was - now), sorted(now - was)
+        first = (f"{gone[0][0]} {gone[0][1]} seed {gone[0][2]} is missing" if gone else
+                 f"{extra[0][0]} {extra[0][1]} seed {extra[0][2]} is extra")
+        out.append(f"the runs differ ({len(gone)} missing, {len(extra)} extra: {first})")
+    return out
+
+
+def replaced_record(old: Results, file: str) -> dict:
+    """`replaces` of a sweep trained again to stand for `old` (read from `file`): what `old` recorded of where it came
+    from (`command`, `system`, `timing`), its `summary`, and each run's mean return, so the first training's numbers
+    stay readable beside the new ones; a record `old` had itself is nested under `replaces`."""
+    record = {"file": file, "command": old.command, "system": old.system, "timing": old.timing,
+              "summary": old.summary,
+              "runs": [{"method": r["method"], "hparams": r["hparams"], "seed": r["seed"], "status": r["status"],
+                        "return_mean": (r.get("eval") or {}).get("return_mean")} for r in old.runs]}
+    if old.replaces is not None:
+        record["replaces"] = old.replaces
+    return record
 
 
 # -- the records of a run (what the sweep's assemble phase writes) --------------------------------------------------
@@ -447,6 +501,10 @@ def validate(obj: dict, where: str = "results") -> None:
                                              for k in ("iterations", "seeds", "eval_episodes")})
     _row(f"{where}: expert", obj["expert"], {k: (_optional(_number), "a number or null")
                                              for k in ("return_mean", "return_std", "random_return_mean")})
+    if obj.get("replaces") is not None:
+        _row(f"{where}: replaces", obj["replaces"], {"summary": (lambda v: isinstance(v, list), "a list")})
+        for i, row in enumerate(obj["replaces"]["summary"]):
+            _row(f"{where}: replaces.summary[{i}]", row, _SUMMARY)
     for i, row in enumerate(obj["summary"]):
         _row(f"{where}: summary[{i}]", row, _SUMMARY)
         if row["n_seeds"] and not all(_number(row[k]) and math.isfinite(row[k]) for k in ("return_mean", "return_std")):

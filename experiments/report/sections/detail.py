@@ -13,7 +13,7 @@ from ape_jax.pipeline import presets
 from ape_jax.pipeline import results as results_lib
 from experiments.report import figures
 from experiments.report.analysis import (BRAX, Group, best_of, choices, copycat_groups, display_metric, expert_ape,
-                                         file_stem, former_preset, gap, is_rate, label, loss_rows, ordered,
+                                         config_key, file_stem, former_preset, gap, is_rate, label, loss_rows, ordered,
                                          protocol_words,
                                          recipe_diagnostics, recipe_groups)
 from experiments.report.sections.common import SETTING_WORDS, Context, Section
@@ -22,18 +22,24 @@ from experiments.report.sections.diagnostics import group_diagnostics, training_
 
 def grid_table(m: Group) -> str:
     """Every configuration: return and % of expert (a task judged by a rate, its reward not its measure: the rate
-    in %)."""
+    in %); where a file of the group was trained again to replace one whose policies were not kept
+    (`results.json`'s `replaces`), the first training's return beside it."""
     rows = list(m.summary)
     best = best_of([r for r in rows if r["n_seeds"]])
     rate = is_rate(m)
-    heads = [f"{m.metric} %"] if rate else ["return", "% of expert"]
+    first = {config_key(row): row for s in m.sources if s.replaces for row in s.replaces["summary"]}
+    heads = ([f"{m.metric} %"] if rate else ["return", "% of expert"]) + (["first training"] if first else [])
     lines = ["| method | hparams | seeds | " + " | ".join(heads) + " |", "|---|---|---:|" + "---:|" * len(heads)]
     for r in rows:
         hp = ", ".join(f"{k} {v:g}" for k, v in r["hparams"].items()) or "—"
         lab = label(m.methods, r["method"])
+        was = first.get(config_key(r))
+        before = ([] if not first else [f"{was['return_mean']:,.1f} ± {was['return_std']:,.1f}"
+                                        if was and was["n_seeds"] else "—"])
         ok = r["n_seeds"] and (not rate or r.get("normalized_mean") is not None)
         if not ok:
-            lines.append(f"| {lab} | {hp} | {r['n_seeds']} | failed |" + ("" if rate else " |"))
+            lines.append(f"| {lab} | {hp} | {r['n_seeds']} | failed |" + ("" if rate else " |")
+                         + "".join(f" {b} |" for b in before))
             continue
         mark = "**" if r is best else ""
         if rate:
@@ -41,7 +47,7 @@ def grid_table(m: Group) -> str:
         else:
             cells = [f"{mark}{r['return_mean']:,.1f} ± {r['return_std']:,.1f}{mark}",
                      f"{r['normalized_mean']:.1f}" if r.get("normalized_mean") is not None else "—"]
-        lines.append(f"| {mark}{lab}{mark} | {hp} | {r['n_seeds']} | " + " | ".join(cells) + " |")
+        lines.append(f"| {mark}{lab}{mark} | {hp} | {r['n_seeds']} | " + " | ".join(cells + before) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -201,7 +207,16 @@ def provenance(r: results_lib.Results) -> str:
         line += f", peak resident memory {t['peak_rss_mb'] / 1024:.1f} GB"
     width = ((r.settings or {}).get("budget") or {}).get("width")
     line += (f"; {width} configuration(s) per device per call (`budget.width`)" if width else
-             "; each program vmapped whole (before `budget.width`: its numbers depend on what trained beside them)")
+             "; each program vmapped whole (width 0, as every sweep before `budget.width` ran: its numbers depend on what "
+             "trained beside them)")
+    if r.replaces:
+        was = r.replaces
+        commit = (was.get("system") or {}).get("commit")
+        line += ("; trained again with its policies kept, to replace "
+                 + (f"the file of commit `{commit}`" if commit else "an earlier file") + " whose policies "
+                 f"were not (`python -m experiments.evaluate RUN --replaces FILE`; that file's command "
+                 f"`{shlex.join(was['command']) if was.get('command') else 'not recorded'}`, its returns in the "
+                 "grid's \"first training\" column and its record under `replaces`)")
     chain, again = [], r.reevaluated
     while again:  # the latest evaluation first, each earlier one under "previous"
         chain.append(again)
