@@ -207,8 +207,8 @@ def provenance(r: results_lib.Results) -> str:
         line += f", peak resident memory {t['peak_rss_mb'] / 1024:.1f} GB"
     width = ((r.settings or {}).get("budget") or {}).get("width")
     line += (f"; {width} configuration(s) per device per call (`budget.width`)" if width else
-             "; each program vmapped whole (width 0, as every sweep before `budget.width` ran: its numbers depend on what "
-             "trained beside them)")
+             "; each program vmapped whole (width 0, as every sweep before `budget.width` ran: its numbers depend "
+             "on what trained beside them)")
     if r.replaces:
         was = r.replaces
         commit = (was.get("system") or {}).get("commit")
