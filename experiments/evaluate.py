@@ -95,10 +95,10 @@ def main(argv=None) -> int:
     except (ReevaluationError, ExpertError, ValueError) as e:
         fail(p, str(e))
     if old is not None:
-        new.replaces = results_lib.replaced_record(old, args.replaces.name)
+        new.replaces = results_lib.replaced_record(old, args.replaces.name, new)
     results_lib.save(target, new)
     if old is not None:
-        print(_before_and_after(old, new))
+        print(_before_and_after(new))
     added = new.reevaluated["fields"]
     print(f"wrote {target}: " + (f"added {', '.join(added)}" if added else "nothing was missing")
           + f" ({new.reevaluated['eval_s']:.0f} s, of which diagnostics {new.reevaluated['diagnostics_s']:.0f} s); "
@@ -106,13 +106,15 @@ def main(argv=None) -> int:
     return 0
 
 
-def _before_and_after(old, new) -> str:
-    """Each configuration's mean return in `old` (the first training) and in `new` (trained again), a line each."""
+def _before_and_after(new) -> str:
+    """Each configuration's mean return in the file `new` replaces (`new.replaces`, the first training) and in `new`
+    (trained again), a line each."""
     def key(row):
         return row["method"], tuple(sorted(row["hparams"].items()))
 
-    was = {key(r): r for r in old.summary}
-    lines = [f"mean return over seeds, first training (commit {(old.system or {}).get('commit')}) -> trained again:"]
+    was = {key(r): r for r in new.replaces["summary"]}
+    commit = (new.replaces.get("system") or {}).get("commit")
+    lines = [f"mean return over seeds, first training (commit {commit}) -> trained again:"]
     for row in new.summary:
         hp = ", ".join(f"{k} {v:g}" for k, v in row["hparams"].items())
         before = (was.get(key(row)) or {}).get("return_mean")

@@ -173,6 +173,10 @@ def test_tca_and_tca_ib_are_registered_as_one_program():
     np.testing.assert_allclose(hp.ib_weight, [0.0, 0.0, 1e-5, 1e-3, 1e-5, 1e-3])
     np.testing.assert_allclose(hp.adversary_lr, [2e-4] * 6)
     np.testing.assert_allclose(hp.lr, [3e-4] * 6)
+    # the recipe may set the adversary's learning rate for every task (`--set recipe.fca_adversary_lr=X`)
+    ctx = dataclasses.replace(ctx, task=tasks.get("hopper"), fca_alphas=(0.1,), fca_adversary_lr=2e-4)
+    assert tca.settings(ctx) == [{"alpha": 0.1, "adversary_lr": 2e-4}]
+    assert {s["adversary_lr"] for s in ib.settings(ctx)} == {2e-4}
 
 
 def test_a_dataset_smaller_than_the_batch_is_refused(data):

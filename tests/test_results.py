@@ -66,3 +66,41 @@ def test_save_is_atomic_and_writes_no_nan(tmp_path):
     results.save(tmp_path / "r.json", res)
     assert json.loads((tmp_path / "r.json").read_text())["timing"]["nan"] is None
     assert [p.name for p in tmp_path.iterdir()] == ["r.json"]
+
+
+def test_a_sweep_trained_again_is_matched_run_by_run_with_the_file_it_replaces():
+    """`retraining_differences` finds nothing between a file and its sweep trained again, even where the newer code
+    writes a knob out that the older left at its default (FCA's adversary learning rate, the policy's); it names the
+    first difference otherwise. `replaced_record` re-keys the old rows to the new hparams, keeping their own."""
+    def file(runs, iterations=30_000):
+        rows = [{"method": m, "hparams": hp, "seed": seed, "status": "ok", "error": None,
+                 "eval": {"return_mean": ret}, "losses": {s: {"unweighted": 0.1, "changepoint": 0.2, "copycat": 0.1}
+                                                           for s in ("train", "val")}}
+                for m, hp, seed, ret in runs]
+        return results.Results.from_json({
+            "schema": 2, "env": "hopper", "obs": "pos", "preset": "default", "command": ["python", "-m", "x"],
+            "protocol": {"name": "fca", "frame_skip": 1}, "methods": {},
+            "config": {"iterations": iterations, "seeds": 1, "eval_episodes": 20, "lr": 2e-4,
+                       "methods": sorted({m for m, *_ in runs})},
+            "expert": {"return_mean": 1.0, "return_std": 0.0, "random_return_mean": 0.0},
+            "runs": rows, "summary": results.summarize(rows), "system": {"commit": "f4e2e9a"}})
+
+    first = file([("fca", {"alpha": 0.1}, 0, 500.0), ("boosting", {"rounds": 3.0}, 0, 400.0)])
+    again = file([("fca", {"alpha": 0.1, "adversary_lr": 2e-4}, 0, 520.0), ("boosting", {"rounds": 3}, 0, 390.0)])
+    assert results.retraining_differences(first, again) == []
+    assert results.same_knobs("fca", {"alpha": 0.1}, {"alpha": 0.1, "adversary_lr": 2e-4}, 2e-4)
+    assert not results.same_knobs("fca", {"alpha": 0.1}, {"alpha": 0.1, "adversary_lr": 4e-4}, 2e-4)
+    other_lr = file([("fca", {"alpha": 0.1, "adversary_lr": 4e-4}, 0, 520.0), ("boosting", {"rounds": 3}, 0, 1.0)])
+    assert results.retraining_differences(first, other_lr) == [
+        "the runs differ (1 missing, 1 extra: fca {'alpha': 0.1} seed 0 has no run trained again)"]
+    longer = file([("fca", {"alpha": 0.1, "adversary_lr": 2e-4}, 0, 1.0), ("boosting", {"rounds": 3}, 0, 1.0)], 90_000)
+    assert results.retraining_differences(first, longer) == ["iterations 30000 against 90000"]
+    record = results.replaced_record(first, "r.json", again)
+    fca_row = next(r for r in record["summary"] if r["method"] == "fca")
+    assert fca_row["hparams"] == {"alpha": 0.1, "adversary_lr": 2e-4}
+    assert fca_row["hparams_recorded"] == {"alpha": 0.1} and fca_row["return_mean"] == 500.0
+    assert record["runs"][0] == {"method": "fca", "hparams": {"alpha": 0.1, "adversary_lr": 2e-4},
+                                 "hparams_recorded": {"alpha": 0.1}, "seed": 0, "status": "ok", "return_mean": 500.0}
+    assert record["system"]["commit"] == "f4e2e9a" and "replaces" not in record
+    again.replaces = record
+    assert results.Results.from_json(again.to_json()).replaces == record   # it round-trips

@@ -35,7 +35,8 @@ of both is one `vmap`:
 Both run at each α of `GridContext.fca_alphas`, by default the task's
 (`ape_jax.tasks`, `Task.fca_alpha`: the FCA code's README and defaults, Hopper
 2.0 and 1.0 elsewhere; 0.2 for the driving sandbox), with D's learning rate
-`Task.fca_adversary_lr` (Hopper 4e-4, 2e-4 elsewhere).
+`Task.fca_adversary_lr` (Hopper 4e-4, 2e-4 elsewhere) unless the recipe gives one
+(`GridContext.fca_adversary_lr`, `--set recipe.fca_adversary_lr=X`).
 
 **The information bottleneck** (FCA-IB). The embedding is a Gaussian
 `N(μ(history), diag σ²)`: `μ` the `embedding` layer's output, `log σ²` a learned
@@ -322,12 +323,16 @@ def _alphas(ctx) -> tuple[float, ...]:
     return ctx.fca_alphas or (ctx.task.fca_alpha,)
 
 
+def _adversary_lr(ctx) -> float:
+    return ctx.fca_adversary_lr or ctx.task.fca_adversary_lr
+
+
 methods.register(methods.Method(
     "fca", "FCA (TCA)",
-    grid=lambda ctx: [{"alpha": a, "adversary_lr": ctx.task.fca_adversary_lr} for a in _alphas(ctx)],
+    grid=lambda ctx: [{"alpha": a, "adversary_lr": _adversary_lr(ctx)} for a in _alphas(ctx)],
     hparams=_hparams, program="fca", learner=_learner, module=__name__))
 methods.register(methods.Method(
     "fca-ib", "FCA (TCA + IB)",
-    grid=lambda ctx: [{"alpha": a, "adversary_lr": ctx.task.fca_adversary_lr, "ib_weight": b}
+    grid=lambda ctx: [{"alpha": a, "adversary_lr": _adversary_lr(ctx), "ib_weight": b}
                       for a in _alphas(ctx) for b in (ctx.ib_weights or (DEFAULT_IB_WEIGHT,))],
     hparams=_hparams, program="fca", learner=_learner, module=__name__))

@@ -70,6 +70,7 @@ class GridContext:
       softmax_grid: the preset's temperatures of softmax weightings.
       n_train: transitions in the training split (e.g. DAgger's query budget).
       fca_alphas: FCA's adversarial weights α to run (the recipe's); empty: the task's one.
+      fca_adversary_lr: the learning rate of FCA's adversary (the recipe's); None: the task's.
       ib_weights: the information bottleneck's KL weights of FCA-IB (the recipe's).
     """
 
@@ -79,6 +80,7 @@ class GridContext:
     n_train: int
     fca_alphas: tuple[float, ...] = ()
     ib_weights: tuple[float, ...] = ()
+    fca_adversary_lr: float | None = None
 
 
 @dataclasses.dataclass(frozen=True)

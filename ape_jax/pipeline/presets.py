@@ -109,6 +109,7 @@ class Recipe:
       ape_normalization: `"none"` (the raw APE, as the official code) or `"mean"`.
       step_grid, softmax_grid: the weightings' (THR, W) and τ settings.
       fca_alphas: FCA's adversarial weights to run; empty: the task's (`Task.fca_alpha`).
+      fca_adversary_lr: the learning rate of FCA's adversary; None: the task's (`Task.fca_adversary_lr`).
       ib_weights: FCA-IB's KL weights to run; empty: its default.
     """
 
@@ -129,6 +130,7 @@ class Recipe:
     step_grid: tuple[tuple[float, float], ...] = STEP_GRID
     softmax_grid: tuple[float, ...] = SOFTMAX_GRID
     fca_alphas: tuple[float, ...] = ()
+    fca_adversary_lr: float | None = None
     ib_weights: tuple[float, ...] = ()
 
     def __post_init__(self):
@@ -144,6 +146,8 @@ class Recipe:
         _one_of("recipe.loss", self.loss, (None, *LOSSES))
         _one_of("recipe.ape_normalization", self.ape_normalization, NORMALIZATIONS)
         _check(self.lr > 0 and math.isfinite(self.lr), f"recipe.lr must be a finite number > 0, got {self.lr!r}")
+        _check(self.fca_adversary_lr is None or (self.fca_adversary_lr > 0 and math.isfinite(self.fca_adversary_lr)),
+               f"recipe.fca_adversary_lr must be a finite number > 0, got {self.fca_adversary_lr!r}")
         for name in ("beta1", "beta2"):
             _check(0.0 <= getattr(self, name) < 1.0, f"recipe.{name} must be in [0, 1), got {getattr(self, name)!r}")
         _check(0.0 < self.bn_momentum <= 1.0, f"recipe.bn_momentum must be in (0, 1], got {self.bn_momentum!r}")

@@ -264,7 +264,7 @@ _SAME_PROTOCOL = ("name", "frame_skip", "episode_length", "reward_scale", "colle
 def retraining_differences(old: Results, new: Results) -> list[str]:
     """Why `new` is not `old`'s sweep trained again (empty when it is): the task, observation mode, preset, recipe,
     protocol, budget, grids and methods must agree wherever both files record them, and so must the runs (method,
-    hparams, seed). The code, and so the numbers, may differ: that is what training again means."""
+    seed and hparams, `same_knobs`). The code, and so the numbers, may differ: that is what training again means."""
     out = [f"{k} {getattr(old, k)!r} against {getattr(new, k)!r}" for k in ("env", "obs", "preset")
            if getattr(old, k) != getattr(new, k)]
     if old.recipe_name != new.recipe_name:
@@ -275,24 +275,71 @@ def retraining_differences(old: Results, new: Results) -> list[str]:
             if k in old.protocol and k in new.protocol and old.protocol[k] != new.protocol[k]]
     out += [f"{k} {old.config[k]!r} against {new.config[k]!r}" for k in _SAME_CONFIG
             if k in old.config and k in new.config and old.config[k] != new.config[k]]
-    was = {(r["method"], json.dumps(r["hparams"], sort_keys=True), r["seed"]) for r in old.runs}
-    now = {(r["method"], json.dumps(r["hparams"], sort_keys=True), r["seed"]) for r in new.runs}
-    if was != now:
-        gone, extra = sorted(was - now), sorted(now - was)
-        first = (f"{gone[0][0]} {gone[0][1]} seed {gone[0][2]} is missing" if gone else
-                 f"{extra[0][0]} {extra[0][1]} seed {extra[0][2]} is extra")
-        out.append(f"the runs differ ({len(gone)} missing, {len(extra)} extra: {first})")
+    matched = retrained_hparams(old, new)
+    gone = [r for r in old.runs if _run_key(r) not in matched]
+    extra = len(new.runs) - (len(old.runs) - len(gone))
+    if gone or extra:
+        first = (f"{gone[0]['method']} {gone[0]['hparams']} seed {gone[0]['seed']} has no run trained again" if gone
+                 else "it has runs the first training did not")
+        out.append(f"the runs differ ({len(gone)} missing, {extra} extra: {first})")
     return out
 
 
-def replaced_record(old: Results, file: str) -> dict:
+def same_knobs(method: str, a: dict, b: dict, lr: float) -> bool:
+    """Whether hparams `a` and `b` configure `method` alike: equal, or made into the same traced knobs by the
+    method's `hparams` (a knob one leaves out takes its default: FCA's `adversary_lr` is `lr` unless given)."""
+    if a.keys() == b.keys() and all(float(a[k]) == float(b[k]) for k in a):
+        return True
+    try:
+        knobs = [methods_lib.get(method).hparams(h, lr, 0) for h in (a, b)]
+    except (methods_lib.MethodError, KeyError, TypeError, ValueError):
+        return False
+    import jax   # here: reading a results file does not need it
+
+    leaves = [jax.tree.leaves(k) for k in knobs]
+    return len(leaves[0]) == len(leaves[1]) and all(np.array_equal(np.asarray(x), np.asarray(y))
+                                                    for x, y in zip(*leaves))
+
+
+def _run_key(run: dict) -> tuple:
+    return run["method"], json.dumps(run["hparams"], sort_keys=True), run["seed"]
+
+
+def retrained_hparams(old: Results, new: Results) -> dict[tuple, dict]:
+    """Per run of `old` (`(method, hparams as JSON, seed)`), the hparams of the run of `new` that trains it again
+    (the same method and seed, `same_knobs`); runs without one are left out."""
+    lr = float(old.config.get("lr") or (old.settings.get("recipe") or {}).get("lr") or 2e-4)
+    free = list(new.runs)
+    out = {}
+    for run in old.runs:
+        twin = next((r for r in free if r["method"] == run["method"] and r["seed"] == run["seed"]
+                     and same_knobs(run["method"], run["hparams"], r["hparams"], lr)), None)
+        if twin is not None:
+            free.remove(twin)
+            out[_run_key(run)] = twin["hparams"]
+    return out
+
+
+def replaced_record(old: Results, file: str, new: Results | None = None) -> dict:
     """`replaces` of a sweep trained again to stand for `old` (read from `file`): what `old` recorded of where it came
     from (`command`, `system`, `timing`), its `summary`, and each run's mean return, so the first training's numbers
-    stay readable beside the new ones; a record `old` had itself is nested under `replaces`."""
+    stay readable beside the new ones; a record `old` had itself is nested under `replaces`. Given `new`, a row whose
+    hparams `new` writes otherwise (`same_knobs`) takes `new`'s, its own kept as `hparams_recorded`, so the two
+    files' rows match by configuration."""
+    matched = retrained_hparams(old, new) if new is not None else {}
+    by_config = {(k[0], k[1]): hp for k, hp in matched.items()}
+
+    def rekeyed(row: dict) -> dict:
+        hp = by_config.get((row["method"], json.dumps(row["hparams"], sort_keys=True)))
+        if hp is None or hp == row["hparams"]:
+            return row
+        return {**row, "hparams": hp, "hparams_recorded": row["hparams"]}
+
     record = {"file": file, "command": old.command, "system": old.system, "timing": old.timing,
-              "summary": old.summary,
-              "runs": [{"method": r["method"], "hparams": r["hparams"], "seed": r["seed"], "status": r["status"],
-                        "return_mean": (r.get("eval") or {}).get("return_mean")} for r in old.runs]}
+              "summary": [rekeyed(row) for row in old.summary],
+              "runs": [{**rekeyed({"method": r["method"], "hparams": r["hparams"]}), "seed": r["seed"],
+                        "status": r["status"], "return_mean": (r.get("eval") or {}).get("return_mean")}
+                       for r in old.runs]}
     if old.replaces is not None:
         record["replaces"] = old.replaces
     return record
