@@ -1027,6 +1027,10 @@ def test_a_file_trained_again_shows_the_first_trainings_returns_beside_its_own(t
     assert "| BC-SO | — | 2 | 320.0 ± 10.0 | 16.0 | 300.0 ± 10.0 |" in text
     assert "| BC-OH | — | 2 | 950.0 ± 10.0 | 47.5 | 1,000.0 ± 10.0 |" in text    # the new numbers are the table's
     assert "| **Ours (step)** | thr 0.1, w 5 | 2 | **990.0 ± 10.0** | 49.5 | — |" in text   # not in the first one
+    # how far the means moved: BC-SO +20, BC-OH −50, each against a standard error of sqrt(2 · 10² / 2) = 10
+    assert ("Trained again, 2 configuration(s) moved by -50.0 to +20.0 in mean return from the first training (the "
+            "\"first training\" column), a median of 3.50 standard errors of the difference") in text
+    assert "; 1 of 2 by more than two, where new seeds would put about 5% beyond two" in text   # +20 is two, not more
     line = report.provenance(Results.from_json(again))
     assert "trained again with its policies kept, to replace the file of commit `f4e2e9a`" in line
     assert "that file's command `python -m experiments.sweep --env hopper`" in line

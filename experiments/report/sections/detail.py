@@ -5,6 +5,8 @@ diagnostics."""
 from __future__ import annotations
 
 import dataclasses
+import math
+import statistics
 import shlex
 
 from ape_jax import methods as methods_lib
@@ -49,6 +51,26 @@ def grid_table(m: Group) -> str:
                      f"{r['normalized_mean']:.1f}" if r.get("normalized_mean") is not None else "—"]
         lines.append(f"| {mark}{lab}{mark} | {hp} | {r['n_seeds']} | " + " | ".join(cells + before) + " |")
     return "\n".join(lines) + "\n"
+
+
+def retrained_lines(m: Group) -> list[str]:
+    """For a group with files trained again (`replaces`): how far each configuration's mean moved between the two
+    trainings, against the standard error of that difference from the two trainings' spreads over seeds (the same
+    seeds, other code: were the numbers a property of the seeds, the difference would be far below it)."""
+    first = {config_key(row): row for s in m.sources if s.replaces for row in s.replaces["summary"]}
+    pairs = [(row, first[config_key(row)]) for row in m.summary
+             if config_key(row) in first and row["n_seeds"] and first[config_key(row)]["n_seeds"]]
+    if not pairs:
+        return []
+    moved = [(a["return_mean"] - b["return_mean"],
+              math.sqrt(a["return_std"] ** 2 / a["n_seeds"] + b["return_std"] ** 2 / b["n_seeds"])) for a, b in pairs]
+    beyond = sum(abs(d) > 2 * se for d, se in moved if se > 0)
+    ratio = [abs(d) / se for d, se in moved if se > 0]
+    return [f"Trained again, {len(pairs)} configuration(s) moved by {min(d for d, _ in moved):+,.1f} to "
+            f"{max(d for d, _ in moved):+,.1f} in mean return from the first training (the \"first training\" "
+            f"column), a median of {statistics.median(ratio):.2f} standard errors of the difference (from each "
+            f"training's std over seeds); {beyond} of {len(ratio)} by more than two, where new seeds would put about "
+            "5% beyond two and a median near 0.67.", ""] if ratio else []
 
 
 def loss_table(m: Group) -> str:
@@ -242,7 +264,7 @@ def group_sections(ctx: Context) -> list[Section]:
     for key, m in ordered(ctx.merged):
         protocol = f", protocol {protocol_words(m.protocol)}" if m.shows_protocol else ""
         grid = ctx.figure(_grid_name(m), f"{m.title} grid search", lambda: figures.grid_figure(m))
-        body = [*(f"- {provenance(r)}" for r in m.sources), "", grid_table(m), *grid.lines]
+        body = [*(f"- {provenance(r)}" for r in m.sources), "", grid_table(m), *retrained_lines(m), *grid.lines]
         sentences = paper_choices(m)
         if sentences:
             unit = display_metric(m)[1]
