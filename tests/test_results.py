@@ -9,6 +9,7 @@ from ape_jax.pipeline import results
 from ape_jax.pipeline.presets import Settings
 
 COMMITTED = sorted((pathlib.Path(__file__).resolve().parent.parent / "results").glob("*.json"))
+STAGED = sorted((pathlib.Path(__file__).resolve().parent.parent / "results" / "retrained").glob("*.json"))
 
 
 def test_there_are_committed_results_to_read():
@@ -104,3 +105,17 @@ def test_a_sweep_trained_again_is_matched_run_by_run_with_the_file_it_replaces()
     assert record["system"]["commit"] == "f4e2e9a" and "replaces" not in record
     again.replaces = record
     assert results.Results.from_json(again.to_json()).replaces == record   # it round-trips
+
+
+@pytest.mark.parametrize("path", STAGED, ids=lambda p: p.name)
+def test_a_staged_file_trained_again_is_the_sweep_of_the_file_it_will_replace(path):
+    """`results/retrained/X.json` (written by `experiments.evaluate RUN --replaces results/X.json`) is X's sweep, and
+    keeps X's record: its summary row by row, its commit."""
+    new, old = results.load(path), results.load(path.parent.parent / path.name)
+    assert new.replaces["file"] == path.name and old.replaces is None
+    assert results.retraining_differences(old, new) == []
+    assert new.replaces["system"] == old.system and len(new.replaces["summary"]) == len(old.summary)
+    for kept, row in zip(new.replaces["summary"], old.summary):
+        assert kept.get("hparams_recorded", kept["hparams"]) == row["hparams"]
+        assert (kept["return_mean"], kept["n_seeds"]) == (row["return_mean"], row["n_seeds"])
+    assert all("diagnostics" in r for r in new.runs if r["status"] == "ok")   # what it was trained again for
