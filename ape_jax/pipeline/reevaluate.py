@@ -22,7 +22,6 @@ nothing is returned.
 
 from __future__ import annotations
 
-import json
 import pathlib
 import time
 from collections.abc import Callable
@@ -39,10 +38,6 @@ from ape_jax.pipeline.spec import Run, SweepSpec
 
 class ReevaluationError(ValueError):
     """The saved sweep cannot be evaluated again as recorded (one line, for the command line)."""
-
-
-def _key(run: dict) -> tuple:
-    return run["method"], json.dumps(run["hparams"], sort_keys=True), run["seed"]
 
 
 def _lacks(record: dict) -> bool:
@@ -105,9 +100,9 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
         raise ReevaluationError(f"ψ fitted again gives a mean APE of {ape.scale:.6g}, the sweep recorded "
                                 f"{recorded_scale:.6g}: the demonstrations or the APE code changed")
     mean = prepared.normalizer.mean
-    records = {_key(r): r for r in results.runs}
+    records = {results_lib.run_key(r): r for r in results.runs}
     new = Results.from_json(results.to_json())  # a deep copy: `results` is left as it was
-    new_records = {_key(r): r for r in new.runs}
+    new_records = {results_lib.run_key(r): r for r in new.runs}
     metrics = (*prepared.task.metrics, *results_lib.COPYCAT_METRICS)
     added, differ, diag_config, diag_s = set(), [], None, 0.0
     t0 = time.perf_counter()
@@ -119,7 +114,7 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
         runs = tuple(Run(r["method"], r["hparams"], r["seed"]) for r in saved["runs"])
         group = sweep_lib.PolicyGroup(history, prepared.learner_config(spec.settings, history), runs, saved["params"])
         log(f"evaluating {len(runs)} saved policies with history {history} ({episodes} episodes each)")
-        lacking = any(_lacks(records.get(_key(r), {})) for r in saved["runs"])
+        lacking = any(_lacks(records.get(results_lib.run_key(r), {})) for r in saved["runs"])
         # the steps the file's diagnostics ran (so the fields added beside them are of the same fit), else the
         # budget's, else (a file that ran none) the default's
         steps = ((config.get("diagnostics") or {}).get("probe_steps") or spec.budget.probe_steps
@@ -129,7 +124,7 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
         diag_s += seconds
         diag_config = diag_config or results_lib.diagnostics_config(prepared, [out])
         for j, run in enumerate(saved["runs"]):
-            key = _key(run)
+            key = results_lib.run_key(run)
             if key not in records:
                 raise ReevaluationError(f"a saved policy ({run['method']} {run['hparams']} seed {run['seed']}) "
                                         "has no run in results.json: the params and the results are of different "

@@ -276,7 +276,7 @@ def retraining_differences(old: Results, new: Results) -> list[str]:
     out += [f"{k} {old.config[k]!r} against {new.config[k]!r}" for k in _SAME_CONFIG
             if k in old.config and k in new.config and old.config[k] != new.config[k]]
     matched = retrained_hparams(old, new)
-    gone = [r for r in old.runs if _run_key(r) not in matched]
+    gone = [r for r in old.runs if run_key(r) not in matched]
     extra = len(new.runs) - (len(old.runs) - len(gone))
     if gone or extra:
         first = (f"{gone[0]['method']} {gone[0]['hparams']} seed {gone[0]['seed']} has no run trained again" if gone
@@ -301,7 +301,8 @@ def same_knobs(method: str, a: dict, b: dict, lr: float) -> bool:
                                                     for x, y in zip(*leaves))
 
 
-def _run_key(run: dict) -> tuple:
+def run_key(run: dict) -> tuple:
+    """A run's identity, hashable: `(method, hparams as JSON with sorted keys, seed)`."""
     return run["method"], json.dumps(run["hparams"], sort_keys=True), run["seed"]
 
 
@@ -316,7 +317,7 @@ def retrained_hparams(old: Results, new: Results) -> dict[tuple, dict]:
                      and same_knobs(run["method"], run["hparams"], r["hparams"], lr)), None)
         if twin is not None:
             free.remove(twin)
-            out[_run_key(run)] = twin["hparams"]
+            out[run_key(run)] = twin["hparams"]
     return out
 
 

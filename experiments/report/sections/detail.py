@@ -22,6 +22,11 @@ from experiments.report.sections.common import SETTING_WORDS, Context, Section
 from experiments.report.sections.diagnostics import group_diagnostics, training_table
 
 
+def _first_training(m: Group) -> dict[tuple, dict]:
+    """The summary rows of the files `m`'s files were trained again to replace (`replaces`), by configuration."""
+    return {config_key(row): row for s in m.sources if s.replaces for row in s.replaces["summary"]}
+
+
 def grid_table(m: Group) -> str:
     """Every configuration: return and % of expert (a task judged by a rate, its reward not its measure: the rate
     in %); where a file of the group was trained again to replace one whose policies were not kept
@@ -29,7 +34,7 @@ def grid_table(m: Group) -> str:
     rows = list(m.summary)
     best = best_of([r for r in rows if r["n_seeds"]])
     rate = is_rate(m)
-    first = {config_key(row): row for s in m.sources if s.replaces for row in s.replaces["summary"]}
+    first = _first_training(m)
     heads = ([f"{m.metric} %"] if rate else ["return", "% of expert"]) + (["first training"] if first else [])
     lines = ["| method | hparams | seeds | " + " | ".join(heads) + " |", "|---|---|---:|" + "---:|" * len(heads)]
     for r in rows:
@@ -57,7 +62,7 @@ def retrained_lines(m: Group) -> list[str]:
     """For a group with files trained again (`replaces`): how far each configuration's mean moved between the two
     trainings, against the standard error of that difference from the two trainings' spreads over seeds (the same
     seeds, other code: were the numbers a property of the seeds, the difference would be far below it)."""
-    first = {config_key(row): row for s in m.sources if s.replaces for row in s.replaces["summary"]}
+    first = _first_training(m)
     pairs = [(row, first[config_key(row)]) for row in m.summary
              if config_key(row) in first and row["n_seeds"] and first[config_key(row)]["n_seeds"]]
     if not pairs:
