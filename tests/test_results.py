@@ -10,6 +10,7 @@ from ape_jax.pipeline.presets import Settings
 
 COMMITTED = sorted((pathlib.Path(__file__).resolve().parent.parent / "results").glob("*.json"))
 STAGED = sorted((pathlib.Path(__file__).resolve().parent.parent / "results" / "retrained").glob("*.json"))
+RETRAINED = [p for p in COMMITTED + STAGED if '"replaces":' in p.read_text()]   # staged or moved over the old file
 
 
 def test_there_are_committed_results_to_read():
@@ -119,3 +120,19 @@ def test_a_staged_file_trained_again_is_the_sweep_of_the_file_it_will_replace(pa
         assert kept.get("hparams_recorded", kept["hparams"]) == row["hparams"]
         assert (kept["return_mean"], kept["n_seeds"]) == (row["return_mean"], row["n_seeds"])
     assert all("diagnostics" in r for r in new.runs if r["status"] == "ok")   # what it was trained again for
+
+
+@pytest.mark.parametrize("path", RETRAINED, ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_a_file_trained_again_keeps_the_first_trainings_rows_and_has_what_it_was_trained_for(path):
+    """Staged or moved over the file it replaced, a sweep trained again names that file, keeps every row of the
+    first training under the configuration the new sweep trained (the report's "first training" column), and
+    carries the copycat diagnostics in every run."""
+    new = results.load(path)
+    assert new.replaces["file"] == path.name
+
+    def configs(rows):
+        return {(r["method"], json.dumps(r["hparams"], sort_keys=True)) for r in rows}
+
+    assert configs(new.replaces["summary"]) == configs(new.summary)
+    assert {r["seed"] for r in new.replaces["runs"]} == {r["seed"] for r in new.runs}
+    assert all("diagnostics" in r for r in new.runs if r["status"] == "ok")
