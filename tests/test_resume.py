@@ -260,6 +260,15 @@ def test_evaluating_saved_policies_again_adds_the_missing_fields_and_refuses_oth
     assert e.value.code == 2
     assert "differ from the recomputed ones (e.g. bc-oh {} seed 0 return_mean" in capsys.readouterr().err
     assert (run / "results.json").read_bytes() == before
+    # demonstrations collected again with the same settings are other data: refused before anything is evaluated
+    recollected = copy.deepcopy(reference)
+    recollected["config"]["data"]["sha256"] = "0" * 64
+    (run / "results.json").write_text(json.dumps(recollected))
+    before = (run / "results.json").read_bytes()
+    with pytest.raises(SystemExit) as e:
+        evaluate.main([str(run), "--data-dir", str(workdir / "data")])
+    assert e.value.code == 2 and "are not the sweep's (their SHA-256 differs" in capsys.readouterr().err
+    assert (run / "results.json").read_bytes() == before
     # ToyCar's reward is 0 everywhere: its driving metrics are checked too
     stripped["runs"][0]["eval"]["return_mean"] -= 1.0
     stripped["runs"][1]["eval"]["progress"] += 0.5

@@ -2,6 +2,7 @@
 
 import csv
 import json
+import pathlib
 
 import numpy as np
 import pytest
@@ -62,6 +63,9 @@ def test_sweep_writes_results_matching_the_schema_with_every_configuration_and_s
     assert len(r["summary"]) == len(expected) and all(row["n_seeds"] == 2 for row in r["summary"])
     assert r["config"]["iterations"] == 30 and r["config"]["ape_normalization"] == "none"
     assert r["config"]["data"]["settings"]["episodes"] == 10   # the task's demonstration count
+    from ape_jax.pipeline import data as data_lib
+    meta = json.loads(data_lib.meta_path(pathlib.Path(r["config"]["data"]["path"])).read_text())
+    assert r["config"]["data"]["sha256"] == meta["sha256"]   # which collection of those settings it trained on
     quantiles = r["config"]["ape"]["quantiles"]
     assert len(quantiles) == 101 and quantiles == sorted(quantiles)
     t = r["timing"]

@@ -91,6 +91,10 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
     except ckpt_lib.PolicyError as e:
         raise ReevaluationError(str(e)) from None
     prepared = sweep_lib.prepare(spec, sweep_lib.Hooks(log=log))
+    recorded = config["data"].get("sha256")   # None in files written before it was; the checks below still hold
+    if recorded is not None and prepared.data_sha256 is not None and prepared.data_sha256 != recorded:
+        raise ReevaluationError(f"the demonstrations at {prepared.data_path} are not the sweep's (their SHA-256 "
+                                "differs from the one it recorded: collected again since?)")
     if len(prepared.train) != config["data"]["train_transitions"]:
         raise ReevaluationError(f"the demonstrations have {len(prepared.train)} training transitions, the sweep had "
                                 f"{config['data']['train_transitions']}: they are not the sweep's")

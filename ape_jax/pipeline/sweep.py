@@ -162,6 +162,8 @@ class Prepared:
       card: the expert's card (returns to normalise by), None for a rule-based expert.
       data_path: where the demonstrations came from; `source`: "cached", "collected" or "from".
       settings: what names the demonstrations (`SweepSpec.data_settings`).
+      data_sha256: the SHA-256 of the collected (or cached) demonstrations' file, which tells two collections
+        with the same settings apart; None for `--dataset` and for a file another process is still writing.
     """
 
     env: Any
@@ -174,6 +176,7 @@ class Prepared:
     data_path: str
     source: str
     settings: dict
+    data_sha256: str | None = None
 
     def sequential(self, encoder: str) -> bool:
         """Whether policies of `encoder` train one configuration after another here (`trains_sequentially`)."""
@@ -202,15 +205,15 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
     settings = spec.data_settings()
     if spec.dataset is None:
         with hooks.bar(desc="collect", total=spec.episodes, unit="episode") as b:
-            demos, _, path, cached = collect.collect_cached(settings, spec.data_dir or data_lib.cache_dir(),
+            demos, meta, path, cached = collect.collect_cached(settings, spec.data_dir or data_lib.cache_dir(),
                                                             progress=lambda n: b.update(n - b.n),
                                                             save=jax.process_index() == 0)
             b.update(spec.episodes - b.n)
-        source = "cached" if cached else "collected"
+        source, digest = ("cached" if cached else "collected"), meta.get("sha256")
     else:
         check_protocol(minari_io.dataset_settings(spec.dataset), spec, str(spec.dataset))
         demos, path = minari_io.load_dataset(spec.dataset)
-        source = "from"
+        source, digest = "from", None
     check_fits(demos, env, str(path))
     hooks.log(f"demonstrations: {len(demos):,} transitions in {demos.num_episodes} episodes ({source}: {path})")
     protocol = spec.protocol
@@ -222,7 +225,8 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
     expert, _ = collect.expert_for(env, protocol.expert)
     card = collect.reference_returns(spec.env, protocol)
     return Prepared(env=env, task=spec.task, train=train, val=val, normalizer=Normalizer.fit(train.obs),
-                    expert=expert, card=card, data_path=str(path), source=source, settings=settings)
+                    expert=expert, card=card, data_path=str(path), source=source, settings=settings,
+                    data_sha256=digest)
 
 
 # -- 2. fit APE -----------------------------------------------------------------------------------------------------
@@ -523,7 +527,8 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
               "score_rows": list(score_rows(spec.methods)),
               "data": {"path": prepared.data_path, "train_transitions": len(prepared.train),
                        "val_transitions": len(prepared.val), "split": spec.protocol.split,
-                       "episodes": prepared.train.num_episodes, "settings": prepared.settings}}
+                       "episodes": prepared.train.num_episodes, "settings": prepared.settings,
+                       "sha256": prepared.data_sha256}}
     card = prepared.card
     expert = ({"return_mean": card["return_mean"], "return_std": card["return_std"],
                "random_return_mean": card["random_return_mean"]} if card is not None else
