@@ -1,17 +1,18 @@
 #!/usr/bin/env bash
 # Issue 25: the first recipe's whole-episode fca files trained again with today's code, so their policies
 # (and copycat diagnostics) exist. One sweep at a time; --resume makes the queue restartable. Run on the 2-core
-# AMD EPYC from worktrees of this repository (WT: /work/wt_r25 at 016f0b2, or /work/wt_r25b at 1ee6ab4, which
-# has recipe.fca_adversary_lr), each sweep's output in /work/runs/r25/NAME (not kept by git);
-# results/retrained/README.md says how each is then written over the file it replaces.
-cd /work/wt_r25
+# AMD EPYC from worktrees of this repository, each sweep's output in /work/runs/r25/NAME (not kept by git);
+# results/retrained/README.md says how each is then written over the file it replaces. Hopper's ran from
+# /work/wt_r25 at 016f0b2 (its FCA from /work/wt_r25b at 1ee6ab4, which has recipe.fca_adversary_lr);
+# Walker2d's and HalfCheetah's from /work/wt_r25c at 6afdeb3, which records the demonstrations' SHA-256.
+cd /work/wt_r25c
 PY=/work/main/.venv/bin/python
 COMMON="--quiet --preset default --resume --recipe mlp --set protocol.split=episodes"
 run() {  # name protocol env args...
   name=$1; proto=$2; env=$3; shift 3
   if [ -f /work/runs/r25/$name/results.json ] && grep -q '"status"' /work/runs/r25/$name/results.json && [ -f /work/runs/r25/$name.done ]; then return; fi
   s=$(date +%s)
-  (cd ${WT:-/work/wt_r25} && $PY -m experiments.sweep $COMMON --out /work/runs/r25/$name --env $env --protocol $proto "$@" > /work/runs/r25/$name.log 2>&1)
+  (cd ${WT:-/work/wt_r25c} && $PY -m experiments.sweep $COMMON --out /work/runs/r25/$name --env $env --protocol $proto "$@" > /work/runs/r25/$name.log 2>&1)
   rc=$?
   echo "$name: exit $rc, $(( $(date +%s) - s )) s, $(date)" >> /work/runs/r25/queue.log
   [ $rc -eq 0 ] && touch /work/runs/r25/$name.done
