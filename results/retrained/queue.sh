@@ -4,7 +4,9 @@
 # AMD EPYC from worktrees of this repository, each sweep's output in /work/runs/r25/NAME (not kept by git);
 # results/retrained/README.md says how each is then written over the file it replaces. Hopper's ran from
 # /work/wt_r25 at 016f0b2 (its FCA from /work/wt_r25b at 1ee6ab4, which has recipe.fca_adversary_lr);
-# Walker2d's and HalfCheetah's from /work/wt_r25c at 6afdeb3, which records the demonstrations' SHA-256.
+# Walker2d's and HalfCheetah's from /work/wt_r25c at 6afdeb3, which records the demonstrations' SHA-256 (when the
+# machine lost /work/runs and the cache, the worktree was made again at 6afdeb3 and the queue restarted from
+# walker2d-grid; the runs after it take the order below).
 cd /work/wt_r25c
 PY=/work/main/.venv/bin/python
 COMMON="--quiet --preset default --resume --recipe mlp --set protocol.split=episodes"
@@ -31,7 +33,7 @@ run walker2d-softmax fca walker2d --methods ours-softmax,fca --seeds 5 --set rec
 run walker2d-baselines fca walker2d --methods history-dropout,bcpd,actfreq,boosting,kmeans,dagger --seeds 3
 run walker2d-grid fca walker2d --methods ours-step --step-grid 0.1:3,0.1:10,0.2:3,0.2:5,0.2:10 --seeds 5
 run halfcheetah-main fca halfcheetah --methods bc-so,bc-oh,ours-step --step-grid 0.1:5 --seeds 5
-run halfcheetah-softmax fca halfcheetah --methods ours-softmax,fca --seeds 5 --set recipe.fca_alphas=0.5
 run halfcheetah-baselines fca halfcheetah --methods history-dropout,bcpd,actfreq,boosting,kmeans,dagger --seeds 3
+run halfcheetah-softmax fca halfcheetah --methods ours-softmax,fca --seeds 5 --set recipe.fca_alphas=0.5
 run halfcheetah-grid fca halfcheetah --methods ours-step --step-grid 0.1:3,0.1:10,0.2:3,0.2:5,0.2:10 --seeds 5
 echo "queue finished $(date)" >> /work/runs/r25/queue.log
