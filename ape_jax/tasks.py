@@ -22,6 +22,7 @@ from collections.abc import Mapping
 
 
 SPLITS = ("rows", "episodes")
+LABELS = ("clipped", "raw")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -50,6 +51,11 @@ class Protocol:
         simulator settings (frame skip, episode length, reward scale); None: this one's own.
       expert: which shipped expert demonstrates: None, the task's own (`envs/experts/<env>/`, SAC); a variant
         name (`"ppo"`) for one shipped beside it (`envs/experts/<env>-<variant>/`, `expert_name`).
+      labels: what the demonstrations store as the label: `"clipped"` (the expert's action clipped to the action
+        range, what the environment executes) or `"raw"` (the expert's output as it gave it, unbounded for a
+        Gaussian policy's mean: what the FCA code stored). The executed action is clipped either way.
+      prev_action: the observation carries the previous action (de Haan et al. 2019; PALR's "POA"): the
+        demonstration's a_{t-1} in training, the policy's own in rollouts; zeros at an episode's start.
 
     Rewards are scaled by `frame_skip / standard frame skip`, so returns stay on the scale of the
     standard control step (the FCA code's 1/4 and 1/5).
@@ -70,6 +76,8 @@ class Protocol:
     eval_steps: int | None = None
     image_size: tuple[int, int] | None = None
     expert: str | None = None
+    labels: str = "clipped"
+    prev_action: bool = False
 
     def __post_init__(self):
         if self.split not in SPLITS:
@@ -87,6 +95,10 @@ class Protocol:
             raise ValueError(f"protocol.history must be >= 1, got {self.history!r}")
         if self.image_size is not None and min(self.image_size) < 1:
             raise ValueError(f"protocol.image_size must be positive, got {self.image_size!r}")
+        if self.labels not in LABELS:
+            raise ValueError(f"protocol.labels {self.labels!r} is not one of {', '.join(LABELS)}")
+        if not isinstance(self.prev_action, bool):
+            raise ValueError(f"protocol.prev_action must be true or false, got {self.prev_action!r}")
         if self.expert is not None and not re.fullmatch(r"[a-z0-9_]+", str(self.expert)):
             raise ValueError(f"protocol.expert must be a variant name of lowercase letters, digits and _ "
                              f"(e.g. ppo), got {self.expert!r}")
@@ -107,6 +119,10 @@ class Protocol:
                "eval_steps": self.eval_steps}
         if self.expert is not None:  # only when set: records and cache names from before the field stay valid
             out["expert"] = self.expert
+        if self.labels != "clipped":  # the same: only where it differs from what every earlier file did
+            out["labels"] = self.labels
+        if self.prev_action:
+            out["prev_action"] = True
         if standard_frame_skip is not None and self.frame_skip is not None:
             out["reward_scale"] = self.frame_skip / standard_frame_skip
         if self.horizon is not None and standard_frame_skip is not None:

@@ -12,7 +12,11 @@ committed as two files under `envs/experts/NAME/`:
   100 episodes next to a random policy's.
 
 The network is `a = tanh(first action_size outputs of MLP((obs - mean) / std))`
-with ReLU hidden layers, the mode of the SAC policy. It is evaluated here
+with ReLU hidden layers, the mode of the SAC policy (the card's `network.head`
+`"tanh"`, the default). A Gaussian policy with an unbounded mean (the FCA paper's
+CS294 experts, the shipped rough experts) has `network.head` `"linear"`: its last
+layer has `action_size` outputs and the action is that mean, unbounded; the
+environment clips what it executes. It is evaluated here
 from the parameters alone, so loading needs neither Brax's `load_policy` nor
 its network classes:
 
@@ -75,7 +79,11 @@ def card(name: str, root: pathlib.Path | None = None) -> dict:
     try:
         data = json.loads(path.read_text())
         net = data["network"]
-        sizes = [int(net["obs_size"]), *map(int, net["hidden"]), 2 * int(net["action_size"])]
+        head = net.get("head", "tanh")
+        if head not in HEADS:
+            raise ValueError(f"network.head {head!r} is not one of {', '.join(HEADS)}")
+        outputs = int(net["action_size"]) * (2 if head == "tanh" else 1)
+        sizes = [int(net["obs_size"]), *map(int, net["hidden"]), outputs]
     except (ValueError, KeyError, TypeError) as e:
         raise ExpertError(f"corrupt expert card {path}: {type(e).__name__}: {e}; retrain with "
                           f"`{train_command(name)}`") from e
@@ -177,13 +185,19 @@ def load_params(name: str, root: pathlib.Path | None = None) -> dict:
 
 
 ACTIVATIONS = {"relu": jax.nn.relu, "tanh": jnp.tanh}  # the hidden layers' (the card's `network.activation`)
+# the output layer (the card's `network.head`): "tanh" squashes the first half of the outputs (a tanh-Gaussian's
+# mode: SAC, Brax's PPO); "linear" is a Gaussian's mean, as many outputs as actions, unbounded
+HEADS = ("tanh", "linear")
 
 
-def policy_from_params(params: dict, activation: str = "relu") -> Callable[[jax.Array], jax.Array]:
-    """A deterministic policy `obs [..., D] float -> action [..., A] float32` in [-1, 1], its hidden layers'
-    `activation` one of `ACTIVATIONS` (SAC's experts: relu; PPO's: tanh)."""
+def policy_from_params(params: dict, activation: str = "relu", head: str = "tanh") -> Callable[[jax.Array], jax.Array]:
+    """A deterministic policy `obs [..., D] float -> action [..., A] float32`, its hidden layers' `activation` one
+    of `ACTIVATIONS` (SAC's experts: relu; PPO's and CS294's: tanh) and its output `head` one of `HEADS` (`"tanh"`:
+    in [-1, 1]; `"linear"`: the unbounded mean of a Gaussian policy)."""
     if activation not in ACTIVATIONS:
         raise ExpertError(f"unknown expert activation {activation!r}; valid: {', '.join(ACTIVATIONS)}")
+    if head not in HEADS:
+        raise ExpertError(f"unknown expert head {head!r}; valid: {', '.join(HEADS)}")
     act, n_layers = ACTIVATIONS[activation], len(params["kernels"])
 
     def policy(obs: jax.Array) -> jax.Array:
@@ -192,7 +206,7 @@ def policy_from_params(params: dict, activation: str = "relu") -> Callable[[jax.
             x = x @ k + b
             if i < n_layers - 1:
                 x = act(x)
-        return jnp.tanh(x[..., : x.shape[-1] // 2])
+        return x if head == "linear" else jnp.tanh(x[..., : x.shape[-1] // 2])
 
     return policy
 
@@ -214,5 +228,6 @@ def load(name: str, root: pathlib.Path | None = None) -> Callable[[jax.Array], j
       ExpertError: a missing or corrupt checkpoint, naming the file and the
         command that trains it.
     """
-    return policy_from_params(load_params(name, root), card(name, root)["network"].get("activation", "relu"))
+    net = card(name, root)["network"]
+    return policy_from_params(load_params(name, root), net.get("activation", "relu"), net.get("head", "tanh"))
 
