@@ -155,18 +155,18 @@ def main(argv=None) -> int:
     except OSError as e:
         return fail(None, f"--data-dir {args.data_dir}: cannot write the dataset ({e.strerror or e})")
     sizes = args.setup.settings
-    try:  # the split the sweep makes: the protocol's sizes, else 80/20 by episode
-        if sizes["train_transitions"] is None:
-            raise ValueError("the protocol fixes no split sizes")
-        train, val = demos.split_sizes(sizes["train_transitions"], sizes["val_transitions"], seed=0)
-        how = f"the {args.setup.name} protocol's split"
-    except ValueError:
+    try:  # the split the sweep makes (`data.split_parts`): the protocol's kind (rows or episodes) and sizes
+        train, val = data.split_parts(demos, sizes["split"], sizes["train_transitions"], sizes["val_transitions"],
+                                      seed=0)
+        how = (f"the {args.setup.name} protocol's split by "
+               f"{'rows (a fixed permutation of all rows)' if sizes['split'] == 'rows' else 'whole episodes'}")
+    except ValueError as e:
         train, val = demos.split()
-        how = "the 20% split"
+        how = f"the 20% split by whole episodes (the protocol's cannot be made: {e})"
     print(f"{'loaded cached' if cached else 'collected'} {len(demos):,} transitions in {demos.num_episodes} "
           f"episodes under the {args.setup.name} protocol (frame skip {sizes['frame_skip'] or '-'}, "
           f"{sizes['episode_length']:,}-step episodes); {len(train):,} train / {len(val):,} validation after "
-          f"{how} by episode; "
+          f"{how}; "
           f"expert return {meta['episode_return_mean']:.1f} ± {meta['episode_return_std']:.1f}, "
           f"mean episode length {meta['episode_length_mean']:.0f}")
     print(action_summary(demos))

@@ -211,8 +211,13 @@ def table(res) -> str:
         v = [b[key] for b in blocks if isinstance(b.get(key), (int, float)) and math.isfinite(b[key])]
         return f"{statistics.median(v):.3g}" if v else "-"
 
+    def spread(r, key):  # the sample sd over seeds of the per-seed means (the summary keeps the population sd)
+        v = [x["eval"][key] for x in res.runs if x["method"] == r["method"] and x["hparams"] == r["hparams"]
+             and x["status"] == "ok" and isinstance((x.get("eval") or {}).get(key), (int, float))]
+        return statistics.stdev(v) if len(v) >= 2 else None
+
     diagnosed = bool(read(res.runs))
-    heads = [f"{m} (mean ± std over seeds)" for m in shown] if shown else ["return (mean ± std over seeds)"]
+    heads = [f"{m} (mean ± sd over seeds)" for m in shown] if shown else ["return (mean ± sd over seeds)"]
     width = [max(len(h), 18) for h in heads]
     lines = [f"{'':2}{'method':<17}{'hparams':<30}{'seeds':>5}  " + "  ".join(f"{h:>{w}}" for h, w in zip(heads, width))
              + ("" if metric != "return" else f"  {'normalized':>11}")
@@ -228,10 +233,11 @@ def table(res) -> str:
         mark = "* " if r is best else "  "
         if shown:
             scale = {m: 100.0 if m == metric else 1.0 for m in shown}
-            cells = [_pm(r["metrics"][m]["mean"], r["metrics"][m]["std"], scale[m], "%" if m == metric else "")
+            cells = [_pm(r["metrics"][m]["mean"], spread(r, m), scale[m], "%" if m == metric else "")
                      for m in shown]
         else:
-            cells = [f"{r['return_mean']:,.1f} ± {r['return_std']:,.1f}"]
+            sd = spread(r, "return_mean")
+            cells = [f"{r['return_mean']:,.1f}" + (f" ± {sd:,.1f}" if sd is not None else " (1 seed)")]
         line = (f"{mark}{r['method']:<17}{hp:<30}{r['n_seeds']:>5}  "
                 + "  ".join(f"{c:>{w}}" for c, w in zip(cells, width)))
         if metric == "return":
@@ -269,10 +275,13 @@ def table(res) -> str:
     return "\n".join(lines)
 
 
-def _pm(mean, std, scale: float, unit: str) -> str:
+def _pm(mean, sd, scale: float, unit: str) -> str:
+    """`mean ± sd` as a cell (`sd` None: one seed, no spread to show)."""
     if mean is None:
         return "-"
-    return f"{scale * mean:,.{1 if scale != 1 else 2}f}{unit} ± {scale * std:,.{1 if scale != 1 else 2}f}{unit}"
+    digits = 1 if scale != 1 else 2
+    cell = f"{scale * mean:,.{digits}f}{unit}"
+    return cell + (f" ± {scale * sd:,.{digits}f}{unit}" if sd is not None else " (1 seed)")
 
 
 def main(argv=None) -> int:
