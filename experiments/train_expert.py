@@ -10,13 +10,22 @@ evaluation return passes `--stop-at`, the best policy is measured over
 `--eval-episodes` episodes of `envs.make(env, obs="full")` and exported with its
 card to `envs/experts/<env>/` (see `envs.experts`).
 
+`--algorithm ppo` and `--algorithm rough` train with Brax's PPO instead, in one
+go without checkpoints, and export the best evaluated policy to
+`envs/experts/<env>-ppo/` or `envs/experts/<env>-rough/`: rough is the kind of
+expert the FCA paper's MuJoCo numbers came from (a 64×64 tanh policy whose
+normal's mean, unbounded, is the label; card `network.head` "linear"), trained
+at frame skip 4; `--set NAME=VALUE` changes one of its settings (entropy_cost,
+init_noise_std, ...). `experiments.expert_stats` measures how rough the result is.
+
 The per-task hyperparameters below are the ones the shipped experts were
 trained with; their cards repeat them.
 
 Bad input is refused with one line on stderr and exit status 2 before anything
 is compiled: an unknown env, counts below 1, a NaN `--stop-at`, a `--workdir`
 or `--out` that cannot be written, or a checkpoint in `--workdir` that is
-corrupt or was written with other settings (it is left in place).
+corrupt or was written with other settings (it is left in place), a `--set` that names no setting or
+gives a value of the wrong type.
 """
 
 from __future__ import annotations
@@ -52,7 +61,16 @@ PPO = dict(num_timesteps=3_000_000, num_envs=64, unroll_length=32, batch_size=16
            num_updates_per_batch=10, learning_rate=3e-4, entropy_cost=0.0, discounting=0.99, gae_lambda=0.95,
            clipping_epsilon=0.2, reward_scaling=1.0, normalize_observations=True, episode_length=1000,
            num_evals=31, num_eval_envs=16, hidden_layer_sizes=(64, 64))
-ALGORITHMS = ("sac", "ppo")
+# `--algorithm rough`: an expert of the CS294 kind FCA's MuJoCo numbers came from (`envs/experts/<env>-rough`): the
+# same PPO, but a plain normal policy, unsquashed, with a state-independent (learned) std; the label is its mean,
+# unbounded (the environment clips what it executes), exported with the card's `network.head` "linear". Trained at
+# frame skip 4 on every task (gym's Hopper and Walker2d; HalfCheetah's Brax default is 5), within 30 minutes of a
+# 2-core CPU.
+ROUGH = dict(PPO, num_timesteps=2_000_000, num_evals=21, distribution_type="normal", noise_std_type="log",
+             init_noise_std=1.0, frame_skip=4)
+ALGORITHMS = ("sac", "ppo", "rough")
+OUTPUTS = {"tanh": "tanh of the first action_size outputs",
+           "linear": "the normal's mean: action_size outputs, unbounded (the environment clips what it executes)"}
 
 
 def parse(argv=None) -> argparse.Namespace:
@@ -61,8 +79,10 @@ def parse(argv=None) -> argparse.Namespace:
     p = Parser(prog="python -m experiments.train_expert", description=__doc__.splitlines()[0])
     p.add_argument("--env", required=True, help="a Brax environment (hopper, walker2d, halfcheetah, ...)")
     p.add_argument("--algorithm", default="sac", choices=ALGORITHMS,
-                   help="sac (the shipped experts, envs/experts/<env>) or ppo (a 64x64 tanh policy, "
-                        "envs/experts/<env>-ppo; trained in one go, without checkpoints)")
+                   help="sac (the shipped experts, envs/experts/<env>), ppo (a 64x64 tanh policy, "
+                        "envs/experts/<env>-ppo) or rough (a 64x64 tanh normal policy whose unbounded mean is the "
+                        "label, at frame skip 4, envs/experts/<env>-rough); ppo and rough train in one go, without "
+                        "checkpoints")
     p.add_argument("--steps", type=int, default=None, help="environment steps in all (default: per task)")
     p.add_argument("--stop-at", type=float, default=None,
                    help="stop once the 16-episode evaluation return reaches this (default: 1.1 x the target)")
@@ -73,6 +93,9 @@ def parse(argv=None) -> argparse.Namespace:
                    help="where the expert is exported (default: envs/experts/<env>, the shipped one)")
     p.add_argument("--eval-episodes", type=int, default=100, help="episodes for the final measurement")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--set", action="append", metavar="NAME=VALUE",
+                   help="ppo and rough: change one of their settings (e.g. entropy_cost=0.01, init_noise_std=0.5); "
+                        "repeatable")
     args = p.parse_args(argv)
     from ape_jax import tasks
 
@@ -87,6 +110,10 @@ def parse(argv=None) -> argparse.Namespace:
         fail(p, f"--eval-episodes must be >= 1, got {args.eval_episodes}")
     if args.stop_at is not None and math.isnan(args.stop_at):
         fail(p, "--stop-at must be a number (inf: never stop early), got nan")
+    if args.set and args.algorithm == "sac":
+        fail(p, "--set applies to --algorithm ppo or rough")
+    if args.algorithm != "sac":
+        ppo_settings(args)   # refuses a bad --set before anything is compiled
     name = args.env if args.algorithm == "sac" else f"{args.env}-{args.algorithm}"
     args.workdir = args.workdir or pathlib.Path("runs/experts") / name
     if args.out is None:
@@ -116,7 +143,7 @@ def make_config(args):
 
 def main(argv=None) -> int:
     args = parse(argv)
-    if args.algorithm == "ppo":
+    if args.algorithm in ("ppo", "rough"):
         return train_ppo(args)
     import jax
     import jax.numpy as jnp
@@ -158,25 +185,84 @@ def main(argv=None) -> int:
 
 
 def train_ppo(args) -> int:
-    """`--algorithm ppo`: Brax's PPO with `PPO`'s settings (`--steps`, `--seed` apply), evaluated `num_evals` times
-    (deterministic, `num_eval_envs` episodes), the best evaluated policy exported as `export` does."""
+    """`--algorithm ppo` / `rough`: Brax's PPO with `PPO`'s / `ROUGH`'s settings (`--steps`, `--seed`, `--set`
+    apply), evaluated `num_evals` times (deterministic, `num_eval_envs` episodes), the best evaluated policy exported
+    as `export` does: ppo's a tanh-Gaussian's mode, rough's the normal's mean, unbounded."""
+    import envs
+
+    cfg = ppo_settings(args)
+    env = envs.make(args.env, obs="full", episode_length=cfg.episode_length,
+                    **({} if cfg.frame_skip is None else {"n_frames": cfg.frame_skip}))
+    params, meta = run_ppo(env.brax_env, cfg, desc=f"{args.algorithm.upper()} {args.env}")
+    if params is None:
+        return fail(None, "PPO evaluated no policy; raise --steps")
+    stop_at = args.stop_at if args.stop_at is not None else math.inf
+    if meta["best_return"] < stop_at < math.inf:
+        print(f"best evaluation return {meta['best_return']:.1f} stayed below --stop-at {stop_at:g}")
+    if cfg.distribution_type == "normal":
+        return export(args, cfg, envs.make(args.env, obs="full", episode_length=cfg.episode_length), params, meta,
+                      algorithm="PPO (brax.training.agents.ppo, normal policy: unsquashed, state-independent std)",
+                      activation="tanh", head="linear")
+    return export(args, cfg, env, params, meta, algorithm="PPO (brax.training.agents.ppo, tanh Gaussian policy)",
+                  activation="tanh")
+
+
+def ppo_settings(args) -> PpoSettings:
+    """The run's `PpoSettings`: `ROUGH` or `PPO`, then `--steps`, `--seed` and each `--set NAME=VALUE` (`fail`s with
+    one line for an unknown name or a value of the wrong type)."""
+    kw = dict(ROUGH if args.algorithm == "rough" else PPO, seed=args.seed)
+    if args.steps is not None:
+        kw["num_timesteps"] = args.steps
+    types = {f.name: f.type for f in dataclasses.fields(PpoSettings)}
+    settable = sorted(set(types) - {"seed", "num_timesteps", "hidden_layer_sizes"})
+    for item in args.set or ():
+        name, sep, value = item.partition("=")
+        if not sep or name not in settable:
+            fail(None, f"--set {item!r}: expected NAME=VALUE, NAME one of {', '.join(settable)}")
+        kw[name] = _parse_value(item, types[name], value)
+    try:
+        return PpoSettings(**kw)
+    except ValueError as e:
+        fail(None, str(e))
+
+
+def _parse_value(item: str, kind: str, value: str):
+    """`--set`'s VALUE as a field of type `kind` (the dataclass field's annotation: "int", "float", "bool", ...)."""
+    if kind == "bool":
+        if value.lower() not in ("true", "false", "1", "0"):
+            fail(None, f"--set {item!r}: {value!r} is not true or false")
+        return value.lower() in ("true", "1")
+    try:
+        return float(value) if kind == "float" else int(value) if kind.startswith("int") else value
+    except ValueError:
+        fail(None, f"--set {item!r}: {value!r} is not {'a number' if kind == 'float' else 'an integer'}")
+
+
+def run_ppo(brax_env, cfg: PpoSettings, desc: str = "PPO") -> tuple[dict | None, dict]:
+    """Trains with Brax's PPO (`brax.training.agents.ppo.train`) on `brax_env` under `cfg`.
+
+    Returns:
+      (params, meta): the best evaluated policy as `envs.experts` parameters (`obs_mean [D]`, `obs_std [D]`,
+      `kernels`, `biases`; None if nothing was evaluated) and `meta`: `best_return`, `best_step`, `history`
+      (`env_steps`, `return` per evaluation), `wall_s`, `cpu_s` (this process's CPU time) and, for a normal policy,
+      `policy_std` (the learned std per action dim at the best policy).
+    """
     import functools
 
     import jax.numpy as jnp
+    import numpy as np
     from brax.training.agents.ppo import networks as ppo_networks
     from brax.training.agents.ppo import train as ppo
     from tqdm import tqdm
 
-    import envs
-
-    kw = dict(PPO, seed=args.seed, **({"num_timesteps": args.steps} if args.steps is not None else {}))
-    hidden = kw.pop("hidden_layer_sizes")
-    env = envs.make(args.env, obs="full", episode_length=kw["episode_length"])
-    stop_at = args.stop_at if args.stop_at is not None else math.inf
+    kw = dataclasses.asdict(cfg)
+    hidden = tuple(kw.pop("hidden_layer_sizes"))
+    net_kw = {k: kw.pop(k) for k in ("distribution_type", "noise_std_type", "init_noise_std")}
+    kw.pop("frame_skip")  # the environment's, already applied
     meta = {"best_return": -math.inf, "best_step": 0, "history": [], "wall_s": 0.0}
     latest, best = {}, {}
-    t0 = time.perf_counter()
-    bar = tqdm(total=kw["num_timesteps"], unit="step", unit_scale=True, desc=f"PPO {args.env}", dynamic_ncols=True)
+    t0, c0 = time.perf_counter(), time.process_time()
+    bar = tqdm(total=kw["num_timesteps"], unit="step", unit_scale=True, desc=desc, dynamic_ncols=True)
 
     def keep(step, make_policy, params):   # called with each evaluated policy, before its evaluation
         latest.update(step=int(step), normalizer=params[0], policy=params[1])
@@ -191,29 +277,42 @@ def train_ppo(args) -> int:
         bar.set_postfix(ret=f"{ret:.0f}", best=f"{meta['best_return']:.0f}")
 
     network = functools.partial(ppo_networks.make_ppo_networks, policy_hidden_layer_sizes=hidden,
-                                value_hidden_layer_sizes=hidden, activation=jnp.tanh)
-    ppo.train(environment=env.brax_env, network_factory=network, deterministic_eval=True,
+                                value_hidden_layer_sizes=hidden, activation=jnp.tanh, **net_kw)
+    ppo.train(environment=brax_env, network_factory=network, deterministic_eval=True,
               progress_fn=progress, policy_params_fn=keep, **kw)
     bar.close()
-    meta["wall_s"] = time.perf_counter() - t0
+    meta.update(wall_s=time.perf_counter() - t0, cpu_s=time.process_time() - c0)
     if not best:
-        return fail(None, "PPO evaluated no policy; raise --steps")
-    if meta["best_return"] < stop_at < math.inf:
-        print(f"best evaluation return {meta['best_return']:.1f} stayed below --stop-at {stop_at:g}")
-    layers = best["policy"]["params"]
-    names = sorted(layers, key=lambda n: int(n.rsplit("_", 1)[1]))
-    params = {"obs_mean": jnp.asarray(best["normalizer"].mean, jnp.float32),
-              "obs_std": jnp.asarray(best["normalizer"].std, jnp.float32),
-              "kernels": [jnp.asarray(layers[n]["kernel"], jnp.float32) for n in names],
-              "biases": [jnp.asarray(layers[n]["bias"], jnp.float32) for n in names]}
-    cfg = PpoSettings(**kw, hidden_layer_sizes=tuple(hidden))
-    return export(args, cfg, env, params, meta, algorithm="PPO (brax.training.agents.ppo, tanh Gaussian policy)",
-                  activation="tanh")
+        return None, meta
+    params = export_params(best["normalizer"], best["policy"], net_kw["distribution_type"])
+    if net_kw["distribution_type"] == "normal":
+        log_std = best["policy"]["params"]["std_logparam"]["log_value"]
+        meta["policy_std"] = [round(float(x), 4) for x in np.exp(np.asarray(log_std))]
+    return params, meta
+
+
+def export_params(normalizer, policy: dict, distribution_type: str) -> dict:
+    """Brax PPO's observation normaliser (running statistics) and policy network parameters as `envs.experts`
+    parameters: `obs_mean [D]`, `obs_std [D]`, `kernels` and `biases` in layer order (a normal policy's last layer
+    is its mean, `[64, A]`; a tanh-normal's outputs the mean and the std, `[64, 2A]`)."""
+    import jax.numpy as jnp
+
+    layers = policy["params"]
+    if distribution_type == "normal":   # {"MLP_0": {"hidden_i"}, "Dense_0": the mean, "std_logparam"}
+        hidden = layers["MLP_0"]
+        order = [hidden[n] for n in sorted(hidden, key=lambda n: int(n.rsplit("_", 1)[1]))] + [layers["Dense_0"]]
+    else:                               # {"hidden_i"}: the last one outputs the mean and the std
+        order = [layers[n] for n in sorted(layers, key=lambda n: int(n.rsplit("_", 1)[1]))]
+    return {"obs_mean": jnp.asarray(normalizer.mean, jnp.float32), "obs_std": jnp.asarray(normalizer.std, jnp.float32),
+            "kernels": [jnp.asarray(layer["kernel"], jnp.float32) for layer in order],
+            "biases": [jnp.asarray(layer["bias"], jnp.float32) for layer in order]}
 
 
 @dataclasses.dataclass(frozen=True)
 class PpoSettings:
-    """`PPO`'s settings as the card records them (`export` reads `episode_length` and `hidden_layer_sizes`)."""
+    """`PPO`'s or `ROUGH`'s settings as the card records them (`export` reads `episode_length` and
+    `hidden_layer_sizes`). `distribution_type` "tanh_normal" (ppo) or "normal" (rough: `noise_std_type` "log" learns
+    a state-independent log std starting at `init_noise_std`); `frame_skip` None: the task's Brax default."""
 
     num_timesteps: int
     num_envs: int
@@ -233,11 +332,25 @@ class PpoSettings:
     num_eval_envs: int
     seed: int
     hidden_layer_sizes: tuple
+    distribution_type: str = "tanh_normal"
+    noise_std_type: str = "scalar"
+    init_noise_std: float = 1.0
+    frame_skip: int | None = None
+
+    def __post_init__(self):
+        if self.distribution_type not in ("normal", "tanh_normal"):
+            raise ValueError(f"distribution_type must be normal or tanh_normal, got {self.distribution_type!r}")
+        if self.noise_std_type not in ("scalar", "log"):
+            raise ValueError(f"noise_std_type must be scalar or log, got {self.noise_std_type!r}")
+        if not self.init_noise_std > 0 or (self.frame_skip is not None and self.frame_skip < 1):
+            raise ValueError(f"init_noise_std must be > 0 and frame_skip >= 1, got {self.init_noise_std} and "
+                             f"{self.frame_skip}")
 
 
 def export(args, cfg, env, params, meta, algorithm: str = "SAC (ape_jax.experts.sac, from brax.training's SAC parts)",
-           activation: str = "relu") -> int:
-    """Measures the best policy over `--eval-episodes` episodes and writes it with its card."""
+           activation: str = "relu", head: str = "tanh") -> int:
+    """Measures the best policy over `--eval-episodes` episodes of `env` (the `brax` protocol's setting, which the
+    card's returns are the references of) and writes it with its card."""
     import jax
 
     from envs import experts
@@ -247,7 +360,7 @@ def export(args, cfg, env, params, meta, algorithm: str = "SAC (ape_jax.experts.
     out = args.out
     print(f"measuring the best policy (evaluation return {meta['best_return']:.1f} at "
           f"{meta['best_step']:,} steps) over {args.eval_episodes} episodes ...")
-    policy = experts.policy_from_params(params, activation)
+    policy = experts.policy_from_params(params, activation, head)
     measured = expert_and_random_returns(env, policy, args.eval_episodes, jax.random.PRNGKey(cfg.seed + 2))
     target = TARGETS.get(args.env)
     card = {
@@ -255,10 +368,13 @@ def export(args, cfg, env, params, meta, algorithm: str = "SAC (ape_jax.experts.
         "hyperparameters": dataclasses.asdict(cfg),
         "env_steps": meta["best_step"], "env_steps_trained": meta["history"][-1]["env_steps"] if meta["history"] else 0,
         "wall_s": round(meta["wall_s"], 1),
+        **({"cpu_s": round(meta["cpu_s"], 1)} if "cpu_s" in meta else {}),
         "hardware": machine(),
         "network": {"obs_size": int(params["obs_mean"].shape[0]), "action_size": int(env.action_size),
                     "hidden": list(cfg.hidden_layer_sizes), "activation": activation,
-                    "output": "tanh of the first action_size outputs", "normalize_observations": True},
+                    "head": head, "output": OUTPUTS[head], "normalize_observations": True,
+                    **({"policy_std": meta["policy_std"]} if "policy_std" in meta else {})},
+        "measured_at": {"frame_skip": env.frame_skip, "episode_length": env.episode_length},
         "episode_length": cfg.episode_length, "target_return": target,
         **measured,
         "training_curve": [{"env_steps": h["env_steps"], "return": round(h["return"], 1)} for h in meta["history"]],

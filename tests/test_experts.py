@@ -168,3 +168,54 @@ def test_train_expert_refuses_bad_input_with_exit_code_2(argv, message, capsys):
     with pytest.raises(SystemExit) as exit_:
         train_expert.main(argv)
     assert exit_.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_the_rough_export_is_brax_ppos_normal_mean_unbounded():
+    """`export_params` + `policy_from_params(..., "tanh", "linear")` give Brax's own deterministic policy (the
+    normal's mean, normaliser included), and nothing squashes it: with a scaled last layer it leaves [-1, 1]."""
+    from brax.training.acme import running_statistics
+    from brax.training.agents.ppo import networks as ppo_networks
+
+    nets = ppo_networks.make_ppo_networks(5, 3, running_statistics.normalize, policy_hidden_layer_sizes=(16, 16),
+                                          activation=jnp.tanh, distribution_type="normal", noise_std_type="log")
+    policy_params = nets.policy_network.init(jax.random.PRNGKey(0))
+    dense = policy_params["params"]["Dense_0"]
+    policy_params["params"]["Dense_0"] = {**dense, "kernel": 20.0 * dense["kernel"]}   # a mean beyond the range
+    obs = 3.0 * jax.random.normal(jax.random.PRNGKey(1), (256, 5)) + 1.0
+    normalizer = running_statistics.update(running_statistics.init_state(jax.ShapeDtypeStruct((5,), jnp.float32)),
+                                           obs)
+    want, _ = ppo_networks.make_inference_fn(nets)((normalizer, policy_params), deterministic=True)(obs, None)
+    params = train_expert.export_params(normalizer, policy_params, "normal")
+    assert [k.shape for k in params["kernels"]] == [(5, 16), (16, 16), (16, 3)]
+    got = np.asarray(jax.jit(experts.policy_from_params(params, "tanh", "linear"))(obs))
+    np.testing.assert_allclose(got, np.asarray(want), atol=1e-5)
+    assert np.abs(got).max() > 1.5
+
+
+def test_the_rough_trainer_runs_and_exports_a_linear_head(tmp_path):
+    """A few PPO steps of the rough settings on the point task: a normal policy with its learned std, exported with
+    `network.head` "linear" and loadable with it."""
+    cfg = train_expert.PpoSettings(**dict(train_expert.ROUGH, num_timesteps=640, num_envs=8, unroll_length=5,
+                                          batch_size=8, num_minibatches=2, num_updates_per_batch=2,
+                                          episode_length=20, num_evals=2, num_eval_envs=8, seed=0,
+                                          hidden_layer_sizes=(16, 16), frame_skip=None))
+    params, meta = train_expert.run_ppo(Reach(), cfg)
+    assert [k.shape for k in params["kernels"]] == [(2, 16), (16, 16), (16, 1)]
+    assert len(meta["history"]) == 2 and len(meta["policy_std"]) == 1 and meta["policy_std"][0] > 0
+    card = {"network": {"obs_size": 2, "action_size": 1, "hidden": [16, 16], "activation": "tanh",
+                        "head": "linear"}}
+    experts.save(tmp_path, params, card)
+    policy = experts.load("reach", root=tmp_path)
+    obs = jax.random.uniform(jax.random.PRNGKey(1), (8, 2), minval=-1, maxval=1)
+    np.testing.assert_allclose(np.asarray(policy(obs)),
+                               np.asarray(experts.policy_from_params(params, "tanh", "linear")(obs)), atol=1e-6)
+
+
+def test_train_expert_refuses_a_bad_set_with_exit_code_2(capsys):
+    for argv, message in ((["--algorithm", "rough", "--set", "nope=1"], "expected NAME=VALUE"),
+                          (["--algorithm", "rough", "--set", "entropy_cost=x"], "is not a number"),
+                          (["--algorithm", "rough", "--set", "distribution_type=beta"], "distribution_type must be"),
+                          (["--set", "entropy_cost=0.1"], "--set applies to --algorithm ppo or rough")):
+        with pytest.raises(SystemExit) as exit_:
+            train_expert.main(["--env", "hopper", *argv])
+        assert exit_.value.code == 2 and message in capsys.readouterr().err, argv
