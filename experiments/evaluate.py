@@ -23,6 +23,17 @@ rendered as the sweep's evaluation saw it, with its return in the caption
 (`ape_jax.pipeline.watch`); a method that ran several settings shows its best
 (by mean return), at its first seed unless SEED is given. `results.json` is
 left alone.
+
+`--rejudge FILE [FILE ...]` instead recomputes each results file's controlled
+copycat verdict from its recorded diagnostics (no policies needed;
+`ape_jax.pipeline.judge`): each policy's embedding probe against the no-history
+control, BC-SO on the same rows with the same probe, from FILE itself where its
+sweep trained BC-SO, else from a sibling: `--control SIBLING`, or a results file
+beside FILE with the same demonstrations, protocol, recipe, training length and
+probe. Each run's first verdict (`verdict`) stays beside the new
+`controlled_verdict`. A file without diagnostics is skipped (said so); one
+without a control is refused (exit 2), and then nothing is written. The files
+are replaced atomically; judging a judged file again changes nothing.
 """
 
 from __future__ import annotations
@@ -38,7 +49,8 @@ def main(argv=None) -> int:
     from ape_jax.pipeline import data
 
     p = Parser(prog="python -m experiments.evaluate", description=__doc__.splitlines()[0])
-    p.add_argument("run", type=pathlib.Path, help="a sweep's --out directory (results.json and params/)")
+    p.add_argument("run", type=pathlib.Path, nargs="?", default=None,
+                   help="a sweep's --out directory (results.json and params/)")
     p.add_argument("--out", type=pathlib.Path, default=None,
                    help="write the completed results here (default: replace RUN/results.json)")
     p.add_argument("--replaces", type=pathlib.Path, default=None, metavar="FILE",
@@ -51,8 +63,21 @@ def main(argv=None) -> int:
     p.add_argument("--episode", type=int, default=0, help="with --video: which evaluation episode (default 0)")
     p.add_argument("--video-out", type=pathlib.Path, default=None, metavar="FILE.gif",
                    help="with --video: where (default RUN/videos/METHOD-seedSEED-episodeN.gif)")
+    p.add_argument("--rejudge", type=pathlib.Path, nargs="+", default=None, metavar="FILE",
+                   help="recompute these results files' controlled copycat verdicts from their recorded diagnostics "
+                        "instead (no policies needed; each file replaced)")
+    p.add_argument("--control", type=pathlib.Path, nargs="+", default=None, metavar="SIBLING",
+                   help="with --rejudge: take the no-history control (BC-SO) from these files where a FILE has none")
     add_compile_cache_flag(p)
     args = p.parse_args(argv)
+    if args.rejudge is not None:
+        if args.run is not None or args.out or args.replaces or args.video or args.video_out or args.episode:
+            fail(p, "--rejudge takes results files and nothing else: no RUN, --out, --replaces or --video")
+        return _rejudge(p, args.rejudge, args.control or [])
+    if args.control is not None:
+        fail(p, "--control goes with --rejudge FILE")
+    if args.run is None:
+        fail(p, "give RUN (a sweep's --out directory), or --rejudge FILE")
     if args.video is None and (args.video_out is not None or args.episode != 0):
         fail(p, "--episode and --video-out go with --video METHOD[:SEED]")
     if args.video_out is not None and args.video_out.suffix != ".gif":
@@ -96,6 +121,9 @@ def main(argv=None) -> int:
         fail(p, str(e))
     if old is not None:
         new.replaces = results_lib.replaced_record(old, args.replaces.name, new)
+    from ape_jax.pipeline import judge
+
+    new = judge.judge_own(new)   # diagnostics just added: their controlled verdict, where the sweep had BC-SO
     results_lib.save(target, new)
     if old is not None:
         print(_before_and_after(new))
@@ -122,6 +150,74 @@ def _before_and_after(new) -> str:
                      + (f"{before:,.1f}" if before is not None else "—") + " -> "
                      + (f"{row['return_mean']:,.1f}" if row["return_mean"] is not None else "failed"))
     return "\n".join(lines)
+
+
+def _rejudge(p, files: list[pathlib.Path], controls: list[pathlib.Path]) -> int:
+    """`--rejudge`: every file's controlled verdict (`ape_jax.pipeline.judge`), all found before any is written."""
+    from ape_jax.diagnostics import CONTROL
+    from ape_jax.pipeline import judge
+    from ape_jax.pipeline import results as results_lib
+
+    def loaded(path):
+        try:
+            return results_lib.load(path)
+        except results_lib.ResultsError as e:
+            fail(p, str(e))
+
+    given = [(path.name, loaded(path)) for path in controls]
+    beside: dict[pathlib.Path, list] = {}   # per folder, the results files in it (what is not one is passed over)
+    judged, lines = [], []
+    for path in files:
+        res = loaded(path)
+        if (why := unwritable_file(path)) is not None:
+            fail(p, why)
+        if not any(judge.readable(r) for r in res.runs):
+            lines.append(f"skipped {path}: no copycat diagnostics")
+            continue
+        control = None
+        if not judge.control_errors(res).get(int(res.config["iterations"])):
+            if path.parent not in beside:
+                beside[path.parent] = [(q.name, r) for q in sorted(path.parent.glob("*.json"))
+                                       if (r := _results_or_none(q)) is not None]
+            control = judge.find_control(res, given) or judge.find_control(
+                res, [(n, r) for n, r in beside[path.parent] if n != path.name])
+            if control is None:
+                fail(p, f"{path}: no {CONTROL} control: neither the file nor "
+                        + (", ".join(str(c) for c in controls) if controls else "a results file beside it")
+                        + f" has {CONTROL} policies with diagnostics on the same demonstrations, protocol, recipe, "
+                        f"training length and probe; run {CONTROL} in such a sweep, or name its file with --control")
+        try:
+            new = judge.judge(res, control)
+        except judge.JudgeError as e:
+            fail(p, f"{path}: {e}")
+        judged.append((path, new))
+        lines.append(f"rejudged {path}: control {CONTROL} from "
+                     + ("the file itself" if control is None else control[0]) + "; " + _verdict_counts(new))
+    for path, new in judged:
+        results_lib.save(path, new)
+    print("\n".join(lines))
+    return 0
+
+
+def _results_or_none(path: pathlib.Path):
+    from ape_jax.pipeline import results as results_lib
+
+    try:
+        return results_lib.load(path)
+    except results_lib.ResultsError:
+        return None
+
+
+def _verdict_counts(res) -> str:
+    """`"copycat: first verdict 3/15, controlled 0/15 (the runs at the end)"`."""
+    from ape_jax.pipeline import judge
+
+    blocks = [d for r in res.runs if r["status"] == "ok" and (d := judge.readable(r)) is not None]
+    first = sum(d.get("verdict") == "copycat" for d in blocks)
+    controlled = [d for d in blocks if "controlled_verdict" in d]
+    new = sum(d["controlled_verdict"] == "copycat" for d in controlled)
+    return (f"copycat: first verdict {first}/{len(blocks)}, controlled {new}/{len(controlled)} (the runs at the "
+            "end)")
 
 
 def _video(p, args, res) -> int:

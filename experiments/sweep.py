@@ -217,11 +217,13 @@ def table(res) -> str:
         return statistics.stdev(v) if len(v) >= 2 else None
 
     diagnosed = bool(read(res.runs))
+    controlled = any("controlled_verdict" in b for b in read(res.runs))   # judged against its BC-SO
     heads = [f"{m} (mean ± sd over seeds)" for m in shown] if shown else ["return (mean ± sd over seeds)"]
     width = [max(len(h), 18) for h in heads]
     lines = [f"{'':2}{'method':<17}{'hparams':<30}{'seeds':>5}  " + "  ".join(f"{h:>{w}}" for h, w in zip(heads, width))
              + ("" if metric != "return" else f"  {'normalized':>11}")
-             + (f"  {'emb ratio':>9}  {'pred ratio':>10}  {'copycat':>7}" if diagnosed else "")]
+             + (f"  {'emb ratio':>9}  {'pred ratio':>10}  {'copycat':>7}" if diagnosed else "")
+             + (f"  {'ctl ratio':>9}  {'controlled':>10}" if controlled else "")]
     absent = []
     for r in res.summary:
         hp = ", ".join(f"{k}={v:g}" for k, v in r["hparams"].items()) or "-"
@@ -249,6 +251,10 @@ def table(res) -> str:
             count = f"{sum(b.get('verdict') == 'copycat' for b in blocks)}/{len(blocks)}" if blocks else "-"
             line += (f"  {median(blocks, 'embedding_ratio'):>9}  {median(blocks, 'predictability_ratio'):>10}"
                      f"  {count:>7}")
+            if controlled:
+                judged = [b["controlled_verdict"] for b in blocks if "controlled_verdict" in b]
+                count = f"{judged.count('copycat')}/{len(judged)}" if judged else "-"
+                line += f"  {median(blocks, 'control_ratio'):>9}  {count:>10}"
             why = [d["absent"] for x in runs if isinstance(d := x.get("diagnostics"), dict) and "absent" in d]
             absent += [f"no copycat diagnostics: {r['method']}" + (f" {hp}" if r["hparams"] else "")
                        + f", {why.count(w)} of {len(runs)} seeds: {w}" for w in dict.fromkeys(why)]
@@ -268,6 +274,14 @@ def table(res) -> str:
                                               ("predictability", "predictability_ratio")))
         lines += [f"copycat = {rule} (both, per seed; fixed before any result)",
                   "emb / pred ratio: medians over seeds; copycat: seeds judged copycat / seeds with diagnostics"]
+        if controlled:
+            c = t.get("control_ratio")
+            lines.append("controlled = a policy that sees a past with ctl ratio <= "
+                         + (f"{c:g}" if isinstance(c, (int, float)) else "(threshold not recorded)")
+                         + " and pred ratio <= " + (f"{t['predictability_ratio']:g}" if isinstance(
+                             t.get("predictability_ratio"), (int, float)) else "(threshold not recorded)")
+                         + "; ctl ratio: the embedding's error on a_t-1 / the median of bc-so's (no history, the "
+                         "same rows and probe)")
     lines += absent
     for r in res.runs:
         if r["status"] != "ok":

@@ -27,23 +27,28 @@ ROLLOUTS, ROLLOUT_LENGTH = 16, 150               # rollouts per side: ψ fits on
 PROBE_STEPS, PSI_STEPS, PSI_BATCH = 800, 800, 256
 
 
-def _speed(rng) -> float:
-    return float(rng.choice([-1.0, 1.0]) * rng.uniform(0.1, 0.4))
+SMOOTH, JERKY = (0.1, 0.4), (1.0, 2.0)   # the expert's turning speeds |ω| per step: a_t tells a_{t−1} well, or not
 
 
-def _expert_phases(rng, episodes: int, length: int, mean_segment: float = 10.0) -> np.ndarray:
+def _speed(rng, speeds: tuple[float, float] = SMOOTH) -> float:
+    return float(rng.choice([-1.0, 1.0]) * rng.uniform(*speeds))
+
+
+def _expert_phases(rng, episodes: int, length: int, mean_segment: float = 10.0,
+                   speeds: tuple[float, float] = SMOOTH, with_speed: bool = False):
     """The expert's hidden phase `[E, T]`: it turns by ω per step; at a changepoint (probability
-    1/mean_segment per step) it jumps by U(π/2, 3π/2) and ω is redrawn (|ω| in [0.1, 0.4], either sign)."""
-    theta = np.empty((episodes, length))
+    1/mean_segment per step) it jumps by U(π/2, 3π/2) and ω is redrawn (|ω| in `speeds`, either sign).
+    With `with_speed`, also each step's ω `[E, T]` (the speed it turned by to get there, but at a changepoint)."""
+    theta, omega = np.empty((episodes, length)), np.empty((episodes, length))
     for e in range(episodes):
-        th, w = rng.uniform(0.0, 2 * math.pi), _speed(rng)
+        th, w = rng.uniform(0.0, 2 * math.pi), _speed(rng, speeds)
         for t in range(length):
             if t > 0 and rng.random() < 1.0 / mean_segment:
-                th, w = th + rng.uniform(0.5 * math.pi, 1.5 * math.pi), _speed(rng)
+                th, w = th + rng.uniform(0.5 * math.pi, 1.5 * math.pi), _speed(rng, speeds)
             elif t > 0:
                 th += w
-            theta[e, t] = th
-    return theta
+            theta[e, t], omega[e, t] = th, w
+    return (theta, omega) if with_speed else theta
 
 
 def _on_circle(theta: np.ndarray) -> np.ndarray:
@@ -69,12 +74,12 @@ class World(NamedTuple):
     train: np.ndarray       # rows of the probes' training episodes
     val: np.ndarray         # rows of the held-out episodes
     expert_rollouts: np.ndarray  # [ROLLOUTS, ROLLOUT_LENGTH, 2], fresh expert episodes
+    omega: np.ndarray | None = None  # [M] the expert's speed at each step
 
 
-@pytest.fixture(scope="module")
-def world() -> World:
+def _world(speeds: tuple[float, float] = SMOOTH) -> World:
     rng = np.random.default_rng(0)
-    theta = _expert_phases(rng, EPISODES, LENGTH)
+    theta, omega = _expert_phases(rng, EPISODES, LENGTH, speeds=speeds, with_speed=True)
     action = _on_circle(theta)
     start = rng.normal(scale=3.0, size=(EPISODES, 1, 2))
     obs = start + np.concatenate([np.zeros((EPISODES, 1, 2)), np.cumsum(action, axis=1)[:, :-1]], axis=1)
@@ -83,8 +88,13 @@ def world() -> World:
                 t=jnp.asarray(t), ape=jnp.zeros(EPISODES * LENGTH))
     rows = np.arange(EPISODES * LENGTH, dtype=np.int32)
     split = TRAIN_EPISODES * LENGTH
-    expert_rollouts = _on_circle(_expert_phases(np.random.default_rng(1), ROLLOUTS, ROLLOUT_LENGTH))
-    return World(data, theta.reshape(-1), rows[:split], rows[split:], expert_rollouts)
+    expert_rollouts = _on_circle(_expert_phases(np.random.default_rng(1), ROLLOUTS, ROLLOUT_LENGTH, speeds=speeds))
+    return World(data, theta.reshape(-1), rows[:split], rows[split:], expert_rollouts, omega.reshape(-1))
+
+
+@pytest.fixture(scope="module")
+def world() -> World:
+    return _world()
 
 
 def _history(data: Data, rows: np.ndarray) -> jax.Array:
@@ -151,6 +161,69 @@ def test_a_state_reader_that_acts_like_the_expert_is_not_a_copycat(world):
     assert not v.embedding_held and not v.predictability_held
     assert float(probe.ratio) > 0.8, probe
     assert 0.7 < pred.ratio < 1.5, pred
+
+
+def _no_history_embedding(mix_seed: int):
+    """A policy without a history that reads the expert's state well (BC-SO at its best): features of the phase
+    and of where the phase came from (`θ_t − ω_t`, as a velocity tells the previous state), mixed to 16 units.
+    It knows `a_{t−1}` but at changepoints, whatever the expert; `mix_seed` makes another seed of it."""
+    def embed(world: World, rows: np.ndarray) -> jax.Array:
+        th, before = world.theta[rows], world.theta[rows] - world.omega[rows]
+        state = np.stack([np.sin(th), np.cos(th), np.sin(before), np.cos(before)], axis=-1)
+        mix = jax.random.normal(jax.random.PRNGKey(mix_seed), (4, 16))
+        return jnp.asarray(state, jnp.float32) @ mix + 0.1 * world.data.obs[rows] @ mix[:2]
+    return embed
+
+
+@pytest.mark.parametrize("speeds", [SMOOTH, JERKY], ids=["smooth expert", "jerky expert"])
+def test_a_no_history_policy_is_never_a_copycat_and_a_planted_one_is_whatever_the_expert(speeds):
+    """The controlled verdict does not move with the expert. Against `a_t` alone (the first verdict) the same
+    no-history policy's embedding ratio crosses 0.5 when only the expert's autocorrelation changes; against the
+    no-history control (two other seeds of it) it stays near 1, and the planted copycat stays far below 0.25."""
+    world = _world(speeds)
+    rows = [dg.previous_action_rows(world.data.replace(rows=jnp.asarray(r))) for r in (world.train, world.val)]
+    prev = [world.data.action[r - 1] for r in rows]
+    key = jax.random.PRNGKey(6)
+
+    def prev_from(x) -> float:   # the probe's held-out MSE of a_{t−1} (`prev_from_embedding`), one fit
+        return float(dg.probe_target(key, x(rows[0]), x(rows[1]), *prev, steps=400).mse)
+
+    from_action = prev_from(lambda r: world.data.action[r])      # the first verdict's reference: a_t alone
+    control = [prev_from(lambda r, s=s: _no_history_embedding(20 + s)(world, r)) for s in range(2)]
+    bc_so = prev_from(lambda r: _no_history_embedding(30)(world, r))
+    copycat = prev_from(lambda r: _copycat_embedding(world, r))
+    first = bc_so / from_action
+    assert (first > 0.6) if speeds == SMOOTH else (first < 0.4), (bc_so, from_action)
+    ratios = dg.control_ratio(np.array([bc_so, copycat]), control)
+    assert 0.7 < ratios[0] < 1.4 and ratios[1] < 0.05, ratios
+    rollouts = _held_actions(np.random.default_rng(3), ROLLOUTS, ROLLOUT_LENGTH)   # the copycat's: piecewise held
+    pred = dg.rollout_predictability(jax.random.PRNGKey(7), rollouts, world.expert_rollouts, steps=PSI_STEPS,
+                                     batch=PSI_BATCH)
+    assert dg.controlled_verdict(ratios[1], pred.ratio, sees_past=True).label == "copycat", pred
+    # the no-history policy acting as smoothly as the copycat: never a copycat, and its ratio would not say so
+    v = dg.controlled_verdict(ratios[0], pred.ratio, sees_past=False)
+    assert v.label == "not copycat" and not v.embedding_held and "never a copycat" in v.reasons[0]
+    assert dg.controlled_verdict(ratios[0], pred.ratio, sees_past=True).label == "not copycat"
+
+
+def test_the_control_ratio_divides_by_the_median_of_the_controls_seeds():
+    np.testing.assert_allclose(dg.control_ratio([0.2, 0.4], [0.5, 0.4, 100.0, np.nan]), [0.4, 0.8])
+    assert dg.control_ratio(0.2, [0.1]).shape == ()
+    assert np.isnan(dg.control_ratio([0.2], [np.nan])).all() and np.isnan(dg.control_ratio([0.2], [])).all()
+
+
+@pytest.mark.parametrize("control, predictability, sees_past, label, held", [
+    (0.1, 0.2, True, "copycat", (True, True)),
+    (0.25, 0.5, True, "copycat", (True, True)),          # at the thresholds counts
+    (0.3, 0.2, True, "not copycat", (False, True)),      # reads its past for the state, no more
+    (0.1, 0.9, True, "not copycat", (True, False)),      # holds a_{t−1}, acts like the expert
+    (0.1, 0.2, False, "not copycat", (False, False)),    # no past in view: never
+    (float("nan"), 0.2, True, "not copycat", (False, True)),
+])
+def test_the_controlled_verdict_needs_both_criteria_and_a_past(control, predictability, sees_past, label, held):
+    v = dg.controlled_verdict(control, predictability, sees_past)
+    assert (v.label, (v.embedding_held, v.predictability_held)) == (label, held)
+    assert len(v.reasons) == (2 if sees_past else 1)
 
 
 def test_the_state_reference_separates_reading_the_state_from_copying(world):
@@ -260,6 +333,9 @@ def test_the_verdict_needs_both_criteria(embedding_ratio, predictability_ratio, 
 
 def test_the_thresholds_are_fixed_and_checked():
     assert (dg.THRESHOLDS.embedding_ratio, dg.THRESHOLDS.predictability_ratio) == (0.5, 0.5)
+    assert dg.THRESHOLDS.control_ratio == 0.25
+    with pytest.raises(ValueError, match="control_ratio"):
+        dg.Thresholds(control_ratio=0.0)
     with pytest.raises(dataclasses.FrozenInstanceError):
         dg.THRESHOLDS.embedding_ratio = 0.9
     with pytest.raises(ValueError, match="embedding_ratio"):

@@ -117,9 +117,9 @@ def test_the_report_tabulates_each_configurations_diagnostics_and_states_the_thr
     recipe = text[text.index("### The paper's recipe"):]
     recipe = recipe[:recipe.index("\n### ")]
     assert (f"| Hopper | fca | BC-OH | — | 5 | {_pct_of_expert(fca, 'bc-oh')} | 0.6 (0.1–0.9) | 0.1 | "
-            "0.4 (0.2–1.1) | copycat 2/5 |") in recipe
+            "0.4 (0.2–1.1) | copycat 2/5 (first verdict only) |") in recipe
     assert (f"| Hopper | fca | BC-SO | — | 5 | {_pct_of_expert(fca, 'bc-so')} | 1 (0.95–1.1) | — | "
-            "0.9 (0.7–1.2) | copycat 0/4 |") in recipe
+            "0.9 (0.7–1.2) | copycat 0/4 (first verdict only) |") in recipe
     assert (f"| Hopper | fca | Ours (step) | thr 0.1, w 5 | 5 | {_pct_of_expert(fca, 'ours-step')} | "
             "— | — | — | — |") in recipe
     assert "| Hopper | mlp |" not in recipe and recipe.count(rule) == 1
@@ -134,7 +134,7 @@ def test_the_report_tabulates_each_configurations_diagnostics_and_states_the_thr
     assert "| method | hparams | seeds | % of expert | embedding ratio | velocity 1 − R² | predictability ratio | " \
            "verdict |" in fca_group
     assert (f"| BC-OH | — | 5 | {_pct_of_expert(fca, 'bc-oh')} | 0.6 (0.1–0.9) | 0.1 | 0.4 (0.2–1.1) | "
-            "copycat 2/5 |") in fca_group
+            "copycat 2/5 (first verdict only) |") in fca_group
     assert fca_group.count(rule) == 1 and "the columns as explained under the first such table above" in fca_group
     assert f"- BC-SO: no diagnostics for 1 of 5 seeds: {NO_EMBEDDING}" in fca_group
     assert "embedding ratio" not in mlp_group and "Copycat diagnostics per trained policy" not in mlp_group
@@ -173,8 +173,54 @@ def test_runs_evaluated_during_training_get_a_table_per_iteration_with_intervals
     # at 10k: seeds 10..14 % of expert, mean 12 with its bootstrap interval; every seed copycat there
     at_10k = next(line for line in section.splitlines() if line.startswith("| BC-OH | — | 10,000 |"))
     assert at_10k.startswith("| BC-OH | — | 10,000 | 12.0 [") and at_10k.endswith(
-        "| 0.02 | 0.3 (0.3–0.3) | 0.3 (0.3–0.3) | copycat 5/5 |")
+        "| 0.02 | 0.3 (0.3–0.3) | 0.3 (0.3–0.3) | copycat 5/5 (first verdict only) |")
     at_end = next(line for line in section.splitlines() if line.startswith("| BC-OH | — | 30,000 |"))
     assert at_end.startswith(f"| BC-OH | — | 30,000 | {_pct_of_expert(obj, 'bc-oh')} [")
-    assert at_end.endswith("| 0.6 (0.1–0.9) | 0.4 (0.2–1.1) | copycat 2/5 |")
+    assert at_end.endswith("| 0.6 (0.1–0.9) | 0.4 (0.2–1.1) | copycat 2/5 (first verdict only) |")
     assert "The same policies over training" not in report.build([_loaded(tmp_path, _diagnosed(FCA_BC), "b.json")])[0]
+
+
+def _judged(path: pathlib.Path) -> dict:
+    """`_diagnosed` judged against its BC-SO (`ape_jax.pipeline.judge`), with BC-OH's errors made small: seeds 0 and
+    1 hold a_{t−1} 5× better than BC-SO (control ratio 0.2) and are smooth, so the controlled verdict calls them
+    copycats; the first verdict's count (2/5, from the recorded `verdict`) stays as it was."""
+    from ape_jax.pipeline import judge
+
+    obj = _diagnosed(path)
+    for run in obj["runs"]:
+        d = run["diagnostics"]
+        if run["method"] == "bc-so" and "absent" not in d:
+            d["prev_from_embedding"] = 0.01
+        if run["method"] == "bc-oh":
+            d["prev_from_embedding"] = 0.002 if run["seed"] < 2 else 0.008
+    return judge.judge(results.Results.from_json(obj)).to_json()
+
+
+def test_the_report_shows_the_controlled_verdict_with_the_first_beside_it(tmp_path):
+    fca = _judged(FCA_BC)
+    bc_oh = [r["diagnostics"] for r in fca["runs"] if r["method"] == "bc-oh"]
+    assert [d["controlled_verdict"] for d in bc_oh] == ["copycat"] * 2 + ["not copycat"] * 3
+    text, _ = report.build([_loaded(tmp_path, fca, "fca.json"), _loaded(tmp_path, _plain(MLP_BC), "mlp.json")])
+    recipe = text[text.index("### The paper's recipe"):]
+    recipe = recipe[:recipe.index("\n### ")]
+    assert ("| task | recipe | method | hparams | seeds | % of expert | embedding ratio | control ratio | "
+            "velocity 1 − R² | predictability ratio | verdict |") in recipe
+    assert (f"| Hopper | fca | BC-OH | — | 5 | {_pct_of_expert(fca, 'bc-oh')} | 0.6 (0.1–0.9) | 0.8 (0.2–0.8) | 0.1 | "
+            "0.4 (0.2–1.1) | copycat 2/5 (first verdict 2/5) |") in recipe
+    # BC-SO against the median of its own seeds: 1 by construction; never a copycat
+    assert (f"| Hopper | fca | BC-SO | — | 5 | {_pct_of_expert(fca, 'bc-so')} | 1 (0.95–1.1) | 1 (1–1) | — | "
+            "0.9 (0.7–1.2) | copycat 0/4 (first verdict 0/4) |") in recipe
+    assert ("Copycat (the controlled verdict) = a policy that sees a past (a history of more than one observation, "
+            "or the previous action in view) with control ratio ≤ 0.25 and predictability ratio ≤ 0.5, both, per "
+            "seed; a policy without a past never is. The first verdict, beside it: embedding ratio ≤ 0.5 and "
+            "predictability ratio ≤ 0.5, both, per seed") in recipe
+    assert text.count("- control ratio (where the files record it): ") == 1
+
+
+def test_the_printed_table_adds_the_control_ratio_and_the_controlled_count():
+    lines = table(results.Results.from_json(_judged(FCA_BC))).splitlines()
+    assert lines[0].endswith("  emb ratio  pred ratio  copycat  ctl ratio  controlled")
+    rows = {line[2:].split()[0]: line for line in lines[1:4]}
+    assert rows["bc-oh"].split()[-5:] == ["0.6", "0.4", "2/5", "0.8", "2/5"]
+    assert rows["bc-so"].split()[-5:] == ["1", "0.9", "0/4", "1", "0/4"]
+    assert lines[7].startswith("controlled = a policy that sees a past with ctl ratio <= 0.25 and pred ratio <= 0.5")

@@ -440,8 +440,8 @@ def diagnostics_config(prepared: Prepared, outputs: Sequence[dict]) -> dict | No
             "probe_steps": int(out[f"{DIAG}probe_steps"][0]),
             "probe_rows": {"train": int(out[f"{DIAG}probe_rows_train"][0]),
                            "val": int(out[f"{DIAG}probe_rows_val"][0])},
-            "expert_rollouts": f"the demonstrations' {demos.num_episodes} training episodes, cut to each policy's "
-                               "step count",
+            "expert_rollouts": f"the demonstrations' {demos.num_episodes} training episodes, their executed actions, "
+                               "cut to each policy's step count",
             "velocity": "qvel" if "qvel" in demos.sim else None,
             "state": "qpos[1:], qvel (the expert's observation)" if {"qpos", "qvel"} <= set(demos.sim) else None}
 
@@ -526,8 +526,9 @@ _DIAGNOSTICS = {"verdict": (lambda v: v in ("copycat", "not copycat"), "'copycat
                 **{k: (_optional(_number), "a number or null")
                    for k in ("embedding_ratio", "prev_from_embedding", "prev_from_action", "velocity_ratio",
                              "predictability_ratio", "policy_mse", "expert_mse")}}
-_LATER_DIAGNOSTICS = {k: (_optional(_number), "a number or null")
-                      for k in ("prev_from_state", "state_ratio")}  # optional
+_LATER_DIAGNOSTICS = {**{k: (_optional(_number), "a number or null")
+                         for k in ("prev_from_state", "state_ratio", "control_ratio")},  # optional
+                      "controlled_verdict": (lambda v: v in ("copycat", "not copycat"), "'copycat' or 'not copycat'")}
 _LOSSES = {s: (lambda v: isinstance(v, dict) and all(
     _number(v.get(k)) for k in ("unweighted", "changepoint", "copycat")), "an object with numbers unweighted, "
     "changepoint and copycat") for s in ("train", "val")}

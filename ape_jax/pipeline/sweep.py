@@ -64,6 +64,7 @@ from ape_jax.grid import differing_processes
 from ape_jax.learner import Data, LearnerConfig, make_train
 from ape_jax.pipeline import checkpoint as ckpt_lib
 from ape_jax.pipeline import collect, minari_io, provenance
+from ape_jax.pipeline import judge as judge_lib
 from ape_jax.pipeline import results as results_lib
 from ape_jax.pipeline.checkpoint import SweepCheckpoint
 from ape_jax.pipeline import data as data_lib
@@ -406,8 +407,10 @@ def group_diagnostics(prepared: Prepared, ape: ApeFit, group: PolicyGroup, actio
                       valid: np.ndarray, steps: int) -> dict[str, np.ndarray]:
     """The group's copycat diagnostics (`ape_jax.diagnostics.diagnose`) as `{"diag_<field>": [P]}`; the expert's
     rollouts are its demonstrations' training episodes (a sweep collects them without noise, so they are its
-    own rollouts), the velocity the demonstrations' `qvel` where they hold one. A network that gives no
-    embedding (its `__call__` takes no `return_embedding`, e.g. a plugin's) gets `{"diag_absent": [P]}`."""
+    own rollouts) as executed (`Demonstrations.executed`: the clipped actions the env ran, like the policies'
+    rollout actions, whatever the labels), the velocity the demonstrations' `qvel` where they hold one. A
+    network that gives no embedding (its `__call__` takes no `return_embedding`, e.g. a plugin's) gets
+    `{"diag_absent": [P]}`."""
     if "return_embedding" not in inspect.signature(type(group.cfg.model()).__call__).parameters:
         return {f"{DIAG}absent": np.ones(len(group.runs))}  # reported absent, never as zero
     train, val = prepared.data(prepared.train, ape.train), prepared.data(prepared.val, ape.val)
@@ -418,7 +421,7 @@ def group_diagnostics(prepared: Prepared, ape: ApeFit, group: PolicyGroup, actio
         velocity = tuple(sim["qvel"] for sim in both)
         if all("qpos" in sim for sim in both):  # the experts' observation: the root's x left out, as Brax does
             state = tuple(np.concatenate([sim["qpos"][:, 1:], sim["qvel"]], axis=-1) for sim in both)
-    expert = diagnostics_lib.demonstration_rollouts(demos.action, demos.episode)
+    expert = diagnostics_lib.demonstration_rollouts(demos.executed, demos.episode)
     d = diagnostics_lib.diagnose(jax.random.PRNGKey(DIAGNOSTICS_SEED), group.cfg, group.params, train, val,
                                  actions, valid, expert, velocity, steps=steps, state=state)
     rows = d.pop("probe_rows")
@@ -537,12 +540,13 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
         config["diagnostics"] = diag
     config["env"] = {"dt": float(prepared.env.dt), "episode_length": int(prepared.env.episode_length),
                      "overrides": {k: list(v) if isinstance(v, tuple) else v for k, v in spec.env_overrides().items()}}
-    return results_lib.Results(
+    res = results_lib.Results(
         env=spec.env, obs=spec.obs, preset=spec.preset_name, config=config, expert=expert, runs=runs,
         summary=results_lib.summarize(runs, task.metrics), timing=timing,
         command=list(spec.command) if spec.command is not None else None,
         protocol=spec.protocol_settings(), settings=blocks,
         methods={m: results_lib.method_info(m) for m in dict.fromkeys(r["method"] for r in runs)})
+    return judge_lib.judge_own(res)  # the controlled copycat verdict, where the sweep trained its control (BC-SO)
 
 
 def policies(evaluated: Evaluated, prepared: Prepared) -> dict[str, dict]:

@@ -31,10 +31,11 @@ class Spread(NamedTuple):
 class PolicyDiagnostics(NamedTuple):
     """The copycat diagnostics of one configuration's seeds (`policy_diagnostics`).
 
-    `read` counts the seeds whose diagnostics could be read (`copycats` of them judged copycat); `embedding`,
-    `velocity` and `predictability` are the ratios over those seeds (None where no seed recorded one: e.g.
-    velocity on data without `qvel`); `absent` the distinct reasons of the seeds the diagnostics could not read,
-    with how many seeds gave each.
+    `read` counts the seeds whose diagnostics could be read (`copycats` of them judged copycat by the first
+    verdict); `judged` those of them with the controlled verdict (`ape_jax.pipeline.judge`; 0 in a file without a
+    control), `controlled` of them judged copycat by it; `embedding`, `velocity`, `predictability` and `control`
+    are the ratios over those seeds (None where no seed recorded one: e.g. velocity on data without `qvel`);
+    `absent` the distinct reasons of the seeds the diagnostics could not read, with how many seeds gave each.
     """
 
     read: int
@@ -44,6 +45,9 @@ class PolicyDiagnostics(NamedTuple):
     predictability: Spread | None
     absent: tuple[tuple[str, int], ...]
     state: Spread | None = None  # embedding ÷ the true state's probe (`state_ratio`; files before it: None)
+    control: Spread | None = None  # embedding ÷ the no-history control's (`control_ratio`; files without: None)
+    judged: int = 0
+    controlled: int = 0
 
 
 def spread(values: Sequence) -> Spread | None:
@@ -66,7 +70,8 @@ def has_diagnostics(runs: Sequence[dict]) -> bool:
 
 def policy_diagnostics(runs: Sequence[dict]) -> PolicyDiagnostics:
     """The copycat diagnostics over the ok runs (seeds) of one configuration: medians and ranges of the embedding,
-    velocity and predictability ratios, and how many seeds were judged copycat out of those that were read.
+    velocity, predictability and control ratios, and how many seeds were judged copycat out of those that were
+    read (the first verdict) and out of those with the controlled verdict.
 
     An absent block (`{"absent": reason}`: a policy the diagnostics cannot read) counts in `absent`, never as
     zero; a null ratio (non-finite when measured) is left out of that ratio's median and range, while its seed's
@@ -76,12 +81,15 @@ def policy_diagnostics(runs: Sequence[dict]) -> PolicyDiagnostics:
     read = [d for r in ok if (d := diagnostics_block(r)) is not None]
     reasons = [str(r["diagnostics"]["absent"]) for r in ok
                if isinstance(r.get("diagnostics"), dict) and "absent" in r["diagnostics"]]
+    judged = [d["controlled_verdict"] for d in read if "controlled_verdict" in d]
     return PolicyDiagnostics(len(read), sum(d.get("verdict") == "copycat" for d in read),
                              spread([d.get("embedding_ratio") for d in read]),
                              spread([d.get("velocity_ratio") for d in read]),
                              spread([d.get("predictability_ratio") for d in read]),
                              tuple((why, reasons.count(why)) for why in dict.fromkeys(reasons)),
-                             spread([d.get("state_ratio") for d in read]))
+                             spread([d.get("state_ratio") for d in read]),
+                             spread([d.get("control_ratio") for d in read]),
+                             len(judged), judged.count("copycat"))
 
 
 class DiagnosticsRow(NamedTuple):
@@ -112,7 +120,8 @@ def diagnostics_rows(m: Group) -> list[DiagnosticsRow]:
 
 def diagnostics_thresholds(sources: Sequence[results_lib.Results]) -> list[dict]:
     """The copycat thresholds (`config["diagnostics"]["thresholds"]`: `{"embedding_ratio": …,
-    "predictability_ratio": …}`) the files record, each distinct one once, in file order."""
+    "predictability_ratio": …}`, and `"control_ratio"` where the file was judged against its control) the files
+    record, each distinct one once, in file order."""
     out: list[dict] = []
     for src in sources:
         t = (src.config.get("diagnostics") or {}).get("thresholds")

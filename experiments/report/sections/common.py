@@ -110,9 +110,20 @@ def ratio_text(s: Spread | None, with_range: bool = True) -> str:
     return f"{s.median:.3g}" + (f" ({s.low:.3g}–{s.high:.3g})" if with_range and s.n > 1 else "")
 
 
+def copycat_count(d: PolicyDiagnostics) -> str:
+    """`"0/5 (first verdict 2/5)"`: the seeds the controlled verdict judged copycat / the seeds it judged, the first
+    verdict's count beside it; `"2/5 (first verdict only)"` where no seed has the controlled verdict (a file
+    without a control); "—" where no seed could be read."""
+    if not d.read:
+        return "—"
+    if not d.judged:
+        return f"{d.copycats}/{d.read} (first verdict only)"
+    return f"{d.controlled}/{d.judged} (first verdict {d.copycats}/{d.read})"
+
+
 def verdict_count(d: PolicyDiagnostics) -> str:
-    """`"copycat 2/5"`: seeds judged copycat / seeds read; "—" where none could be read."""
-    return "—" if not d.read else f"copycat {d.copycats}/{d.read}"
+    """`"copycat 0/5 (first verdict 2/5)"` (`copycat_count`); "—" where no seed could be read."""
+    return "—" if not d.read else f"copycat {copycat_count(d)}"
 
 
 def ci_text(ci: Interval, fmt: str = "+.1f") -> str:

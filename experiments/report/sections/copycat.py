@@ -8,8 +8,8 @@ from experiments.report import figures
 from experiments.report.analysis import (FCA, MAP_METHODS, CopycatMap, MapPoint, copycat_map, diagnostics_thresholds,
                                          extended_map, ordered, percent, thousands)
 from experiments.report.paper import PAPER_STEP
-from experiments.report.sections.common import (Context, Section, ci_text, diff_cell, lift, ratio_text,
-                                                significant)
+from experiments.report.sections.common import (Context, Section, ci_text, copycat_count, diff_cell, lift,
+                                                ratio_text, significant)
 from experiments.report.sections.diagnostics import thresholds_line
 
 
@@ -91,6 +91,33 @@ def _point_diag(q: MapPoint, field: str) -> str:
     return "—" if q.diagnostics is None else ratio_text(getattr(q.diagnostics, field), with_range=False)
 
 
+def _judged_cells_lines(judged: list[MapPoint]) -> list[str]:
+    """Which diagnosed cells have a BC-OH seed judged copycat: by the controlled verdict where the cells' files record
+    a control, and by the first verdict."""
+    if not judged:
+        return []
+
+    def where(q: MapPoint, copycats: int, of: int) -> str:
+        return (f"{tasks.get(q.env).title} {q.setting}, frame skip {q.frame_skip}, {q.train_transitions:,} "
+                f"transitions, at {thousands(q.iteration)} of {thousands(q.run)} ({copycats}/{of})")
+
+    def sentence(cells: list[MapPoint], verdict: str, count) -> str:
+        copycat = [q for q in cells if count(q)[0]]
+        return (f"Of the {len(cells)} cells whose BC-OH policies {verdict}, "
+                + (f"{len(copycat)} {'has' if len(copycat) == 1 else 'have'} a seed judged copycat: "
+                   + "; ".join(where(q, *count(q)) for q in copycat) if copycat
+                   else "none has a seed judged copycat") + ".")
+
+    controlled = [q for q in judged if q.diagnostics.judged]
+    out = []
+    if controlled:
+        out.append(sentence(controlled, "have the controlled verdict",
+                            lambda q: (q.diagnostics.controlled, q.diagnostics.judged)))
+    out.append(sentence(judged, "were diagnosed" + (", by the first verdict" if controlled else ""),
+                        lambda q: (q.diagnostics.copycats, q.diagnostics.read)))
+    return [" ".join(out), ""]
+
+
 def extended_map_section(ctx: Context) -> list[Section]:
     """"Where copycat appears: the map, extended": every fca-family state group (`analysis.extended_map`), per
     setting (recipe, split), frame skip, training-set size, run length and evaluation point, the three map methods
@@ -130,32 +157,29 @@ def extended_map_section(ctx: Context) -> list[Section]:
     out += [""]
     if diagnosed:
         state = any(q.diagnostics.state is not None for q in diagnosed)
+        control = any(q.diagnostics.control is not None for q in diagnosed)
         out += ["BC-OH's copycat diagnostics in the cells whose files record them, which test that inference: "
                 "the median embedding ratio and predictability ratio over seeds (below 1: the embedding carries "
-                "a_{t−1} beyond what a_t gives; the policy's actions are more predictable than the expert's), and "
-                "the seeds judged copycat"
+                "a_{t−1} beyond what a_t gives; the policy's actions are more predictable than the expert's)"
+                + (", the median control ratio (below 1: the embedding carries a_{t−1} beyond what BC-SO's, "
+                   "trained on the same rows without a history, does)" if control else "")
+                + ", and the seeds judged copycat (the controlled verdict where the files record a control, the "
+                "first verdict's count beside it)"
                 + ("; where recorded, the embedding probe's error ÷ the same probe's from the true state at t "
                    "(below 1: beyond what the state itself tells) and the velocity probe's 1 − R² (near 0: the "
                    "embedding holds the velocity the history is for)" if state else "") + ".", "",
-                lead + "BC-OH − BC-SO | embedding ratio | predictability ratio | copycat |"
-                + (" embedding ÷ state | velocity 1 − R² |" if state else ""),
-                "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|" + ("---:|---:|" if state else "")]
+                lead + "BC-OH − BC-SO | embedding ratio | " + ("control ratio | " if control else "")
+                + "predictability ratio | copycat |" + (" embedding ÷ state | velocity 1 − R² |" if state else ""),
+                "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|" + "---:|" * control
+                + ("---:|---:|" if state else "")]
         out += [cells(q) + ("—" if q.history is None else f"{q.history.diff:+.1f}") + f" | "
-                f"{_point_diag(q, 'embedding')} | {_point_diag(q, 'predictability')} | "
-                + ("—" if not q.diagnostics.read else f"{q.diagnostics.copycats}/{q.diagnostics.read}") + " |"
+                f"{_point_diag(q, 'embedding')} | " + (f"{_point_diag(q, 'control')} | " if control else "")
+                + f"{_point_diag(q, 'predictability')} | {copycat_count(q.diagnostics)} |"
                 + (f" {_point_diag(q, 'state')} | {_point_diag(q, 'velocity')} |" if state else "")
                 for q in diagnosed]
         sources = [src for key, m in ordered(ctx.merged) for src in m.sources]
-        judged = [q for q in diagnosed if q.diagnostics.read]
-        copycat = [q for q in judged if q.diagnostics.copycats]
         out += ["", thresholds_line(diagnostics_thresholds(sources)), ""]
-        if judged:
-            out += [f"Of the {len(judged)} cells whose BC-OH policies were diagnosed, "
-                    + (f"{len(copycat)} {'has' if len(copycat) == 1 else 'have'} a seed judged copycat: " + "; ".join(
-                        f"{tasks.get(q.env).title} {q.setting}, frame skip {q.frame_skip}, "
-                        f"{q.train_transitions:,} transitions, at {thousands(q.iteration)} of {thousands(q.run)} "
-                        f"({q.diagnostics.copycats}/{q.diagnostics.read})" for q in copycat)
-                       if copycat else "none has a seed judged copycat") + ".", ""]
+        out += _judged_cells_lines([q for q in diagnosed if q.diagnostics.read])
     return [Section("Where copycat appears: the map, extended", intro, out, drawn.figures)]
 
 

@@ -18,7 +18,13 @@ DIAGNOSTICS_COLUMNS = (
     "velocity's variance, median over seeds; near 0 the policy extracts velocity (— where the data has none)",
     "predictability ratio: ψ's held-out MSE on the policy's own rollout actions ÷ on the expert's rollouts (as "
     "many steps), median over seeds (range); below 1 the policy's actions are more predictable than the expert's",
-    "verdict: the seeds judged copycat / the seeds whose diagnostics could be read (— where none could)",
+    "control ratio (where the files record it): the same probe's held-out MSE on a_{t−1} from the policy's "
+    "embedding ÷ the median of the no-history control's (BC-SO trained on the same rows, probed the same way), "
+    "median over seeds (range); below 1 the policy's past tells it more about a_{t−1} than the current "
+    "observation does; BC-SO sits near 1 by construction, whatever the expert",
+    "verdict: the seeds the controlled verdict judged copycat / the seeds it judged, the first verdict's count "
+    "beside it (its copycats / the seeds whose diagnostics could be read; \"first verdict only\" where the files "
+    "record no control; — where no seed could be read)",
     "embedding ÷ state (where the files record it): the embedding probe's MSE ÷ the same probe's from the true "
     "state at t (the expert's observation: joint positions and velocities), median (range). The expert's "
     "previous action follows from the previous state, which the current one nearly fixes, so reading the state "
@@ -28,17 +34,19 @@ DIAGNOSTICS_COLUMNS = (
 )
 
 
-def _diagnostics_cells(row: DiagnosticsRow) -> list[str]:
+def _diagnostics_cells(row: DiagnosticsRow, control: bool) -> list[str]:
     d = row.diagnostics
     return [", ".join(f"{k} {v:g}" for k, v in row.hparams.items()) or "—", str(row.seeds),
             "—" if row.normalized is None else f"{row.normalized:.1f}", ratio_text(d.embedding),
-            ratio_text(d.velocity, with_range=False), ratio_text(d.predictability), verdict_count(d)]
+            *([ratio_text(d.control)] if control else []), ratio_text(d.velocity, with_range=False),
+            ratio_text(d.predictability), verdict_count(d)]
 
 
 def diagnostics_table(rows: list[tuple[tuple[str, ...], DiagnosticsRow]], heads: tuple[str, ...] = ("method",),
                       unit: str = "% of expert") -> str:
     """Copycat diagnostics per configuration: seeds, % of expert, embedding ratio (median and range over seeds),
-    velocity 1 − R² (median), predictability ratio (median and range) and the verdict count.
+    control ratio (where recorded), velocity 1 − R² (median), predictability ratio (median and range) and the
+    verdict counts (the controlled verdict's and the first's).
 
     Args:
       rows: `(leading cells, row)`, the leading cells one per `heads` (`("Hopper", "fca", "BC-OH")`).
@@ -46,28 +54,42 @@ def diagnostics_table(rows: list[tuple[tuple[str, ...], DiagnosticsRow]], heads:
       unit: the heading of the % of expert column (a task judged by a rate: that rate in %).
     """
     state = any(row.diagnostics.state is not None for _, row in rows)   # files from before it: no column
-    lines = ["| " + " | ".join(heads) + f" | hparams | seeds | {unit} | embedding ratio | velocity 1 − R² | "
-             "predictability ratio | verdict |" + (" embedding ÷ state |" if state else ""),
-             "|" + "---|" * (len(heads) + 1) + "---:|" * 5 + "---|" + ("---:|" if state else "")]
-    lines += ["| " + " | ".join([*lead, *_diagnostics_cells(row)]) + " |"
+    control = any(row.diagnostics.control is not None for _, row in rows)   # files without a control: none
+    lines = ["| " + " | ".join(heads) + f" | hparams | seeds | {unit} | embedding ratio | "
+             + ("control ratio | " if control else "") + "velocity 1 − R² | predictability ratio | verdict |"
+             + (" embedding ÷ state |" if state else ""),
+             "|" + "---|" * (len(heads) + 1) + "---:|" * (5 + control) + "---|" + ("---:|" if state else "")]
+    lines += ["| " + " | ".join([*lead, *_diagnostics_cells(row, control)]) + " |"
               + (f" {ratio_text(row.diagnostics.state)} |" if state else "") for lead, row in rows]
     return "\n".join(lines) + "\n"
 
 
 def thresholds_line(thresholds: list[dict]) -> str:
-    """The copycat verdict's criteria as the files record them (`analysis.diagnostics_thresholds`), in one line."""
-    def both(t: dict) -> str:
-        return " and ".join(f"{name} ≤ " + (f"{t[key]:g}" if isinstance(t.get(key), (int, float)) else "?")
-                            for name, key in (("embedding ratio", "embedding_ratio"),
-                                              ("predictability ratio", "predictability_ratio")))
+    """The copycat verdicts' criteria as the files record them (`analysis.diagnostics_thresholds`), in one line:
+    the controlled verdict's where files record its threshold, and the first verdict's."""
+    def number(t: dict, key: str) -> str:
+        return f"{t[key]:g}" if isinstance(t.get(key), (int, float)) else "?"
 
+    def rule(t: dict, keys: tuple[tuple[str, str], ...]) -> str:
+        return " and ".join(f"{name} ≤ {number(t, key)}" for name, key in keys)
+
+    first_keys = (("embedding ratio", "embedding_ratio"), ("predictability ratio", "predictability_ratio"))
+    controlled_keys = (("control ratio", "control_ratio"), ("predictability ratio", "predictability_ratio"))
     fixed = "thresholds fixed before any result, `ape_jax.diagnostics.THRESHOLDS`"
     if not thresholds:
         return "Copycat = both ratios at or below their thresholds, per seed; the files record no thresholds."
-    if len(thresholds) == 1:
-        return f"Copycat = {both(thresholds[0])}, both, per seed ({fixed})."
-    return (f"Copycat = both ratios at or below their thresholds, per seed ({fixed}); the files record different "
-            "ones: " + "; ".join(both(t) for t in thresholds) + ".")
+    firsts = list(dict.fromkeys(rule(t, first_keys) for t in thresholds))
+    controls = list(dict.fromkeys(rule(t, controlled_keys) for t in thresholds if "control_ratio" in t))
+    if len(firsts) == 1:
+        first = f"{firsts[0]}, both, per seed ({fixed})"
+    else:
+        first = f"both ratios at or below their thresholds, per seed ({fixed}); the files record different ones: " \
+                + "; ".join(firsts)
+    if not controls:
+        return f"Copycat = {first}."
+    return (f"Copycat (the controlled verdict) = a policy that sees a past (a history of more than one observation, "
+            f"or the previous action in view) with {' or '.join(controls)}, both, per seed; a policy without a past "
+            f"never is. The first verdict, beside it: {first}.")
 
 
 def _absent_lines(rows: list[tuple[tuple[str, ...], DiagnosticsRow]], heads: tuple[str, ...]) -> list[str]:
@@ -116,14 +138,17 @@ def training_table(m: Group) -> list[str]:
     if not points:
         return []
     unit = display_metric(m)[1] if display_metric(m)[0] == "normalized" else "% of expert"
+    control = any(p.diagnostics.control is not None for p in points)
     lines = ["The same policies over training (the runs also evaluated at `budget.eval_at`'s iterations, on the "
              "same episodes, with the same diagnostics; a run's learning-rate schedule is its whole run's):", "",
              f"| method | hparams | iteration | {unit} [95% CI] | training loss | embedding ratio | "
-             "predictability ratio | verdict |", "|---|---|---:|---:|---:|---:|---:|---|"]
+             + ("control ratio | " if control else "") + "predictability ratio | verdict |",
+             "|---|---|---:|---:|---:|---:|" + "---:|" * control + "---:|---|"]
     for p in points:
         hps = ", ".join(f"{k} {v:g}" for k, v in p.hparams.items()) or "—"
         loss = "—" if p.train_loss is None else f"{p.train_loss:.4g}"
         lines.append(f"| {p.label} | {hps} | {p.iteration:,} | {pct_cell(p.normalized)} | {loss} | "
-                     f"{ratio_text(p.diagnostics.embedding)} | {ratio_text(p.diagnostics.predictability)} | "
-                     f"{verdict_count(p.diagnostics)} |")
+                     f"{ratio_text(p.diagnostics.embedding)} | "
+                     + (f"{ratio_text(p.diagnostics.control)} | " if control else "")
+                     + f"{ratio_text(p.diagnostics.predictability)} | {verdict_count(p.diagnostics)} |")
     return [*lines, ""]

@@ -149,6 +149,12 @@ def _bcoh_diagnosed(m: Group) -> str:
     if not d.read:
         return ("BC-OH's policies here were not diagnosed (their files predate the copycat diagnostics), so whether "
                 "it copies is not measured.")
+    if d.judged:
+        return (f"BC-OH's copycat diagnostics judge {d.controlled} of {d.judged} seeds copycat (the controlled "
+                f"verdict; the first: {d.copycats} of {d.read}; median control ratio "
+                f"{ratio_text(d.control, with_range=False)}, embedding ratio "
+                f"{ratio_text(d.embedding, with_range=False)}, predictability ratio "
+                f"{ratio_text(d.predictability, with_range=False)}).")
     return (f"BC-OH's copycat diagnostics judge {d.copycats} of {d.read} seeds copycat (median embedding ratio "
             f"{ratio_text(d.embedding, with_range=False)}, predictability ratio "
             f"{ratio_text(d.predictability, with_range=False)}).")

@@ -105,8 +105,10 @@ def _budget_reading(rows: list[BudgetRow], diffs: list[tuple[str, dict[int, Inte
                                                   for i, p in seen))
         judged = [(i, p.diagnostics) for i, p in seen if p.diagnostics.read]
         if judged:
-            parts.append("it is judged copycat in " + ", ".join(f"{d.copycats} of {d.read} seeds at {thousands(i)}"
-                                                               for i, d in judged))
+            parts.append("it is judged copycat in " + ", ".join(
+                (f"{d.controlled} of {d.judged} seeds at {thousands(i)} (the first verdict: {d.copycats} of "
+                 f"{d.read})" if d.judged else f"{d.copycats} of {d.read} seeds at {thousands(i)}")
+                for i, d in judged))
     for lab, d in diffs:
         ci = d.get(end)
         if ci is not None:
@@ -164,6 +166,7 @@ def paper_budget_section(ctx: Context) -> list[Section]:
             "|---|---|" + "---:|" * len(its)]
     diffs = [budget_differences(task) for task in rows]
     state = any(p.diagnostics.state is not None for task in rows for r in task for p in r.points)
+    control = any(p.diagnostics.control is not None for task in rows for r in task for p in r.points)
     for task, d in zip(rows, diffs):
         out += [f"| {tasks.get(task[0].env).title} | {lab} | " + " | ".join(diff_cell(ci.get(i)) for i in its) + " |"
                 for lab, ci in d]
@@ -173,18 +176,29 @@ def paper_budget_section(ctx: Context) -> list[Section]:
             "alone: below 1 the embedding carries the previous action beyond what the current one gives), the "
             "predictability ratio (a ψ-architecture predictor's held-out error on the policy's own rollout actions ÷ "
             "the same on the expert's: below 1 the policy's actions are more predictable from its previous ones "
-            "than the expert's), and the seeds judged copycat out of those read"
+            "than the expert's)"
+            + (", the control ratio (the embedding probe's error ÷ the median of BC-SO's, trained on the same rows "
+               "without a history: below 1 the embedding carries a_{t−1} beyond what a policy without a past does)"
+               if control else "")
+            + ", and the seeds judged copycat out of those " + ("judged (the controlled verdict; the first "
+                                                                "verdict's count in brackets)" if control else "read")
             + ("; and beside them, where recorded, the embedding probe's error ÷ the same probe's from the true "
                "state at t (below 1: the embedding carries a_{t−1} beyond what the state itself tells)" if state
                else "") + ".", "",
-            "| task | method | embedding ratio | predictability ratio | copycat |"
-            + (" embedding ÷ state |" if state else ""),
-            "|---|---|---:|---:|---:|" + ("---:|" if state else "")]
+            "| task | method | embedding ratio | " + ("control ratio | " if control else "")
+            + "predictability ratio | copycat |" + (" embedding ÷ state |" if state else ""),
+            "|---|---|---:|" + "---:|" * control + "---:|---:|" + ("---:|" if state else "")]
+
+    def copycats(d) -> str:
+        return (f"{d.controlled}/{d.judged} ({d.copycats}/{d.read})" if d.judged
+                else f"{d.copycats}/{d.read}" + (" (first verdict only)" if control else ""))
+
     for task in rows:
         title = tasks.get(task[0].env).title
-        out += [f"| {title} | {r.label} | {_ratios(r, its, 'embedding')} | {_ratios(r, its, 'predictability')} | "
+        out += [f"| {title} | {r.label} | {_ratios(r, its, 'embedding')} | "
+                + (f"{_ratios(r, its, 'control')} | " if control else "") + f"{_ratios(r, its, 'predictability')} | "
                 + " → ".join("—" if (q := r.at(i)) is None or not q.diagnostics.read
-                             else f"{q.diagnostics.copycats}/{q.diagnostics.read}" for i in its) + " |"
+                             else copycats(q.diagnostics) for i in its) + " |"
                 + (f" {_ratios(r, its, 'state')} |" if state else "") for r in task]
     sources = [src for m in groups for src in m.sources]
     out += ["", thresholds_line(diagnostics_thresholds(sources)), ""]
