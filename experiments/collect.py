@@ -8,7 +8,13 @@ sweep of the same protocol collects (and accepts with `--dataset`).
 Rolls the shipped expert out under jit and writes the dataset (`.npz` plus
 `.json` metadata, see `ape_jax.pipeline.data`) into the cache directory, named by a hash
 of the settings; a second run with the same settings loads it instead. The
-sweep uses the same cache.
+sweep uses the same cache. `--set protocol.FIELD=VALUE` changes a field of the
+protocol as the sweep's `--set` does: `protocol.expert=NAME` collects from an
+expert variant (shipped, or imported with `experiments.import_expert`),
+`protocol.labels=raw` stores the expert's output as it gives it (the executed
+action is clipped to the action bounds either way). The metadata records the
+labels' mode, the share of the expert's raw label entries outside the action
+range, and the expert's reference returns under the protocol.
 
 `--format minari` also exports the dataset as a Minari dataset (see
 `ape_jax.pipeline.minari_io`) with id `<npz name>-v0` under the Minari datasets root
@@ -24,6 +30,7 @@ dataset that is corrupt (it is left in place; `--force` collects it anew).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import pathlib
 import sys
@@ -36,6 +43,7 @@ def parse(argv=None) -> argparse.Namespace:
     import envs
     from ape_jax import tasks
     from ape_jax.pipeline import collect, data
+    from ape_jax.pipeline.presets import parse_set
 
     p = Parser(prog="python -m experiments.collect", description=__doc__.splitlines()[0])
     p.add_argument("--env", default="hopper", help=f"{', '.join(tasks.sweepable())}, or any Brax env with an expert "
@@ -44,6 +52,9 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--protocol", default=None,
                    help=f"{', '.join(tasks.PROTOCOLS)} (default: the task's, as the sweep's: fca for state "
                         "observations, brax for images)")
+    p.add_argument("--set", action="append", default=[], metavar="protocol.FIELD=VALUE",
+                   help="change a field of the protocol, as the sweep's --set (e.g. protocol.expert=fca, "
+                        "protocol.labels=raw)")
     p.add_argument("--episodes", type=int, default=None,
                    help="episodes to collect (default: the protocol's: fca's 50,000 expert steps, 25 episodes of "
                         "2,000 steps for Hopper; under brax the task's: 25 for MuJoCo, 10 for the driving sandbox)")
@@ -73,7 +84,15 @@ def parse(argv=None) -> argparse.Namespace:
     if args.obs not in modes:
         fail(p, f"--obs {args.obs!r} is not supported by {args.env}; valid: {', '.join(modes)}")
     try:
-        args.setup = collect.protocol_setup(args.env, args.obs, args.protocol)
+        proto = tasks.get(args.env).protocol(args.protocol, args.obs)
+        changes = {}
+        for item in args.set:
+            section, field, value = parse_set(item)
+            if section != "protocol":
+                raise ValueError(f"--set {item!r}: collection takes protocol fields only")
+            changes[field] = value
+        args.protocol_record = dataclasses.replace(proto, **changes)
+        args.setup = collect.protocol_setup(args.env, args.obs, args.protocol_record)
     except ValueError as e:
         fail(p, str(e))
     if args.episodes is None:
@@ -138,7 +157,8 @@ def main(argv=None) -> int:
 
     try:
         cfg = collect.settings(args.env, args.obs, args.episodes, args.seed, args.noise_frac, args.noise_std,
-                               args.batch, **args.overrides)
+                               args.batch, expert=args.setup.expert, labels=args.setup.labels, **args.overrides)
+        references, why = _references(args)
     except ExpertError as e:
         return fail(None, str(e))
     path = data.cache_path(args.data_dir, cfg)
@@ -149,7 +169,8 @@ def main(argv=None) -> int:
     try:
         with tqdm(total=args.episodes, unit="episode", desc=f"collect {args.env}/{args.obs}", delay=0.5) as bar:
             demos, meta, path, cached = collect.collect_cached(
-                cfg, args.data_dir, force=args.force, progress=lambda n: bar.update(n - bar.n))
+                cfg, args.data_dir, force=args.force, progress=lambda n: bar.update(n - bar.n),
+                references=references)
     except data.DataError as e:
         return fail(None, f"{e}; the cached dataset is left as it is: run again with --force to collect it anew")
     except OSError as e:
@@ -169,6 +190,12 @@ def main(argv=None) -> int:
           f"{how}; "
           f"expert return {meta['episode_return_mean']:.1f} ± {meta['episode_return_std']:.1f}, "
           f"mean episode length {meta['episode_length_mean']:.0f}")
+    labels = meta.get("labels")
+    if labels:
+        print(f"labels: {labels['mode']}; {labels['raw_outside_share']:.1%} of the expert's raw label entries lie "
+              f"outside the action range (from {labels['raw_min']:.3g} to {labels['raw_max']:.3g})")
+    if not cached and references is None and why:
+        print(f"no reference returns recorded: {why}")
     print(action_summary(demos))
     print(f"dataset: {path}\nmetadata: {path.with_suffix('.json')}")
     if args.format == "minari":
@@ -176,6 +203,19 @@ def main(argv=None) -> int:
     if args.preview is not None:
         write_preview(args, demos)
     return 0
+
+
+def _references(args) -> tuple[dict | None, str | None]:
+    """The protocol's reference returns of the expert collecting (`collect.reference_returns`), and why there are
+    none (a rule-based expert, or none measured under the protocol)."""
+    from ape_jax.pipeline import collect
+    from envs.experts import ExpertError
+
+    try:
+        ref = collect.reference_returns(args.env, args.protocol_record)
+    except ExpertError as e:
+        return None, str(e)
+    return ref, "its expert is rule-based (no returns to normalise by)" if ref is None else None
 
 
 def export_minari(args, demos, meta, path) -> None:
@@ -187,16 +227,9 @@ def export_minari(args, demos, meta, path) -> None:
     if target.exists() and not args.force:
         print(f"minari dataset: {target} (exported before)")
         return
-    from ape_jax import tasks
-    from ape_jax.pipeline import collect
-    from envs.experts import ExpertError
-
     env = envs.make(args.env, obs=args.obs, **args.overrides)
-    try:   # the reference scores of minari.get_normalized_score: the protocol's random policy and expert
-        ref = collect.reference_returns(args.env, tasks.get(args.env).protocol(args.protocol, args.obs))
-        why = "its expert is rule-based (no returns to normalise by)" if ref is None else None
-    except ExpertError as e:
-        ref, why = None, str(e)
+    # the reference scores of minari.get_normalized_score: the protocol's random policy and expert
+    ref, why = _references(args)
     refs = {} if ref is None else {"ref_min_score": ref["random_return_mean"], "ref_max_score": ref["return_mean"]}
     try:
         target = minari_io.to_minari(demos, meta, dataset_id, args.out, action_bounds=env.action_bounds,

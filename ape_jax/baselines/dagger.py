@@ -35,10 +35,16 @@ Our reading of the algorithm (the paper of the benchmark gives no details):
   paper's "β_i = p^(i−1)" schedule, with round 0 being pure expert data:
   β_0 = 1). The label is always the expert's clean action, whoever acted.
 - **Labels.** The expert sees the full state (`env.expert_observation`) and
-  acts deterministically; the learner's own policy acts exactly as at
-  evaluation (`evaluate.history_policy`): its last `H` standardised
-  observations, padded at the episode start by repeating the first one, its
-  actions clipped to `env.action_bounds`.
+  acts deterministically; its label is what the sweep gives as `expert`: the
+  demonstrations' own expert (a `--dataset`'s, `collect.dataset_expert`), its
+  output clipped to the action bounds or raw as `protocol.labels` says
+  (`collect.labeller`), like the demonstrations' labels. Where the expert
+  acts, its action is executed clipped to `env.action_bounds`. The learner's
+  own policy acts exactly as at evaluation (`evaluate.history_policy`): its
+  last `H` standardised observations, padded at the episode start by
+  repeating the first one, its actions clipped to `env.action_bounds`. A sweep
+  from a dataset whose expert cannot be queried refuses DAgger
+  (`sweep.prepare`).
 - **Rollouts.** `num_envs` (default 16) environment streams run in parallel
   (`vmap`), `lax.scan` over `⌈q / num_envs⌉` steps for `q` queries. A stream resets (a fresh
   key, the policy's history restarted) after a terminal state or after
@@ -195,7 +201,9 @@ def label_rollout(cfg: LearnerConfig, env: envs.Env, expert: Callable[[jax.Array
             expert_acts = jax.random.uniform(key_mix) < beta
             # the history's newest entry is this state's observation, standardised as in training
             record = Labelled(obs=history[-1], action=label, t=t, expert_obs=full, expert_acted=expert_acts)
-            nxt = env.step(state, jnp.where(expert_acts, label, own))
+            # the expert's action as it executes: clipped (an unbounded label, `protocol.labels="raw"`, is not)
+            executed = jnp.clip(label, *env.action_bounds)
+            nxt = env.step(state, jnp.where(expert_acts, executed, own))
             ended = (nxt.done > 0) | (t + 1 >= env.episode_length)
             # auto-reset by selection: under vmap a `cond` would compute both branches anyway
             fresh = env.reset(key_next)
@@ -218,7 +226,7 @@ def make_dagger(cfg: LearnerConfig, env: envs.Env, expert: Callable[[jax.Array],
     Args:
       cfg: the learner's static settings; `cfg.iterations // rounds` iterations per round.
       env: the environment, in the observation mode of the demonstrations.
-      expert: `full_obs [d] -> action [A]`, jit-able (`ape_jax.pipeline.collect.expert_for(env)[0]`).
+      expert: `full_obs [d] -> label [A]`, jit-able (`ape_jax.pipeline.sweep.Prepared.expert`); executed clipped.
       obs_mean, obs_std: the demonstrations' standardisation, `[D]` each; `None` for images.
       budget: expert queries in all, >= 0 (rows added to the demonstrations).
       rounds: R >= 2, round 0 on the demonstrations alone.
@@ -303,6 +311,8 @@ def make_dagger(cfg: LearnerConfig, env: envs.Env, expert: Callable[[jax.Array],
 
 
 def _learner(ctx) -> Learner:
+    if ctx.expert is None:
+        raise ValueError("dagger queries the expert, and these demonstrations have none that can be queried")
     return make_dagger(ctx.cfg, ctx.env, ctx.expert, ctx.obs_mean, ctx.obs_std, budget=ctx.n_train)
 
 

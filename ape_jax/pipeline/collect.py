@@ -4,11 +4,21 @@
     demos, meta, path, hit = collect_cached(settings, data_dir)     # the same, cached on disk
 
 The expert acts on the full state (`env.expert_observation`); the dataset
-records the observation in the environment's own mode. With noise
-(`noise_frac > 0`), each step's executed action is, with probability
-`noise_frac`, the expert's action plus Gaussian noise of std `noise_std`
-(clipped to the action bounds), while the **clean** expert action is stored as
-the label (Laskey et al., 2017, as in the paper's driving data).
+records the observation in the environment's own mode. The executed action is
+the expert's clipped to the action bounds (an unbounded Gaussian mean, e.g. FCA's
+expert, is clipped as the FCA code clipped it: the reward's control cost reads the
+action given); the label is that clipped action (`labels="clipped"`, the default)
+or the expert's output as it gave it (`labels="raw"`, what FCA stored;
+`ape_jax.tasks.Protocol.labels`). With noise (`noise_frac > 0`), each step's
+executed action is, with probability `noise_frac`, the expert's action plus
+Gaussian noise of std `noise_std` (clipped to the action bounds), while the
+**clean** expert action is stored as the label (Laskey et al., 2017, as in the
+paper's driving data). The metadata records the labels' mode and how many of the
+expert's raw output's entries lay outside the action range (`label_statistics`).
+
+A dataset names its expert (`expert_for`'s description, in its settings); `dataset_expert`
+finds it again for a sweep from the dataset (`--dataset`), with the references the
+dataset recorded.
 """
 
 from __future__ import annotations
@@ -16,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import pathlib
 import time
 from importlib.metadata import version
 from typing import Any
@@ -46,6 +57,7 @@ class ProtocolSetup:
       env_overrides: the `envs.make` settings it fixes (frame skip, episode length, reward scale).
       episodes: expert episodes to collect: as many whole episodes as its expert steps take, else the task's.
       expert: the expert variant demonstrating (`ape_jax.tasks.Protocol.expert`; None: the task's own).
+      labels: what the demonstrations store as the label, `"clipped"` or `"raw"` (`ape_jax.tasks.Protocol.labels`).
     """
 
     name: str
@@ -53,6 +65,7 @@ class ProtocolSetup:
     env_overrides: dict
     episodes: int
     expert: str | None = None
+    labels: str = "clipped"
 
 
 def protocol_setup(env_name: str, obs: str, protocol: str | tasks.Protocol | None = None) -> ProtocolSetup:
@@ -70,7 +83,7 @@ def protocol_setup(env_name: str, obs: str, protocol: str | tasks.Protocol | Non
         settings["episode_length"] = envs.make(env_name, obs="full" if brax else None).episode_length
     episodes = (-(-proto.collect_transitions // settings["episode_length"]) if proto.collect_transitions is not None
                 else proto.episodes or default_episodes(env_name))
-    return ProtocolSetup(proto.name, settings, proto.env_overrides(standard), episodes, proto.expert)
+    return ProtocolSetup(proto.name, settings, proto.env_overrides(standard), episodes, proto.expert, proto.labels)
 
 
 def reference_returns(env_name: str, protocol: tasks.Protocol) -> dict | None:
@@ -89,12 +102,15 @@ def reference_returns(env_name: str, protocol: tasks.Protocol) -> dict | None:
 
 
 def expert_for(env: envs.Env, variant: str | None = None) -> tuple[Callable[[jax.Array], jax.Array], dict]:
-    """The expert of `env` as `full_obs -> action`, and a description of it for metadata.
+    """The expert of `env` as `full_obs -> action` (its output as it gives it: unbounded for a `"linear"` head; see
+    `labeller`), and a description of it for metadata.
 
     A task with a rule-based expert (`ape_jax.tasks.Task.expert`) uses the
     environment's own `expert`; any other uses the shipped checkpoint
     (`envs.experts.load`: `envs/experts/<env>/`, or with `variant` the one shipped beside it,
-    `envs/experts/<env>-<variant>/`), which raises `ExpertError` if missing.
+    `envs/experts/<env>-<variant>/`), else an imported one of that name (`envs.experts.imported`: its
+    description names the file's SHA-256, format and origin, not the card, so measuring its references again
+    keeps the data's name); `ExpertError` if there is none.
     """
     from envs import experts
 
@@ -109,8 +125,13 @@ def expert_for(env: envs.Env, variant: str | None = None) -> tuple[Callable[[jax
                             "config": config}
     name = env.name if variant is None else f"{env.name}-{variant}"
     policy = experts.load(name)
-    card_file = experts.directory(name) / experts.CARD
     card = experts.card(name)
+    if experts.is_imported(name):
+        source = card.get("source", {})
+        return policy, {"kind": "imported", "name": name, "variant": variant, "format": source.get("format"),
+                        "sha256": source.get("sha256"), "origin": source.get("origin"),
+                        "network": {k: v for k, v in card["network"].items() if k != "layer_sizes"}}
+    card_file = experts.directory(name) / experts.CARD
     return policy, {
         "kind": "checkpoint", "path": f"envs/experts/{name}",
         "card_sha256": hashlib.sha256(card_file.read_bytes()).hexdigest(),
@@ -120,11 +141,35 @@ def expert_for(env: envs.Env, variant: str | None = None) -> tuple[Callable[[jax
     }
 
 
+def labeller(expert: Callable[[jax.Array], jax.Array], env: envs.Env,
+             labels: str = "clipped") -> Callable[[jax.Array], jax.Array]:
+    """The expert's label `full_obs [D] -> [A] float32` as `labels` says (`ape_jax.tasks.LABELS`): `"clipped"` to
+    `env.action_bounds` (what it executes), or `"raw"`, as it gives it."""
+    if labels not in tasks.LABELS:
+        raise ValueError(f"labels {labels!r} is not one of {', '.join(tasks.LABELS)}")
+    from envs import experts
+
+    return experts.executed(expert, env.action_bounds) if labels == "clipped" else expert
+
+
+def label_statistics(raw: np.ndarray, bounds: tuple) -> dict:
+    """Of the expert's raw labels `raw [N, A]`: the share of entries outside the action range `bounds`
+    (`env.action_bounds`), and the smallest and largest entry."""
+    low, high = (np.asarray(b, np.float32) for b in bounds)
+    raw = np.asarray(raw, np.float32)
+    outside = (raw < low) | (raw > high)
+    finite = lambda v: [float(x) if np.isfinite(x) else None for x in v]  # noqa: E731  JSON has no inf
+    return {"raw_outside_share": float(outside.mean()) if raw.size else 0.0,
+            "raw_outside_rows_share": float(outside.any(axis=-1).mean()) if raw.size else 0.0,
+            "raw_min": float(raw.min()) if raw.size else None, "raw_max": float(raw.max()) if raw.size else None,
+            "action_low": finite(low), "action_high": finite(high)}
+
+
 def _noisy_expert(env: envs.Env, expert, noise_frac: float, noise_std: float) -> envs.Policy:
     low, high = env.action_bounds
 
     def act(params, state, key):
-        clean = expert(env.expert_observation(state))
+        clean = jnp.clip(expert(env.expert_observation(state)), low, high)  # what the environment executes
         if noise_frac <= 0 or noise_std <= 0:
             return clean
         key_flip, key_noise = jax.random.split(key)
@@ -136,7 +181,8 @@ def _noisy_expert(env: envs.Env, expert, noise_frac: float, noise_std: float) ->
 
 def make_batch_collector(env: envs.Env, expert: Callable[[jax.Array], jax.Array], batch: int,
                          noise_frac: float = 0.0, noise_std: float = 0.0) -> Callable[[jax.Array], envs.Trajectory]:
-    """A jitted `key -> Trajectory` of `batch` expert episodes; `extra` holds the clean label and sim state."""
+    """A jitted `key -> Trajectory` of `batch` expert episodes; `extra` holds the expert's raw (clean) output as
+    `label`, and the sim state; the executed action is clipped to the action bounds."""
     policy = _noisy_expert(env, expert, noise_frac, noise_std)
 
     def record(state):
@@ -147,7 +193,7 @@ def make_batch_collector(env: envs.Env, expert: Callable[[jax.Array], jax.Array]
 
 def collect(env: envs.Env, expert: Callable[[jax.Array], jax.Array], key: jax.Array, num_episodes: int,
             noise_frac: float = 0.0, noise_std: float = 0.0, batch: int = 32,
-            progress: Callable[[int], None] | None = None) -> data_lib.Demonstrations:
+            progress: Callable[[int], None] | None = None, labels: str = "clipped") -> data_lib.Demonstrations:
     """Rolls out `expert` for `num_episodes` episodes and returns their transitions.
 
     Episodes run `batch` at a time in one jitted program (vmapped over
@@ -162,10 +208,14 @@ def collect(env: envs.Env, expert: Callable[[jax.Array], jax.Array], key: jax.Ar
       noise_frac, noise_std: DART-style noise (module docstring).
       batch: episodes per jitted call.
       progress: called with the number of episodes finished after each batch.
+      labels: `"clipped"` (the label is the executed action, without noise) or `"raw"` (the expert's output).
 
     Returns:
-      `Demonstrations` (NumPy arrays), episodes `0 .. num_episodes-1` in order.
+      `Demonstrations` (NumPy arrays), episodes `0 .. num_episodes-1` in order; `executed` within the action
+      bounds whatever `labels` says.
     """
+    if labels not in tasks.LABELS:
+        raise ValueError(f"labels {labels!r} is not one of {', '.join(tasks.LABELS)}")
     if num_episodes < 1 or batch < 1:
         raise ValueError(f"num_episodes and batch must be >= 1, got {num_episodes} and {batch}")
     if not 0.0 <= noise_frac <= 1.0 or noise_std < 0:
@@ -179,7 +229,11 @@ def collect(env: envs.Env, expert: Callable[[jax.Array], jax.Array], key: jax.Ar
         parts.append(_flatten(traj, keep, first_episode=i * batch))
         if progress:
             progress(min((i + 1) * batch, num_episodes))
-    return jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
+    demos = jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
+    if labels == "clipped":
+        low, high = (np.asarray(b, np.float32) for b in env.action_bounds)
+        demos = demos.replace(action=np.clip(demos.action, low, high))
+    return demos
 
 
 def _as_dict(sim: Any) -> dict:
@@ -202,30 +256,40 @@ def _flatten(traj: envs.Trajectory, keep: int, first_episode: int) -> data_lib.D
 
 
 def settings(env_name: str, obs: str, episodes: int, seed: int = 0, noise_frac: float = 0.0,
-             noise_std: float = 0.0, batch: int = 32, expert: str | None = None, **env_overrides) -> dict:
+             noise_std: float = 0.0, batch: int = 32, expert: str | None = None, labels: str = "clipped",
+             **env_overrides) -> dict:
     """The collection settings that name a cached dataset (see `data.cache_path`); `expert`: the expert variant
-    (`expert_for`; None: the task's own), named through its card in the settings' `expert`."""
+    (`expert_for`; None: the task's own), named through its card in the settings' `expert`; `labels`: recorded
+    only when not `"clipped"`, so the names of datasets collected before the field stay valid."""
     env = envs.make(env_name, obs=obs, **env_overrides)
     _, expert_info = expert_for(env, expert)
+    if labels not in tasks.LABELS:
+        raise ValueError(f"labels {labels!r} is not one of {', '.join(tasks.LABELS)}")
     overrides = {k: (list(v) if isinstance(v, tuple) else v) for k, v in sorted(env_overrides.items())}
     return {"env": env_name, "obs": obs, "episodes": int(episodes), "seed": int(seed),
             "noise_frac": float(noise_frac), "noise_std": float(noise_std), "batch": int(batch),
-            "env_overrides": overrides, "expert": expert_info, "format": data_lib.FORMAT}
+            "env_overrides": overrides, "expert": expert_info, "format": data_lib.FORMAT,
+            **({"labels": labels} if labels != "clipped" else {})}
 
 
 def _variant(cfg: dict) -> str | None:
-    """The expert variant collection settings name (`settings`): the suffix of the expert's directory, if any."""
-    path = (cfg.get("expert") or {}).get("path") or ""
-    name = path.rsplit("/", 1)[-1]
+    """The expert variant collection settings name (`settings`): an imported expert's `variant`, else the suffix
+    of the shipped expert's directory, if any."""
+    info = cfg.get("expert") or {}
+    if info.get("kind") == "imported":
+        return info.get("variant")
+    name = (info.get("path") or "").rsplit("/", 1)[-1]
     return name[len(cfg["env"]) + 1:] if name.startswith(cfg["env"] + "-") else None
 
 
-def collect_cached(cfg: dict, data_dir, force: bool = False, progress=None, save: bool = True):
+def collect_cached(cfg: dict, data_dir, force: bool = False, progress=None, save: bool = True,
+                   references: dict | None = None):
     """The dataset of settings `cfg` (from `settings`): loaded if cached, else collected and saved.
 
     `save=False` (a sweep's processes other than process 0) writes nothing, and
     collects rather than fail on a cached file it cannot read (another process
-    may be writing it).
+    may be writing it). `references` (`reference_returns`, or None) are recorded in the metadata of a dataset
+    collected here (`"references"`), so a sweep from the file alone (`--dataset`) normalises by them.
 
     Returns:
       (demos, meta, path, cached): `cached` is True when nothing was collected.
@@ -243,16 +307,22 @@ def collect_cached(cfg: dict, data_dir, force: bool = False, progress=None, save
     env = envs.make(cfg["env"], obs=cfg["obs"], **{k: (tuple(v) if isinstance(v, list) else v)
                                                      for k, v in cfg["env_overrides"].items()})
     expert, _ = expert_for(env, _variant(cfg))
+    labels = cfg.get("labels", "clipped")
     t0 = time.perf_counter()
     demos = collect(env, expert, jax.random.PRNGKey(cfg["seed"]), cfg["episodes"], cfg["noise_frac"],
-                    cfg["noise_std"], cfg["batch"], progress)
+                    cfg["noise_std"], cfg["batch"], progress, labels="raw")
     seconds = time.perf_counter() - t0
+    label_stats = {"mode": labels, **label_statistics(demos.action, env.action_bounds)}
+    if labels == "clipped":
+        low, high = (np.asarray(b, np.float32) for b in env.action_bounds)
+        demos = demos.replace(action=np.clip(demos.action, low, high))
     returns = np.bincount(demos.episode, weights=demos.reward)
     lengths = np.bincount(demos.episode)
     meta = {
         "env": cfg["env"], "obs": cfg["obs"], "seed": cfg["seed"],
         "noise": {"frac": cfg["noise_frac"], "std": cfg["noise_std"]},
-        "expert": cfg["expert"], "settings": cfg,
+        "expert": cfg["expert"], "settings": cfg, "labels": label_stats,
+        **({"references": dict(references)} if references is not None else {}),
         "episode_return_mean": float(returns.mean()), "episode_return_std": float(returns.std()),
         "episode_length_mean": float(lengths.mean()),
         "collect_s": round(seconds, 2), "backend": jax.default_backend(),
@@ -261,3 +331,110 @@ def collect_cached(cfg: dict, data_dir, force: bool = False, progress=None, save
     if save:
         meta = data_lib.save(path, demos, meta)
     return demos, meta, path, False
+
+
+@dataclasses.dataclass(frozen=True)
+class DatasetExpert:
+    """The expert a dataset from a file (`--dataset`) names, found again, and the returns to normalise by.
+
+    Attributes:
+      expert: the expert as `full_obs -> action` (its raw output, `expert_for`'s), None where none can be loaded.
+      description: how the dataset describes its expert (`expert_for`'s description), None where it names none.
+      references: `return_mean`, `return_std` (or None), `random_return_mean`: the dataset's recorded ones, else its
+        expert's under the protocol; None where neither gives any (or the task has no return to normalise).
+      why: why `expert` is None (a phrase), else None.
+      references_from: `"dataset"`, `"expert"` or None.
+    """
+
+    expert: Callable[[jax.Array], jax.Array] | None
+    description: dict | None
+    references: dict | None
+    why: str | None = None
+    references_from: str | None = None
+
+
+def _variant_of(description: dict, env_name: str) -> str | None:
+    return _variant({"env": env_name, "expert": description})
+
+
+def dataset_expert(env: envs.Env, protocol: tasks.Protocol, meta: dict | None, where: str) -> DatasetExpert:
+    """The expert of a dataset whose metadata is `meta` (`minari_io.dataset_metadata`: the collection `settings`,
+    recorded `references`), for a sweep of `protocol` on `env`.
+
+    The dataset's expert is the one its settings describe, if the expert of that name here is still that one
+    (the description `expert_for` gives now equals the recorded one: the same card, or the same imported file);
+    a dataset that names none (your own, a Minari dataset from elsewhere) has the protocol's variant, if
+    `protocol.expert` names one, else none. References: the dataset's own recorded ones first (ours, or Minari's
+    `ref_min_score` / `ref_max_score`), else its expert's under the protocol (`envs.experts.reference`).
+
+    Raises:
+      ValueError: a dataset that names another expert than `protocol.expert` (one line, naming the `--set` that
+        fits it).
+    """
+    from envs import experts
+
+    meta = meta or {}
+    description = (meta.get("settings") or {}).get("expert") if isinstance(meta.get("settings"), dict) else None
+    task = tasks.get(env.name)
+    variant = protocol.expert
+    if description is not None:
+        variant = _variant_of(description, env.name)
+        if variant != protocol.expert:
+            name = "the task's own expert" if variant is None else f"expert {variant!r}"
+            fix = "drop --set protocol.expert" if variant is None else f"pass --set protocol.expert={variant}"
+            raise ValueError(f"{where} was collected by {name}, not the protocol's "
+                             f"{'task expert' if protocol.expert is None else repr(protocol.expert)}; {fix}")
+    expert, why = None, None
+    if description is None and variant is None:
+        why = f"{where} names no expert (set protocol.expert to a shipped or imported one that made it)"
+    else:
+        try:
+            expert, now = expert_for(env, variant)
+            if description is not None and json.loads(json.dumps(now)) != description:
+                expert = None
+                why = (f"{where}'s expert {now.get('name') or now.get('path') or now.get('kind')} is not the one "
+                       "that collected it any more (its card or file changed)")
+        except (experts.ExpertError, ValueError) as e:
+            why = f"{where}'s expert cannot be loaded: {e}"
+    references, source = None, None
+    recorded = meta.get("references")
+    if task.has_card and isinstance(recorded, dict) and recorded.get("return_mean") is not None:
+        references, source = {"return_mean": float(recorded["return_mean"]),
+                              "return_std": None if recorded.get("return_std") is None
+                              else float(recorded["return_std"]),
+                              "random_return_mean": float(recorded["random_return_mean"])}, "dataset"
+    elif task.has_card and expert is not None:
+        try:
+            name = env.name if variant is None else f"{env.name}-{variant}"
+            references, source = experts.reference(name, protocol.reference or protocol.name), "expert"
+        except experts.ExpertError:
+            pass
+    return DatasetExpert(expert, description, references, why, source)
+
+
+def check_labels(demos: data_lib.Demonstrations, env: envs.Env, labels: str, where: str) -> None:
+    """Refuses (ValueError, one line) demonstrations whose labels leave `env`'s action range unless `labels` is
+    `"raw"` (`protocol.labels`: the protocol's consent to train on them as they are)."""
+    if labels == "raw":
+        return
+    stats = label_statistics(demos.action, env.action_bounds)
+    if stats["raw_outside_share"] > 0:
+        low, high = (np.asarray(b, np.float32) for b in env.action_bounds)
+        span = (f"[{low.min():g}, {high.max():g}]" if low.min() == low.max() and high.min() == high.max()
+                else "its bounds")
+        raise ValueError(f"{where}: {stats['raw_outside_share']:.1%} of its label entries lie outside {env.name}'s "
+                         f"action range {span} (from {stats['raw_min']:.3g} to {stats['raw_max']:.3g}: raw labels, "
+                         "e.g. a Gaussian expert's mean); pass --set protocol.labels=raw to train on them as they are")
+
+
+def no_references_advice(found: DatasetExpert, where: str) -> str:
+    """One line: why a dataset gives no returns to normalise by, and how to add them."""
+    if str(where).endswith((".npz", ".json")):
+        how = (f"add \"references\": {{\"return_mean\": R_EXPERT, \"random_return_mean\": R_RANDOM}} to "
+               f"{pathlib.Path(where).with_suffix('.json').name}")
+    else:
+        how = "add ref_max_score (the expert's mean return) and ref_min_score (a random policy's) to its metadata.json"
+    why = found.why or "its expert has no references under this protocol"
+    return (f"{where} records no reference returns and {why}; the table reports returns only. To normalise, {how}"
+            + (", or name the expert that made it with --set protocol.expert=NAME" if found.description is None
+               else ""))

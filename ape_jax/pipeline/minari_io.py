@@ -362,6 +362,32 @@ def dataset_settings(spec: str | os.PathLike, fmt: str = "auto") -> dict | None:
     return settings if isinstance(settings, dict) else None
 
 
+def dataset_metadata(spec: str | os.PathLike, fmt: str = "auto") -> dict | None:
+    """What a dataset named on a command line says about itself: the project's metadata (`NAME.json`, or the
+    `"ape_jax"` key of a Minari dataset this project exported: collection `settings`, which name its expert, and
+    recorded `references`), with a Minari dataset's own `ref_min_score` / `ref_max_score` as its `references`
+    (`random_return_mean`, `return_mean`) where the project's metadata records none; None where it says nothing
+    readable.
+    """
+    if fmt == "auto":
+        fmt = "npz" if str(spec).endswith((".npz", ".json")) else "minari"
+    try:
+        if fmt == "npz":
+            meta = json.loads(data_lib.meta_path(pathlib.Path(spec).with_suffix(".npz")).read_text())
+            return meta if isinstance(meta, dict) else None
+        outer = json.loads((resolve(spec) / _METADATA).read_text())
+    except (OSError, ValueError, DataError):
+        return None
+    if not isinstance(outer, dict):
+        return None
+    meta = dict(outer.get(META_KEY)) if isinstance(outer.get(META_KEY), dict) else {}
+    low, high = outer.get("ref_min_score"), outer.get("ref_max_score")
+    if "references" not in meta and isinstance(low, (int, float)) and isinstance(high, (int, float)):
+        meta["references"] = {"return_mean": float(high), "return_std": None, "random_return_mean": float(low),
+                              "source": "minari ref_min_score / ref_max_score"}
+    return meta or None
+
+
 def load_dataset(spec: str | os.PathLike, fmt: str = "auto") -> tuple[Demonstrations, str]:
     """`(demos, where)` of a dataset named on a command line: the project's `NAME.npz`, or a Minari directory or id.
 

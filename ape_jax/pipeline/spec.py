@@ -138,6 +138,7 @@ class SweepSpec:
         """What names the demonstrations: the collection settings, or the dataset file's path and size."""
         if self.dataset is None:
             return collect.settings(self.env, self.obs, self.episodes, seed=0, expert=self.protocol.expert,
+                                    labels=self.protocol.labels,
                                     **self.collection_overrides())
         path = pathlib.Path(self.dataset)
         files = ([path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())

@@ -159,8 +159,13 @@ class Prepared:
       task: its task record.
       train, val: the demonstrations' training and validation rows (`data.Part`: rows of whole episodes).
       normalizer: fitted on the training rows.
-      expert: the expert as `full observation -> action`.
-      card: the expert's card (returns to normalise by), None for a rule-based expert.
+      expert: the expert's label as `full observation -> action` (`collect.labeller`: clipped to the action
+        bounds, or raw, as `protocol.labels` says): the demonstrations' own expert (a `--dataset`'s, found by
+        `collect.dataset_expert`); None for a dataset whose expert cannot be queried.
+      card: the returns to normalise by (`return_mean`, `return_std`, `random_return_mean`): the expert's under the
+        protocol, or a `--dataset`'s recorded ones; None for a rule-based expert or a dataset without references.
+      expert_description: how the demonstrations describe their expert (`collect.expert_for`'s description:
+        its card's or file's SHA-256, origin), None where they name none.
       data_path: where the demonstrations came from; `source`: "cached", "collected" or "from".
       settings: what names the demonstrations (`SweepSpec.data_settings`).
       data_sha256: the SHA-256 of the collected (or cached) demonstrations' file, which tells two collections
@@ -172,12 +177,13 @@ class Prepared:
     train: Part
     val: Part
     normalizer: Normalizer
-    expert: Callable[[jax.Array], jax.Array]
+    expert: Callable[[jax.Array], jax.Array] | None
     card: dict | None
     data_path: str
     source: str
     settings: dict
     data_sha256: str | None = None
+    expert_description: dict | None = None
 
     def sequential(self, encoder: str) -> bool:
         """Whether policies of `encoder` train one configuration after another here (`trains_sequentially`)."""
@@ -197,37 +203,51 @@ class Prepared:
 
 
 def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
-    """Phase 1: the environment, the demonstrations (collected or cached, or `spec.dataset`), the split and the
-    normaliser. Raises `ValueError` (one line) for demonstrations that do not fit the environment or are too few.
+    """Phase 1: the environment, the demonstrations (collected or cached, or `spec.dataset`), their expert and
+    references, the split and the normaliser. A `--dataset` brings its own expert and references
+    (`collect.dataset_expert`). Raises `ValueError` (one line) for demonstrations that do not fit the environment
+    or are too few, a dataset whose labels leave the action range without `protocol.labels=raw`, and an online
+    method (DAgger) where the dataset's expert cannot be queried.
     """
     import envs
 
     env = envs.make(spec.env, obs=spec.obs, **spec.env_overrides())
     settings = spec.data_settings()
+    protocol = spec.protocol
     if spec.dataset is None:
+        card = collect.reference_returns(spec.env, protocol)  # a reference not measured is refused before collecting
         with hooks.bar(desc="collect", total=spec.episodes, unit="episode") as b:
             demos, meta, path, cached = collect.collect_cached(settings, spec.data_dir or data_lib.cache_dir(),
                                                             progress=lambda n: b.update(n - b.n),
-                                                            save=jax.process_index() == 0)
+                                                            save=jax.process_index() == 0, references=card)
             b.update(spec.episodes - b.n)
         source, digest = ("cached" if cached else "collected"), meta.get("sha256")
+        expert, description = collect.expert_for(env, protocol.expert)
     else:
-        check_protocol(minari_io.dataset_settings(spec.dataset), spec, str(spec.dataset))
+        where = str(spec.dataset)
+        check_protocol(minari_io.dataset_settings(spec.dataset), spec, where)
+        found = collect.dataset_expert(env, protocol, minari_io.dataset_metadata(spec.dataset), where)
+        online = [m for m in spec.methods if methods_lib.get(m).online]
+        if online and found.expert is None:
+            raise ValueError(f"{', '.join(online)} queries the expert of the demonstrations, but {found.why}; drop "
+                             f"{', '.join(online)} from --methods")
         demos, path = minari_io.load_dataset(spec.dataset)
+        collect.check_labels(demos, env, protocol.labels, str(path))
         source, digest = "from", None
+        expert, description, card = found.expert, found.description, found.references
+        if card is None and spec.task.has_card:
+            hooks.log(f"no normalised scores: {collect.no_references_advice(found, where)}")
     check_fits(demos, env, str(path))
     hooks.log(f"demonstrations: {len(demos):,} transitions in {demos.num_episodes} episodes ({source}: {path})")
-    protocol = spec.protocol
     train, val = data_lib.split_parts(demos, protocol.split, protocol.train_transitions, protocol.val_transitions,
                                       protocol.val_frac, seed=0)
     if len(train) < spec.recipe.batch_size:
         raise ValueError(f"the training split has {len(train)} transitions, fewer than the batch size "
                          f"{spec.recipe.batch_size}; collect more episodes")
-    expert, _ = collect.expert_for(env, protocol.expert)
-    card = collect.reference_returns(spec.env, protocol)
+    expert = None if expert is None else collect.labeller(expert, env, protocol.labels)
     return Prepared(env=env, task=spec.task, train=train, val=val, normalizer=Normalizer.fit(train.obs),
                     expert=expert, card=card, data_path=str(path), source=source, settings=settings,
-                    data_sha256=digest)
+                    data_sha256=digest, expert_description=description)
 
 
 # -- 2. fit APE -----------------------------------------------------------------------------------------------------

@@ -24,6 +24,14 @@ its network classes:
     action = jax.jit(policy)(state.info["brax_obs"])
 
 ToyCar's expert is the rule-based one, `envs.toycar.expert_action`.
+
+Imported experts (`envs.experts.imported`, `python -m experiments.import_expert`) have the same files in the
+user's expert directory (`imported.root()`), never in the repository; every function here finds a name
+`<env>-<variant>` among the shipped experts first, then among the imported ones.
+
+An unbounded expert's action (a `"linear"` head) is its label; what the environment executes is that action
+clipped to the action bounds (`executed`), as the FCA code did (the reward's control cost reads the action
+given, so it must be clipped before the step).
 """
 
 from __future__ import annotations
@@ -57,13 +65,47 @@ def train_command(name: str) -> str:
     return f"python -m experiments.train_expert --env {env}" + (f" --algorithm {variant}" if variant else "")
 
 
+def import_command(name: str) -> str:
+    env, variant = _variant(name)
+    return f"python -m experiments.import_expert PATH --env {env} --name {variant or 'NAME'}"
+
+
 def available() -> tuple[str, ...]:
     """Names of the environments with a shipped expert (a card on disk)."""
     return tuple(sorted(p.parent.name for p in ROOT.glob(f"*/{CARD}")))
 
 
+def imported_names() -> tuple[str, ...]:
+    """Names (`<env>-<variant>`) of the imported experts in the user's expert directory (`imported.root()`)."""
+    from envs.experts import imported
+
+    base = imported.root()
+    return tuple(sorted(p.parent.name for p in base.glob(f"*/{CARD}"))) if base.is_dir() else ()
+
+
+def is_imported(name: str) -> bool:
+    """Whether `name` resolves to an imported expert (no shipped one of that name, an imported card)."""
+    from envs.experts import imported
+
+    return not (ROOT / name / CARD).is_file() and (imported.root() / name / CARD).is_file()
+
+
 def directory(name: str) -> pathlib.Path:
+    """The directory of expert `name`: the shipped one (`envs/experts/<name>/`), else the imported one of that name
+    if it exists, else the shipped path (where error messages point)."""
+    if is_imported(name):
+        from envs.experts import imported
+
+        return imported.root() / name
     return ROOT / name
+
+
+def executed(policy: Callable[[jax.Array], jax.Array], bounds: tuple[jax.Array, jax.Array]
+             ) -> Callable[[jax.Array], jax.Array]:
+    """`policy`'s action as the environment executes it: clipped to `bounds` (`env.action_bounds`, `[A]` each); a
+    no-op for a tanh head within them."""
+    low, high = bounds
+    return lambda obs: jnp.clip(policy(obs), low, high)
 
 
 def card(name: str, root: pathlib.Path | None = None) -> dict:
@@ -75,7 +117,7 @@ def card(name: str, root: pathlib.Path | None = None) -> dict:
     path = (root or directory(name)) / CARD
     if not path.is_file():
         raise ExpertError(f"no expert for {name!r}: {path} does not exist; train one with "
-                          f"`{train_command(name)}`")
+                          f"`{train_command(name)}`, or import one with `{import_command(name)}`")
     try:
         data = json.loads(path.read_text())
         net = data["network"]
@@ -107,7 +149,7 @@ def reference(name: str, protocol: str = "brax", root: pathlib.Path | None = Non
       ExpertError: no card, or no reference for the protocol (naming the command that measures it).
     """
     data = card(name, root)
-    if protocol == "brax":
+    if protocol == "brax" and "return_mean" in data:
         return {k: data[k] for k in ("return_mean", "return_std", "random_return_mean", "episodes") if k in data}
     path = (root or directory(name)) / REFERENCES
     try:
