@@ -6,9 +6,10 @@ the action range, the copy-previous error (mean Σ_d (a_t − a_{t−1})² withi
 on the protocol's 20,000 training rows, scored on its 4,000 validation rows) and the action variance (per dim,
 summed). Prints a table and merges the rows into `--out` (JSON, one entry per expert, other entries kept).
 
-`--expert` names shipped experts: `own` (the task's, `envs/experts/<env>/`) or a variant (`envs/experts/<env>-
-VARIANT/`: `ppo`, `rough`, an imported one); `--dir` any expert directory (a card and its policy, e.g. a candidate
-written by `experiments.train_expert --out`). These statistics chose the shipped rough experts (docs/design.md).
+`--expert` names experts: `own` (the task's, `envs/experts/<env>/`) or a variant (`envs/experts/<env>-VARIANT/`:
+`ppo`, `rough`; or one imported by `experiments.import_expert --name VARIANT`); `--dir` any expert directory (a
+card and its policy, e.g. a candidate written by `experiments.train_expert --out`). These statistics chose the
+shipped rough experts (docs/design.md).
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ def measure(env_name: str, policy, protocol: str = "fca", psi_steps: int = 5_000
     setup = collect.protocol_setup(env_name, "pos", protocol)
     env = envs.make(env_name, obs="pos", **setup.env_overrides)
     key_collect, key_psi = jax.random.split(jax.random.PRNGKey(seed))
-    demos = collect.collect(env, policy, key_collect, setup.episodes)
+    demos = collect.collect(env, policy, key_collect, setup.episodes, labels="raw")  # the expert's own output
     train = setup.settings.get("train_transitions") or int(0.8 * len(demos))
     val = setup.settings.get("val_transitions") or len(demos) - train
     train_part, val_part = data_lib.split_parts(demos, "rows", train, val, seed=seed)
@@ -112,11 +113,12 @@ def main(argv=None) -> int:
         fail(p, f"--psi-steps must be >= 1, got {args.psi_steps}")
     names = [n.strip() for n in (args.expert or ("" if args.dir else "own")).split(",") if n.strip()]
     chosen = {}   # label -> (card's name, root or None)
+    known = (*experts.available(), *experts.imported_names())
     for n in names:
         name = args.env if n == "own" else f"{args.env}-{n}"
-        if name not in experts.available():
-            fail(p, f"no shipped expert {name!r}; valid for --expert: own, "
-                    f"{', '.join(a.partition('-')[2] for a in experts.available() if a.startswith(args.env + '-'))}")
+        if name not in known:
+            fail(p, f"no shipped or imported expert {name!r}; valid for --expert: own, "
+                    f"{', '.join(a.partition('-')[2] for a in known if a.startswith(args.env + '-'))}")
         chosen[name] = (name, None)
     for d in args.dir:
         if not (d / experts.CARD).is_file():
@@ -135,11 +137,13 @@ def main(argv=None) -> int:
     for label, policy in policies.items():
         name, root = chosen[label]
         card_file = (root or experts.directory(name)) / experts.CARD
+        card = json.loads(card_file.read_text())
         print(f"{label}: collecting under {args.protocol} and fitting ψ ...", flush=True)
         entry = measure(args.env, policy, args.protocol, args.psi_steps, args.seed)
-        entry.update(source=str(root) if root is not None else f"envs/experts/{name}",
+        entry.update(source=str(root) if root is not None else
+                     card["source"] if experts.is_imported(name) else f"envs/experts/{name}",
                      card_sha256=hashlib.sha256(card_file.read_bytes()).hexdigest(),
-                     algorithm=json.loads(card_file.read_text()).get("algorithm"),
+                     algorithm=card.get("algorithm"),
                      command=" ".join(["python", "-m", "experiments.expert_stats",
                                        *(sys.argv[1:] if argv is None else argv)]))
         record(out, args.env, label, entry)

@@ -60,7 +60,7 @@ def test_the_table_prints_every_column():
 @pytest.mark.parametrize("argv, message", [
     (["--env", "nope"], "unknown env 'nope'"),
     (["--env", "toycar"], "unknown env 'toycar'"),
-    (["--env", "hopper", "--expert", "nosuch"], "no shipped expert 'hopper-nosuch'"),
+    (["--env", "hopper", "--expert", "nosuch"], "no shipped or imported expert 'hopper-nosuch'"),
     (["--env", "hopper", "--dir", "/nonexistent"], "no card.json"),
     (["--env", "hopper", "--protocol", "nope"], "unknown protocol"),
     (["--env", "hopper", "--psi-steps", "0"], "must be >= 1"),
