@@ -28,11 +28,11 @@ def action_norm(key, actions, t):    # actions [N, A] float32, t [N] int32 -> sc
 
 def test_every_builtin_is_registered_once_with_its_program_and_role():
     names = methods.names()
-    assert names[:4] == ("bc-so", "bc-oh", "ours-step", "ours-softmax")
-    assert set(names) == {"bc-so", "bc-oh", "ours-step", "ours-softmax", "bcpd", "actfreq", "kmeans", "boosting",
-                          "history-dropout", "fca", "fca-ib", "dagger"}
-    assert methods.default() == ("bc-so", "bc-oh", "ours-step", "ours-softmax")
-    assert set(methods.shortcuts()["baselines"]) == set(names) - set(methods.default())
+    assert names[:5] == ("bc-so", "bc-oh", "bc-full", "ours-step", "ours-softmax")
+    assert set(names) == {"bc-so", "bc-oh", "bc-full", "ours-step", "ours-softmax", "bcpd", "actfreq", "kmeans",
+                          "boosting", "history-dropout", "fca", "fca-ib", "dagger"}
+    assert methods.default() == ("bc-so", "bc-oh", "ours-step", "ours-softmax")   # bc-full: asked for by name
+    assert set(methods.shortcuts()["baselines"]) == set(names) - set(methods.default()) - {"bc-full"}
     programs = {n: methods.get(n).program for n in names}
     assert {n for n, p in programs.items() if p == "grid"} == {"bc-oh", "ours-step", "ours-softmax", "bcpd",
                                                                "actfreq", "kmeans", "history-dropout"}
@@ -44,7 +44,7 @@ def test_a_taken_or_unknown_name_is_refused_with_the_registered_names():
     with methods.scratch():
         with pytest.raises(methods.MethodError, match=r"'ours-step' is already registered .*registered: bc-so, bc-oh"):
             methods.weighting("ours-step")(lambda key, a, t: a[:, 0])
-    with pytest.raises(methods.MethodError, match=r"unknown method 'nope'; valid: bc-so, bc-oh, ours-step"):
+    with pytest.raises(methods.MethodError, match=r"unknown method 'nope'; valid: bc-so, bc-oh, bc-full, ours-step"):
         methods.get("nope")
     with pytest.raises(methods.MethodError, match="listed twice"):
         methods.resolve("bc-oh,bc-oh")

@@ -48,6 +48,7 @@ import numpy as np
 
 ROLES = ("reference", "ours", "baseline", "plugin")  # the order methods are listed in
 WEIGHTING_KINDS = ("step", "softmax", "given")
+OBSERVATIONS = (None, "full")  # `Method.observation`: the sweep's own, or the full state (`ape_jax.observations`)
 BUILTIN_PACKAGES = ("ape_jax.methods", "ape_jax.baselines")
 _NAME = re.compile(r"^[a-z0-9][a-z0-9_.-]*$")
 
@@ -121,6 +122,10 @@ class Method:
       program: methods with the same program train in one compiled, vmapped
         program: `"grid"` is the weighted learner at the preset's history.
       history: observations the policy sees; None: the preset's.
+      observation: what each of those observations is: None, the sweep's (`--obs`); `"full"`, the
+        environment's full state (velocities included), built from the demonstrations' simulator
+        state (`ape_jax.observations`), standardised with its own training statistics, and evaluated
+        in the `obs="full"` environment (`bc-full`).
       learner: `learner(LearnerContext) -> ape_jax.learner.Learner`; None: the
         weighted learner (`ape_jax.learner.make_train`).
       score: `score(key, actions [N, A], t [N]) -> [N] float32`, the method's
@@ -136,6 +141,7 @@ class Method:
     hparams: Callable[[Mapping[str, float], float, int], Any]
     program: str = "grid"
     history: int | None = None
+    observation: str | None = None
     learner: Callable[[LearnerContext], Any] | None = None
     score: Scores | None = None
     online: bool = False
@@ -175,8 +181,8 @@ def register(method: Method) -> Method:
 
     Raises:
       MethodError: the name is taken or malformed, the role unknown, or
-        another method of the same program trains with a different history
-        or learner.
+        another method of the same program trains with a different history,
+        observation or learner.
     """
     _ensure_builtins()
     if not _NAME.match(method.name):
@@ -187,10 +193,14 @@ def register(method: Method) -> Method:
                           f"pick another name; registered: {', '.join(_registry)}")
     if method.role not in ROLES:
         raise MethodError(f"method {method.name!r}: unknown role {method.role!r}; valid: {', '.join(ROLES)}")
+    if method.observation not in OBSERVATIONS:
+        raise MethodError(f"method {method.name!r}: unknown observation {method.observation!r}; valid: "
+                          f"{', '.join(map(str, OBSERVATIONS))}")
     for other in _registry.values():
-        if other.program == method.program and (other.history, other.learner) != (method.history, method.learner):
-            raise MethodError(f"method {method.name!r} trains in program {method.program!r} with another history "
-                              f"or learner than {other.name!r}; give it a program of its own")
+        if other.program == method.program and ((other.history, other.learner, other.observation)
+                                                != (method.history, method.learner, method.observation)):
+            raise MethodError(f"method {method.name!r} trains in program {method.program!r} with another history, "
+                              f"observation or learner than {other.name!r}; give it a program of its own")
     _registry[method.name] = method
     _sequence[method.name] = len(_sequence)
     return method
@@ -216,12 +226,15 @@ def names(role: str | None = None) -> tuple[str, ...]:
 
 
 def default() -> tuple[str, ...]:
-    """What the sweep trains when no methods are asked for: the references and ours (the paper's grid)."""
-    return names("reference") + names("ours")
+    """What the sweep trains when no methods are asked for: the references that read the sweep's observation and
+    ours (the paper's grid). A method reading another observation (`bc-full`, the full state) is asked for by
+    name: it needs an evaluation program of its own (another environment to compile), which the no-argument
+    sweep does not pay."""
+    return tuple(m for m in names("reference") if _registry[m].observation is None) + names("ours")
 
 
 def shortcuts() -> dict[str, tuple[str, ...]]:
-    """Words the command line expands: `all`, `baselines`, `default`, `plugins`."""
+    """Words the command line expands: `all`, `baselines`, `default`, `plugins` (`all` includes `bc-full`)."""
     return {"all": names(), "baselines": names("baseline"), "default": default(), "plugins": names("plugin")}
 
 

@@ -7,9 +7,10 @@ Everything lives in `OUT/checkpoints/` (`rundir.RunDir.checkpoints`):
 - `sweep.json`: the sweep's *fingerprint* (environment, observations, every
   preset setting, methods, data). A directory whose fingerprint differs, or
   that has none, is refused with a `CheckpointError`, never overwritten.
-- `ape.npz`, `eval-h<H>.npz` (`eval-h<H>-at<I>.npz`): the outputs of finished
-  phases (the APE fit; each evaluation group, at the end and at each iteration
-  `I` of `Budget.eval_at`), written to a temporary name and renamed.
+- `ape.npz`, `eval-<group>.npz` (`eval-<group>-at<I>.npz`; `<group>`: `h<H>`, or
+  `full-h1` for `bc-full`'s): the outputs of finished phases (the APE fit; each
+  evaluation group, at the end and at each iteration `I` of `Budget.eval_at`),
+  written to a temporary name and renamed.
 - `train-<program>-at<I>.npz`: a program's policies at iteration `I` of
   `Budget.eval_at`, written when training passes it.
 - `train-<program>/<step>/`: the training state of one compiled program (every
@@ -23,9 +24,13 @@ continuing from a saved state runs the same compiled chunks on the same inputs
 as an uninterrupted run: on one machine the results are bit-identical.
 
 The finished sweep's policies go to `OUT/params/` (`RunDir.params`; `save_policies`,
-`load_policies`): per history `h<H>/` (orbax: the parameters, leaves
-`[len(runs), ...]`, and the observation statistics) beside `h<H>.json` (the
-runs, in order), which `experiments.evaluate` evaluates again.
+`load_policies`): per group of one observation and history, `h<H>/` (the sweep's
+observation) or `<observation>-h<H>/` (e.g. `full-h1/`, `bc-full`'s), orbax: the
+parameters, leaves `[len(runs), ...]`, and the observation statistics; beside it
+`<group>.json`: `{"history", "observation", "runs"}` (the runs in order), which
+`experiments.evaluate` evaluates again. Files written before groups had an
+observation hold the runs' list alone, named `h<H>.json`: the sweep's observation,
+history `H`.
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ from __future__ import annotations
 import json
 import os
 import pathlib
+import re
 import shutil
 import time
 from typing import Any
@@ -42,6 +48,7 @@ import numpy as np
 from ape_jax.pipeline.data import write_atomic
 
 FINGERPRINT = "sweep.json"
+_GROUP_FIELDS = ("runs", "history", "observation")  # a policy group's record in `<name>.json`, not in orbax
 
 
 class CheckpointError(ValueError):
@@ -295,11 +302,15 @@ class PolicyError(ValueError):
     """Saved policies that are missing or unreadable (one line)."""
 
 
-def save_policies(params_dir: os.PathLike, groups: dict[str, dict]) -> None:
-    """Writes `{"h<H>": {"runs": [...], "params": ..., "obs_mean", "obs_std"}}` under `params_dir`.
+GROUP_NAME = re.compile(r"^(?:(?P<observation>[a-z]+)-)?h(?P<history>[0-9]+)$")  # `sweep.PolicyGroup.name`
 
-    Each group's orbax folder is replaced whole; `h<H>.json` (the runs) is
-    written atomically after it.
+
+def save_policies(params_dir: os.PathLike, groups: dict[str, dict]) -> None:
+    """Writes `{name: {"runs": [...], "params": ..., "obs_mean", "obs_std", "history", "observation"}}` under
+    `params_dir` (names `sweep.PolicyGroup.name`: `h<H>`, `full-h1`).
+
+    Each group's orbax folder is replaced whole; `<name>.json` (the group's history and observation, and its
+    runs) is written atomically after it (the runs' list alone for a block that gives no history).
     """
     import jax
     import orbax.checkpoint as ocp
@@ -312,18 +323,22 @@ def save_policies(params_dir: os.PathLike, groups: dict[str, dict]) -> None:
             target = (params_dir / name).absolute()
             if target.exists():
                 shutil.rmtree(target)
-            tree = {k: v for k, v in block.items() if k != "runs" and v is not None}
+            tree = {k: v for k, v in block.items() if k not in _GROUP_FIELDS and v is not None}
             ckpt.save(target, jax.tree.map(np.asarray, tree))
+            record = ({"history": int(block["history"]), "observation": block.get("observation"),
+                       "runs": block["runs"]} if "history" in block else block["runs"])
             write_atomic(params_dir / f"{name}.json",
-                         lambda f, runs=block["runs"]: f.write((json.dumps(runs, indent=2) + "\n").encode()))
+                         lambda f, record=record: f.write((json.dumps(record, indent=2) + "\n").encode()))
 
 
 def load_policies(params_dir: os.PathLike) -> dict[str, dict]:
-    """What `save_policies` wrote: leaves of `params` `[len(runs), ...]`; `obs_mean`/`obs_std` None for images."""
+    """What `save_policies` wrote, per group: `runs`, `params` (leaves `[len(runs), ...]`), `obs_mean`/`obs_std`
+    (None for images), `history` and `observation` (None: the sweep's own; files that record neither are
+    `h<H>`, the sweep's observation at history `H`)."""
     import orbax.checkpoint as ocp
 
     params_dir = pathlib.Path(params_dir)
-    groups = sorted(p.stem for p in params_dir.glob("h*.json"))
+    groups = sorted(p.stem for p in params_dir.glob("*.json") if GROUP_NAME.match(p.stem))
     if not groups:
         raise PolicyError(f"{params_dir} holds no saved policies (h*.json beside orbax folders)")
     out = {}
@@ -333,10 +348,14 @@ def load_policies(params_dir: os.PathLike) -> dict[str, dict]:
                 raise PolicyError(f"{params_dir / name} is missing: the sweep's parameters were not saved")
             try:
                 tree = ckpt.restore((params_dir / name).absolute())
-                runs = json.loads((params_dir / f"{name}.json").read_text())
+                record = json.loads((params_dir / f"{name}.json").read_text())
             except Exception as e:  # noqa: BLE001 - orbax raises many types for damaged files
                 raise PolicyError(f"{params_dir / name} is unreadable ({type(e).__name__}: "
                                   f"{str(e).splitlines()[0][:200] if str(e) else ''})") from e
-            out[name] = {"runs": runs, "params": tree["params"], "obs_mean": tree.get("obs_mean"),
-                         "obs_std": tree.get("obs_std")}
+            if isinstance(record, list):  # written before groups recorded their observation: `h<H>`
+                match = GROUP_NAME.match(name)
+                record = {"history": int(match["history"]), "observation": match["observation"], "runs": record}
+            out[name] = {"runs": record["runs"], "params": tree["params"], "obs_mean": tree.get("obs_mean"),
+                         "obs_std": tree.get("obs_std"), "history": int(record["history"]),
+                         "observation": record.get("observation")}
     return out

@@ -2,11 +2,12 @@
 
     new = reevaluate(results.load("OUT/results.json"), "OUT/params")
 
-A sweep saves every trained policy (`OUT/params/h{H}`, orbax, beside
-`h{H}.json`, the runs in order). This rebuilds everything the evaluation needs
-from `results.json` alone: the preset, the environment, the demonstrations
-(from the cache, collected again if missing), and ψ (fitted again; key 0 makes
-it deterministic), with the sweep's own phases. It then runs the sweep's own
+A sweep saves every trained policy (`OUT/params/<group>`, orbax, beside
+`<group>.json`: its history, observation and runs in order; `checkpoint.save_policies`).
+This rebuilds everything the evaluation needs from `results.json` alone: the
+preset, the environment, the demonstrations (from the cache, collected again if
+missing; each group in its own observation, `sweep.Prepared.view`), and ψ (fitted
+again; key 0 makes it deterministic), with the sweep's own phases. It then runs the sweep's own
 evaluation (`sweep.evaluate_group`, the same episodes) and adds the fields the file
 lacks, such as the copycat diagnostics written by newer code (`imitation_error`
 and `rollout_ape`; each run's `diagnostics`, the embedding probe, own-rollout
@@ -103,7 +104,6 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
     if not np.isclose(ape.scale, recorded_scale, rtol=1e-4):
         raise ReevaluationError(f"ψ fitted again gives a mean APE of {ape.scale:.6g}, the sweep recorded "
                                 f"{recorded_scale:.6g}: the demonstrations or the APE code changed")
-    mean = prepared.normalizer.mean
     records = {results_lib.run_key(r): r for r in results.runs}
     new = Results.from_json(results.to_json())  # a deep copy: `results` is left as it was
     new_records = {results_lib.run_key(r): r for r in new.runs}
@@ -111,13 +111,20 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
     added, differ, diag_config, diag_s = set(), [], None, 0.0
     t0 = time.perf_counter()
     for name, saved in policies.items():
-        history = int(name[1:])
+        history, observation = saved["history"], saved["observation"]
+        try:
+            view = prepared.view(observation)   # the group's own observation (`bc-full`: the full state)
+        except ValueError as e:
+            raise ReevaluationError(str(e)) from None
+        mean = view.normalizer.mean
         if saved["obs_mean"] is not None and mean is not None and not np.allclose(saved["obs_mean"], mean, rtol=1e-5):
             raise ReevaluationError(f"the saved policies' observation statistics ({name}) are not those of the "
                                     "demonstrations: they were trained on other data")
         runs = tuple(Run(r["method"], r["hparams"], r["seed"]) for r in saved["runs"])
-        group = sweep_lib.PolicyGroup(history, prepared.learner_config(spec.settings, history), runs, saved["params"])
-        log(f"evaluating {len(runs)} saved policies with history {history} ({episodes} episodes each)")
+        group = sweep_lib.PolicyGroup(history, view.learner_config(spec.settings, history), runs, saved["params"],
+                                      prepared.observing(observation))
+        seen = "" if group.observation is None else f", reading the {group.observation} observation"
+        log(f"evaluating {len(runs)} saved policies with history {history}{seen} ({episodes} episodes each)")
         lacking = any(_lacks(records.get(results_lib.run_key(r), {})) for r in saved["runs"])
         # the steps the file's diagnostics ran (so the fields added beside them are of the same fit), else the
         # budget's, else (a file that ran none) the default's

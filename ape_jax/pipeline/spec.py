@@ -78,6 +78,9 @@ class SweepSpec:
         if isinstance(length, int) and history > length:
             raise ValueError(f"protocol.history {history} is longer than an episode ({length:,} steps): a history "
                              f"can hold at most the frames one episode stores")
+        if self.protocol.prev_action and self.obs == "image":
+            raise ValueError("protocol.prev_action needs vector observations (--obs pos or full): a frame has no "
+                             "place for the previous action")
 
     @classmethod
     def make(cls, env: str, obs: str | None = None, methods: Sequence[str] | None = None, protocol: str | None = None,

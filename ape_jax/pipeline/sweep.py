@@ -59,6 +59,7 @@ from ape_jax import ape as ape_lib
 from ape_jax import diagnostics as diagnostics_lib
 from ape_jax import evaluate as evaluate_lib
 from ape_jax import methods as methods_lib
+from ape_jax import observations
 from ape_jax import tasks
 from ape_jax.grid import differing_processes
 from ape_jax.learner import Data, LearnerConfig, make_train
@@ -170,6 +171,7 @@ class Prepared:
       settings: what names the demonstrations (`SweepSpec.data_settings`).
       data_sha256: the SHA-256 of the collected (or cached) demonstrations' file, which tells two collections
         with the same settings apart; None for `--dataset` and for a file another process is still writing.
+      views: the other observations' views built so far (`view`), by observation.
     """
 
     env: Any
@@ -184,6 +186,31 @@ class Prepared:
     settings: dict
     data_sha256: str | None = None
     expert_description: dict | None = None
+    views: dict = dataclasses.field(default_factory=dict, compare=False, repr=False)
+
+    def observing(self, observation: str | None) -> str | None:
+        """The observation `observation` (`Method.observation`) names here: None where it is the sweep's own
+        (`"full"` in a sweep with `--obs full`), else itself. Policies are grouped by it."""
+        return None if observation in (None, self.env.obs_mode) else observation
+
+    def view(self, observation: str | None) -> Prepared:
+        """The sweep as policies reading `observation` (`Method.observation`) see it: this record for the sweep's
+        own; for `"full"` the same rows observed in the `obs="full"` environment (`observations.full_state`: the
+        demonstrations' simulator state observed by the environment's own code), standardised with their own
+        training statistics. Built once and kept. Raises `observations.FullStateError` (one line) for
+        demonstrations without the simulator state."""
+        observation = self.observing(observation)
+        if observation is None:
+            return self
+        if observation not in self.views:
+            demos = {id(p.demos): p.demos for p in (self.train, self.val)}   # one copy where both parts share it
+            env = None
+            for key, d in demos.items():
+                env, demos[key] = observations.full_state(self.env, d, self.data_path)
+            train, val = (Part(demos[id(p.demos)], p.rows) for p in (self.train, self.val))
+            self.views[observation] = dataclasses.replace(self, env=env, train=train, val=val,
+                                                          normalizer=Normalizer.fit(train.obs), views={})
+        return self.views[observation]
 
     def sequential(self, encoder: str) -> bool:
         """Whether policies of `encoder` train one configuration after another here (`trains_sequentially`)."""
@@ -238,6 +265,8 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
         if card is None and spec.task.has_card:
             hooks.log(f"no normalised scores: {collect.no_references_advice(found, where)}")
     check_fits(demos, env, str(path))
+    if spec.protocol.prev_action:  # the previous action in view, in the rollouts and the demonstrations alike
+        env, demos = observations.with_previous_action(env, demos)
     hooks.log(f"demonstrations: {len(demos):,} transitions in {demos.num_episodes} episodes ({source}: {path})")
     train, val = data_lib.split_parts(demos, protocol.split, protocol.train_transitions, protocol.val_transitions,
                                       protocol.val_frac, seed=0)
@@ -317,13 +346,14 @@ def plan(spec: SweepSpec, prepared: Prepared) -> list[Program]:
     for name in dict.fromkeys(methods_lib.get(r.method).program for r in runs):
         mine = tuple(r for r in runs if methods_lib.get(r.method).program == name)
         method = methods_lib.get(mine[0].method)
-        cfg = prepared.learner_config(spec.settings, method.history or spec.protocol.history)
+        view = prepared.view(method.observation)   # FullStateError before anything compiles
+        cfg = view.learner_config(spec.settings, method.history or spec.protocol.history)
         if method.learner is None:
             learner = make_train(cfg)
         else:
             learner = method.learner(methods_lib.LearnerContext(
-                cfg=cfg, env=prepared.env, expert=prepared.expert, obs_mean=prepared.normalizer.mean,
-                obs_std=prepared.normalizer.std, n_train=len(prepared.train)))
+                cfg=cfg, env=view.env, expert=view.expert, obs_mean=view.normalizer.mean,
+                obs_std=view.normalizer.std, n_train=len(view.train)))
         programs.append(Program(name, cfg, mine, learner))
     return programs
 
@@ -340,9 +370,17 @@ class Trained:
     snapshots: dict = dataclasses.field(default_factory=dict)  # {iteration: params} at `Budget.eval_at`
 
 
+def observation_of(program: Program) -> str | None:
+    """The observation a program's policies read (`Method.observation` of its methods: one per program)."""
+    return methods_lib.get(program.runs[0].method).observation
+
+
 def train(programs: Sequence[Program], spec: SweepSpec, prepared: Prepared, data: Data, hooks: Hooks = Hooks(),
           checkpoint: SweepCheckpoint | None = None) -> list[Trained]:
-    """Phase 3b: every program trained, one after another; compile time estimated apart from steady state."""
+    """Phase 3b: every program trained, one after another; compile time estimated apart from steady state.
+
+    `data` is the training split in the sweep's observation; a program reading another (`bc-full`) trains on
+    the same rows, APE and scores in its own (`Prepared.view`)."""
     sequential = prepared.sequential(spec.recipe.encoder)
     if sequential:
         hooks.log(f"image policies on CPU: configurations train one after another, {CPU_IMAGE_CHUNK} unrolled "
@@ -371,8 +409,10 @@ def train(programs: Sequence[Program], spec: SweepSpec, prepared: Prepared, data
             t0 = time.perf_counter()
             iterations = program.learner.rounds * program.learner.round_iterations
             curves = None if hooks.curves is None else hooks.curves(program.name, program.runs, iterations)
+            view = prepared.view(observation_of(program))
+            own = data if view is prepared else data.replace(obs=view.normalizer(view.train.demos.obs))
             params, metrics, snapshots = train_program(
-                program, traced_hparams(program.runs, spec.recipe.lr, rows), spec.budget, data, tick,
+                program, traced_hparams(program.runs, spec.recipe.lr, rows), spec.budget, own, tick,
                 chunk=CPU_IMAGE_CHUNK if sequential else None, vectorize=not sequential,
                 checkpoint=None if checkpoint is None else checkpoint.program(program.name), curves=curves)
             jax.block_until_ready(params)
@@ -389,16 +429,20 @@ def train(programs: Sequence[Program], spec: SweepSpec, prepared: Prepared, data
 
 @dataclasses.dataclass(frozen=True)
 class PolicyGroup:
-    """Policies with the same history (the same network): one evaluation program."""
+    """Policies with the same observation and history (the same network): one evaluation program.
+
+    `observation`: what they read (`Prepared.observing`: None, the sweep's own; `"full"`, the full state)."""
 
     history: int
     cfg: LearnerConfig
     runs: tuple[Run, ...]
     params: Any  # leaves [len(runs), ...]
+    observation: str | None = None
 
     @property
     def name(self) -> str:
-        return f"h{self.history}"
+        """`h<H>` for the sweep's observation (the name every sweep has used), `<observation>-h<H>` for another."""
+        return f"h{self.history}" if self.observation is None else f"{self.observation}-h{self.history}"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -456,7 +500,9 @@ def evaluate_group(prepared: Prepared, ape: ApeFit, episodes: int, group: Policy
     """Evaluation outputs `{"return": [P, E], metric: [P, E], ...}` (copycat diagnostics included: the
     `ape_jax.diagnostics` ones as `diag_<field>` `[P]` with `probe_steps` where `diagnosable`), the loss
     analysis `{"train": {...: [P]}, "val": {...}}` of one group, and the diagnostics' seconds. The policies go
-    `width` at a time (`Budget.width`; 0: all together) through the evaluation and the loss analysis."""
+    `width` at a time (`Budget.width`; 0: all together) through the evaluation and the loss analysis. A group
+    reading another observation is evaluated, analysed and diagnosed in its own view (`Prepared.view`)."""
+    prepared = prepared.view(group.observation)
     diagnostics = diagnosable(episodes, probe_steps, prepared.train.demos.num_episodes)
     evaluator = evaluate_lib.make_evaluator(prepared.env, group.cfg, prepared.normalizer.mean, prepared.normalizer.std,
                                             episodes, expert=prepared.expert, ape_params=ape.params,
@@ -475,18 +521,19 @@ def evaluate_group(prepared: Prepared, ape: ApeFit, episodes: int, group: Policy
 
 def evaluate(trained: Sequence[Trained], prepared: Prepared, ape: ApeFit, episodes: int, hooks: Hooks = Hooks(),
              checkpoint: SweepCheckpoint | None = None, probe_steps: int = 0, width: int = 0) -> Evaluated:
-    """Phase 4: every policy on the same `episodes` episodes, one program per history (groups saved in
-    `checkpoint` reused), `width` policies at a time (`Budget.width`; 0: a group at once), with the copycat
-    diagnostics at `probe_steps` (`Budget.probe_steps`; 0: none); the same for the policies kept at each
-    iteration of `Budget.eval_at` (`Trained.snapshots`)."""
+    """Phase 4: every policy on the same `episodes` episodes, one program per observation and history
+    (`PolicyGroup`; groups saved in `checkpoint` reused), `width` policies at a time (`Budget.width`; 0: a group
+    at once), with the copycat diagnostics at `probe_steps` (`Budget.probe_steps`; 0: none); the same for the
+    policies kept at each iteration of `Budget.eval_at` (`Trained.snapshots`)."""
     points = sorted({i for t in trained for i in t.snapshots})
     seconds = {"eval": 0.0, "diagnostics": 0.0}
     total = sum(len(t.program.runs) * (1 + len(t.snapshots)) for t in trained) * episodes
     with hooks.bar(desc="evaluate", total=total, unit="episode") as b:
 
-        def evaluated(history: int, mine: list[Trained], params: list, name: str):
-            group = PolicyGroup(history, mine[0].program.cfg, tuple(r for t in mine for r in t.program.runs),
-                                jax.tree.map(lambda *xs: jnp.concatenate(xs), *params))
+        def evaluated(seen: tuple[str | None, int], mine: list[Trained], params: list, at: int | None = None):
+            group = PolicyGroup(seen[1], mine[0].program.cfg, tuple(r for t in mine for r in t.program.runs),
+                                jax.tree.map(lambda *xs: jnp.concatenate(xs), *params), seen[0])
+            name = f"eval-{group.name}" + ("" if at is None else f"-at{at}")
             saved = ckpt_lib.load_evaluation(checkpoint, name)
             if saved is None:
                 t0 = time.perf_counter()
@@ -498,15 +545,17 @@ def evaluate(trained: Sequence[Trained], prepared: Prepared, ape: ApeFit, episod
             b.update(len(group.runs) * episodes)
             return group, *saved
 
+        def seen(t: Trained) -> tuple[str | None, int]:
+            return prepared.observing(observation_of(t.program)), t.program.cfg.history
+
         final, snapshots = [], {i: [] for i in points}
-        for history in dict.fromkeys(t.program.cfg.history for t in trained):
-            mine = [t for t in trained if t.program.cfg.history == history]
-            final.append(evaluated(history, mine, [t.params for t in mine], f"eval-h{history}"))
+        for key in dict.fromkeys(seen(t) for t in trained):
+            mine = [t for t in trained if seen(t) == key]
+            final.append(evaluated(key, mine, [t.params for t in mine]))
             for i in points:
                 passed = [t for t in mine if i in t.snapshots]
                 if passed:
-                    snapshots[i].append(evaluated(history, passed, [t.snapshots[i] for t in passed],
-                                                  f"eval-h{history}-at{i}"))
+                    snapshots[i].append(evaluated(key, passed, [t.snapshots[i] for t in passed], i))
     groups, outputs, losses = zip(*final) if final else ((), (), ())
     return Evaluated(tuple(groups), tuple(outputs), tuple(losses), seconds["eval"], seconds["diagnostics"],
                      {i: tuple(v) for i, v in snapshots.items()})
@@ -570,9 +619,12 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
 
 
 def policies(evaluated: Evaluated, prepared: Prepared) -> dict[str, dict]:
-    """The trained policies per history, as `checkpoint.save_policies` writes them."""
+    """The trained policies per group (observation and history, `PolicyGroup.name`), as
+    `checkpoint.save_policies` writes them, each with its own observation statistics."""
     return {g.name: {"runs": [dataclasses.asdict(r) for r in g.runs], "params": g.params,
-                     "obs_mean": prepared.normalizer.mean, "obs_std": prepared.normalizer.std}
+                     "history": g.history, "observation": g.observation,
+                     "obs_mean": prepared.view(g.observation).normalizer.mean,
+                     "obs_std": prepared.view(g.observation).normalizer.std}
             for g in evaluated.groups}
 
 

@@ -126,14 +126,17 @@ def episode_of(results: Results, params_dir: str | pathlib.Path, method: str, se
     if not found:
         raise WatchError(f"{params_dir} holds no saved policy of {method} seed {record['seed']}")
     (name, j), = found
-    prepared = sweep_lib.prepare(spec, sweep_lib.Hooks(log=log))
     saved = policies[name]
+    try:   # the policies' own observation (`bc-full`: the full state, in the `obs="full"` environment)
+        prepared = sweep_lib.prepare(spec, sweep_lib.Hooks(log=log)).view(saved["observation"])
+    except ValueError as e:
+        raise WatchError(str(e)) from None
     if saved["obs_mean"] is not None and not np.allclose(saved["obs_mean"], prepared.normalizer.mean, rtol=1e-5):
         raise WatchError(f"the saved policies' observation statistics ({name}) are not those of the demonstrations: "
                          "they were trained on other data")
     from ape_jax import evaluate as evaluate_lib
 
-    cfg = prepared.learner_config(spec.settings, int(name[1:]))
+    cfg = prepared.learner_config(spec.settings, saved["history"])
     policy = evaluate_lib.history_policy(cfg, prepared.normalizer.mean, prepared.normalizer.std, prepared.env)
     params = jax.tree.map(lambda x: x[j], saved["params"])
     env = prepared.env

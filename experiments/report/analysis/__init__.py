@@ -20,9 +20,9 @@ The paper's own numbers are in `experiments.report.paper`.
 """
 
 from experiments.report.analysis.bootstrap import (BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, Difference, Interval,
-                                                   RecipeCell, bootstrap_difference, bootstrap_mean, bootstrap_rows,
-                                                   bootstrap_unit, history_difference, mean_cell, ours_differences,
-                                                   verdict, versus_bcoh)
+                                                   RecipeCell, Share, bootstrap_difference, bootstrap_mean,
+                                                   bootstrap_rows, bootstrap_share, bootstrap_unit, history_difference,
+                                                   history_share, mean_cell, ours_differences, verdict, versus_bcoh)
 from experiments.report.analysis.copycat import (MAP_METHODS, CopycatMap, MapCell, MapPoint, MapRow, copycat_map,
                                                  extended_map)
 from experiments.report.analysis.diagnostics import (DiagnosticsRow, PolicyDiagnostics, Spread, TrainingPoint,
@@ -39,9 +39,10 @@ from experiments.report.analysis.rates import LEARNED, Estimate, RateReading, pe
 from experiments.report.analysis.recipe import (BUDGET_METHODS, RECIPE_METHODS, AlphaRow, BudgetPoint, BudgetRow,
                                                 RecipeRow, alpha_rows, budget_differences, budget_rows,
                                                 paper_budget_groups, recipe_groups, recipe_rows)
-from experiments.report.analysis.selection import (Choice, Gap, LongerRow, best_of, choices, comparisons,
-                                                   copycat_groups, display_metric, expert_ape, extra_methods, gap,
-                                                   headline, hparams_suffix, is_finite, is_number, known_methods,
+from experiments.report.analysis.selection import (CEILING, CEILING_LABEL, Choice, Gap, LongerRow, best_of, choices,
+                                                   comparisons, copycat_groups, display_metric, expert_ape,
+                                                   extra_methods, gap, has_ceiling, headline, hparams_suffix,
+                                                   is_finite, is_number, known_methods,
                                                    label, longer_runs, loss_rows, method_rows, metric_value,
                                                    ok_runs, paper_step_row, percent, seed_values, sensitivity,
                                                    task_metric_rows, thousands)
@@ -49,6 +50,7 @@ from experiments.report.analysis.weights import (APE_SCALES, WeightShares, ape_m
                                                  weight_shares)
 
 __all__ = [
+    "CEILING", "CEILING_LABEL", "Share", "bootstrap_share", "has_ceiling", "history_share",
     "APE_SCALES", "BOOTSTRAP_RESAMPLES", "LEARNED", "Estimate", "RateReading", "per_seed", "rate_reading",
     "BOOTSTRAP_SEED", "BRAX", "BUDGET_METHODS", "FCA", "FCA_TRAIN", "FIRST_IMAGE_PRESET", "former_preset",
     "MAP_METHODS", "MUJOCO", "RECIPE_METHODS", "AlphaRow", "BudgetPoint", "BudgetRow", "Choice", "CopycatMap",

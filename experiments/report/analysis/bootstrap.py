@@ -4,7 +4,9 @@
   interval);
 - `verdict`: plain words for an interval;
 - `history_difference`, `ours_differences`, `versus_bcoh`, `bootstrap_rows`: BC-OH − BC-SO (does the history
-  help?) and Ours − BC-OH over seeds, per group.
+  help?) and Ours − BC-OH over seeds, per group;
+- `bootstrap_share`, `history_share`: the share of the gap between BC-SO and BC-full (the full state's ceiling)
+  that the history recovers, (BC-OH − BC-SO) / (BC-full − BC-SO).
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 
 from experiments.report.analysis.groups import Group, Key, Merged, is_rate, ordered
-from experiments.report.analysis.selection import best_of, comparisons, headline, method_rows, seed_values
+from experiments.report.analysis.selection import CEILING, best_of, comparisons, headline, method_rows, seed_values
 
 
 BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED = 10_000, 0
@@ -141,6 +143,49 @@ def history_difference(m: Group, key: str | None = None, factor: float | None = 
     return bootstrap_difference(bcoh, bcso) if bcoh and bcso else None
 
 
+class Share(NamedTuple):
+    """`(a − b) / (c − b)` of three arms' means with its bootstrap interval `[low, high]`, and each arm's seeds."""
+
+    share: float
+    low: float
+    high: float
+    n_a: int
+    n_b: int
+    n_c: int
+
+
+def bootstrap_share(a: Sequence[float], b: Sequence[float], c: Sequence[float], resamples: int = BOOTSTRAP_RESAMPLES,
+                    level: float = 0.95, seed: int = BOOTSTRAP_SEED) -> Share | None:
+    """Percentile bootstrap interval of `(mean(a) − mean(b)) / (mean(c) − mean(b))`: how much of the gap from `b`
+    to `c` `a` covers (each arm's seeds resampled independently, as `bootstrap_difference` does).
+
+    Args:
+      a, b, c: per-seed values of the three arms, `[n_a]`, `[n_b]`, `[n_c]`, n ≥ 1.
+
+    Returns:
+      `Share`, or None where `mean(c) = mean(b)` (no gap to share). Replicates whose own gap is 0 are left out;
+      where the gap's interval holds 0 the share's is wide (or unbounded), as it should be.
+    """
+    a, b, c = (np.asarray(x, np.float64) for x in (a, b, c))
+    if any(x.ndim != 1 or not x.size for x in (a, b, c)):
+        raise ValueError(f"bootstrap_share needs three non-empty 1-d arms, got shapes {a.shape}, {b.shape}, {c.shape}")
+    if c.mean() == b.mean():
+        return None
+    rng = np.random.default_rng(seed)
+    ma, mb, mc = (_resampled_means(x, rng, resamples) for x in (a, b, c))
+    gap = mc - mb
+    low, high = _percentiles((ma - mb)[gap != 0] / gap[gap != 0], level)
+    return Share(float((a.mean() - b.mean()) / (c.mean() - b.mean())), low, high, a.size, b.size, c.size)
+
+
+def history_share(m: Group) -> Share | None:
+    """How much of the gap between BC-SO and BC-full (BC on the full state: the ceiling) the history recovers in
+    group `m`: `(BC-OH − BC-SO) / (BC-full − BC-SO)` over seeds (each the best of its rows, in `bootstrap_unit(m)`),
+    with its 95% bootstrap interval; None where one of the three has no seeds or BC-full equals BC-SO."""
+    arms = [_unit_seeds(m, best_of(method_rows(m, method))) for method in ("bc-oh", "bc-so", CEILING)]
+    return bootstrap_share(*arms) if all(arms) else None
+
+
 def ours_differences(m: Group) -> list[tuple[str, dict, Interval]]:
     """Ours − BC-OH over seeds in group `m`, in `bootstrap_unit(m)`: `(label, Ours' summary row, interval)` per
     configuration of `comparisons` that has seeds (none if BC-OH has none)."""
@@ -153,13 +198,13 @@ def ours_differences(m: Group) -> list[tuple[str, dict, Interval]]:
     return out
 
 
-def versus_bcoh(m: Group, extras: Sequence[str] = (), known: Mapping[str, dict] | None = None
-                ) -> list[tuple[str, dict | None, Interval | None]]:
-    """Every row of the state table of group `m` (`headline`) but BC-OH, against BC-OH: `(label, summary row,
-    row − BC-OH over seeds in `bootstrap_unit(m)`, or None where either arm has no seeds)`."""
+def versus_bcoh(m: Group, extras: Sequence[str] = (), known: Mapping[str, dict] | None = None,
+                ceiling: bool = False) -> list[tuple[str, dict | None, Interval | None]]:
+    """Every row of the state table of group `m` (`headline`, BC-full's with `ceiling`) but BC-OH, against BC-OH:
+    `(label, summary row, row − BC-OH over seeds in `bootstrap_unit(m)`, or None where either arm has no seeds)`."""
     bcoh = _unit_seeds(m, best_of(method_rows(m, "bc-oh")))
     out = []
-    for lab, row in headline(m, extras, known):
+    for lab, row in headline(m, extras, known, ceiling):
         if lab == "BC-OH":
             continue
         values = _unit_seeds(m, row)

@@ -151,14 +151,20 @@ class MapPoint(NamedTuple):
     diagnostics: PolicyDiagnostics | None
     observations: int | None = None  # the policies' history where it is not the protocol's (`other_history`)
     expert: str | None = None        # the expert variant where it is not the task's own (`Protocol.expert`)
+    prev_action: bool = False        # the previous action in the observation (`Protocol.prev_action`)
+
+    @property
+    def variations(self) -> str:
+        """What the cell changes beyond the recipe and split: `", history 7"` where the history is not the
+        protocol's, `", expert ppo"` for another expert, `", previous action in view"` (`protocol.prev_action`)."""
+        return ("" if self.observations is None else f", history {self.observations}") + (
+            "" if self.expert is None else f", expert {self.expert}") + (
+            ", previous action in view" if self.prev_action else "")
 
     @property
     def setting(self) -> str:
-        """`"recipe fca, split by rows"` (`", history 7"` where the history is not the protocol's, `", expert ppo"`
-        for another expert): what the recipe axis varies."""
-        return f"recipe {self.recipe}, split by {self.split}" + (
-            "" if self.observations is None else f", history {self.observations}") + (
-            "" if self.expert is None else f", expert {self.expert}")
+        """`"recipe fca, split by rows"` with its `variations`: what the recipe axis varies."""
+        return f"recipe {self.recipe}, split by {self.split}" + self.variations
 
 
 def _seed_cell(values: Sequence[float]) -> MapCell | None:
@@ -193,8 +199,9 @@ def extended_map(merged: Merged) -> list[MapPoint]:
             history = bootstrap_difference(bcoh.seeds, bcso.seeds) if bcso and bcoh else None
             out.append(MapPoint(key.env, p.get("recipe") or "mlp", p.get("split") or "episodes", int(p["frame_skip"]),
                                 int(p.get("train_transitions") or FCA_TRAIN), end, iteration, cells, history,
-                                policy_diagnostics(at[1]) if at[1] else None, other_history(p), p.get("expert")))
+                                policy_diagnostics(at[1]) if at[1] else None, other_history(p), p.get("expert"),
+                                bool(p.get("prev_action"))))
     rank = {"mlp": 0, "fca": 1}
     return sorted(out, key=lambda q: (MUJOCO.index(q.env), rank.get(q.recipe, 2), q.recipe, q.split != "episodes",
-                                      q.observations or 0, q.expert or "", q.frame_skip, q.train_transitions, q.run,
-                                      q.iteration))
+                                      q.observations or 0, q.expert or "", q.prev_action, q.frame_skip,
+                                      q.train_transitions, q.run, q.iteration))

@@ -187,24 +187,26 @@ def former_preset(res: results_lib.Results) -> str | None:
 
 def variant_name(res: results_lib.Results, protocol: dict) -> str:
     """The group name of a file's setting: its protocol's name for files split by episode with the `mlp` recipe (every
-    file before results schema 3), else `NAME.SPLIT.RECIPE` (e.g. `fca.rows.fca`), a group of its own: the recipe
+    file before results schema 3), else `NAME.SPLIT.RECIPE` (e.g. `fca.rows.fca`; `.h<H>` for another history,
+    `.<expert>` for another expert, `.prev` with the previous action in view), a group of its own: the recipe
     section (`recipe_groups`, `recipe_rows`) compares them, and they never join the copycat map or the whole-episode
     tables. A retired preset's files (`former_preset`) are `NAME.first`, a group of their own too."""
     if former_preset(res) is not None:
         return f"{protocol['name']}.first"
     split, recipe = protocol.get("split") or "episodes", res.recipe_name
-    history, expert = other_history(protocol), protocol.get("expert")
-    if (split, recipe, history, expert) == ("episodes", "mlp", None, None):
+    history, expert, prev = other_history(protocol), protocol.get("expert"), bool(protocol.get("prev_action"))
+    if (split, recipe, history, expert, prev) == ("episodes", "mlp", None, None, False):
         return protocol["name"]
     return (f"{protocol['name']}.{split}.{recipe}" + ("" if history is None else f".h{history}")
-            + ("" if expert is None else f".{expert}"))
+            + ("" if expert is None else f".{expert}") + (".prev" if prev else ""))
 
 
 def other_setting(protocol: dict) -> bool:
-    """Whether a variant changes more than the split and the recipe: another history or another expert, or a retired
-    preset (such groups stay out of the recipe table and the paper-budget table, and are settings of their own in
-    the map)."""
-    return other_history(protocol) is not None or protocol.get("expert") is not None or "preset" in protocol
+    """Whether a variant changes more than the split and the recipe: another history or another expert, the previous
+    action in view (`protocol.prev_action`), or a retired preset (such groups stay out of the recipe table and the
+    paper-budget table, and are settings of their own in the map)."""
+    return (other_history(protocol) is not None or protocol.get("expert") is not None
+            or bool(protocol.get("prev_action")) or "preset" in protocol)
 
 
 def other_history(protocol: dict) -> int | None:
@@ -226,7 +228,8 @@ def protocol_words(p: dict) -> str:
         history = other_history(p)
         return (f"{p['variant_of']}, split by {p.get('split')}, recipe {p.get('recipe')}"
                 + ("" if history is None else f", history {history}")
-                + ("" if p.get("expert") is None else f", expert {p['expert']}"))
+                + ("" if p.get("expert") is None else f", expert {p['expert']}")
+                + (", previous action in view" if p.get("prev_action") else ""))
     if not in_fca_family(name) or name == FCA:
         return name
     differs = ([f"frame skip {p['frame_skip']}"] if p.get("frame_skip") not in (None, 1) else []) + \

@@ -19,7 +19,7 @@ from experiments.report.analysis.bootstrap import (Interval, RecipeCell, bootstr
                                                    mean_cell)
 from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics, run_at
 from experiments.report.analysis.groups import FCA, MUJOCO, Group, Merged, ordered, other_setting, trained_its_preset
-from experiments.report.analysis.selection import is_finite, method_rows, ok_runs, seed_values
+from experiments.report.analysis.selection import CEILING, CEILING_LABEL, is_finite, method_rows, ok_runs, seed_values
 from experiments.report.paper import PAPER_STEP, PAPER_STEP_LABEL, PAPER_TABLE5, PAPER_TAU
 
 
@@ -27,7 +27,7 @@ from experiments.report.paper import PAPER_STEP, PAPER_STEP_LABEL, PAPER_TABLE5,
 
 # The recipe table's methods, (label, method, hparams: None for the task's default FCA setting).
 RECIPE_METHODS = (("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), (PAPER_STEP_LABEL, "ours-step", PAPER_STEP),
-                  ("FCA (TCA)", "fca", None), ("FCA (TCA + IB)", "fca-ib", None))
+                  ("FCA (TCA)", "fca", None), ("FCA (TCA + IB)", "fca-ib", None), (CEILING_LABEL, CEILING, {}))
 
 
 class RecipeRow(NamedTuple):
@@ -117,7 +117,7 @@ def alpha_rows(m: Group) -> list[AlphaRow]:
 # "tau" for the softmax at the paper's τ of the task (`PAPER_TAU`).
 BUDGET_METHODS = (("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), (PAPER_STEP_LABEL, "ours-step", PAPER_STEP),
                   ("Ours, softmax at the paper's τ", "ours-softmax", "tau"), ("FCA (TCA)", "fca", None),
-                  ("FCA (TCA + IB)", "fca-ib", None))
+                  ("FCA (TCA + IB)", "fca-ib", None), (CEILING_LABEL, CEILING, {}))
 
 
 class BudgetPoint(NamedTuple):

@@ -104,13 +104,24 @@ def hparams_suffix(row: dict | None) -> str:
     return " (" + ", ".join(f"{k} {v:g}" for k, v in row["hparams"].items()) + ")"
 
 
-def headline(m: Group, extras: Sequence[str] = (), known: Mapping[str, dict] | None = None
-             ) -> list[tuple[str, dict | None]]:
+CEILING = "bc-full"  # BC on the full state (velocities included): the ceiling of the state tables
+CEILING_LABEL = "BC-full (full state: the ceiling)"
+
+
+def has_ceiling(groups: Sequence[Group]) -> bool:
+    """Whether any of `groups` ran the ceiling (`CEILING`): a table of them shows its row (files without it lack
+    it: "—")."""
+    return any(method_rows(m, CEILING) for m in groups)
+
+
+def headline(m: Group, extras: Sequence[str] = (), known: Mapping[str, dict] | None = None,
+             ceiling: bool = False) -> list[tuple[str, dict | None]]:
     """The state table's rows of one group (task, observation mode, protocol): (label, summary row or None).
 
     BC-SO, BC-OH, Ours at the paper's step setting and the best step and
     softmax settings, then each of `extras` (`extra_methods`), labelled from
-    `known` (default: what `m`'s files record).
+    `known` (default: what `m`'s files record); with `ceiling` (`has_ceiling` of
+    the table's groups), BC-full last.
     """
     known = m.methods if known is None else known
     best_step, best_soft = best_of(method_rows(m, "ours-step")), best_of(method_rows(m, "ours-softmax"))
@@ -119,6 +130,8 @@ def headline(m: Group, extras: Sequence[str] = (), known: Mapping[str, dict] | N
            (f"Ours, best step{hparams_suffix(best_step)}", best_step),
            (f"Ours, best softmax{hparams_suffix(best_soft)}", best_soft)]
     out += [(label(known, method), best_of(method_rows(m, method))) for method in extras]
+    if ceiling:
+        out.append((CEILING_LABEL, best_of(method_rows(m, CEILING))))
     return out
 
 

@@ -148,9 +148,7 @@ def extended_map_section(ctx: Context) -> list[Section]:
             + "---:|" * (len(names) + 1)]
 
     def cells(q: MapPoint) -> str:
-        history = ("" if q.observations is None else f", history {q.observations}") + (
-            "" if q.expert is None else f", expert {q.expert}")
-        return (f"| {tasks.get(q.env).title} | {q.recipe}, {q.split}{history} | {q.frame_skip} | "
+        return (f"| {tasks.get(q.env).title} | {q.recipe}, {q.split}{q.variations} | {q.frame_skip} | "
                 f"{q.train_transitions:,} | {thousands(q.run)} | {thousands(q.iteration)} | ")
 
     out += [cells(q) + " | ".join(map(_map_cell, q.cells)) + f" | {diff_cell(q.history)} |" for q in points]

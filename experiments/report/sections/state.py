@@ -4,9 +4,10 @@ them) and MuJoCo-Image."""
 from __future__ import annotations
 
 from ape_jax import tasks
-from experiments.report.analysis import (BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, BRAX, FCA, Group, Key, Merged, best_of,
-                                         extra_methods, groups_of, headline, hparams_suffix, in_fca_family,
-                                         known_methods, label, method_rows, paper_step_row, protocols_of, versus_bcoh)
+from experiments.report.analysis import (BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, BRAX, CEILING, CEILING_LABEL, FCA, Group,
+                                         Key, Merged, best_of, bootstrap_unit, extra_methods, groups_of, has_ceiling,
+                                         headline, history_share, hparams_suffix, in_fca_family, known_methods, label,
+                                         method_rows, paper_step_row, protocols_of, versus_bcoh)
 from experiments.report.paper import PAPER_STEP_LABEL, PAPER_TABLE5
 from experiments.report.sections.common import Context, Section, return_cell
 
@@ -25,13 +26,13 @@ def _selected(lab: str, row: dict | None) -> str:
 def state_table(merged: Merged, obs: str = "pos", protocol: str = BRAX) -> str:
     """Every method per MuJoCo task with observations `obs` ("pos": MuJoCo-State, "image": MuJoCo-Image) under
     `protocol`: return mean ± std over seeds (% of expert), the methods besides ours those groups ran, our
-    expert and a random policy."""
+    expert and a random policy; BC-full (the full state's ceiling) last where any of the groups ran it."""
     groups = groups_of(merged, obs, protocol)
     if not groups:
         return ""
     extras = extra_methods({Key(m.env, obs, protocol): m for m in groups})
     known = known_methods(merged)
-    heads = [headline(m, extras, known) for m in groups]
+    heads = [headline(m, extras, known, has_ceiling(groups)) for m in groups]
     lines = ["| method | " + " | ".join(tasks.get(m.env).title for m in groups) + " |",
              "|---|" + "---:|" * len(groups)]
     for i, (lab, _) in enumerate(heads[0]):
@@ -55,7 +56,7 @@ def versus_table(merged: Merged, obs: str = "pos", protocol: str = BRAX) -> str:
     groups = groups_of(merged, obs, protocol)
     extras = extra_methods({Key(m.env, obs, protocol): m for m in groups})
     known = known_methods(merged)
-    columns = [versus_bcoh(m, extras, known) for m in groups]
+    columns = [versus_bcoh(m, extras, known, has_ceiling(groups)) for m in groups]
     if not any(ci is not None for col in columns for _, _, ci in col):
         return ""
     lines = ["| method − BC-OH | " + " | ".join(tasks.get(m.env).title for m in groups) + " |",
@@ -84,6 +85,43 @@ def versus_lines(merged: Merged, protocol: str) -> list[str]:
             f"seed {BOOTSTRAP_SEED}); **bold** where the interval excludes 0 (≥ 2 seeds per arm). Each arm keeps "
             "its own seeds (each task's \"every configuration\" table below gives them); the \"best\" rows were "
             "selected after the fact, so theirs are optimistic.", "", table]
+
+
+def ceiling_table(merged: Merged, obs: str = "pos", protocol: str = BRAX) -> str:
+    """Per task with observations `obs` under `protocol`, the share of the gap between BC-SO and BC-full (BC on the
+    full state, velocities included: the ceiling) that the history recovers, (BC-OH − BC-SO) / (BC-full − BC-SO),
+    with its 95% bootstrap interval (`analysis.history_share`); "" where no task ran all three."""
+    groups = groups_of(merged, obs, protocol)
+    shares = [history_share(m) for m in groups]
+    if not any(shares):
+        return ""
+
+    def cell(m: Group, share) -> str:
+        if share is None:
+            return "—"
+        gap = (best_of(method_rows(m, CEILING))["return_mean"] - best_of(method_rows(m, "bc-so"))["return_mean"]
+               if bootstrap_unit(m)[0] == "return_mean" else None)
+        return (f"{100 * share.share:.0f}% [{100 * share.low:.0f}%, {100 * share.high:.0f}%]"
+                + ("" if gap is None else f" <br>of {gap:+,.0f}"))
+
+    return "\n".join(["| the history's share of the gap | " + " | ".join(tasks.get(m.env).title for m in groups) + " |",
+                      "|---|" + "---:|" * len(groups),
+                      "| (BC-OH − BC-SO) / (BC-full − BC-SO) | "
+                      + " | ".join(cell(m, share) for m, share in zip(groups, shares)) + " |"]) + "\n"
+
+
+def ceiling_lines(merged: Merged, obs: str, protocol: str) -> list[str]:
+    """`ceiling_table` of the groups with observations `obs` under `protocol` with its caption, or nothing."""
+    table = ceiling_table(merged, obs, protocol)
+    if not table:
+        return []
+    return ["BC-full is BC-SO on the full state (velocities included), the same recipe, "
+            "budget and rows: what the observation lacks, it sees. The share of the gap between BC-SO and it that "
+            "the history recovers, (BC-OH − BC-SO) / (BC-full − BC-SO), over seeds (each arm's best configuration), "
+            f"with a 95% percentile bootstrap interval (each arm's seeds resampled independently, "
+            f"{BOOTSTRAP_RESAMPLES:,} times; numpy seed {BOOTSTRAP_SEED}); 0% the history adds nothing, 100% it "
+            "gives what the full state gives, and the gap itself (BC-full − BC-SO, in return) below. Where the gap "
+            "is small the share is noisy, and its interval says so.", "", table]
 
 
 def _agreed(values) -> object | None:
@@ -173,6 +211,15 @@ def paper_table(merged: Merged, protocol: str = BRAX) -> str:
                          f"{row['return_mean']:,.0f}{spread} ({row['return_mean'] / bcoh['return_mean']:.2f}×)")
         name = PAPER_STEP_LABEL if method == "ours" else label(known, fca if method == "fca" else method)
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    if has_ceiling(groups):   # the paper has no full-state row: ours beside a dash
+        cells = []
+        for m, mine in zip(groups, ours):
+            row, bcoh, spread = best_of(method_rows(m, CEILING)), mine["bc-oh"], ""
+            if same_scale and row is not None:
+                spread = f" ± {row['return_std']:,.0f}"
+            cells += ["—", "—" if row is None or bcoh is None else
+                      f"{row['return_mean']:,.0f}{spread} ({row['return_mean'] / bcoh['return_mean']:.2f}×)"]
+        lines.append(f"| {CEILING_LABEL} | " + " | ".join(cells) + " |")
     if same_scale:
         lines.append("| expert | " + " | ".join(
             "not published | " + ("—" if m.expert["return_mean"] is None else f"{m.expert['return_mean']:,.0f}")
@@ -205,6 +252,7 @@ def state_sections(ctx: Context) -> list[Section]:
                 f"MuJoCo-State, the paper's protocol ({FCA})" + (f": {heading}" if heading else ""),
                 "Positions only (velocities removed). " + cells,
                 [state_table(ctx.merged, "pos", protocol), *versus_lines(ctx.merged, protocol),
+                 *ceiling_lines(ctx.merged, "pos", protocol),
                  "The supplement's Table 5 beside it, on the same scale (" + scale + "): each cell the mean "
                  "return, ours ± std over seeds, and in brackets the ratio to BC-OH of the same source. The "
                  "experts differ (the paper does not publish its expert's return), so the ratio is the "
@@ -215,13 +263,15 @@ def state_sections(ctx: Context) -> list[Section]:
                 "Positions only (velocities removed), with the environments' own frame skip and episode length. "
                 + cells,
                 [state_table(ctx.merged, "pos", protocol), *versus_lines(ctx.merged, protocol),
+                 *ceiling_lines(ctx.merged, "pos", protocol),
                  "Next to the supplement's Table 5 (its own experts, whose returns it does not give; its returns "
                  "are on another scale than these): mean returns, and in brackets each method's ratio to BC-OH "
                  "of the same source.", "", paper_table(ctx.merged, protocol)]))
         elif not in_fca_family(protocol) and not any(m.protocol.get("variant_of") for m in groups):
             out.append(Section(f"MuJoCo-State, protocol {protocol}" + (f": {heading}" if heading else ""),
                                "Positions only (velocities removed). " + cells,
-                               [state_table(ctx.merged, "pos", protocol)]))
+                               [state_table(ctx.merged, "pos", protocol),
+                                *ceiling_lines(ctx.merged, "pos", protocol)]))
     return out
 
 
@@ -243,5 +293,6 @@ def image_sections(ctx: Context) -> list[Section]:
         out.append(Section(title, ("As MuJoCo-State, from rendered frames (the image presets: see each file's "
                                    "provenance below)." if not former else FIRST_IMAGE_WORDS)
                            + (f" {details}" if details else ""),
-                           [state_table(ctx.merged, "image", protocol)]))
+                           [state_table(ctx.merged, "image", protocol),
+                            *ceiling_lines(ctx.merged, "image", protocol)]))
     return out
