@@ -90,7 +90,10 @@ def main(argv=None) -> int:
     source = imported.source_info(args.path, fmt)
     existing = imported.root() / full / experts.CARD
     if existing.is_file() and not args.force:
-        old = experts.card(full).get("source", {}).get("sha256")
+        try:
+            old = experts.card(full).get("source", {}).get("sha256")
+        except experts.ExpertError:
+            old = None  # an unreadable card: replaced only when asked
         if old != source["sha256"]:
             fail(p, f"{full} is imported already from another file (SHA-256 {str(old)[:12]}…, now "
                     f"{source['sha256'][:12]}…); pick another --name, or pass --force to replace it")
