@@ -82,6 +82,11 @@ def test_the_full_observation_is_the_full_environments_bit_for_bit_and_holds_wha
     assert env_full.obs_mode == "full" and env_full.observation_shape == (11,)
     np.testing.assert_array_equal(full.obs, brax_full)   # the torso height as the environment gave it, too
     assert observations.full_env(env_full) is env_full
+    # with the previous action in view, it stays in view on the full state
+    env_prev, demos_prev = observations.with_previous_action(env, demos)
+    env_full_prev, full_prev = observations.full_state(env_prev, demos_prev)
+    assert isinstance(env_full_prev, observations.PreviousAction) and env_full_prev.observation_shape == (14,)
+    np.testing.assert_array_equal(full_prev.obs, np.concatenate([brax_full, observations.previous_actions(demos)], 1))
     # planted: the expert acts on velocities; BC on the positions cannot fit what BC on the full state fits
     losses = {}
     for name, obs in (("pos", demos.obs), ("full", full.obs)):

@@ -8,7 +8,7 @@
 |---|---|---|
 | `results.json` | every run's record and the summary | `results.save`, last: its presence means the sweep finished |
 | `results.csv` | one summary row per configuration | `results.write_csv` |
-| `params/` | the trained policies, `h<H>/` (orbax) beside `h<H>.json` | `checkpoint.save_policies` |
+| `params/` | the trained policies, `<group>/` (`h<H>`, `full-h1`) beside `<group>.json` | `checkpoint.save_policies` |
 | `checkpoints/` | a running sweep's state, deleted when it finishes | `checkpoint.SweepCheckpoint` |
 | `curves/<program>.csv` | every iteration's training metrics | `logs.write_curves`, `logs.CurveLog` |
 | `tensorboard/<run label>/` | the same, downsampled, for TensorBoard | `logs.write_curves`, `logs.CurveLog` |
