@@ -605,6 +605,9 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
     expert = ({"return_mean": card["return_mean"], "return_std": card["return_std"],
                "random_return_mean": card["random_return_mean"]} if card is not None else
               {"return_mean": None, "return_std": None, "random_return_mean": None, "kind": task.expert})
+    if spec.dataset is not None and prepared.expert_description is not None:
+        # a collected sweep names its expert in `config.data.settings`; a dataset's expert is recorded here
+        expert["demonstrator"] = prepared.expert_description
     if (diag := diagnostics_config(prepared, evaluated.outputs)) is not None:
         config["diagnostics"] = diag
     config["env"] = {"dt": float(prepared.env.dt), "episode_length": int(prepared.env.episode_length),
