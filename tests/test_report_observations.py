@@ -64,3 +64,19 @@ def test_the_previous_action_in_view_is_a_setting_of_its_own_in_the_copycat_map(
     assert np.isclose(points[1].cells[1].mean, 15.0)     # BC-OH's 300 of the expert's 2,000
     text = report.report([plain, prev])
     assert "| Hopper | mlp, rows, previous action in view | 1 |" in text
+
+
+def test_the_extended_map_shows_bc_full_and_the_historys_share_where_it_ran(tmp_path):
+    def fca_file(methods, prev=False):
+        return _schema2(_results("hopper", methods), protocol={**_fca(1), "split": "rows",
+                                                               **({"prev_action": True} if prev else {})})
+
+    files = [_loaded(tmp_path, fca_file(BASE + (("bc-full", {}, 1600.0),)), "full.json"),
+             _loaded(tmp_path, fca_file(BASE, prev=True), "prev.json")]
+    points = extended_map(merge(files))
+    with_full, without = points
+    assert np.isclose(with_full.ceiling.mean, 80.0) and with_full.share.share == pytest.approx(0.5)
+    assert without.ceiling is None and without.share is None
+    text = report.report(files)
+    assert "The cells where BC-full ran" in text
+    assert "| Hopper | mlp, rows | 1 | 20,000 | 30k | 30k | 80.0 ± 0.7 | 50% [" in text

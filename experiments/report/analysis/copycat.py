@@ -14,11 +14,11 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from experiments.report.analysis.bootstrap import Interval, bootstrap_difference
+from experiments.report.analysis.bootstrap import Interval, Share, bootstrap_difference, bootstrap_share
 from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics, run_at
 from experiments.report.analysis.groups import (FCA, FCA_TRAIN, MUJOCO, Group, Key, Merged, ReportError, group_title,
                                                 in_fca_family, ordered, other_history)
-from experiments.report.analysis.selection import best_of, is_finite, method_rows, ok_runs, seed_values
+from experiments.report.analysis.selection import CEILING, best_of, is_finite, method_rows, ok_runs, seed_values
 from experiments.report.paper import PAPER_STEP, PAPER_STEP_LABEL
 
 
@@ -152,6 +152,8 @@ class MapPoint(NamedTuple):
     observations: int | None = None  # the policies' history where it is not the protocol's (`other_history`)
     expert: str | None = None        # the expert variant where it is not the task's own (`Protocol.expert`)
     prev_action: bool = False        # the previous action in the observation (`Protocol.prev_action`)
+    ceiling: MapCell | None = None   # BC-full (the full state) in % of expert, where it ran
+    share: Share | None = None       # (BC-OH − BC-SO) / (BC-full − BC-SO) over seeds, where all three ran
 
     @property
     def variations(self) -> str:
@@ -178,7 +180,8 @@ def extended_map(merged: Merged) -> list[MapPoint]:
     """Every state group of the fca family (the paper's protocol at each frame skip and training-set size, under
     every recipe, split and budget) as map points: one per iteration its runs were evaluated at (`Budget.eval_at`,
     then the end), with BC-SO, BC-OH and Ours (step THR 10% W 5) in % of expert, BC-OH − BC-SO with its 95%
-    bootstrap interval over seeds, and BC-OH's copycat diagnostics. In task, setting (recipe mlp before fca,
+    bootstrap interval over seeds, and BC-OH's copycat diagnostics; where BC-full ran, its % of expert and the
+    history's share of the gap between BC-SO and it. In task, setting (recipe mlp before fca,
     whole episodes before rows), frame skip, size, run length and iteration order."""
     out = []
     for key, m in ordered(merged):
@@ -187,20 +190,21 @@ def extended_map(merged: Merged) -> list[MapPoint]:
         if key.obs != "pos" or key.env not in MUJOCO or not in_fca_family(base) or p.get("frame_skip") is None:
             continue
         end = int(m.sources[0].config["iterations"])
-        chosen = [_map_row_of(m, method, hp) for _, method, hp in MAP_METHODS]
+        chosen = [_map_row_of(m, method, hp) for _, method, hp in (*MAP_METHODS, ("", CEILING, None))]
         runs = [sorted(ok_runs(m, r["method"], r["hparams"]), key=lambda r: r.get("seed", 0)) if r else []
                 for r in chosen]
         points = sorted({a["iteration"] for rs in runs for r in rs for a in r.get("at") or ()} | {end})
         for iteration in points:
             at = [[a for r in rs if (a := run_at(r, iteration, end))] for rs in runs]
-            cells = tuple(_seed_cell([a["eval"]["normalized"] for a in xs if is_finite(a["eval"].get("normalized"))])
-                          for xs in at)
+            *cells, ceiling = (_seed_cell([a["eval"]["normalized"] for a in xs
+                                           if is_finite(a["eval"].get("normalized"))]) for xs in at)
             bcso, bcoh = cells[0], cells[1]
             history = bootstrap_difference(bcoh.seeds, bcso.seeds) if bcso and bcoh else None
+            share = bootstrap_share(bcoh.seeds, bcso.seeds, ceiling.seeds) if bcso and bcoh and ceiling else None
             out.append(MapPoint(key.env, p.get("recipe") or "mlp", p.get("split") or "episodes", int(p["frame_skip"]),
-                                int(p.get("train_transitions") or FCA_TRAIN), end, iteration, cells, history,
+                                int(p.get("train_transitions") or FCA_TRAIN), end, iteration, tuple(cells), history,
                                 policy_diagnostics(at[1]) if at[1] else None, other_history(p), p.get("expert"),
-                                bool(p.get("prev_action"))))
+                                bool(p.get("prev_action")), ceiling, share))
     rank = {"mlp": 0, "fca": 1}
     return sorted(out, key=lambda q: (MUJOCO.index(q.env), rank.get(q.recipe, 2), q.recipe, q.split != "episodes",
                                       q.observations or 0, q.expert or "", q.prev_action, q.frame_skip,

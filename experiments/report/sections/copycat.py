@@ -118,6 +118,27 @@ def _judged_cells_lines(judged: list[MapPoint]) -> list[str]:
     return [" ".join(out), ""]
 
 
+def _ceiling_lines(points: list[MapPoint]) -> list[str]:
+    """The cells where BC-full (the full state) ran: its % of expert and the history's share of the gap between
+    BC-SO and it, (BC-OH − BC-SO) / (BC-full − BC-SO), with its 95% bootstrap interval; nothing where none did."""
+    shown = [q for q in points if q.ceiling is not None]
+    if not shown:
+        return []
+
+    def share(q: MapPoint) -> str:
+        s = q.share
+        return "—" if s is None else f"{100 * s.share:.0f}% [{100 * s.low:.0f}%, {100 * s.high:.0f}%]"
+
+    return ["The cells where BC-full ran (BC-SO on the full state, velocities included: the ceiling), with the "
+            "share of the gap between BC-SO and it that the history recovers, (BC-OH − BC-SO) / (BC-full − BC-SO) "
+            "over seeds, with its 95% percentile bootstrap interval (each arm's seeds resampled independently).",
+            "", "| task | recipe, split | frame skip | training transitions | run | at | BC-full | "
+            "(BC-OH − BC-SO) / (BC-full − BC-SO) |", "|---|---|---:|---:|---:|---:|---:|---:|"]  \
+        + [f"| {tasks.get(q.env).title} | {q.recipe}, {q.split}{q.variations} | {q.frame_skip} | "
+           f"{q.train_transitions:,} | {thousands(q.run)} | {thousands(q.iteration)} | {_map_cell(q.ceiling)} | "
+           f"{share(q)} |" for q in shown] + [""]
+
+
 def extended_map_section(ctx: Context) -> list[Section]:
     """"Where copycat appears: the map, extended": every fca-family state group (`analysis.extended_map`), per
     setting (recipe, split), frame skip, training-set size, run length and evaluation point, the three map methods
@@ -153,6 +174,7 @@ def extended_map_section(ctx: Context) -> list[Section]:
 
     out += [cells(q) + " | ".join(map(_map_cell, q.cells)) + f" | {diff_cell(q.history)} |" for q in points]
     out += [""]
+    out += _ceiling_lines(points)
     if diagnosed:
         state = any(q.diagnostics.state is not None for q in diagnosed)
         control = any(q.diagnostics.control is not None for q in diagnosed)
