@@ -9,7 +9,9 @@ reference (BC-SO, BC-OH, Ours at the paper's step setting THR 10% W 5, FCA) is c
 references as the comparable files of `--against` (default: the shipped `results/`) record them: the same
 task, observation mode, expert, protocol, recipe (its weighting grids aside) and budget (iterations and
 evaluation episodes). A file of YOURS with no comparable file there is refused (exit 2, one line naming the
-nearest file and the fields in which it differs); so is one that holds nothing but references.
+nearest file and the fields in which it differs); so is one that holds nothing but references, and one (or a
+matching reference file) that records no expert references to give % of expert by (a `--dataset` sweep whose
+dataset gave none), with how to add them.
 
 Printed, and written to `--out` (default: the first of YOURS that is a folder, else the current one) as
 `compare.md` and `compare-profile.png`:
@@ -150,10 +152,13 @@ def compare(yours: Sequence[analysis.Source], against: Sequence[analysis.Source]
     by_task: dict[str, list[analysis.Source]] = {}
     refs: dict[str, list[analysis.Source]] = {}
     for y in yours:
+        analysis.check_references(y)   # every table here is in % of expert: none silently without it
         if not [row for row in y.summary if row["method"] not in REFERENCES]:
             raise CompareError(f"{y.path}: holds only reference methods ({', '.join(REFERENCES)}): nothing of "
                                "yours to compare")
         matched = match(y, against)
+        for r in matched:
+            analysis.check_references(r)
         key = y.env
         if key in refs and {id(r) for r in refs[key]} != {id(r) for r in matched}:
             raise CompareError(f"{y.path}: another file of yours on {y.env} has other settings; compare one "

@@ -94,8 +94,10 @@ def test_the_extended_map_has_the_budget_axis_and_names_where_copycat_was_judged
     text, _ = report.build(files)
     section = text[text.index("### Where copycat appears: the map, extended"):]
     assert "| Hopper | fca, rows | 1 | 20,000 | 300k | 100k | " in section
-    assert ("Of the 4 cells whose BC-OH policies were diagnosed, 1 has a seed judged copycat: Hopper recipe fca, "
-                "split by rows, frame skip 1, 20,000 transitions, at 300k of 300k (5/5)." in section)
+    # the committed file's cell has the controlled verdict (none copycat); the fixture's, the first verdict only
+    assert "Of the 1 cells whose BC-OH policies have the controlled verdict, none has a seed judged copycat." in section
+    assert ("Of the 4 cells whose BC-OH policies were diagnosed, by the first verdict, 1 has a seed judged copycat: "
+            "Hopper recipe fca, split by rows, frame skip 1, 20,000 transitions, at 300k of 300k (5/5)." in section)
 
 
 def test_a_longer_history_is_a_setting_of_its_own_in_the_map_and_stays_out_of_the_recipe_table(tmp_path):

@@ -5,7 +5,9 @@ Reads `results.json` files written by `experiments.sweep` and merges them per
 task, observation mode and protocol (several files of one group are joined,
 e.g. the main grid and a `--methods baselines` run; schema 1 files, which
 record no protocol, are `brax`). Results of one task under two protocols are
-different experiments and never mix. It prints, or with `--out` writes into
+different experiments and never mix; nor do results of two experts (a shipped
+variant by its name, an imported expert by its name and SHA-256) or of raw and
+clipped labels. It prints, or with `--out` writes into
 the file's `report` section (and rebuilds the file's table of contents, when it
 has one between `<!-- toc:start -->` and `<!-- toc:end -->`: `experiments.report.toc`):
 
@@ -17,6 +19,11 @@ has one between `<!-- toc:start -->` and `<!-- toc:end -->`: `experiments.report
   (`brax`, the project's first results), compared with Table 5 by ratios to
   BC-OH only. The fca family's other frame skips (`fca-fs2`, `fca-fs4`) get
   no table of their own: they make the copycat map;
+- Table 5 with FCA's expert: per group of an imported expert (FCA's own, named by its file's SHA-256) or raw
+  labels (the rough experts of its kind) under the paper's protocol and recipe, every method in % of expert with
+  its bootstrap interval beside the supplement's Table 5, its difference from BC-OH with a verdict, both copycat
+  verdicts' counts and the control and predictability ratios, and the history's share of the gap to BC-full
+  (absent while no such file is given);
 - MuJoCo-Image and ToyCar's own metrics (the supplement's Table 4 protocol);
 - the copycat map: per task, BC-SO, BC-OH and Ours in % of expert per frame
   skip of the fca family, what the history adds (BC-OH − BC-SO, with its CI)
@@ -58,7 +65,9 @@ cross-task estimators of `experiments.compare`) and `toc` (the file's table of
 contents).
 
 A results file that cannot be read, is not JSON, or lacks a field the tables
-use (or has it with the wrong type), and an `--out` that cannot be written, are
+use (or has it with the wrong type), one judged by its return that records no
+expert references (its % of expert cannot be given: `analysis.check_references`,
+with how to add them), and an `--out` that cannot be written, are
 refused with one line on stderr and exit status 2; `--out` is then left as it was
 (so is `--figures`: a folder that cannot be written is refused before anything is drawn).
 """

@@ -13,8 +13,9 @@ from collections.abc import Callable, Sequence
 from matplotlib.figure import Figure
 
 from ape_jax.pipeline import results as results_lib
-from experiments.report.analysis import ReportError, merge
-from experiments.report.sections import copycat, curves, detail, differences, recipe, state, task_metrics
+from experiments.report.analysis import ReportError, check_references, merge
+from experiments.report.sections import (copycat, curves, detail, differences, recipe, regime, state,
+                                        task_metrics)
 from experiments.report.sections.common import Context, Section, figures_note
 
 # The report's sections in order.
@@ -22,6 +23,7 @@ SECTIONS: tuple[Callable[[Context], list[Section]], ...] = (
     state.state_sections,                 # MuJoCo-State per protocol, with Table 5
     recipe.recipe_section,                # the paper's recipe: mlp against fca
     recipe.paper_budget_section,          # the paper's budget over training, beside Table 5
+    regime.regime_section,                # Table 5 with FCA's expert (an expert of FCA's kind, labels raw or clipped)
     copycat.extended_map_section,         # where copycat appears: the map, extended
     state.image_sections,                 # MuJoCo-Image
     task_metrics.task_metric_sections,    # a task's own metrics (the supplement's Table 4 protocol)
@@ -50,8 +52,11 @@ def build(files: Sequence[results_lib.Results], figure_dir: pathlib.Path | None 
       `experiments.report.figures.save_png`.
 
     Raises:
-      ReportError: files that cannot be merged, or two figures for one path.
+      ReportError: files that cannot be merged, a file judged by its return without expert references (its tables
+        are in % of expert: `check_references`), or two figures for one path.
     """
+    for res in files:
+        check_references(res)
     ctx = Context(merge(files), None if figure_dir is None else pathlib.Path(figure_dir),
                   pathlib.Path.cwd() if base is None else pathlib.Path(base))
     lines: list[str] = []

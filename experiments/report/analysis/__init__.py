@@ -3,8 +3,9 @@
 Nothing here formats markdown or draws: `experiments.report.sections` and `experiments.report.figures` do, from
 what these functions return. One module per concern, each re-exported here:
 
-- `groups`: `load` one results file, `merge` them per `Key(env, obs, protocol, budget)`, the groups in report
-  order and their titles;
+- `groups`: `load` one results file, `check_references`, `merge` them per `Key(env, obs, protocol, budget)` (an
+  expert other than the task's own, or raw labels, a group of its own), the groups in report order and their
+  titles;
 - `selection`: method labels, the rows each table picks (`method_rows`, `best_of`, `paper_step_row`,
   `headline`, ...), per-seed values (`seed_values`), the paper's settings against the grid (`choices`), longer
   runs;
@@ -13,6 +14,8 @@ what these functions return. One module per concern, each re-exported here:
 - `diagnostics`: copycat diagnostics per configuration, at the end and over training;
 - `copycat`: the copycat map (`copycat_map`) and the extended map (`extended_map`);
 - `recipe`: the recipe comparison (mlp against fca) and the paper's budget beside Table 5;
+- `regime`: Table 5 with FCA's expert (an imported expert or raw labels under the paper's protocol and recipe):
+  every configuration against BC-OH and beside Table 5, with its copycat diagnostics (`regime_table`);
 - `rates`: the numbers of a rate-judged task's reading (`rate_reading`);
 - `weights`: how concentrated each weighting is within a batch (`weight_shares`).
 
@@ -30,8 +33,9 @@ from experiments.report.analysis.diagnostics import (DiagnosticsRow, PolicyDiagn
                                                      has_diagnostics, policy_diagnostics, recipe_diagnostics, run_at,
                                                      spread, training_points)
 from experiments.report.analysis.groups import (BRAX, FCA, FCA_TRAIN, FIRST_IMAGE_PRESET, MUJOCO, Group, Key, Merged,
-                                                ReportError, Source, budget_of, config_key, envs_of, file_stem,
-                                                former_preset, group_title, groups_of,
+                                                ReportError, Source, budget_of, check_references, config_key,
+                                                demonstrator, envs_of, expert_part, expert_words, file_stem,
+                                                former_preset, group_title, groups_of, raw_labels,
                                                 in_fca_family, is_rate, load, main_metric, merge, ordered,
                                                 other_history, other_setting, protocol_of, protocol_words, protocols_of,
                                                 variant_name)
@@ -39,6 +43,8 @@ from experiments.report.analysis.rates import LEARNED, Estimate, RateReading, pe
 from experiments.report.analysis.recipe import (BUDGET_METHODS, RECIPE_METHODS, AlphaRow, BudgetPoint, BudgetRow,
                                                 RecipeRow, alpha_rows, budget_differences, budget_rows,
                                                 paper_budget_groups, recipe_groups, recipe_rows)
+from experiments.report.analysis.regime import (REGIME_METHODS, RegimeRow, RegimeTable, is_regime, regime_groups,
+                                                regime_table)
 from experiments.report.analysis.selection import (CEILING, CEILING_LABEL, Choice, Gap, LongerRow, best_of, choices,
                                                    comparisons, copycat_groups, display_metric, expert_ape,
                                                    extra_methods, gap, has_ceiling, headline, hparams_suffix,
@@ -50,6 +56,8 @@ from experiments.report.analysis.weights import (APE_SCALES, WeightShares, ape_m
                                                  weight_shares)
 
 __all__ = [
+    "REGIME_METHODS", "RegimeRow", "RegimeTable", "is_regime", "regime_groups", "regime_table",
+    "check_references", "demonstrator", "expert_part", "expert_words", "raw_labels",
     "CEILING", "CEILING_LABEL", "Share", "bootstrap_share", "has_ceiling", "history_share",
     "APE_SCALES", "BOOTSTRAP_RESAMPLES", "LEARNED", "Estimate", "RateReading", "per_seed", "rate_reading",
     "BOOTSTRAP_SEED", "BRAX", "BUDGET_METHODS", "FCA", "FCA_TRAIN", "FIRST_IMAGE_PRESET", "former_preset",

@@ -16,8 +16,8 @@ import numpy as np
 
 from experiments.report.analysis.bootstrap import Interval, Share, bootstrap_difference, bootstrap_share
 from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics, run_at
-from experiments.report.analysis.groups import (FCA, FCA_TRAIN, MUJOCO, Group, Key, Merged, ReportError, group_title,
-                                                in_fca_family, ordered, other_history)
+from experiments.report.analysis.groups import (FCA, FCA_TRAIN, MUJOCO, Group, Key, Merged, ReportError, expert_words,
+                                                group_title, in_fca_family, ordered, other_history)
 from experiments.report.analysis.selection import CEILING, best_of, is_finite, method_rows, ok_runs, seed_values
 from experiments.report.paper import PAPER_STEP, PAPER_STEP_LABEL
 
@@ -150,7 +150,7 @@ class MapPoint(NamedTuple):
     history: Interval | None
     diagnostics: PolicyDiagnostics | None
     observations: int | None = None  # the policies' history where it is not the protocol's (`other_history`)
-    expert: str | None = None        # the expert variant where it is not the task's own (`Protocol.expert`)
+    expert: str | None = None        # the expert and labels where not the task's own, clipped (`expert_words`)
     prev_action: bool = False        # the previous action in the observation (`Protocol.prev_action`)
     ceiling: MapCell | None = None   # BC-full (the full state) in % of expert, where it ran
     share: Share | None = None       # (BC-OH − BC-SO) / (BC-full − BC-SO) over seeds, where all three ran
@@ -203,7 +203,7 @@ def extended_map(merged: Merged) -> list[MapPoint]:
             share = bootstrap_share(bcoh.seeds, bcso.seeds, ceiling.seeds) if bcso and bcoh and ceiling else None
             out.append(MapPoint(key.env, p.get("recipe") or "mlp", p.get("split") or "episodes", int(p["frame_skip"]),
                                 int(p.get("train_transitions") or FCA_TRAIN), end, iteration, tuple(cells), history,
-                                policy_diagnostics(at[1]) if at[1] else None, other_history(p), p.get("expert"),
+                                policy_diagnostics(at[1]) if at[1] else None, other_history(p), expert_words(p),
                                 bool(p.get("prev_action")), ceiling, share))
     rank = {"mlp": 0, "fca": 1}
     return sorted(out, key=lambda q: (MUJOCO.index(q.env), rank.get(q.recipe, 2), q.recipe, q.split != "episodes",

@@ -10,6 +10,12 @@ Protocols: a file's `protocol["name"]`; schema 1 files record none and ran Brax'
 `brax`. The *fca family* is `fca` (the paper's MuJoCo-State setting, frame skip 1) and every protocol named
 `fca-...` (the same setting at another frame skip or training-set size, e.g. `fca-fs4`), told apart by the
 `frame_skip` and `train_transitions` they record.
+
+Experts and labels: a file whose demonstrations came from another expert than the task's own, or stored the
+expert's labels raw (`protocol.labels`), is a group of its own (`variant_name`): a shipped variant by its name
+(`protocol.expert`), an imported expert by its name and its file's SHA-256 (`demonstrator`, `expert_part`), raw
+labels apart from clipped ones; titles say which (`expert_words`). A file judged by its return that records no
+expert references cannot be normalised, and is refused (`check_references`).
 """
 
 from __future__ import annotations
@@ -50,6 +56,23 @@ def load(path: str | pathlib.Path) -> Source:
     return Source(**{f.name: getattr(res, f.name) for f in dataclasses.fields(results_lib.Results)}, path=str(path))
 
 
+def check_references(res: results_lib.Results) -> None:
+    """Refuses (`ReportError`, one line naming the file and how to add them) a file judged by its return that records
+    no expert reference returns (`expert.return_mean` or `random_return_mean` null: a `--dataset` sweep whose
+    dataset gave none): the report's and `experiments.compare`'s tables are in % of expert, which it cannot give."""
+    if main_metric(res) != "return" or all(isinstance((res.expert or {}).get(k), (int, float))
+                                           for k in ("return_mean", "random_return_mean")):
+        return
+    where = getattr(res, "path", "") or f"a {res.env} ({res.obs}) results file"
+    dataset = ((res.config.get("data") or {}).get("settings") or {}).get("dataset")
+    raise ReportError(f"{where}: records no expert reference returns (expert.return_mean is null), so it has no "
+                      "% of expert for the normalised tables; add the references to "
+                      + (f"its dataset {dataset}" if dataset else "its dataset")
+                      + " (\"references\": {\"return_mean\": R_EXPERT, \"random_return_mean\": R_RANDOM} in its "
+                      ".json, or ref_max_score and ref_min_score in its metadata.json) or name its expert with --set "
+                      "protocol.expert=NAME, and sweep again")
+
+
 def main_metric(res: results_lib.Results) -> str:
     """What a results file is judged by: the metric it records, else its task's (schema 1 records none)."""
     return res.main_metric if "metric" in res.config else tasks.get(res.env).metric
@@ -86,6 +109,8 @@ class Group:
         with `variant_of` and `recipe`, for a variant: `variant_name`).
       budget: `Key.budget`: None for the preset's iterations, else the iterations.
       expert: the expert's record (`return_mean`, `return_std`, `random_return_mean`), the same in every file.
+      demonstrator: who made the demonstrations (`demonstrator`: kind, SHA-256, origin), as the first file records
+        it; None where it does not.
       summary: every file's summary rows (one per configuration), in file order.
       runs: every file's runs (one per configuration and seed), in file order.
       sources: the files, in the order given.
@@ -102,6 +127,7 @@ class Group:
     protocol: dict
     budget: int | None
     expert: dict
+    demonstrator: dict | None
     summary: list[dict]
     runs: list[dict]
     sources: list[Source]
@@ -185,27 +211,58 @@ def former_preset(res: results_lib.Results) -> str | None:
     return FIRST_IMAGE_PRESET if encoder == "small" else None
 
 
+def demonstrator(res: results_lib.Results) -> dict | None:
+    """Who made a file's demonstrations, as the file records it: the collected data's expert
+    (`config.data.settings.expert`: `kind` `checkpoint` with its card's SHA-256, `imported` with its file's SHA-256,
+    format and origin, or `rule-based`), else a dataset's (`expert.demonstrator`); None where neither is recorded
+    (files from before the record)."""
+    data = ((res.config.get("data") or {}).get("settings") or {}).get("expert")
+    found = data if isinstance(data, dict) else (res.expert or {}).get("demonstrator")
+    return found if isinstance(found, dict) else None
+
+
+def expert_part(res: results_lib.Results, protocol: dict) -> str | None:
+    """How a group name names a file's expert where it is not the task's own (None where it is): a shipped variant
+    by its name (`protocol.expert`: `ppo`, `rough`), an imported one (`experiments.import_expert`) by its name and
+    the first 8 hex digits of its file's SHA-256 (`fca-56145a42`), so two files imported under one name never
+    share a group."""
+    found, name = demonstrator(res) or {}, protocol.get("expert")
+    if found.get("kind") != "imported":
+        return name
+    name = name or found.get("variant") or found.get("name") or "imported"
+    sha = found.get("sha256")
+    return f"{name}-{sha[:8]}" if isinstance(sha, str) and sha else name
+
+
+def raw_labels(protocol: dict) -> bool:
+    """Whether the demonstrations' labels are the expert's output as it gave it (`protocol.labels` `raw`), not
+    clipped to the action range (`clipped`, the default, which files before the field all were)."""
+    return protocol.get("labels") == "raw"
+
+
 def variant_name(res: results_lib.Results, protocol: dict) -> str:
     """The group name of a file's setting: its protocol's name for files split by episode with the `mlp` recipe (every
     file before results schema 3), else `NAME.SPLIT.RECIPE` (e.g. `fca.rows.fca`; `.h<H>` for another history,
-    `.<expert>` for another expert, `.prev` with the previous action in view), a group of its own: the recipe
-    section (`recipe_groups`, `recipe_rows`) compares them, and they never join the copycat map or the whole-episode
-    tables. A retired preset's files (`former_preset`) are `NAME.first`, a group of their own too."""
+    `.<expert>` for another expert (`expert_part`: `.ppo`, `.fca-56145a42`), `.raw` for raw labels, `.prev` with the
+    previous action in view), a group of its own: the recipe section (`recipe_groups`, `recipe_rows`) compares
+    them, and they never join the copycat map or the whole-episode tables. A retired preset's files
+    (`former_preset`) are `NAME.first`, a group of their own too."""
     if former_preset(res) is not None:
         return f"{protocol['name']}.first"
     split, recipe = protocol.get("split") or "episodes", res.recipe_name
-    history, expert, prev = other_history(protocol), protocol.get("expert"), bool(protocol.get("prev_action"))
-    if (split, recipe, history, expert, prev) == ("episodes", "mlp", None, None, False):
+    history, expert, prev = other_history(protocol), expert_part(res, protocol), bool(protocol.get("prev_action"))
+    raw = raw_labels(protocol)
+    if (split, recipe, history, expert, raw, prev) == ("episodes", "mlp", None, None, False, False):
         return protocol["name"]
     return (f"{protocol['name']}.{split}.{recipe}" + ("" if history is None else f".h{history}")
-            + ("" if expert is None else f".{expert}") + (".prev" if prev else ""))
+            + ("" if expert is None else f".{expert}") + (".raw" if raw else "") + (".prev" if prev else ""))
 
 
 def other_setting(protocol: dict) -> bool:
-    """Whether a variant changes more than the split and the recipe: another history or another expert, the previous
-    action in view (`protocol.prev_action`), or a retired preset (such groups stay out of the recipe table and the
-    paper-budget table, and are settings of their own in the map)."""
-    return (other_history(protocol) is not None or protocol.get("expert") is not None
+    """Whether a variant changes more than the split and the recipe: another history or another expert, raw labels,
+    the previous action in view (`protocol.prev_action`), or a retired preset (such groups stay out of the recipe
+    table and the paper-budget table, and are settings of their own in the map)."""
+    return (other_history(protocol) is not None or protocol.get("expert") is not None or raw_labels(protocol)
             or bool(protocol.get("prev_action")) or "preset" in protocol)
 
 
@@ -228,7 +285,7 @@ def protocol_words(p: dict) -> str:
         history = other_history(p)
         return (f"{p['variant_of']}, split by {p.get('split')}, recipe {p.get('recipe')}"
                 + ("" if history is None else f", history {history}")
-                + ("" if p.get("expert") is None else f", expert {p['expert']}")
+                + ("" if (words := expert_words(p)) is None else f", expert {words}")
                 + (", previous action in view" if p.get("prev_action") else ""))
     if not in_fca_family(name) or name == FCA:
         return name
@@ -236,6 +293,21 @@ def protocol_words(p: dict) -> str:
         ([f"{p['train_transitions']:,} training transitions"]
          if p.get("train_transitions") not in (None, FCA_TRAIN) else [])
     return ", ".join([FCA, *differs]) if differs else name
+
+
+def expert_words(p: dict) -> str | None:
+    """How titles name a group's expert and labels where either is not the default: `"ppo"` (a shipped variant),
+    `"fca (imported, SHA-256 56145a42…)"`, with `", labels raw"` where the labels are the expert's own output; None
+    for the task's own expert with clipped labels. `p` is a group's protocol (`Group.protocol`, which carries an
+    imported expert's `expert_sha256`)."""
+    name = p.get("expert")
+    if name is None and p.get("expert_sha256"):
+        name = "imported"
+    if name is not None and p.get("expert_sha256"):
+        name += f" (imported, SHA-256 {p['expert_sha256'][:8]}…)"
+    if raw_labels(p):
+        name = ("the task's own" if name is None else name) + ", labels raw"
+    return name
 
 
 def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
@@ -256,12 +328,15 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
         where = getattr(r, "path", "") or f"a {r.env} ({r.obs}) results file"
         protocol = protocol_of(r, where)
         name = variant_name(r, protocol)
+        found = demonstrator(r) or {}
         if name != protocol["name"]:
             protocol = {**protocol, "name": name, "variant_of": protocol["name"], "recipe": r.recipe_name,
-                        **({"preset": former} if (former := former_preset(r)) else {})}
+                        **({"preset": former} if (former := former_preset(r)) else {}),
+                        **({"expert_sha256": found["sha256"]} if found.get("kind") == "imported"
+                           and found.get("sha256") else {})}
         key = Key(r.env, r.obs, name, None if former_preset(r) else budget_of(r))
         m = merged.setdefault(key, {"env": r.env, "obs": r.obs, "protocol": protocol, "budget": key.budget,
-                                    "expert": r.expert,
+                                    "expert": r.expert, "demonstrator": demonstrator(r),
                                     "summary": [], "runs": [], "sources": [], "methods": {}, "metric": main_metric(r),
                                     "split": set(),
                                     "task_metrics": tuple(r.config.get("task_metrics", tasks.get(r.env).metrics))})

@@ -148,6 +148,33 @@ SETTING_WORDS = {"step": lambda hp: f"THR {percent(hp['thr'])} W {hp['w']:g}",
                  "softmax": lambda hp: f"τ {hp['tau']:g}"}
 
 
+def expert_text(found: dict | None, protocol: dict) -> str:
+    """Who demonstrated and what the labels are, for a provenance line: `"expert `hopper-fca`, imported from a
+    cs294-pickle file (SHA-256 `…`), from ORIGIN; labels raw (…)"`, a shipped one by its folder and card's SHA-256.
+
+    Args:
+      found: the file's demonstrator record (`analysis.demonstrator`), or None where it records none.
+      protocol: the file's protocol (its `expert` variant and `labels`).
+    """
+    found = found or {}
+    kind = found.get("kind")
+    if kind == "imported":
+        text = (f"expert `{found.get('name')}`, imported from a {found.get('format') or 'results'} file "
+                f"(SHA-256 `{found.get('sha256')}`)" + (f", from {found['origin']}" if found.get("origin") else ""))
+    elif kind == "checkpoint":
+        text = (f"expert `{found.get('path')}`, shipped"
+                + (f", {found['algorithm']}" if found.get("algorithm") else "")
+                + (f", card SHA-256 `{found['card_sha256'][:12]}…`" if found.get("card_sha256") else ""))
+    elif kind == "rule-based":
+        text = "expert: the environment's own rule"
+    else:
+        text = f"expert `{protocol['expert']}`" if protocol.get("expert") else "the task's own expert"
+    labels = protocol.get("labels") or "clipped"
+    return text + ("; labels raw (the expert's output as it gave it; the executed action clipped to the action range)"
+                   if labels == "raw" else f"; labels {labels} to the action range" if labels == "clipped"
+                   else f"; labels {labels}")
+
+
 def figures_note(ctx: Context) -> list[Section]:
     """Where the figures went when the report draws none (printed without `--figures`); nothing otherwise."""
     if ctx.figure_dir is not None:

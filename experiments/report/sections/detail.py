@@ -14,11 +14,11 @@ from ape_jax import tasks
 from ape_jax.pipeline import presets
 from ape_jax.pipeline import results as results_lib
 from experiments.report import figures
-from experiments.report.analysis import (BRAX, Group, best_of, choices, copycat_groups, display_metric, expert_ape,
-                                         config_key, file_stem, former_preset, gap, is_rate, label, loss_rows, ordered,
-                                         protocol_words,
-                                         recipe_diagnostics, recipe_groups)
-from experiments.report.sections.common import SETTING_WORDS, Context, Section
+from experiments.report.analysis import (BRAX, Group, best_of, choices, copycat_groups, demonstrator, display_metric,
+                                         expert_ape, config_key, file_stem, former_preset, gap, is_rate, label,
+                                         loss_rows, ordered, protocol_words, raw_labels, recipe_diagnostics,
+                                         recipe_groups)
+from experiments.report.sections.common import SETTING_WORDS, Context, Section, expert_text
 from experiments.report.sections.diagnostics import group_diagnostics, training_table
 
 
@@ -168,6 +168,9 @@ def _protocol_provenance(r: results_lib.Results) -> str:
         parts.append(f"{p['episode_length']:,}-step episodes")
     if p.get("train_transitions"):
         parts.append(f"{p['train_transitions']:,} training transitions")
+    found = demonstrator(r) or {}
+    if p.get("expert") is not None or found.get("kind") == "imported" or raw_labels(p):
+        parts.append(expert_text(found, p))   # another expert than the task's own, or raw labels: which
     return f"protocol {p.get('name') or BRAX}" + "".join(f", {x}" for x in parts)
 
 
