@@ -114,7 +114,8 @@ def test_evaluate_and_assemble_give_one_record_per_run_in_plan_order(small):
     assert res.config["iterations"] == 40 != res.config["preset_iterations"] == spec.settings.preset_iterations
     # every policy carries the copycat diagnostics, with what they mean beside them
     diag = res.config["diagnostics"]
-    assert diag["thresholds"] == {"embedding_ratio": 0.5, "predictability_ratio": 0.5} and diag["velocity"] is None
+    assert diag["thresholds"] == {"embedding_ratio": 0.5, "predictability_ratio": 0.5, "control_ratio": 0.25}
+    assert diag["velocity"] is None
     assert diag["probe_steps"] == 200
     assert 0 < diag["probe_rows"]["val"] <= diag["probe_rows"]["train"] <= len(prepared.train)
     reference = {r["diagnostics"]["prev_from_action"] for r in res.runs}
