@@ -161,15 +161,38 @@ def _fca(frame_skip: int = 1, train: int = 20_000) -> Protocol:
                     reference=None if train == 20_000 else f"fca{skip}")
 
 
+def _palr(history: int) -> Protocol:
+    """PALR's setting (Seo et al., NeurIPS 2023; `KAIST-AILab/palr` `train.py` and `core/preprocess.py`) at history
+    `history`: D4RL's `*-expert-v2` data, gym's frame skip and 1,000-step episodes (Brax's own here), the first
+    30,000 transitions training and 2,000 from other episodes validating, positions only (`--obs pos`).
+
+    Differences, chosen: the shipped expert demonstrates, not D4RL's (whose files cannot be fetched here), on
+    whole episodes (30 of 1,000 steps, where theirs are D4RL's first 30,000 rows); HalfCheetah keeps its 8 joint
+    positions (`obs="pos"`, `qpos[1:]`), where PALR's mask (`[0:4] + [8:13]`) keeps 4 positions and 5
+    velocities (the root's x, z and pitch velocities and two joints'): with those velocities in view the past adds
+    little and the copycat question is a different one, so every task here is positions only, as FCA's setting
+    is. Their batch (1,024), learning rate (3e-4, constant) and 500,000 iterations are the `palr` recipe's and
+    `--set budget.iterations=500000`.
+    """
+    return Protocol(f"palr-h{history}", collect_transitions=40_000, train_transitions=30_000, val_transitions=2_000,
+                    history=history, split="episodes", reference="brax",
+                    doc=f"PALR's setting (Seo et al. 2023) at history {history}: Brax's frame skip and 1,000-step "
+                        f"episodes, 30,000 training and 2,000 validation transitions of whole episodes, positions "
+                        f"only (HalfCheetah's 8, not PALR's mask with 5 velocities); the palr recipe")
+
+
 # The copycat map (BENCHMARKS.md) compares fca at frame skips 1, 2 and 4 (where does the history stop helping?),
 # and at frame skip 1 with a quarter and four times the training transitions (80,000 at frame skip 1 cover the
 # simulated time 20,000 cover at frame skip 4: is it the frame rate, or how much of the task the data shows?).
+# PALR's paper runs every method at histories 2 and 4 (`palr-h2`, `palr-h4`).
 FCA_FRAME_SKIPS = (1, 2, 4)
 FCA_TRAIN_SIZES = (5_000, 80_000)
+PALR_HISTORIES = (2, 4)
 PROTOCOLS: Mapping[str, Protocol] = MappingProxyType({p.name: p for p in (
     *(_fca(k) for k in FCA_FRAME_SKIPS),
     *(_fca(1, n) for n in FCA_TRAIN_SIZES),
     Protocol("brax", doc="the environment's own settings: Brax's frame skip and 1,000-step episodes for MuJoCo"),
+    *(_palr(h) for h in PALR_HISTORIES),
 )})
 
 

@@ -18,7 +18,13 @@ hopper `pos` demonstrations shapes: input 2 × 5, action 3, batch 128):
    network (PyTorch, one step at a time) in a Python loop;
 4. model-updates/s of the same grid under each recipe (`ape_jax.pipeline.presets.RECIPES`: `mlp`, batch
    128; `fca`, the FCA code's BatchNorm network at batch 64), one after another in this run;
-5. end-to-end wall time of the sweeps whose `results.json` are given.
+5. end-to-end wall time of the sweeps whose `results.json` are given;
+6. the methods after the paper (`rap`, `palr`, `mine`, `ape_jax.baselines`) against BC-OH: model-updates/s of
+   13 configurations of each as one `jit(vmap(scan))` under the recipes `fca`, `mlp` and `palr` (batch 1,024,
+   fewer iterations per timed call), the timed calls interleaved (BC-OH, RAP, PALR, MINE, BC-OH, ...) so a
+   machine under shifting load slows all alike; and PALR's HSCIC estimator (value and gradient, a 100-unit
+   embedding) against one BC-OH step at batches of 64 to 1,024 (`--methods-only`: this part alone, written to
+   its own section).
 
 Medians of `--repeats` timed runs after a separate compiling call.
 """
@@ -44,7 +50,10 @@ from experiments._cli import Parser
 from experiments._timing import machine, run_benchmark, time_jitted
 
 SECTION = "bench_train"
+METHODS_SECTION = "bench_train_methods"
 OBS, ACT, H, BATCH = 5, 3, 2, 128
+NEW_METHODS = ("rap", "palr", "mine")
+HSCIC_BATCHES = (64, 128, 256, 512, 1024)
 
 
 def _data(n=20_000, seed=0) -> Data:
@@ -113,6 +122,117 @@ def jax_throughput(iters: int, repeats: int) -> dict:
         seq.append(time.perf_counter() - t0)
     return {"models": g, "grid_updates_s": g * iters / steady_g, "grid_compile_s": compile_g,
             "seq_updates_s": g * iters / statistics.median(seq), "macs": macs_per_sample(cfg)}
+
+
+def _method_program(name: str, cfg: LearnerConfig, iters: int, data: Data, configs: int, **learner_kw):
+    """A method's grid of `configs` copies of its default setting (different keys) as the sweep trains it: the
+    jitted runner of `iters` iterations and its arguments. `learner_kw` goes to the method's learner factory
+    (`mine`'s `inner_steps`)."""
+    from ape_jax import tasks
+    from ape_jax.baselines.mine import make_mine
+
+    method = methods.get(name)
+    ctx = methods.GridContext(task=tasks.get("hopper"), step_grid=STEP_GRID, softmax_grid=SOFTMAX_GRID,
+                              n_train=data.size)
+    if method.learner is None:
+        learner = make_train(cfg)
+    elif learner_kw:
+        learner = make_mine(cfg, **learner_kw)
+    else:
+        learner = method.learner(methods.LearnerContext(cfg=cfg, env=None, expert=None, obs_mean=None,
+                                                        obs_std=None, n_train=data.size))
+    hps = stack_hparams([method.hparams(method.settings(ctx)[0], 2e-4, 0)] * configs)
+    keys = jax.random.split(jax.random.PRNGKey(0), configs)
+    states = jax.jit(jax.vmap(learner.init, (0, 0, None)))(keys, hps, data)
+    run = grid_runner(lambda s, hp, d: learner.policy_params(learner.run(s, hp, d, iters)[0]), width=None)
+    return run, (states, hps, data)
+
+
+def methods_throughput(iters: int, repeats: int, configs: int = 13) -> dict[str, dict]:
+    """Per recipe (`fca`, `mlp`, `palr`): model-updates/s of `configs` configurations of BC-OH, RAP, PALR, MINE
+    (and MINE at the authors' 5 estimator steps) in one `jit(vmap(scan))` each, timed calls interleaved; the
+    `palr` recipe's batch of 1,024 runs `iters · 128 / 1024` iterations per call."""
+    out = {}
+    rows = [("bc-oh", {}), *((m, {}) for m in NEW_METHODS), ("mine", {"inner_steps": 5})]
+    for recipe in ("fca", "mlp", "palr"):
+        cfg = recipe_config(recipe, iters)
+        n = max(10, iters * BATCH // cfg.batch_size)
+        cfg = recipe_config(recipe, n)
+        data = _data()
+        programs = [_method_program(name, cfg, n, data, configs, **kw) for name, kw in rows]
+        for run, args in programs:
+            jax.block_until_ready(run(*args))  # compile
+        times = [[] for _ in programs]
+        for _ in range(repeats):
+            for i, (run, args) in enumerate(programs):
+                t0 = time.perf_counter()
+                jax.block_until_ready(run(*args))
+                times[i].append(time.perf_counter() - t0)
+        rates = [configs * n / statistics.median(t) for t in times]
+        names = [name + ("" if not kw else " (5 estimator steps)") for name, kw in rows]
+        out[recipe] = {"batch": cfg.batch_size, "iterations": n, "updates_s": dict(zip(names, rates))}
+    return out
+
+
+def hscic_cost(repeats: int) -> dict[int, dict]:
+    """Per batch `n`: seconds of PALR's HSCIC estimator's value and gradient on `n` rows (a 100-unit embedding,
+    3-d actions) and of one BC-OH update at batch `n` (the `mlp` recipe's network), medians, interleaved."""
+    from ape_jax.baselines.palr import hscic
+
+    out = {}
+    for n in HSCIC_BATCHES:
+        keys = jax.random.split(jax.random.PRNGKey(n), 3)
+        x = jax.random.normal(keys[0], (n, 100))
+        y, z = (jnp.tanh(jax.random.normal(k, (n, ACT))) for k in keys[1:])
+        estimator = jax.jit(jax.value_and_grad(lambda x, y, z: hscic(x, y, z, 1.0)))
+        steps = 20
+        cfg = LearnerConfig(obs_shape=(OBS,), action_dim=ACT, history=H, iterations=steps, batch_size=n,
+                            lr_boundaries=())
+        learner, data = make_train(cfg), _data()
+        state = learner.init(jax.random.PRNGKey(0), Hparams.make(), data)
+        bc = jax.jit(lambda s: learner.run(s, Hparams.make(), data, steps)[0].params)
+        jax.block_until_ready(estimator(x, y, z))
+        jax.block_until_ready(bc(state))
+        est, step = [], []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            jax.block_until_ready(estimator(x, y, z))
+            est.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            jax.block_until_ready(bc(state))
+            step.append((time.perf_counter() - t0) / steps)
+        out[n] = {"hscic_s": statistics.median(est), "bc_step_s": statistics.median(step)}
+    return out
+
+
+def methods_table(args) -> str:
+    """The methods-after-the-paper part (6. in the module docstring) as Markdown."""
+    rates = methods_throughput(args.iters, args.repeats)
+    cost = hscic_cost(args.repeats)
+    cmd = f"python -m experiments.bench_train --methods-only --iters {args.iters} --repeats {args.repeats}"
+    names = list(next(iter(rates.values()))["updates_s"])
+    lines = [
+        "## The methods after the paper: training speed", "", f"Command: `{cmd}`  ", f"Machine: {machine()}  ",
+        f"Medians of {args.repeats} timed calls after a compiling call, the methods' calls interleaved; 13 "
+        "configurations of each method's default setting in one `jit(vmap(scan))`; the state policy on the "
+        f"benchmark's shapes (input {H}×{OBS}, {ACT} actions). The budget: each method at most 1.5× BC-OH's time "
+        "per update (BC-OH ÷ method >= 0.67).", "",
+        "| recipe | batch | iterations per call | " + " | ".join(names) + " |",
+        "|---|---:|---:|" + "---:|" * len(names),
+        *[f"| `{recipe}` | {r['batch']} | {r['iterations']} | "
+          + " | ".join(f"{v:,.0f}" + ("" if name == "bc-oh" else f" ({v / r['updates_s']['bc-oh']:.2f}×)")
+                       for name, v in r["updates_s"].items()) + " |"
+          for recipe, r in rates.items()],
+        "", "Model-updates/s; in brackets the method's rate ÷ BC-OH's, measured in the same run.", "",
+        "| batch | HSCIC value and gradient, ms | one BC-OH update, ms | ratio |", "|---:|---:|---:|---:|",
+        *[f"| {n} | {c['hscic_s'] * 1e3:,.2f} | {c['bc_step_s'] * 1e3:,.2f} | {c['hscic_s'] / c['bc_step_s']:.2f} |"
+          for n, c in cost.items()],
+        "", "PALR's estimator reads at most `recipe.palr_rows` (256) rows of a minibatch: every recipe's batch up to "
+        "256 is estimated whole, PALR's own 1,024 on its first 256.",
+    ]
+    for line in lines[4:]:
+        print(line, file=sys.stderr)
+    return "\n".join(lines) + "\n"
 
 
 def torch_throughput(iters: int, repeats: int, configs: int) -> float | None:
@@ -208,6 +328,8 @@ def _native_eval(env, steps: int, repeats: int) -> float | None:
 
 
 def table(args) -> str:
+    if args.methods_only:
+        return methods_table(args)
     t = jax_throughput(args.iters, args.repeats)
     torch_rate = torch_throughput(args.torch_iters, args.repeats, t["models"])
     peak = matmul_peak(args.repeats)
@@ -276,8 +398,11 @@ def main(argv=None) -> int:
     p.add_argument("--episodes", type=int, default=8, help="episodes per policy")
     p.add_argument("--repeats", type=int, default=3, help="timed runs; the median is reported")
     p.add_argument("--results", nargs="*", default=[], help="results.json files whose end-to-end timing to report")
+    p.add_argument("--methods-only", action="store_true",
+                   help="time only RAP, PALR and MINE against BC-OH, and PALR's estimator (its own section)")
+    methods_only = "--methods-only" in (sys.argv[1:] if argv is None else argv)
     return run_benchmark(p, argv, ("--iters", "--torch-iters", "--policies", "--episodes", "--repeats"), table,
-                         SECTION, check=_check_results)
+                         METHODS_SECTION if methods_only else SECTION, check=_check_results)
 
 
 def _check_results(args) -> str | None:

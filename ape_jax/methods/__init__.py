@@ -73,6 +73,8 @@ class GridContext:
       fca_alphas: FCA's adversarial weights α to run (the recipe's); empty: the task's one.
       fca_adversary_lr: the learning rate of FCA's adversary (the recipe's); None: the task's.
       ib_weights: the information bottleneck's KL weights of FCA-IB (the recipe's).
+      recipe: the sweep's whole `ape_jax.pipeline.presets.Recipe` (RAP's, PALR's and MINE's grids read their
+        fields); None: a context made by hand, and the methods' defaults.
     """
 
     task: Any
@@ -82,6 +84,7 @@ class GridContext:
     fca_alphas: tuple[float, ...] = ()
     ib_weights: tuple[float, ...] = ()
     fca_adversary_lr: float | None = None
+    recipe: Any = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -94,6 +97,8 @@ class LearnerContext:
       expert: the expert as `full observation -> action` (online methods query it).
       obs_mean, obs_std: the observation standardisation (None for images).
       n_train: transitions in the training split.
+      recipe: the sweep's `ape_jax.pipeline.presets.Recipe` (a learner's static settings that are not the
+        `LearnerConfig`'s, e.g. PALR's `palr_rows`); None: the learner's defaults.
     """
 
     cfg: Any
@@ -102,6 +107,7 @@ class LearnerContext:
     obs_mean: Any
     obs_std: Any
     n_train: int
+    recipe: Any = None
 
 
 Scores = Callable[[jax.Array, jax.Array, jax.Array], jax.Array]
@@ -133,6 +139,9 @@ class Method:
       online: whether it queries the expert during training (DAgger).
       role: `"reference"` (BC-SO, BC-OH), `"ours"`, `"baseline"` or `"plugin"`.
       module: the module that registered it.
+      refuses: `refuses(settings, obs) -> why | None`: why the method cannot run under a sweep's
+        `ape_jax.pipeline.presets.Settings` and observation mode (RAP: without a history, or on images), checked
+        when the sweep's spec is made, before anything is collected or compiled; None: it runs anywhere.
     """
 
     name: str
@@ -147,6 +156,7 @@ class Method:
     online: bool = False
     role: str = "baseline"
     module: str = ""
+    refuses: Callable[[Any, str], str | None] | None = None
 
     def settings(self, ctx: GridContext) -> list[dict]:
         """The default grid as plain dicts of floats (what `results.json` records as `hparams`)."""

@@ -30,11 +30,15 @@ from collections.abc import Iterable, Mapping
 from ape_jax import tasks
 from ape_jax.ape import NORMALIZATIONS
 from ape_jax.learner import LOSSES, NETWORKS, LearnerConfig, lr_boundaries
-from ape_jax.models import IMAGE_ENCODERS, INITS, NORMS
+from ape_jax.models import IMAGE_ENCODERS, INITS, NORMS, StatePolicy
 from ape_jax.tasks import Protocol
 
 STEP_GRID = tuple((thr, w) for thr in (0.1, 0.2) for w in (3.0, 5.0, 10.0))
 SOFTMAX_GRID = (0.1, 0.2, 0.5, 1.0, 5.0, 10.0)
+# The grids of the methods after the paper (`ape_jax.baselines.rap`, `palr`, `mine`): recipe fields that change no
+# other method's training (a smoke run keeps one setting of each)
+METHOD_GRIDS = ("rap_weights", "rap_widths", "palr_weights", "palr_bandwidths", "mine_weights")
+RAP_UNITS = StatePolicy.hidden[0]  # RAP's branches split the state policy's encoder units
 
 
 class SettingsError(ValueError):
@@ -111,6 +115,13 @@ class Recipe:
       fca_alphas: FCA's adversarial weights to run; empty: the task's (`Task.fca_alpha`).
       fca_adversary_lr: the learning rate of FCA's adversary; None: the task's (`Task.fca_adversary_lr`).
       ib_weights: FCA-IB's KL weights to run; empty: its default.
+      rap_weights, rap_widths: RAP's residual-loss shares λ in [0, 1] and memory widths (encoder units, of
+        `StatePolicy`'s 300) to run, every pair; empty: its defaults (`ape_jax.baselines.rap`: 1 and 150).
+      palr_weights, palr_bandwidths: PALR's HSCIC weights (>= 0) and kernel bandwidths σ² (> 0) to run, every
+        pair; empty: its defaults (`ape_jax.baselines.palr`: 10 and 1).
+      palr_rows: the rows of each minibatch PALR's estimator reads (its cost grows as their cube); 0: the whole
+        batch (for GPUs).
+      mine_weights: MINE's penalty weights (>= 0) to run; empty: its default (`ape_jax.baselines.mine`: 0.1).
     """
 
     name: str = "mlp"
@@ -132,6 +143,12 @@ class Recipe:
     fca_alphas: tuple[float, ...] = ()
     fca_adversary_lr: float | None = None
     ib_weights: tuple[float, ...] = ()
+    rap_weights: tuple[float, ...] = ()
+    rap_widths: tuple[int, ...] = ()
+    palr_weights: tuple[float, ...] = ()
+    palr_bandwidths: tuple[float, ...] = ()
+    palr_rows: int = 256
+    mine_weights: tuple[float, ...] = ()
 
     def __post_init__(self):
         _one_of("recipe.network", self.network, NETWORKS)
@@ -161,19 +178,33 @@ class Recipe:
         for name in ("softmax_grid",):
             _check(all(0.0 < v < math.inf for v in getattr(self, name)),
                    f"recipe.{name}: every value must be a finite number > 0, got {getattr(self, name)!r}")
-        for name in ("fca_alphas", "ib_weights"):
+        for name in ("fca_alphas", "ib_weights", "palr_weights", "mine_weights"):
             _check(all(0.0 <= v < math.inf for v in getattr(self, name)),
                    f"recipe.{name}: every value must be a finite number >= 0, got {getattr(self, name)!r}")
-        for name in ("step_grid", "softmax_grid", "fca_alphas", "ib_weights"):
+        _check(all(0.0 <= v <= 1.0 for v in self.rap_weights),
+               f"recipe.rap_weights: every value must be in [0, 1] (the residual loss's share of the memory's "
+               f"gradient), got {self.rap_weights!r}")
+        _check(all(1 <= v < RAP_UNITS for v in self.rap_widths),
+               f"recipe.rap_widths: every value must be an integer in [1, {RAP_UNITS - 1}] (memory units of the "
+               f"encoder's {RAP_UNITS}), got {self.rap_widths!r}")
+        _check(all(0.0 < v < math.inf for v in self.palr_bandwidths),
+               f"recipe.palr_bandwidths: every value must be a finite number > 0, got {self.palr_bandwidths!r}")
+        _check(isinstance(self.palr_rows, int) and not isinstance(self.palr_rows, bool) and self.palr_rows >= 0,
+               f"recipe.palr_rows must be an integer >= 0 (0: the whole batch), got {self.palr_rows!r}")
+        for name in ("step_grid", "softmax_grid", "fca_alphas", "ib_weights", *METHOD_GRIDS):
             _check(len(set(getattr(self, name))) == len(getattr(self, name)), f"recipe.{name} lists a setting twice")
 
 
 # The project's first recipe, and the FCA code's (AlvinWen428/fighting-copycat-agents: `gan_mlp.py`,
 # `factory.py`, `utils/misc.py`): its network, xavier-uniform init, Adam(2e-4, β1 0.5, β2 0.999) and batch 64;
 # both drop the learning rate ×0.1 at a third and two thirds of the run (the FCA code: 100k and 200k of 300k).
+# `palr`: PALR's code's optimisation (KAIST-AILab/palr `train.py`: Adam(3e-4) with PyTorch's moments, batch 1,024,
+# a constant learning rate over 500,000 iterations: `--set budget.iterations=500000`), on the project's network and
+# loss (theirs: 128-64-128 units and a tanh-Gaussian likelihood); the default recipe of the `palr-h*` protocols.
 RECIPES: Mapping[str, Recipe] = {
     "mlp": Recipe("mlp"),
     "fca": Recipe("fca", network="bn-mlp", init="xavier", beta1=0.5, batch_size=64),
+    "palr": Recipe("palr", lr=3e-4, batch_size=1024, lr_decay_at=()),
 }
 BUDGETS: Mapping[str, Budget] = {
     "quick": Budget(iterations=3_000, seeds=1, eval_episodes=5, ape_steps=1_000, chunk=500, probe_steps=500),
@@ -239,7 +270,10 @@ class Settings:
 
 
 def default_recipe(protocol: Protocol, obs: str) -> str:
-    """The recipe a sweep uses unless told: the FCA code's under the fca protocols for states, else `mlp`."""
+    """The recipe a sweep uses unless told: the FCA code's under the fca protocols for states, PALR's code's under
+    the palr protocols, else `mlp`."""
+    if protocol.name.startswith("palr"):
+        return "palr"
     return "fca" if protocol.name.startswith("fca") and obs != "image" else "mlp"
 
 
@@ -263,7 +297,7 @@ def smoke_overrides(values: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
         out.update(collect_transitions=240, train_transitions=144, val_transitions=48)
     if protocol["eval_steps"] is not None:
         out["eval_steps"] = min(protocol["eval_steps"], 20)
-    for name in ("step_grid", "softmax_grid", "fca_alphas", "ib_weights"):
+    for name in ("step_grid", "softmax_grid", "fca_alphas", "ib_weights", *METHOD_GRIDS):
         out[name] = tuple(recipe[name][:1])
     return out
 

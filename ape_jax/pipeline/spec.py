@@ -72,7 +72,10 @@ class SweepSpec:
 
     def __post_init__(self):
         for m in self.methods:
-            methods_lib.get(m)  # MethodError for an unknown name
+            method = methods_lib.get(m)  # MethodError for an unknown name
+            why = method.refuses(self.settings, self.obs) if method.refuses is not None else None
+            if why:
+                raise ValueError(why)
         _ = self.setup  # ValueError for a protocol the task cannot take
         length, history = self.setup.settings.get("episode_length"), self.protocol.history
         if isinstance(length, int) and history > length:

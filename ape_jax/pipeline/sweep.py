@@ -338,7 +338,8 @@ def plan(spec: SweepSpec, prepared: Prepared) -> list[Program]:
     recipe = spec.recipe
     ctx = methods_lib.GridContext(task=prepared.task, step_grid=recipe.step_grid, softmax_grid=recipe.softmax_grid,
                                   n_train=len(prepared.train), fca_alphas=recipe.fca_alphas,
-                                  ib_weights=recipe.ib_weights, fca_adversary_lr=recipe.fca_adversary_lr)
+                                  ib_weights=recipe.ib_weights, fca_adversary_lr=recipe.fca_adversary_lr,
+                                  recipe=recipe)
     runs = grid_runs(spec.methods, spec.budget.seeds, ctx, spec.budget.first_seed)
     if not runs:
         raise ValueError(f"nothing to train: the recipe's grids are empty for {', '.join(spec.methods)}")
@@ -353,7 +354,7 @@ def plan(spec: SweepSpec, prepared: Prepared) -> list[Program]:
         else:
             learner = method.learner(methods_lib.LearnerContext(
                 cfg=cfg, env=view.env, expert=view.expert, obs_mean=view.normalizer.mean,
-                obs_std=view.normalizer.std, n_train=len(view.train)))
+                obs_std=view.normalizer.std, n_train=len(view.train), recipe=recipe))
         programs.append(Program(name, cfg, mine, learner))
     return programs
 

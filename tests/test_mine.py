@@ -1,0 +1,114 @@
+"""MINE-BC: the Donsker–Varadhan estimator finds dependence and no more; at weight 0 the policy trains as BC-OH's;
+the penalty holds its co-trained estimator at chance; at a strong weight a fresh probe reads less of the previous
+action than from BC-OH (but far more than from PALR: MINE hides the leak from its estimator more than it removes
+it); its knobs refuse bad values."""
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+import pytest
+
+from ape_jax import diagnostics as dg
+from ape_jax import methods, tasks
+from ape_jax.baselines.mine import MineHparams, StatisticsNetwork, dv_bound, make_mine
+from ape_jax.learner import Hparams, LearnerConfig, make_train, stack_hparams
+from ape_jax.pipeline.presets import resolve
+from _compare import update_mismatch
+from _planted import planted
+
+CFG = LearnerConfig(obs_shape=(4,), action_dim=2, history=2, iterations=400, batch_size=64, lr_boundaries=(),
+                    beta1=0.5, network="bn-mlp")
+
+
+def _fit_bound(x, y, steps=400):
+    """T fitted alone by ascent on the bound (Adam 1e-3); the bound on the last 50 steps' batches."""
+    net = StatisticsNetwork()
+    params = net.init({"params": jax.random.PRNGKey(0), "noise": jax.random.PRNGKey(1)}, x[:1], y[:1])
+    opt = optax.adam(1e-3)
+
+    def step(carry, i):
+        p, s = carry
+        rows = jax.random.randint(jax.random.fold_in(jax.random.PRNGKey(2), i), (128,), 0, x.shape[0])
+        bound, g = jax.value_and_grad(lambda p: dv_bound(net, p, x[rows], y[rows], jax.random.PRNGKey(i)))(p)
+        updates, s = opt.update(jax.tree.map(jnp.negative, g), s)
+        return (optax.apply_updates(p, updates), s), bound
+
+    _, bounds = jax.lax.scan(step, (params, opt.init(params)), jnp.arange(steps))
+    return float(bounds[-50:].mean())
+
+
+def test_the_bound_finds_dependence_and_not_independence():
+    k1, k2 = jax.random.split(jax.random.PRNGKey(0))
+    x = jax.random.uniform(k1, (2048, 2), minval=-1, maxval=1)
+    dependent = jnp.concatenate([x, x**2], axis=1)
+    independent = jax.random.uniform(k2, (2048, 4), minval=-1, maxval=1)
+    bounds = jax.jit(jax.vmap(_fit_bound, (None, 0)))(x, jnp.stack([dependent, independent]))
+    assert bounds[0] > 0.5 and abs(float(bounds[1])) < 0.1, bounds
+
+
+def test_at_weight_0_the_policy_trains_as_bc_oh_s():
+    """BC-OH's initialisation (from the key's first half), batches, loss and updates: up to float32 rounding
+    (`test_palr`), far from weight 1's."""
+    cfg = dataclasses.replace(CFG, iterations=20)
+    data, key = planted(), jax.random.PRNGKey(4)
+    mine, metrics = jax.jit(make_mine(cfg).train)(key, MineHparams.make(0.0, lr=1e-3), data)
+    bc_key = jax.random.split(key)[0]
+    bc_oh, _ = jax.jit(make_train(cfg).train)(bc_key, Hparams.make(lr=1e-3), data)
+    init = make_train(cfg).init_policy(jax.random.split(bc_key)[0], data)
+    assert update_mismatch(mine, bc_oh, init) < 1e-4
+    moved, _ = jax.jit(make_mine(cfg).train)(key, MineHparams.make(1.0, lr=1e-3), data)
+    assert update_mismatch(moved, bc_oh, init) > 0.1
+    assert set(metrics) == {"loss", "unweighted_loss", "mi", "estimator_mi"}
+    np.testing.assert_array_equal(metrics["loss"], metrics["unweighted_loss"])
+
+
+def _trained(weights, seeds, iterations, inner_steps):
+    cfg = dataclasses.replace(CFG, iterations=iterations)
+    hp = stack_hparams([MineHparams.make(w, lr=1e-3, estimator_lr=1e-3) for w in weights for _ in seeds])
+    keys = jnp.stack([jax.random.PRNGKey(s) for _ in weights for s in seeds])
+    return cfg, jax.jit(jax.vmap(make_mine(cfg, inner_steps=inner_steps).train, (0, 0, None)))(keys, hp, planted())
+
+
+def test_the_penalty_holds_its_estimator_at_chance():
+    """The estimator co-trained with BC-OH finds the embedding's a_{t−1} (~1 nat); with the penalty on, the
+    policy keeps it near 0 nats, and still learns a_t."""
+    _, (_, metrics) = _trained((0.0, 1.0), (0,), 400, 2)
+    found = np.asarray(metrics["estimator_mi"][:, -50:].mean(axis=1))
+    assert found[0] > 0.5 and abs(found[1]) < 0.1, found
+    bc = np.asarray(metrics["unweighted_loss"][:, -50:].mean(axis=1))
+    assert bc[1] < 0.1 and bc[1] < 0.1 * float(metrics["unweighted_loss"][1, :10].mean()), bc
+
+
+@pytest.mark.slow
+def test_at_a_strong_weight_a_fresh_probe_reads_less_of_the_previous_action():
+    """Weight 10 and the authors' 5 estimator steps against weight 0, two seeds each: every MINE embedding holds
+    less of a_{t−1} than every BC-OH one (about half as much, at ~2.5× BC-OH's BC loss; PALR: ~30× less). At the
+    default weight (0.1) and 2 steps the probe reads as much as from BC-OH: MINE fools its noisy estimator (its
+    input noise of std 0.3 hides small directions of the embedding) more than it empties the embedding."""
+    seeds = (0, 1)
+    cfg, (params, _) = _trained((0.0, 10.0), seeds, 1000, 5)
+    train, val = planted(), planted(seed=1)
+    error = []
+    for i in range(2 * len(seeds)):
+        p = jax.tree.map(lambda leaf: leaf[i], params)
+        tr, va = dg.probe_inputs(cfg, p, train), dg.probe_inputs(cfg, p, val)
+        error.append(float(dg.embedding_probe(jax.random.PRNGKey(5), tr.embedding, va.embedding, tr.previous_action,
+                                              va.previous_action, tr.action, va.action, steps=800).prev_from_embedding))
+    bc_oh, mine = error[:len(seeds)], error[len(seeds):]
+    assert min(mine) > 1.3 * max(bc_oh), (bc_oh, mine)
+
+
+def test_the_knobs_refuse_bad_values():
+    for kw, message in (({"weight": -0.1}, "weight must be >= 0"), ({"weight": float("nan")}, "weight must be"),
+                        ({"estimator_lr": 0.0}, "estimator learning rate"), ({"lr": -1.0}, "learning rate")):
+        with pytest.raises(ValueError, match=message):
+            MineHparams.make(**kw)
+    with pytest.raises(ValueError, match="inner_steps must be >= 1"):
+        make_mine(CFG, inner_steps=0)
+    ctx = methods.GridContext(task=tasks.get("hopper"), step_grid=(), softmax_grid=(), n_train=100)
+    assert methods.get("mine").settings(ctx) == [{"weight": 0.1}]
+    recipe = resolve("hopper", "pos", sets=["recipe.mine_weights=0,1"]).recipe
+    assert methods.get("mine").settings(dataclasses.replace(ctx, recipe=recipe)) == [{"weight": 0.0}, {"weight": 1.0}]
