@@ -208,6 +208,8 @@ def test_a_sweep_from_the_minari_export_of_its_demonstrations_gives_the_same_num
     results = json.loads((out / "results.json").read_text())
     assert results["config"]["data"]["settings"]["dataset"] == str(path.absolute())
     assert results["config"].pop("data")["train_transitions"] == reference["config"]["data"]["train_transitions"]
+    # the dataset names the expert that collected it, which a collected sweep records in its data settings
+    assert results["expert"].pop("demonstrator") == reference["config"]["data"]["settings"]["expert"]
     assert numbers(results) == numbers({**reference, "config": {k: v for k, v in reference["config"].items()
                                                                  if k != "data"}})
 
