@@ -143,7 +143,8 @@ def test_a_damaged_checkpoint_is_refused_in_one_line_and_left_in_place(tmp_path,
 # drifts (HalfCheetah, returns near 0); a trained expert keeps collecting
 # healthy and forward reward. Bounds are a third of the card's 1000-step return,
 # scaled to 200 steps, and well above random.
-@pytest.mark.parametrize("name", [*envs.MUJOCO_TASKS, "hopper-ppo", "hopper-rough", "walker2d-rough", "halfcheetah-rough"])   # and variants beside them
+@pytest.mark.parametrize("name", [*envs.MUJOCO_TASKS, "hopper-ppo",   # and the variants shipped beside them
+                                  *(f"{task}-rough" for task in envs.MUJOCO_TASKS)])
 def test_shipped_experts_load_and_beat_a_random_policy(name):
     card = experts.card(name)
     policy = experts.load(name)
