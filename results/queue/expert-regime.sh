@@ -30,9 +30,6 @@ sweep hopper-pos-fca-rows-default-fca-fcaexpert-raw --env hopper $TABLE5 --seeds
   --set protocol.expert=fca --set protocol.labels=raw --set recipe.fca_alphas=0.1,2
 sweep hopper-pos-fca-rows-default-fca-fcaexpert-clipped --env hopper $TABLE5 --seeds 8 \
   --set protocol.expert=fca --set recipe.fca_alphas=0.1,2
-# The previous action in view (Hopper, the shipped SAC expert): one more row of the copycat map; 5 seeds
-sweep hopper-pos-fca-rows-default-fca-prevaction --env hopper --protocol fca --recipe fca --preset default --seeds 5 \
-  --methods bc-so,bc-oh,bc-full,ours-step --set recipe.step_grid=0.1:5 --set protocol.prev_action=true
 # The rough shipped experts (raw labels), 5 seeds; FCA at the supplement's alpha (Hopper 0.1, the others 0.5) and
 # FCA's code's (Hopper 2.0, the others 1.0)
 for env in hopper walker2d halfcheetah; do
@@ -41,3 +38,6 @@ for env in hopper walker2d halfcheetah; do
   sweep $env-pos-fca-rows-default-fca-rough-raw --env $env $TABLE5 --seeds 5 \
     --set protocol.expert=rough --set protocol.labels=raw --set recipe.fca_alphas=$alphas
 done
+# The previous action in view (Hopper, the shipped SAC expert): one more row of the copycat map; 5 seeds
+sweep hopper-pos-fca-rows-default-fca-prevaction --env hopper --protocol fca --recipe fca --preset default --seeds 5 \
+  --methods bc-so,bc-oh,bc-full,ours-step --set recipe.step_grid=0.1:5 --set protocol.prev_action=true
