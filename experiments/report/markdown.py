@@ -14,7 +14,7 @@ from matplotlib.figure import Figure
 
 from ape_jax.pipeline import results as results_lib
 from experiments.report.analysis import ReportError, check_references, merge
-from experiments.report.sections import (copycat, curves, detail, differences, recipe, regime, state,
+from experiments.report.sections import (copycat, curves, detail, differences, ranking, recipe, regime, state,
                                         task_metrics)
 from experiments.report.sections.common import Context, Section, figures_note
 
@@ -24,6 +24,7 @@ SECTIONS: tuple[Callable[[Context], list[Section]], ...] = (
     recipe.recipe_section,                # the paper's recipe: mlp against fca
     recipe.paper_budget_section,          # the paper's budget over training, beside Table 5
     regime.regime_section,                # Table 5 with FCA's expert (an expert of FCA's kind, labels raw or clipped)
+    ranking.ranking_section,              # the later methods (RAP, PALR, MINE) ranked with the paper's
     copycat.extended_map_section,         # where copycat appears: the map, extended
     state.image_sections,                 # MuJoCo-Image
     task_metrics.task_metric_sections,    # a task's own metrics (the supplement's Table 4 protocol)

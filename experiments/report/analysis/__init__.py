@@ -14,6 +14,8 @@ what these functions return. One module per concern, each re-exported here:
 - `diagnostics`: copycat diagnostics per configuration, at the end and over training;
 - `copycat`: the copycat map (`copycat_map`) and the extended map (`extended_map`);
 - `recipe`: the recipe comparison (mlp against fca) and the paper's budget beside Table 5;
+- `ranking`: the later methods (RAP, PALR, MINE) ranked with the paper's per family of cells (the copycat regime,
+  the default tasks): IQM, probability of improvement over BC-OH, per-cell differences and copycat counts;
 - `regime`: Table 5 with FCA's expert (an imported expert or raw labels under the paper's protocol and recipe):
   every configuration against BC-OH and beside Table 5, with its copycat diagnostics (`regime_table`);
 - `rates`: the numbers of a rate-judged task's reading (`rate_reading`);
@@ -43,6 +45,8 @@ from experiments.report.analysis.rates import LEARNED, Estimate, RateReading, pe
 from experiments.report.analysis.recipe import (BUDGET_METHODS, RECIPE_METHODS, AlphaRow, BudgetPoint, BudgetRow,
                                                 RecipeRow, alpha_rows, budget_differences, budget_rows,
                                                 paper_budget_groups, recipe_groups, recipe_rows)
+from experiments.report.analysis.ranking import (LATER, RANKED, CellResult, Family, Ranked, is_copycat_cell,
+                                                 ranking, ranking_cells)
 from experiments.report.analysis.regime import (REGIME_METHODS, RegimeRow, RegimeTable, is_regime, regime_groups,
                                                 regime_table)
 from experiments.report.analysis.selection import (CEILING, CEILING_LABEL, Choice, Gap, LongerRow, best_of, choices,
@@ -56,6 +60,7 @@ from experiments.report.analysis.weights import (APE_SCALES, WeightShares, ape_m
                                                  weight_shares)
 
 __all__ = [
+    "LATER", "RANKED", "CellResult", "Family", "Ranked", "is_copycat_cell", "ranking", "ranking_cells",
     "REGIME_METHODS", "RegimeRow", "RegimeTable", "is_regime", "regime_groups", "regime_table",
     "check_references", "demonstrator", "expert_part", "expert_words", "raw_labels",
     "CEILING", "CEILING_LABEL", "Share", "bootstrap_share", "has_ceiling", "history_share",

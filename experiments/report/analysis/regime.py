@@ -24,7 +24,7 @@ from experiments.report.analysis.selection import CEILING, CEILING_LABEL, is_fin
 from experiments.report.paper import PAPER_STEP, PAPER_TABLE5
 
 # The table's methods in order (each configuration that ran, in the order of its hyperparameters); others after.
-REGIME_METHODS = ("bc-so", "bc-oh", "ours-step", "ours-softmax", "fca", "fca-ib", CEILING)
+REGIME_METHODS = ("bc-so", "bc-oh", "ours-step", "ours-softmax", "fca", "fca-ib", "rap", "palr", "mine", CEILING)
 
 
 class RegimeRow(NamedTuple):

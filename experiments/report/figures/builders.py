@@ -4,7 +4,8 @@
 (training curves), `weights_figure` (how concentrated a batch's weights are, on the raw APE and on the APE ÷ its
 mean), `copycat_map_figure` (% of expert against frame skip: where the history stops helping), `budget_figure`
 (the paper's budget over training) and `extended_map_figure` (the extended map's axes). Each returns a
-`matplotlib.figure.Figure`, or None when there is nothing to draw.
+`matplotlib.figure.Figure`, or None when there is nothing to draw; `ranking_figure` (the later methods ranked: IQM
+with its interval per family of cells).
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ape_jax import tasks
-from experiments.report.analysis import (FCA, FCA_TRAIN, MAP_METHODS, BudgetRow, CopycatMap, Group, MapPoint, Merged,
+from experiments.report.analysis import (FCA, FCA_TRAIN, MAP_METHODS, BudgetRow, CopycatMap, Family, Group, MapPoint,
+                                         Merged,
                                          WeightShares, best_of, config_key, display_metric, extra_methods,
                                          hparams_suffix, in_fca_family, known_methods, label, method_rows, metric_value,
                                          ordered, paper_step_row, percent, seed_values, thousands)
@@ -270,3 +272,28 @@ def extended_map_figure(points: Sequence[MapPoint]) -> Figure | None:
 def min_run(points: Sequence[MapPoint]) -> int:
     """The shortest run length among `points` (the map's frame-skip and data axes compare runs of one length)."""
     return min((q.run for q in points), default=0)
+
+
+def ranking_figure(families: Sequence[Family], names: dict[str, str]) -> Figure | None:
+    """Per family of cells (`analysis.ranking`), each method's IQM of % of expert (dot) with its stratified bootstrap
+    95% interval (line), best first, BC-OH's IQM dashed; None without a family."""
+    if not families:
+        return None
+    n = max(len(f.ranked) for f in families)
+    fig = Figure(figsize=(4.4 * len(families) + 1.2, 0.36 * n + 1.4), dpi=DPI, layout="constrained")
+    for ax, f in zip(grid_axes(fig, len(families), None), families):
+        y = np.arange(len(f.ranked))
+        for i, r in enumerate(f.ranked):
+            ax.plot([r.iqm.low, r.iqm.high], [i, i], color="#3182bd", lw=2.5, solid_capstyle="butt")
+            ax.plot(r.iqm.value, i, "o", color="#08306b", ms=4)
+            if r.method == "bc-oh":
+                ax.axvline(r.iqm.value, color="0.4", ls="--", lw=1)
+        ax.set_yticks(y, labels=[names[r.method] for r in f.ranked])
+        ax.set_ylim(len(f.ranked) - 0.5, -0.5)
+        name = {"copycat": "the copycat regime", "default": "the default tasks"}.get(f.name, f.name)
+        ax.set_title(f"{name}: {len(f.cells)} cell" + ("s" if len(f.cells) > 1 else ""), fontsize=10)
+        ax.set_xlabel("IQM, % of expert (95% CI)", fontsize=9)
+        ax.grid(axis="x", color="0.9")
+        ax.tick_params(labelsize=8)
+    fig.suptitle("The later methods ranked with the paper's (dashed: BC-OH)", fontsize=10)
+    return fig

@@ -6,6 +6,7 @@
 - `task_metrics`: a task's own metrics (the supplement's Table 4 protocol);
 - `recipe`: the paper's recipe (mlp against fca) and the paper's budget beside Table 5;
 - `regime`: Table 5 with FCA's expert (an imported expert or raw labels), against BC-OH and with its diagnostics;
+- `ranking`: the later methods (RAP, PALR, MINE) ranked with the paper's, per family of cells;
 - `copycat`: the copycat map and the extended map;
 - `differences`: the bootstrap table, the plain reading, training longer;
 - `curves`: the sensitivity study, the training curves and the weights;

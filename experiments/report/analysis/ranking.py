@@ -1,0 +1,135 @@
+"""The methods that came after the paper (RAP, PALR, MINE) ranked with the paper's, per family of cells.
+
+A *cell* is a merged group (one task, protocol, expert and budget) in which at least one of `LATER` ran. Cells fall
+into two families, by their setting (never by their results):
+
+- the copycat regime (`is_copycat_cell`): an expert of FCA's kind (`regime.is_regime`: FCA's imported expert or
+  raw labels) or the previous action in view (`protocol.prev_action`), the settings where BC-OH is expected to copy;
+- the default tasks: every other cell (the shipped experts under the paper's protocol).
+
+Per family, `ranking` gives each method of `RANKED` that ran in every cell of the family: the interquartile mean of
+% of expert over all its seeds with a stratified bootstrap interval (`stats.iqm_across_tasks`), the probability
+that one of its runs beats one of BC-OH's (`stats.probability_of_improvement`), and per cell its difference from
+BC-OH in points with a percentile bootstrap interval (`bootstrap.bootstrap_difference`) and its controlled copycat
+counts. A method with several configurations in a cell is represented by its best one there (by mean % of expert,
+as `experiments.compare` and the report's best rows choose: optimistic for methods with many configurations).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from ape_jax import tasks
+from experiments.report import stats
+from experiments.report.analysis.bootstrap import Interval, bootstrap_difference
+from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics
+from experiments.report.analysis.groups import Group, Merged, ordered
+from experiments.report.analysis.regime import is_regime
+from experiments.report.analysis.selection import best_of, is_finite, method_rows, ok_runs
+
+LATER = ("rap", "palr", "mine")  # the methods published after the paper against the copycat problem
+RANKED = ("bc-so", "bc-oh", "bc-full", "ours-step", "ours-softmax", "fca", *LATER)  # the ranking's methods, in order
+REFERENCE = "bc-oh"  # what every method is measured against
+RESAMPLES = 2000  # bootstrap resamples of the across-cell estimates (`stats`' default)
+
+
+class CellResult(NamedTuple):
+    """One method in one cell: its chosen configuration's hyperparameters, its per-seed % of expert, its difference
+    from BC-OH (None for BC-OH itself) and its copycat diagnostics over seeds."""
+
+    cell: str
+    hparams: dict
+    seeds: tuple[float, ...]
+    versus: Interval | None
+    diagnostics: PolicyDiagnostics
+
+
+class Ranked(NamedTuple):
+    """One method's place in a family: its cells (`CellResult`, in the family's order), the IQM of % of expert over
+    every cell's seeds with its interval, and P(a run beats a BC-OH run) with its interval (None for BC-OH)."""
+
+    method: str
+    cells: tuple[CellResult, ...]
+    iqm: stats.Estimate
+    improvement: stats.Estimate | None
+
+
+class Family(NamedTuple):
+    """A family of cells (`copycat` or `default`), its cells' titles in order, and its methods, best IQM first."""
+
+    name: str
+    cells: tuple[str, ...]
+    ranked: tuple[Ranked, ...]
+
+
+def is_copycat_cell(m: Group) -> bool:
+    """Whether group `m` is set where BC-OH is expected to copy: an expert of FCA's kind or the previous action in
+    view."""
+    return is_regime(m) or bool(m.protocol.get("prev_action"))
+
+
+def cell_title(m: Group) -> str:
+    """A cell's short name in the tables: the task and what sets it apart (`"Hopper (FCA's expert, raw labels)"`,
+    `"Walker2d (rough expert, raw labels)"`, `"Hopper"`)."""
+    p = m.protocol
+    why = ("FCA's expert" if p.get("expert_sha256") else f"{p['expert']} expert" if p.get("expert") else "")
+    why = ", ".join(w for w in (why, "raw labels" if p.get("labels") == "raw" else "",
+                                "previous action in view" if p.get("prev_action") else "") if w)
+    title = tasks.get(m.env).title
+    return f"{title} ({why})" if why else title
+
+
+def ranking_cells(merged: Merged) -> dict[str, list[Group]]:
+    """The groups in which one of `LATER` ran with seeds, in report order, by family: `{"copycat": [...],
+    "default": [...]}` (a family without cells is left out)."""
+    out: dict[str, list[Group]] = {}
+    for _, m in ordered(merged):
+        if any(method_rows(m, name) for name in LATER) and m.expert.get("return_mean") is not None:
+            out.setdefault("copycat" if is_copycat_cell(m) else "default", []).append(m)
+    return out
+
+
+def _seeds(m: Group, row: dict) -> tuple[float, ...]:
+    runs = sorted(ok_runs(m, row["method"], row["hparams"]), key=lambda r: r.get("seed", 0))
+    return tuple(float(r["eval"]["normalized"]) for r in runs if is_finite(r["eval"].get("normalized")))
+
+
+def _cell_result(m: Group, method: str, reference: tuple[float, ...]) -> CellResult | None:
+    row = best_of([r for r in method_rows(m, method) if r.get("normalized_mean") is not None])
+    seeds = () if row is None else _seeds(m, row)
+    if not seeds:
+        return None
+    versus = bootstrap_difference(seeds, reference) if method != REFERENCE and reference else None
+    return CellResult(cell_title(m), dict(row["hparams"]), seeds, versus,
+                      policy_diagnostics(ok_runs(m, method, row["hparams"])))
+
+
+def family(name: str, cells: Sequence[Group], reps: int = RESAMPLES) -> Family:
+    """Family `name`'s ranking over `cells`: every method of `RANKED` that ran in every cell (BC-OH first where it
+    did not), best IQM first. Cells without BC-OH give no differences; a family without BC-OH in every cell gives
+    no probability of improvement."""
+    titles = tuple(cell_title(m) for m in cells)
+    if len(set(titles)) < len(titles):   # two cells of one task and setting (other budgets, protocols): full titles
+        titles = tuple(m.title for m in cells)
+    reference = {t: (r.seeds if (r := _cell_result(m, REFERENCE, ())) else ()) for t, m in zip(titles, cells)}
+    ranked = []
+    for method in RANKED:
+        results = [_cell_result(m, method, reference[t]) for t, m in zip(titles, cells)]
+        if any(r is None for r in results):
+            continue
+        scores = {r.cell: np.asarray(r.seeds) for r in results}
+        improvement = (stats.probability_of_improvement(scores, {t: np.asarray(s) for t, s in reference.items()},
+                                                         reps=reps)
+                       if method != REFERENCE and all(reference.values()) else None)
+        ranked.append(Ranked(method, tuple(results), stats.iqm_across_tasks(scores, reps=reps), improvement))
+    ranked.sort(key=lambda r: -r.iqm.value)
+    return Family(name, titles, tuple(ranked))
+
+
+def ranking(merged: Merged, reps: int = RESAMPLES) -> list[Family]:
+    """Both families' rankings (`family`), the copycat regime first; empty where no file holds one of `LATER`."""
+    cells = ranking_cells(merged)
+    return [family(name, cells[name], reps) for name in ("copycat", "default") if name in cells]

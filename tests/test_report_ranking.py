@@ -1,0 +1,79 @@
+"""The later methods (RAP, PALR, MINE) ranked in the report: cells by family (the copycat regime by its setting,
+the default tasks), each method's best configuration per cell against BC-OH, the IQM and probability of
+improvement across cells, a method missing from a cell left out of that family, and the section with its figure.
+
+Fixtures: `test_report_regime`'s synthetic expert-regime file (FCA's imported expert, raw labels; 3 seeds, % of
+expert = return / 20, seeds at ±0.5 points) beside a file of the later methods on the same rows, as the queue's
+`*-after` sweeps write them, and the same pair on a default task (the shipped expert, clipped labels)."""
+
+import numpy as np
+import pytest
+
+from experiments import report
+from experiments.report import stats
+from experiments.report.analysis import is_copycat_cell, merge, ranking, ranking_cells
+from test_report_regime import SHIPPED, _load, regime_file
+
+# the later methods' returns: RAP 50% (two settings, the better one ranked), PALR 32%, MINE 10% (BC-OH 30%)
+LATER = (("rap", {"memory_width": 150, "weight": 1.0}, 1000.0), ("rap", {"memory_width": 150, "weight": 0.0}, 500.0),
+         ("palr", {"bandwidth": 1.0, "weight": 10.0}, 640.0), ("mine", {"weight": 0.1}, 200.0))
+PAPER = (("bc-so", {}, 400.0), ("bc-oh", {}, 600.0), ("ours-step", {"thr": 0.1, "w": 5.0}, 700.0))
+
+
+def _pair(tmp_path, prefix, later=LATER, **kw):
+    return [_load(tmp_path, regime_file(methods=PAPER, **kw), f"{prefix}.json"),
+            _load(tmp_path, regime_file(methods=later, **kw), f"{prefix}-after.json")]
+
+
+def test_cells_by_setting_and_each_methods_best_configuration_against_bc_oh(tmp_path):
+    files = _pair(tmp_path, "fca") + _pair(tmp_path, "sac", labels="clipped", expert=None,
+                                           found={"kind": "checkpoint"})
+    merged = merge(files)
+    cells = ranking_cells(merged)
+    assert [len(cells[k]) for k in ("copycat", "default")] == [1, 1]
+    assert is_copycat_cell(cells["copycat"][0]) and not is_copycat_cell(cells["default"][0])
+    copycat, default = ranking(merged, reps=200)
+    assert (copycat.name, default.name) == ("copycat", "default")
+    assert [r.method for r in copycat.ranked] == ["rap", "ours-step", "palr", "bc-oh", "bc-so", "mine"]
+    rap = copycat.ranked[0]
+    (cell,) = rap.cells
+    assert cell.hparams == {"memory_width": 150, "weight": 1.0} and cell.seeds == pytest.approx((49.5, 50, 50.5))
+    assert cell.versus.diff == pytest.approx(20) and cell.versus.low > 0
+    assert rap.improvement.value == pytest.approx(1.0)                     # every RAP run beats every BC-OH run
+    mine = copycat.ranked[-1]
+    assert mine.cells[0].versus.high < 0 and mine.improvement.value == pytest.approx(0.0)
+    palr = next(r for r in copycat.ranked if r.method == "palr")
+    assert palr.improvement.value == pytest.approx(1.0) and palr.cells[0].versus.diff == pytest.approx(2)
+    bcoh = next(r for r in copycat.ranked if r.method == "bc-oh")
+    assert bcoh.improvement is None and bcoh.cells[0].versus is None
+    assert bcoh.cells[0].diagnostics.controlled == 2                       # the fixture's BC-OH: 2 of 3 copycat
+    assert bcoh.iqm.value == pytest.approx(stats.iqm(np.asarray([29.5, 30.0, 30.5])))
+    assert bcoh.iqm.low <= bcoh.iqm.value <= bcoh.iqm.high
+
+
+def test_a_method_missing_from_a_cell_is_left_out_of_its_family(tmp_path):
+    files = _pair(tmp_path, "fca") + _pair(tmp_path, "rough", later=LATER[:2], expert="rough", found=SHIPPED)
+    (copycat,) = ranking(merge(files), reps=200)
+    assert len(copycat.cells) == 2
+    assert {r.method for r in copycat.ranked} == {"bc-so", "bc-oh", "ours-step", "rap"}   # PALR, MINE: one cell
+    assert all(len(r.cells) == 2 for r in copycat.ranked)
+
+
+def test_no_later_method_no_section_and_the_section_with_its_figure(tmp_path):
+    paper_only = [_load(tmp_path, regime_file(methods=PAPER), "only.json")]
+    assert ranking(merge(paper_only)) == []
+    text, _ = report.build(paper_only)
+    assert "The methods that came after" not in text
+
+    text, figures = report.build(_pair(tmp_path, "fca"), figure_dir=tmp_path / "fig")
+    section = text[text.index("### The methods that came after: RAP, PALR, MINE, ranked"):]
+    section = section[:section.index("\n### ")]
+    assert "ranking.png" in section and tmp_path / "fig" / "ranking.png" in figures
+    rows = [line for line in section.splitlines() if line.startswith("| ")]
+    assert rows[0].startswith("| method | IQM, % of expert [95% CI] | P(> BC-OH) [95% CI] | Hopper (")
+    assert rows[0].endswith("| Hopper (FCA's expert, raw labels) |")
+    assert rows[1].startswith("| RAP | 50.0 [49.") and "| 1.00 [1.00, 1.00] | **+20.0 [" in rows[1]
+    assert rows[1].endswith("0/3 (first verdict 0/3) |")
+    assert "reference; 2/3 (first verdict 3/3)" in next(r for r in rows if r.startswith("| BC-OH |"))
+    assert ("Significantly above BC-OH in a cell: RAP: Hopper (FCA's expert, raw labels) (+20.0); Ours (step): "
+            "Hopper (FCA's expert, raw labels) (+5.0); PALR: Hopper (FCA's expert, raw labels) (+2.0).") in section
