@@ -1,6 +1,6 @@
 """Action prediction error (APE): how unpredictable each expert action is from the expert's past actions.
 
-As `DESIGN.md` defines it: an MLP ψ maps the previous `k = 9` expert actions
+The paper's definition: an MLP ψ maps the previous `k = 9` expert actions
 (flattened, oldest first) to the current one, one hidden layer of 300 units
 with LeakyReLU(0.2), fit with MSE on the training split (Adam, lr 1e-3, batch
 512). At an episode's start the missing past actions repeat the earliest action

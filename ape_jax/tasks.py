@@ -278,13 +278,13 @@ TASKS: Mapping[str, Task] = MappingProxyType({t.name: t for t in (
     Task("toycar", "ToyCar", loss="l1", episodes=10, fca_alpha=0.2, metric="success", metrics=_TOYCAR_METRICS,
          default_obs="image", expert="rule-based", protocols=("brax",), default_protocols={}, presets={"image": {
              "quick": {"image_size": (32, 32)},
-             # a BC-SO policy that learns to stop on a 2-core CPU (issue 17): 32×32 frames keep the lamp
+             # a BC-SO policy that learns to stop on a 2-core CPU: 32×32 frames keep the lamp
              # (3×3 px) and the dashes that show speed; 100 demonstrations (~12k training samples, against the
              # paper's 1k: with 4.7k BC-SO reached 89%, and longer training overfit them); Adam at 1e-3
              # on batches of 64 for 5,000 updates; 200 evaluation episodes per policy, so a seed's success
              # rate is known to ~2 points
-             # (the small conv encoder without normalisation, as issue 17 measured it, whatever the MuJoCo tasks'
-             # image preset trains)
+             # (the small conv encoder without normalisation, the setting these numbers were measured with,
+             # whatever the MuJoCo tasks' image preset trains)
              "default": {"iterations": 5_000, "seeds": 5, "eval_episodes": 200, "chunk": 250, "episodes": 100,
                          "lr": 1e-3, "batch_size": 64, "image_size": (32, 32), "softmax_grid": (),
                          "encoder": "small", "encoder_norm": "none"},

@@ -1,6 +1,6 @@
 """Sample weights from action prediction errors (APE): the paper's step and softmax functions.
 
-Public, pure and jit-able, as `DESIGN.md` defines them:
+Public, pure and jit-able, as the paper defines them (`docs/concepts/weighting.md`):
 
 - `step(ape, thr, w)` — dataset level: the ⌊thr·N⌋ samples with the largest APE
   get weight `w`, all others 1 (ties broken by index: the lower index ranks higher);

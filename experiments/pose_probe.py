@@ -4,7 +4,7 @@
     python -m experiments.pose_probe --env hopper --targets action --train-episodes 5,10,20 --history 2
     python -m experiments.pose_probe --env hopper --targets action --history 2 --obs pos   # BC-OH from the state
 
-Why image behavioural cloning fails (issue 26, item 1), measured with the sweep's own image network trained
+Why image behavioural cloning fails, measured with the sweep's own image network trained
 from scratch, supervised, on the sweep's demonstrations (the `brax` protocol's image demonstrations, split by
 episode as the sweep splits them; collected and cached as the sweep does). The network is
 `LearnerConfig.model()` (`--encoder`, `--set recipe.*`), its output layer as wide as the targets:

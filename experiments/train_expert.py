@@ -39,7 +39,7 @@ import time
 
 from experiments._cli import Parser, fail, unwritable
 
-TARGETS = {"hopper": 2500.0, "walker2d": 3000.0, "halfcheetah": 4000.0}  # issue 3, 1000-step episodes
+TARGETS = {"hopper": 2500.0, "walker2d": 3000.0, "halfcheetah": 4000.0}  # returns of 1000-step episodes
 
 # Standard SAC settings (batch 256, 256x256 MLPs, gamma 0.99, lr 3e-4) with an
 # update-to-data ratio of 0.5: on a 2-core CPU one update costs ~4 ms and an

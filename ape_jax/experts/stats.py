@@ -1,7 +1,7 @@
 """Action statistics of an expert's demonstrations: how rough its labels are.
 
-The expert decides whether BC-OH copies (DESIGN.md, "Experts"). Four numbers describe its labels, each from the
-demonstrations alone (`[N, A]` actions with their episode ids and time indices, episodes contiguous):
+The expert decides whether BC-OH copies (`docs/design.md`, "Rough experts"). Four numbers describe its labels,
+each from the demonstrations alone (`[N, A]` actions with their episode ids and time indices, episodes contiguous):
 
 - `outside`: the share of label entries outside the action range (a Gaussian's unbounded mean leaves it; a
   tanh-squashed one never does);

@@ -195,8 +195,8 @@ def protocol_of(res: results_lib.Results, where: str = "") -> dict:
     return p
 
 
-# The MuJoCo tasks' `default` image preset until issue 26 (the small conv encoder, 25 demonstrations, 5,000
-# iterations, softmax τ 10): its files are a setting of their own, never merged with today's `default`.
+# The MuJoCo tasks' first `default` image preset (the small conv encoder, 25 demonstrations, 5,000 iterations,
+# softmax τ 10; CHANGELOG.md): its files are a setting of their own, never merged with the current `default`.
 FIRST_IMAGE_PRESET, FIRST_IMAGE_ITERATIONS = "first image preset", 5_000
 
 
