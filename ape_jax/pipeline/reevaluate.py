@@ -32,6 +32,7 @@ import numpy as np
 from ape_jax import diagnostics as diagnostics_lib
 from ape_jax.pipeline import checkpoint as ckpt_lib
 from ape_jax.pipeline import results as results_lib
+from ape_jax.pipeline import records as records_lib
 from ape_jax.pipeline import sweep as sweep_lib
 from ape_jax.pipeline.results import Results
 from ape_jax.pipeline.spec import Run, SweepSpec
@@ -107,7 +108,7 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
     records = {results_lib.run_key(r): r for r in results.runs}
     new = Results.from_json(results.to_json())  # a deep copy: `results` is left as it was
     new_records = {results_lib.run_key(r): r for r in new.runs}
-    metrics = (*prepared.task.metrics, *results_lib.COPYCAT_METRICS)
+    metrics = (*prepared.task.metrics, *records_lib.COPYCAT_METRICS)
     added, differ, diag_config, diag_s = set(), [], None, 0.0
     t0 = time.perf_counter()
     for name, saved in policies.items():
@@ -133,7 +134,7 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
         out, _, seconds = sweep_lib.evaluate_group(prepared, ape, episodes, group, steps if lacking else 0,
                                                        spec.budget.width)
         diag_s += seconds
-        diag_config = diag_config or results_lib.diagnostics_config(prepared, [out])
+        diag_config = diag_config or records_lib.diagnostics_config(prepared.train.demos, [out])
         for j, run in enumerate(saved["runs"]):
             key = results_lib.run_key(run)
             if key not in records:
@@ -141,7 +142,7 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
                                         "has no run in results.json: the params and the results are of different "
                                         "sweeps")
             was, ev = records[key].get("eval") or {}, new_records[key].setdefault("eval", {})
-            diag = results_lib.diagnostics_record(out, j) if lacking else None
+            diag = records_lib.diagnostics_record(out, j) if lacking else None
             if diag is not None and "diagnostics" not in records[key]:
                 new_records[key]["diagnostics"] = diag
                 added.add("diagnostics")

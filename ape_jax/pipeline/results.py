@@ -4,15 +4,13 @@
     res.label("ours-step"), res.records(), res.fingerprint()
     results.save(path, res)                                           # atomic
 
-What goes into it is built here too: each run's record (`run_record`, with its `eval_record`,
-`diagnostics_record` and, at `Budget.eval_at`'s iterations, `snapshot_record`; the
-training curve cut to `CURVE_POINTS` window means) from a group's evaluation outputs,
-which the sweep's `assemble` phase calls, and `fingerprint`, the settings that identify
+What goes into it is built by `ape_jax.pipeline.records` (each run's record from a group's
+evaluation outputs, which the sweep's `assemble` phase calls); here is `fingerprint`, the settings that identify
 a sweep: `SweepSpec.fingerprint` (a checkpoint's `sweep.json`) and `Results.fingerprint`
 (a finished file) both build it, so a rerun compares like with like. Where the file
 lives in a sweep's output folder is `rundir.RunDir`'s.
 
-The layout is `DESIGN.md`'s. Schema 2 (written since the method registry)
+The layout is `docs/design.md`'s. Schema 2 (written since the method registry)
 adds, beside schema 1's fields:
 
 - `command`: the exact command line the sweep ran with (`None` from Python);
@@ -50,19 +48,15 @@ import io
 import json
 import math
 import pathlib
-from typing import TYPE_CHECKING, Any
+from typing import Any
 from collections.abc import Sequence
 
 import numpy as np
 
-from ape_jax import diagnostics as diagnostics_lib
 from ape_jax import methods as methods_lib
 from ape_jax.pipeline.data import write_atomic
 from ape_jax.pipeline.presets import SECTIONS, Settings
 
-if TYPE_CHECKING:
-    from ape_jax.pipeline.spec import Run
-    from ape_jax.pipeline.sweep import Prepared
 
 SCHEMA = 3
 READS = (1, 2, 3)
@@ -344,106 +338,6 @@ def replaced_record(old: Results, file: str, new: Results | None = None) -> dict
     if old.replaces is not None:
         record["replaces"] = old.replaces
     return record
-
-
-# -- the records of a run (what the sweep's assemble phase writes) --------------------------------------------------
-
-COPYCAT_METRICS = ("imitation_error", "rollout_ape")  # the copycat diagnostics (`ape_jax.evaluate`)
-DIAG = "diag_"  # the prefix of the diagnostics' arrays among a group's evaluation outputs
-CURVE_POINTS = 100  # points of each run's training curve in results.json (the full curves: OUT/curves/)
-
-
-def diagnostics_record(out: dict, j: int) -> dict | None:
-    """Run `j`'s `diagnostics` in results.json from its group's outputs, None where the group has none (outputs
-    saved before them, or a sweep that is not `sweep.diagnosable`)."""
-    if f"{DIAG}absent" in out:
-        return {"absent": "the policy's network gives no embedding (it takes no return_embedding)"}
-    if f"{DIAG}copycat" not in out:
-        return None
-    value = {k: float(out[DIAG + k][j]) for k in diagnostics_lib.FIELDS if k != "copycat" and DIAG + k in out}
-    value = {k: v if np.isfinite(v) else None for k, v in value.items()}  # e.g. no velocity: null, never 0
-    value["predictability_steps"] = int(value["predictability_steps"])
-    value["verdict"] = diagnostics_lib.COPYCAT if bool(out[f"{DIAG}copycat"][j]) else diagnostics_lib.NOT_COPYCAT
-    return value
-
-
-def eval_record(out: dict, j: int, prepared: Prepared) -> dict:
-    """Row `j`'s `eval` block in results.json from its group's evaluation outputs `out`."""
-    returns = np.asarray(out["return"][j], np.float64)
-    ev = {"episodes": int(len(returns)), "return_mean": float(returns.mean()), "return_std": float(returns.std())}
-    if prepared.card is not None:
-        from ape_jax import evaluate as evaluate_lib  # here: it imports the environments, which reading does not need
-
-        ev["normalized"] = float(evaluate_lib.normalized(returns.mean(), prepared.card["return_mean"],
-                                                         prepared.card["random_return_mean"]))
-    for k in (*prepared.task.metrics, *COPYCAT_METRICS):
-        if k in out:
-            ev[k] = float(np.mean(out[k][j]))
-    if prepared.task.metric != "return":
-        ev.setdefault("normalized", 100.0 * ev[prepared.task.metric])  # a rate, in % (no return to normalise)
-    return ev
-
-
-def run_record(run: Run, j: int, out: dict, losses: dict, curves: dict, prepared: Prepared) -> dict:
-    """Run `run`'s record in results.json; `j` is its row in the evaluation outputs `out` and `losses`; `curves`
-    its per-iteration training metrics (`"loss"` and the learner's others, e.g. FCA's `adversary_loss`)."""
-    returns = np.asarray(out["return"][j], np.float64)
-    record = {"method": run.method, "hparams": run.hparams, "seed": run.seed, "status": "ok", "error": None,
-              "online": methods_lib.get(run.method).online}
-    loss_curve = np.asarray(curves["loss"])
-    bad = np.flatnonzero(~np.isfinite(loss_curve))
-    if len(bad):
-        record.update(status="failed", error=f"training loss became non-finite at iteration {int(bad[0])}")
-    elif not np.all(np.isfinite(returns)):
-        record.update(status="failed", error="evaluation returns are non-finite")
-    record["eval"] = eval_record(out, j, prepared)
-    if (diag := diagnostics_record(out, j)) is not None:
-        record["diagnostics"] = diag
-    record["losses"] = {split: {k: float(v[j]) for k, v in losses[split].items()} for split in losses}
-    record["train_loss_final"] = float(np.mean(loss_curve[-100:]))
-    # every training metric over the last 1% of the run (at least 100 minibatches): e.g. FCA's adversary against
-    # its reference predictor of a_{t-1} from a_t alone
-    tail = max(100, len(loss_curve) // 100)
-    record["train_final"] = {k: float(np.mean(np.asarray(v)[-tail:])) for k, v in curves.items()}
-    record["train_curve"] = window_means(loss_curve, CURVE_POINTS)
-    return record
-
-
-def snapshot_record(iteration: int, j: int, out: dict, losses: dict, curves: dict, prepared: Prepared) -> dict:
-    """One entry of a run's `at` list in results.json: its policy at `iteration` (`Budget.eval_at`) evaluated as
-    at the end (`eval`, `diagnostics`, `losses`), and its training loss over the 100 minibatches before."""
-    loss = np.asarray(curves["loss"])[max(0, iteration - 100):iteration]
-    record = {"iteration": iteration, "eval": eval_record(out, j, prepared),
-              "losses": {split: {k: float(v[j]) for k, v in losses[split].items()} for split in losses},
-              "train_loss": float(np.mean(loss)) if len(loss) else None}
-    if (diag := diagnostics_record(out, j)) is not None:
-        record["diagnostics"] = diag
-    return record
-
-
-def window_means(values: np.ndarray, points: int) -> list[float]:
-    """`values` cut into `points` consecutive windows of equal length (the last takes the rest), each window's mean."""
-    values = np.asarray(values, np.float64)
-    width = max(1, len(values) // points)
-    ends = [*range(width, len(values), width)][: points - 1] + [len(values)]
-    return [float(values[a:b].mean()) for a, b in zip([0, *ends[:-1]], ends)]
-
-
-def diagnostics_config(prepared: Prepared, outputs: Sequence[dict]) -> dict | None:
-    """What the runs' `diagnostics` mean (results.json's `config.diagnostics`), None where no group's evaluation
-    `outputs` have them."""
-    out = next((o for o in outputs if f"{DIAG}probe_rows_train" in o), None)
-    if out is None:
-        return None
-    demos = prepared.train.demos
-    return {"thresholds": dataclasses.asdict(diagnostics_lib.THRESHOLDS),
-            "probe_steps": int(out[f"{DIAG}probe_steps"][0]),
-            "probe_rows": {"train": int(out[f"{DIAG}probe_rows_train"][0]),
-                           "val": int(out[f"{DIAG}probe_rows_val"][0])},
-            "expert_rollouts": f"the demonstrations' {demos.num_episodes} training episodes, their executed actions, "
-                               "cut to each policy's step count",
-            "velocity": "qvel" if "qvel" in demos.sim else None,
-            "state": "qpos[1:], qvel (the expert's observation)" if {"qpos", "qvel"} <= set(demos.sim) else None}
 
 
 # -- the summary ----------------------------------------------------------------------------------------------------

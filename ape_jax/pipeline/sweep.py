@@ -71,7 +71,7 @@ from ape_jax.pipeline.checkpoint import SweepCheckpoint
 from ape_jax.pipeline import data as data_lib
 from ape_jax.pipeline.data import Part
 from ape_jax.pipeline.presets import Settings
-from ape_jax.pipeline.results import (COPYCAT_METRICS, CURVE_POINTS, DIAG, diagnostics_config, diagnostics_record,
+from ape_jax.pipeline.records import (COPYCAT_METRICS, CURVE_POINTS, DIAG, diagnostics_config, diagnostics_record,
                                       eval_record, run_record, snapshot_record, window_means)
 from ape_jax.pipeline.spec import PROTOCOL_KEYS, Run, SweepSpec, check_fits, check_protocol, grid_runs
 from ape_jax.pipeline.training import (CPU_IMAGE_CHUNK, Program, traced_hparams, train_program,
@@ -571,12 +571,13 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
     records = {}
     for group, out, losses in zip(evaluated.groups, evaluated.outputs, evaluated.losses):
         for j, r in enumerate(group.runs):
-            records[r.ident] = run_record(r, j, out, losses, curves[r.ident], prepared)
+            records[r.ident] = run_record(r, j, out, losses, curves[r.ident], prepared.task, prepared.card)
     for iteration, at in sorted(evaluated.snapshots.items()):
         for group, out, losses in at:
             for j, r in enumerate(group.runs):
                 records[r.ident].setdefault("at", []).append(
-                    snapshot_record(iteration, j, out, losses, curves[r.ident], prepared))
+                    snapshot_record(iteration, j, out, losses, curves[r.ident], prepared.task,
+                                    prepared.card))
     order = {m: i for i, m in enumerate(methods_lib.names())}  # the plan's order: methods, settings, seeds
     runs = sorted((records[r.ident] for t in trained for r in t.program.runs), key=lambda rec: order[rec["method"]])
     task, blocks = prepared.task, spec.settings.to_json()
@@ -609,7 +610,7 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
     if spec.dataset is not None and prepared.expert_description is not None:
         # a collected sweep names its expert in `config.data.settings`; a dataset's expert is recorded here
         expert["demonstrator"] = prepared.expert_description
-    if (diag := diagnostics_config(prepared, evaluated.outputs)) is not None:
+    if (diag := diagnostics_config(prepared.train.demos, evaluated.outputs)) is not None:
         config["diagnostics"] = diag
     config["env"] = {"dt": float(prepared.env.dt), "episode_length": int(prepared.env.episode_length),
                      "overrides": {k: list(v) if isinstance(v, tuple) else v for k, v in spec.env_overrides().items()}}
