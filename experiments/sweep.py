@@ -3,7 +3,7 @@
 Collects (or reuses) the shipped expert's demonstrations, fits APE, trains
 BC-SO, BC-OH, the paper's step and softmax weighting grids and any baselines
 asked for (`--methods`) × seeds as compiled programs, evaluates every policy, and writes `results.json` (the
-schema in `DESIGN.md`), `results.csv` and the trained parameters (orbax) into
+schema: `ape_jax.pipeline.results`), `results.csv` and the trained parameters (orbax) into
 `--out`. No arguments: hopper, `pos` observations, the `fca` protocol, the `quick` preset (the budget), the
 protocol's recipe (`fca`: the FCA code's BatchNorm network and optimiser).
 

@@ -221,12 +221,12 @@ PRESETS = BUDGETS  # the preset names are the budgets'
 # Image observations. A conv policy trains tens of times slower per iteration than the state MLP on a
 # 2-core CPU, so there `quick` and `default` shrink the images and the grid to the paper's step setting;
 # `paper` keeps the supplement's protocol with its ResNet-18, for GPUs. Keys are fields of any of the three
-# records. `default` (issue 26) trains the patch encoder with GroupNorm (`recipe.encoder`, `encoder_norm`:
+# records. `default` trains the patch encoder with GroupNorm (`recipe.encoder`, `encoder_norm`:
 # ~4.6x the small conv encoder's updates/s at 32x32, `experiments.bench_images`) on 100 demonstrations
 # (80 train): the probes of BENCHMARKS.md's "Images on a CPU" found the image policies short of
 # demonstrations, not of encoder capacity, once normalised and trained past 5,000 updates; 20,000 updates,
-# the policies also evaluated at 10,000. The first image preset (until 2026-12-03: the small conv encoder,
-# 25 demonstrations, 5,000 updates, softmax tau 10) is what the shipped `*-image-default.json` files ran.
+# the policies also evaluated at 10,000. The shipped `*-image-default.json` files ran the first image preset
+# (the small conv encoder, 25 demonstrations, 5,000 updates, softmax tau 10; CHANGELOG.md).
 IMAGE_PRESETS = {
     "quick": dict(iterations=300, eval_episodes=3, chunk=100, image_size=(32, 32),
                   step_grid=((0.1, 5.0),), softmax_grid=()),

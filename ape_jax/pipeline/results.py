@@ -10,33 +10,28 @@ a sweep: `SweepSpec.fingerprint` (a checkpoint's `sweep.json`) and `Results.fing
 (a finished file) both build it, so a rerun compares like with like. Where the file
 lives in a sweep's output folder is `rundir.RunDir`'s.
 
-The layout is `docs/design.md`'s. Schema 2 (written since the method registry)
-adds, beside schema 1's fields:
+The layout is `docs/design.md`'s. It writes schema 3
+(`SCHEMA`) and reads every schema in `READS`. Beside the task, the resolved `config`, the runs and
+the summary, a file holds:
 
 - `command`: the exact command line the sweep ran with (`None` from Python);
-- `protocol`: how demonstrations and evaluation were set up (frame skip,
-  episode length, reward scale, history);
+- `protocol`: how demonstrations and evaluation were set up, as the environment resolves it
+  (frame skip, episode length, reward scale, history, the split);
+- `settings`: the sweep's three records as resolved (`ape_jax.pipeline.presets.Settings`):
+  `protocol` (the record's own fields), `budget` and `recipe`;
 - `methods`: per method its label, role, program and whether it is online,
   so a report reads a plugin's label without importing the plugin;
 - summary rows' `metrics`: mean and std over seeds of the task's own
-  per-episode metrics (ToyCar's success, violations, …).
+  per-episode metrics (ToyCar's success, violations, …);
+- each run's `train_final`: the mean of every training metric over the run's last 1%;
+- optionally `reevaluated` (what `experiments.evaluate` added later) and `replaces`
+  (`replaced_record`: the file this sweep was trained again to replace, because that one's
+  policies were not kept: its command, provenance, summary and per-run returns).
 
-Schema 3 (written since the recipe records) adds `settings`, the sweep's three
-records as they were resolved (`ape_jax.pipeline.presets.Settings`): `protocol`
-(the record's own fields; the top-level `protocol` stays its resolved view, with
-the frame skip, episode length and reward scale the environment gives it, and the
-split), `budget` and `recipe`; and each run's `train_final`, the mean of every
-training metric over the run's last 1%.
-
-Optional at any schema: `reevaluated` (what `experiments.evaluate` added later) and
-`replaces` (`replaced_record`: the file this sweep was trained again to replace, because
-that one's policies were not kept: its command, provenance, summary and per-run returns).
-
-Schema 1 and 2 files still load: `settings` is rebuilt from their flat `config`
-(recipe `mlp`, a split by episode: what every sweep ran before schema 3), and a
-schema 1 file's `methods` come from the registry (or the name), its `command`
-and `protocol` empty. Anything else that is not
-a complete, well-typed results file is refused with a one-line `ResultsError`
+A file of an older schema is upgraded on load: `settings` is rebuilt from its flat `config`
+(recipe `mlp`, a split by episode, which is what such sweeps ran), and a schema 1 file's
+`methods` come from the registry (or the name), its `command` and `protocol` empty. Anything
+else that is not a complete, well-typed results file is refused with a one-line `ResultsError`
 naming the file and the field.
 """
 
@@ -68,7 +63,7 @@ class ResultsError(ValueError):
 
 @dataclasses.dataclass
 class Results:
-    """One sweep's results (see the module docstring; field meanings are `DESIGN.md`'s)."""
+    """One sweep's results (its fields: the module docstring, and `docs/design.md`'s "Files")."""
 
     env: str
     obs: str

@@ -38,8 +38,8 @@ beside it: `spec` (the `SweepSpec`, its `Run`s and the checks that refuse it ear
 `training` (the training driver: `Program`, `train_program` with its checkpointed
 chunks and rounds and the restore on every process), `ape_jax.scores` (the score table
 the weighted learner reads) and `results` (the records `assemble` writes, the
-fingerprint). Their public names are importable from here too (`__all__`), as they
-were when they lived here.
+fingerprint). Their public names are importable from here too (`__all__`), so a caller
+of the sweep needs this module alone.
 """
 
 from __future__ import annotations
