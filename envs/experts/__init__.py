@@ -26,7 +26,7 @@ its network classes:
 ToyCar's expert is the rule-based one, `envs.toycar.expert_action`.
 
 Imported experts (`envs.experts.imported`, `python -m experiments.import_expert`) have the same files in the
-user's expert directory (`imported.root()`), never in the repository; every function here finds a name
+user's expert directory (`user_root()`), never in the repository; every function here finds a name
 `<env>-<variant>` among the shipped experts first, then among the imported ones.
 
 An unbounded expert's action (a `"linear"` head) is its label; what the environment executes is that action
@@ -37,6 +37,7 @@ given, so it must be clipped before the step).
 from __future__ import annotations
 
 import json
+import os
 import pathlib
 from collections.abc import Callable
 
@@ -70,33 +71,37 @@ def import_command(name: str) -> str:
     return f"python -m experiments.import_expert PATH --env {env} --name {variant or 'NAME'}"
 
 
+def user_root() -> pathlib.Path:
+    """The user's expert directory, where imported experts live: `$APE_JAX_EXPERTS`, else
+    `<ape_jax.pipeline.data.cache_dir()>/experts`."""
+    if os.environ.get("APE_JAX_EXPERTS"):
+        return pathlib.Path(os.environ["APE_JAX_EXPERTS"])
+    from ape_jax.pipeline.data import cache_dir
+
+    return cache_dir() / "experts"
+
+
 def available() -> tuple[str, ...]:
     """Names of the environments with a shipped expert (a card on disk)."""
     return tuple(sorted(p.parent.name for p in ROOT.glob(f"*/{CARD}")))
 
 
 def imported_names() -> tuple[str, ...]:
-    """Names (`<env>-<variant>`) of the imported experts in the user's expert directory (`imported.root()`)."""
-    from envs.experts import imported
-
-    base = imported.root()
+    """Names (`<env>-<variant>`) of the imported experts in the user's expert directory (`user_root()`)."""
+    base = user_root()
     return tuple(sorted(p.parent.name for p in base.glob(f"*/{CARD}"))) if base.is_dir() else ()
 
 
 def is_imported(name: str) -> bool:
     """Whether `name` resolves to an imported expert (no shipped one of that name, an imported card)."""
-    from envs.experts import imported
-
-    return not (ROOT / name / CARD).is_file() and (imported.root() / name / CARD).is_file()
+    return not (ROOT / name / CARD).is_file() and (user_root() / name / CARD).is_file()
 
 
 def directory(name: str) -> pathlib.Path:
     """The directory of expert `name`: the shipped one (`envs/experts/<name>/`), else the imported one of that name
     if it exists, else the shipped path (where error messages point)."""
     if is_imported(name):
-        from envs.experts import imported
-
-        return imported.root() / name
+        return user_root() / name
     return ROOT / name
 
 

@@ -64,6 +64,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from envs import experts
+
 FORMATS = ("cs294-pickle", "npz")
 NAME = re.compile(r"[a-z0-9_]+")  # `ape_jax.tasks.Protocol.expert`'s rule
 
@@ -81,12 +83,8 @@ class ImportError_(ValueError):
 
 
 def root() -> pathlib.Path:
-    """The user's expert directory: `$APE_JAX_EXPERTS`, else `<ape_jax.pipeline.data.cache_dir()>/experts`."""
-    if os.environ.get("APE_JAX_EXPERTS"):
-        return pathlib.Path(os.environ["APE_JAX_EXPERTS"])
-    from ape_jax.pipeline.data import cache_dir
-
-    return cache_dir() / "experts"
+    """The user's expert directory (`envs.experts.user_root`)."""
+    return experts.user_root()
 
 
 def sha256(path: pathlib.Path) -> str:
@@ -373,8 +371,6 @@ def install(env: str, name: str, converted: Converted, card: dict, references: d
     """
     import json
     import shutil
-
-    from envs import experts
 
     base = pathlib.Path(base or root())
     base.mkdir(parents=True, exist_ok=True)
