@@ -55,3 +55,8 @@ for env in hopper walker2d halfcheetah; do
 done
 sweep hopper-pos-fca-rows-default-fca-fcaexpert-clipped-after --env hopper $FCA --methods $AFTER --seeds 8 \
   --set protocol.expert=fca
+# The paper's budget (300k iterations, evaluated at 30k and 100k too) with FCA's expert, raw labels, 8 seeds: about
+# ten times a default sweep, days on 2 CPU cores (resumable; on a lent GPU, experiments/device/run.sh)
+sweep hopper-pos-fca-rows-paper-fca-fcaexpert-raw --env hopper --protocol fca --recipe fca --preset paper --seeds 8 \
+  --methods bc-so,bc-oh,bc-full,ours-step,ours-softmax,fca $GRIDS \
+  --set protocol.expert=fca --set protocol.labels=raw --set recipe.fca_alphas=0.1,2
