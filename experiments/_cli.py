@@ -19,23 +19,29 @@ import tempfile
 from typing import NoReturn
 
 
+_PROG: list[str] = []  # the program the last `Parser` named: `fail(None, ...)`'s prefix
+
+
 class Parser(argparse.ArgumentParser):
     """An `ArgumentParser` whose errors are one line (no usage block), exit status 2. Started as a console script
-    (`ape-sweep`, …: pyproject.toml's `[project.scripts]`), it names itself by that command."""
+    (`ape-sweep`, …: pyproject.toml's `[project.scripts]`), it names itself by that command. The last one made
+    names the program for `fail(None, ...)`, so refusals made after parsing carry the same prefix."""
 
     def __init__(self, *args, **kwargs):
         command = os.path.basename(sys.argv[0]) if sys.argv else ""
         if command.startswith("ape-") and kwargs.get("prog", "").startswith("python -m experiments."):
             kwargs["prog"] = command
         super().__init__(*args, **kwargs)
+        _PROG[:] = [self.prog]
 
     def error(self, message: str) -> NoReturn:
         fail(self, message)
 
 
 def fail(parser: argparse.ArgumentParser | None, message: str) -> NoReturn:
-    """Reports bad input on one line of stderr and exits with status 2, without a traceback."""
-    prog = f"{parser.prog}: " if parser is not None else ""
+    """Reports bad input on one line of stderr, `PROG: error: message`, and exits with status 2, without a
+    traceback. `parser` None: PROG is the program the last `Parser` named (none made: no prefix)."""
+    prog = f"{parser.prog}: " if parser is not None else f"{_PROG[0]}: " if _PROG else ""
     print(f"{prog}error: {' '.join(str(message).split())}", file=sys.stderr)
     raise SystemExit(2)
 

@@ -27,15 +27,25 @@ from ape_jax.pipeline.rundir import RunDir
 from experiments._cli import Parser, fail, unwritable
 
 
-def parse(argv=None):
+def parser() -> Parser:
+    """The drill's command line (every option described: `--help`)."""
     p = Parser(prog="python -m experiments.drill", description=__doc__.splitlines()[0])
-    p.add_argument("--env", default="hopper")
-    p.add_argument("--preset", default="quick")
+    p.add_argument("--env", default="hopper", help="the sweep's --env (default: hopper)")
+    p.add_argument("--preset", default="quick",
+                   help="the sweep's --preset (default: quick); a larger budget leaves more checkpoints to kill at")
     p.add_argument("--kills", type=int, default=2, help="how many times to kill the sweep (default: 2)")
     p.add_argument("--kill-every", type=int, default=2,
                    help="kill once this many new training checkpoints were saved since the last start (default: 2)")
-    p.add_argument("--out", type=pathlib.Path, default=pathlib.Path("runs/drill"))
-    p.add_argument("sweep_args", nargs="*", help="more `experiments.sweep` flags, after `--`")
+    p.add_argument("--out", type=pathlib.Path, default=pathlib.Path("runs/drill"),
+                   help="where the two sweeps (uninterrupted/, killed/) and their log (drill.log) go; both "
+                        "sweep folders are deleted first (default: runs/drill)")
+    p.add_argument("sweep_args", nargs="*", metavar="-- SWEEP_FLAGS",
+                   help="more `experiments.sweep` flags for both sweeps, after `--` (e.g. -- --seeds 2)")
+    return p
+
+
+def parse(argv=None):
+    p = parser()
     args = p.parse_args(argv)
     if args.kills < 1 or args.kill_every < 1:
         fail(p, "--kills and --kill-every must be >= 1")

@@ -14,7 +14,8 @@ Exit status: 0 when every cell ran; 1 when a cell raised, timed out or killed
 the kernel (the cell named by its number and first line, the error below it);
 2, with one line on stderr, for input that cannot be used (a missing file, one
 that is not an nbformat 4 notebook, an unknown kernel, an `--out` that cannot
-be written).
+be written) and where the test extra (nbclient, nbformat, ipykernel) is not
+installed, naming the command that installs it.
 """
 
 from __future__ import annotations
@@ -54,10 +55,16 @@ def main(argv=None) -> int:
     if args.out is not None and (why := unwritable_file(args.out)):
         fail(p, f"--out {args.out}: cannot write there: {why}")
 
-    import nbformat
-    from jupyter_client.kernelspec import NoSuchKernel
-    from nbclient import NotebookClient
-    from nbclient.exceptions import CellControlSignal, CellExecutionError, DeadKernelError
+    try:  # the test extra's (pyproject.toml), not the project's own dependencies
+        import nbformat
+        from jupyter_client.kernelspec import NoSuchKernel
+        from nbclient import NotebookClient
+        from nbclient.exceptions import CellControlSignal, CellExecutionError, DeadKernelError
+        if args.kernel == "python3":
+            import ipykernel  # noqa: F401 - provides the python3 kernel
+    except ImportError as e:
+        fail(p, f"{e.name or 'a module it needs'} is not installed: running notebooks needs the test extra, "
+                f"pip install -e \".[test]\"")
 
     try:
         nb = nbformat.read(args.notebook, as_version=4)

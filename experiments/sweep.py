@@ -29,9 +29,11 @@ alone evaluates and writes.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import statistics
 import pathlib
+import shlex
 import shutil
 import sys
 
@@ -86,9 +88,11 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
                         "protocol other than the task's default)")
     p.add_argument("--resume", action="store_true",
                    help="continue the sweep in --out where it stopped, or report it if finished (also what a "
-                        "rerun with the same --out and settings does without this flag)")
+                        "rerun with the same --out and settings does without this flag); refused where --out holds "
+                        "no sweep (an empty or mistyped folder)")
     p.add_argument("--fresh", action="store_true",
-                   help="delete the results and checkpoints --out holds and start over")
+                   help="start a new sweep in --out: delete the results, policies, curves and checkpoints it holds "
+                        "(if any) and start over; what to pass where --resume finds no sweep to continue")
     p.add_argument("--checkpoint-every", type=int, default=None,
                    help="save the training state every N iterations (default: after every chunk of the preset's, "
                         "e.g. 2,000 iterations for default)")
@@ -100,6 +104,9 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
                         "iterations, 1 seed, 2 evaluation episodes): checks that it runs end to end, e.g. --preset "
                         "paper --obs image on a CPU; its numbers mean nothing and the report refuses them")
     p.add_argument("--quiet", action="store_true", help="no progress bars (for CI logs); messages and the table only")
+    p.add_argument("--yes", action="store_true",
+                   help=f"run a sweep over the cost limit ({UPDATES_LIMIT:,} model updates, i.e. configurations x "
+                        f"seeds x iterations, or {EPISODES_LIMIT:,} evaluation episodes), which is refused without it")
     p.add_argument("--data-dir", type=pathlib.Path, default=None,
                    help=f"demonstration cache (default: {data.cache_dir()})")
     _distributed.add_flags(p)
@@ -124,8 +131,12 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
     except (methods.PluginError, methods.MethodError) as e:
         fail(p, str(e))
     for name in ("seeds", "iterations", "eval_episodes", "checkpoint_every"):
-        if getattr(args, name) is not None and getattr(args, name) < 1:
+        value = getattr(args, name)
+        if value is not None and value < 1:
             fail(p, f"--{name.replace('_', '-')} must be >= 1")
+        if value is not None and value > presets.BUDGET_MAX:   # would overflow on the device after collecting
+            fail(p, f"--{name.replace('_', '-')} must be at most {presets.BUDGET_MAX:,} (the device counts in "
+                    f"32-bit integers), got {value:,}")
     # the shortcuts are --set's of the budget and the recipe, applied before the --set's given
     sets = [f"budget.{k}={v}" for k, v in (("seeds", args.seeds), ("iterations", args.iterations),
                                            ("eval_episodes", args.eval_episodes)) if v is not None]
@@ -146,6 +157,10 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
     except presets.SettingsError as e:
         fail(p, str(e))
     args.checkpoint_every = args.checkpoint_every or args.settings.budget.chunk
+    args.cost = cost(args.env, args.settings, args.methods)
+    if args.cost is not None and args.cost.over and not args.yes:
+        fail(p, f"{args.cost}, over the limit of {UPDATES_LIMIT:,} updates or {EPISODES_LIMIT:,} episodes; pass "
+                "--yes to run it anyway, or ask for fewer --seeds, --iterations or --eval-episodes")
     default_protocol = tasks.get(args.env).protocol(None, args.obs).name
     default_recipe = presets.default_recipe(tasks.PROTOCOLS[args.protocol], args.obs)
     name = [args.env, args.obs, *([args.protocol] if args.protocol != default_protocol else []),
@@ -157,8 +172,67 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
                    else unwritable(args.out))
         if problem:
             fail(p, f"--out {args.out}: {problem}")
+        if args.resume and not holds_sweep(args.out):   # a mistyped --out would silently start afresh
+            fail(p, f"--resume: {args.out} holds no sweep to resume (no results.json, no checkpoints/sweep.json); "
+                    "check --out, or start a new sweep there with --fresh instead of --resume")
     args.data_dir = args.data_dir or data.cache_dir()
     return args
+
+
+# A sweep past either is refused unless --yes: a typo (--seeds 1000000) would otherwise hold the machine for
+# months. The paper preset with every method is ~1e8 updates; the README's and the default sweeps ~1e4 to 1e6.
+UPDATES_LIMIT = 1_000_000_000   # model updates: one policy, one batch, one optimiser step
+EPISODES_LIMIT = 1_000_000      # evaluation episodes, at the end and at each budget.eval_at
+
+
+@dataclasses.dataclass(frozen=True)
+class Cost:
+    """What a sweep asks for: `configurations` (method settings) x `seeds` x `iterations` model updates, and
+    `episodes` evaluation episodes (every policy at the end and at each `eval_at`)."""
+
+    configurations: int
+    seeds: int
+    iterations: int
+    episodes: int
+
+    @property
+    def updates(self) -> int:
+        return self.configurations * self.seeds * self.iterations
+
+    @property
+    def over(self) -> bool:
+        return self.updates > UPDATES_LIMIT or self.episodes > EPISODES_LIMIT
+
+    def __str__(self) -> str:
+        return (f"this sweep asks for {self.updates:,} model updates ({self.configurations:,} configurations x "
+                f"{self.seeds:,} seeds x {self.iterations:,} iterations) and {self.episodes:,} evaluation episodes")
+
+
+def cost(env: str, settings, names) -> Cost | None:
+    """The sweep's `Cost` from its settings and methods, before anything runs; None where a method's grid cannot
+    be listed without the demonstrations (a plugin's that reads the training split's size)."""
+    from ape_jax import methods, tasks
+    from ape_jax.pipeline.spec import grid_runs
+
+    recipe, budget = settings.recipe, settings.budget
+    ctx = methods.GridContext(task=tasks.get(env), step_grid=recipe.step_grid, softmax_grid=recipe.softmax_grid,
+                              n_train=settings.protocol.train_transitions or 1, fca_alphas=recipe.fca_alphas,
+                              ib_weights=recipe.ib_weights, fca_adversary_lr=recipe.fca_adversary_lr, recipe=recipe)
+    try:
+        configurations = len(grid_runs(names, 1, ctx))
+    except Exception:  # noqa: BLE001 - a plugin's grid; the sweep lists it again with the real split
+        return None
+    return Cost(configurations, budget.seeds, budget.iterations,
+                configurations * budget.seeds * budget.eval_episodes * (1 + len(budget.eval_at)))
+
+
+def holds_sweep(out: pathlib.Path) -> bool:
+    """Whether `out` holds a sweep to resume or report: its results.json, or its checkpoints' fingerprint."""
+    from ape_jax.pipeline.checkpoint import FINGERPRINT
+    from ape_jax.pipeline.rundir import RunDir
+
+    run = RunDir(out)
+    return run.results.is_file() or (run.checkpoints / FINGERPRINT).is_file()
 
 
 def _grid(p, flag: str, text: str, parse_one) -> tuple:
@@ -200,9 +274,7 @@ def table(res) -> str:
     ratios over seeds and its seeds judged copycat / seeds whose diagnostics could be read."""
     metric = res.main_metric
     shown = list(res.config.get("task_metrics", []))
-    rows = [r for r in res.summary if r["n_seeds"]]
-    best = max(rows, key=lambda r: r["normalized_mean"] if r["normalized_mean"] is not None else -math.inf,
-               default=None)
+    best, rule = best_configuration(res)
 
     def read(runs):  # the readable diagnostics of `runs`; `{"absent": why}` is not read (shown "-", never 0)
         return [d for x in runs if isinstance(d := x.get("diagnostics"), dict) and "absent" not in d]
@@ -212,8 +284,7 @@ def table(res) -> str:
         return f"{statistics.median(v):.3g}" if v else "-"
 
     def spread(r, key):  # the sample sd over seeds of the per-seed means (the summary keeps the population sd)
-        v = [x["eval"][key] for x in res.runs if x["method"] == r["method"] and x["hparams"] == r["hparams"]
-             and x["status"] == "ok" and isinstance((x.get("eval") or {}).get(key), (int, float))]
+        v = seed_values(res, r, key)
         return statistics.stdev(v) if len(v) >= 2 else None
 
     diagnosed = bool(read(res.runs))
@@ -260,12 +331,14 @@ def table(res) -> str:
                        + f", {why.count(w)} of {len(runs)} seeds: {w}" for w in dict.fromkeys(why)]
         lines.append(line)
     e = res.expert
-    if e.get("return_mean") is not None:
-        lines.append(f"expert {e['return_mean']:,.1f} ± {e['return_std']:,.1f}, random policy "
-                     f"{e['random_return_mean']:,.1f}; normalized = 100 (R - R_random) / (R_expert - R_random); "
-                     "* = best configuration")
+    sd = "sd: the sample sd (ddof 1) over seeds"
+    if e.get("return_mean") is not None:   # the expert's mean alone: its card's sd is over episodes, not seeds
+        lines.append(f"expert {e['return_mean']:,.1f}, random policy {e['random_return_mean']:,.1f}; normalized = "
+                     f"100 (R - R_random) / (R_expert - R_random); {sd}; {rule}")
     elif metric != "return":
-        lines.append(f"{metric} in % of episodes; the other metrics are per-episode means; * = best {metric}")
+        lines.append(f"{metric} in % of episodes; the other metrics are per-episode means; {sd}; {rule}")
+    else:
+        lines.append(f"{sd}; {rule}")
     if diagnosed:
         t = (res.config.get("diagnostics") or {}).get("thresholds") or {}
         rule = " and ".join(f"{name} ratio <= " + (f"{t[key]:g}" if isinstance(t.get(key), (int, float)) else
@@ -289,6 +362,49 @@ def table(res) -> str:
     return "\n".join(lines)
 
 
+# Student's t 0.975 quantiles for 1..30 degrees of freedom (a 95% two-sided interval); past 30, `_t975`'s expansion
+_T975 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131,
+         2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042)
+
+
+def _t975(df: int) -> float:
+    """Student's t 0.975 quantile with `df` >= 1 degrees of freedom (the table; past 30 the Cornish-Fisher
+    expansion about the normal's 1.96, within 1e-3)."""
+    if df <= len(_T975):
+        return _T975[df - 1]
+    z = 1.959964
+    return z + (z**3 + z) / (4 * df) + (5 * z**5 + 16 * z**3 + 3 * z) / (96 * df**2)
+
+
+def seed_values(res, row: dict, key: str) -> list[float]:
+    """The per-seed values of `key` (a field of each run's `eval`) of one summary row's finished runs."""
+    return [x["eval"][key] for x in res.runs if x["method"] == row["method"] and x["hparams"] == row["hparams"]
+            and x["status"] == "ok" and isinstance((x.get("eval") or {}).get(key), (int, float))
+            and math.isfinite(x["eval"][key])]
+
+
+def best_configuration(res) -> tuple[dict | None, str]:
+    """The summary row the table marks best, or None, and the rule's words for the legend.
+
+    The rule: the configuration with the highest mean of the task's main metric over seeds is best only where its
+    95% interval over seeds (Student's t: mean ± t(0.975, n-1) sd / sqrt(n), sd with ddof 1) lies wholly above
+    every other configuration's mean. One seed gives no interval, so nothing is marked.
+    """
+    key = "return_mean" if res.main_metric == "return" else res.main_metric  # normalized: the same order
+    means = [(sum(v) / len(v), r, v) for r in res.summary if r["n_seeds"] and (v := seed_values(res, r, key))]
+    if len(means) < 2:
+        return None, "one configuration: none is marked best"
+    means.sort(key=lambda m: m[0], reverse=True)
+    top, row, values = means[0]
+    if len(values) < 2:
+        return None, "1 seed: no interval, so none is marked best (--seeds 3 or more for one)"
+    half = _t975(len(values) - 1) * statistics.stdev(values) / math.sqrt(len(values))
+    if top - half > means[1][0]:
+        return row, "* = best: its 95% interval over seeds (Student's t) lies above every other configuration's mean"
+    return None, ("no * (best): no configuration's 95% interval over seeds (Student's t) lies above every other's "
+                  "mean")
+
+
 def _pm(mean, sd, scale: float, unit: str) -> str:
     """`mean ± sd` as a cell (`sd` None: one seed, no spread to show)."""
     if mean is None:
@@ -299,13 +415,30 @@ def _pm(mean, sd, scale: float, unit: str) -> str:
 
 
 def main(argv=None) -> int:
+    """The sweep from the command line; returns the exit status (0 done or reported, 2 refused, 130 Ctrl-C)."""
+    state: dict = {}   # what was made, for the cleanup whatever ends the sweep
+    try:
+        return _main(argv, state)
+    except KeyboardInterrupt:
+        print(f"\n{_prog()}: {_interrupted(argv, state.get('args'))}", file=sys.stderr)
+        return 130
+    finally:
+        if (lock := state.get("lock")) is not None:
+            lock.release()
+        out = state["args"].out if state.get("created") else None
+        if out is not None and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # a sweep refused or stopped before any work leaves no empty folder behind
+
+
+def _main(argv, state: dict) -> int:
     procs = _distributed.start(PROG, argv)  # first: JAX's distributed runtime must start before JAX computes
     fp, opened, verdict = None, None, None
     try:
-        args = parse(argv, writes=procs.writes)
+        args = state["args"] = parse(argv, writes=procs.writes)
         spec, fp = _spec(args, argv)
-        created = procs.writes and not args.out.exists()
         if procs.writes:  # the others never look at --out
+            state["created"] = not args.out.exists()
+            state["lock"] = _hold(args.out)
             opened = _open_out(args, fp)
             verdict = opened if isinstance(opened, int) else None
     except SystemExit as e:
@@ -318,7 +451,38 @@ def main(argv=None) -> int:
         return code
     if not procs.writes:
         return _train_share(spec, procs)
-    return _run(args, spec, opened, created)
+    return _run(args, spec, opened)
+
+
+def _prog() -> str:
+    """How this command names itself (`ape-sweep` as a console script)."""
+    return Parser(prog=PROG).prog
+
+
+def _hold(out: pathlib.Path):
+    """`out` held for this sweep (`checkpoint.OutLock`), or a refusal naming the sweep that holds it."""
+    from ape_jax.pipeline.checkpoint import LockHeld, OutLock
+
+    lock = OutLock(out)
+    try:
+        lock.acquire()
+    except LockHeld as e:
+        fail(None, str(e))
+    return lock
+
+
+def _interrupted(argv, args: argparse.Namespace | None) -> str:
+    """The one line Ctrl-C leaves: how to resume what was saved, or that nothing was."""
+    from ape_jax.pipeline.rundir import RunDir
+
+    if args is None or not holds_sweep(args.out):
+        return "interrupted before anything was saved; run the same command again to start"
+    given = list(sys.argv[1:] if argv is None else argv)
+    given = [a for a in given if a not in ("--fresh", "--resume")]
+    if not any(a == "--out" or a.startswith("--out=") for a in given):
+        given += ["--out", str(args.out)]
+    return (f"interrupted; {RunDir(args.out).checkpoints}/ keeps what was saved: resume with --resume and the same "
+            f"--out: {shlex.join([*PROG.split(), *given, '--resume'])}")
 
 
 def _spec(args: argparse.Namespace, argv) -> tuple:
@@ -359,6 +523,7 @@ def _open_out(args: argparse.Namespace, fp: dict):
                        f"{'; '.join(diff[:4])}; use another --out, or pass --fresh to replace it")
         print(f"{results_path} already holds this sweep; not rerunning (--fresh to train it again).\n")
         print(table(old))
+        print("\n".join(next_steps(args.out, bool(old.config.get("smoke")))))
         return 0
     checkpoint = SweepCheckpoint(out.checkpoints, fp, args.checkpoint_every)
     try:
@@ -403,8 +568,8 @@ def _network(recipe, obs: str) -> str:
     return f"{recipe.encoder} encoder" + "".join(f", {x}" for x in extras)
 
 
-def _run(args: argparse.Namespace, spec, checkpoint, created: bool) -> int:
-    """Process 0 (or the only one): the whole sweep, and every file it writes (`created`: --out was made for it)."""
+def _run(args: argparse.Namespace, spec, checkpoint) -> int:
+    """Process 0 (or the only one): the whole sweep, and every file it writes."""
     from tqdm import tqdm
 
     from ape_jax.pipeline import checkpoint as ckpt_lib
@@ -427,6 +592,9 @@ def _run(args: argparse.Namespace, spec, checkpoint, created: bool) -> int:
           f"{b.iterations:,} iterations, {_seed_words(b)}, {b.eval_episodes} evaluation episodes; recipe {r.name} "
           f"({_network(r, args.obs)}, Adam {r.lr:g} β1 {r.beta1:g}, batch {r.batch_size}); methods "
           f"{', '.join(args.methods)}")
+    if args.cost is not None and args.cost.over:
+        print(f"{args.cost}, over the limit of {UPDATES_LIMIT:,} updates or {EPISODES_LIMIT:,} episodes; --yes: "
+              "running it")
     if spec.settings.smoke:
         print(f"smoke run: preset {args.preset}'s settings with its amounts shrunk to seconds; it checks that the "
               f"preset runs end to end, its numbers mean nothing (the report refuses them)")
@@ -435,9 +603,7 @@ def _run(args: argparse.Namespace, spec, checkpoint, created: bool) -> int:
     try:
         res, policies = run_sweep(spec, hooks, checkpoint)
     except (ExpertError, CheckpointError, DataError, PluginError, ValueError) as e:
-        checkpoint.discard_if_empty()  # a refusal leaves --out as it found it
-        if created and args.out.is_dir() and not any(args.out.iterdir()):
-            args.out.rmdir()
+        checkpoint.discard_if_empty()  # a refusal leaves --out as it found it (`main` removes a folder made for it)
         return fail(None, str(e))
     res.system = started
     ckpt_lib.save_policies(out.params, policies)
@@ -450,7 +616,24 @@ def _run(args: argparse.Namespace, spec, checkpoint, created: bool) -> int:
     print(f"\ntime: {t['total_s']:.0f} s in all{' (resumed)' if t['resumed'] else ''} "
           f"(compile ~{t['compile_s']:.0f} s, train {t['train_s']:.0f} s, evaluate {t['eval_s']:.0f} s)\n"
           f"wrote {out.results}, {out.csv}, {out.params}/, training curves in {out.curves}/ and {out.tensorboard}/")
+    print("\n".join(next_steps(args.out, spec.settings.smoke)))
     return 0
+
+
+def next_steps(out: pathlib.Path, smoke: bool = False) -> list[str]:
+    """The lines that end a sweep: the commands that report and compare what it wrote in `out`."""
+    if smoke:
+        return ["next: the same command without --smoke (a smoke run's numbers mean nothing, and the report and "
+                "compare refuse them)"]
+    from ape_jax.pipeline.rundir import RunDir
+
+    q = shlex.quote
+    return ["next:",
+            f"  python -m experiments.report {q(str(RunDir(out).results))} --out {q(str(out / 'report.md'))}"
+            f"   # tables and figures ({out / 'figures'}/)",
+            f"  python -m experiments.compare {q(str(out))}"
+            "   # against the shipped results/ of the same task, protocol, recipe and budget (--preset default or "
+            "paper); it names the nearest file where none matches"]
 
 
 if __name__ == "__main__":

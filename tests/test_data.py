@@ -125,6 +125,9 @@ def test_load_refuses_truncated_changed_or_incomplete_files(tmp_path, demos):
     with pytest.raises(DataError, match="truncated or unreadable"):
         data_lib.load(path)
     path.with_suffix(".json").unlink()
+    with pytest.raises(DataError, match="d.npz: corrupt: not a readable .npz archive"):  # not "metadata missing"
+        data_lib.load(path)
+    path.write_bytes(raw)   # whole, without its metadata: that is what is missing
     with pytest.raises(DataError, match="metadata d.json is missing"):
         data_lib.load(path)
     with pytest.raises(DataError, match="no such dataset file"):

@@ -31,15 +31,24 @@ parameters, leaves `[len(runs), ...]`, and the observation statistics; beside it
 `experiments.evaluate` evaluates again. Files written before groups had an
 observation hold the runs' list alone, named `h<H>.json`: the sweep's observation,
 history `H`.
+
+While a sweep runs it holds `OUT/sweep.lock` (`OutLock`): a second sweep into the
+same folder is refused at its start, naming the holder, instead of colliding at its
+first checkpoint. The lock is the kernel's (`flock`), so a killed sweep leaves no
+stale lock: the file it leaves names a holder that no longer holds it.
 """
 
 from __future__ import annotations
 
+import datetime
+import fcntl
 import json
 import os
 import pathlib
 import re
 import shutil
+import socket
+import sys
 import time
 from typing import Any
 
@@ -53,6 +62,80 @@ _GROUP_FIELDS = ("runs", "history", "observation")  # a policy group's record in
 
 class CheckpointError(ValueError):
     """A checkpoint directory that cannot be resumed: foreign, of another sweep, or unreadable."""
+
+
+LOCK = "sweep.lock"
+
+
+class LockHeld(CheckpointError):
+    """The output folder is held by another running sweep (one line naming it)."""
+
+
+class OutLock:
+    """A sweep's hold on its output folder: `OUT/sweep.lock`, locked with `flock` while the sweep runs.
+
+    `acquire` creates the folder if needed and takes the lock, or raises `LockHeld` naming the holder (pid, host,
+    start time, from the file) when another process has it. The kernel drops the lock when its process ends,
+    however it ends, so the file a killed sweep leaves is simply taken over. `release` deletes the file, then
+    unlocks; a process that opened the file before it was deleted finds, after locking, that the path no longer
+    names the file it locked, and opens it again.
+    """
+
+    def __init__(self, out: os.PathLike):
+        self.path = pathlib.Path(out) / LOCK
+        self._fd: int | None = None
+
+    def acquire(self) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        while True:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                holder = _holder(fd)
+                os.close(fd)
+                raise LockHeld(f"{self.path.parent} is in use by another sweep ({holder}); wait for it to finish, or "
+                               "use another --out") from None
+            except OSError:  # a file system without locks (ENOLCK): the sweep runs unguarded, as before the lock
+                break
+            try:
+                same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+            os.close(fd)  # released and deleted by its holder between our open and our lock: try the new file
+        record = {"pid": os.getpid(), "host": socket.gethostname(),
+                  "started": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+                  "command": sys.argv}
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, (json.dumps(record) + "\n").encode(), 0)
+        self._fd = fd
+
+    def release(self) -> None:
+        if self._fd is None:
+            return
+        try:
+            self.path.unlink(missing_ok=True)
+        finally:
+            os.close(self._fd)  # closing drops the lock
+            self._fd = None
+
+    def __enter__(self) -> OutLock:
+        self.acquire()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+
+def _holder(fd: int) -> str:
+    """Who holds the lock, as its file records it (`pid P on HOST, started T`)."""
+    try:
+        record = json.loads(os.pread(fd, 1 << 16, 0).decode())
+        return f"pid {int(record['pid'])} on {record['host']}, started {record['started']}"
+    except (OSError, ValueError, KeyError, TypeError):
+        return "its lock file is still being written"
 
 
 def _differences(old: Any, new: Any, prefix: str = "") -> list[str]:

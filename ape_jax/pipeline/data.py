@@ -282,6 +282,13 @@ def load(path: str | os.PathLike) -> tuple[Demonstrations, dict]:
     if not path.is_file():
         raise DataError(f"{path}: no such dataset file")
     if not mpath.is_file():
+        try:  # an .npz is a zip archive: one that does not read is corrupt, whatever else is missing
+            with zipfile.ZipFile(path) as z:
+                damaged = z.testzip()
+        except (zipfile.BadZipFile, EOFError, OSError, ValueError) as e:
+            raise DataError(f"{path}: corrupt: not a readable .npz archive ({type(e).__name__}: {e})") from e
+        if damaged is not None:
+            raise DataError(f"{path}: corrupt: its member {damaged} fails its checksum")
         raise DataError(f"{path}: its metadata {mpath.name} is missing (an interrupted write?)")
     try:
         meta = json.loads(mpath.read_text())

@@ -41,6 +41,11 @@ METHOD_GRIDS = ("rap_weights", "rap_widths", "palr_weights", "palr_bandwidths", 
 RAP_UNITS = StatePolicy.hidden[0]  # RAP's branches split the state policy's encoder units
 
 
+# the most any budget count may be: the device counts steps, seeds and episodes in 32-bit integers (a larger
+# one passed every check, trained, then overflowed at the first step); cost is `experiments.sweep`'s check
+BUDGET_MAX = 2**31 - 1
+
+
 class SettingsError(ValueError):
     """An unknown preset, recipe or field, or a value a field cannot take (one line)."""
 
@@ -80,8 +85,12 @@ class Budget:
             if f.name == "eval_at":
                 continue
             least = 0 if f.name in ("probe_steps", "width", "first_seed") else 1
-            _check(isinstance(getattr(self, f.name), int) and getattr(self, f.name) >= least,
-                   f"budget.{f.name} must be an integer >= {least}, got {getattr(self, f.name)!r}")
+            value = getattr(self, f.name)
+            _check(isinstance(value, int) and least <= value <= BUDGET_MAX,
+                   f"budget.{f.name} must be an integer >= {least} and <= {BUDGET_MAX:,}, got {value!r}")
+        _check(self.first_seed + self.seeds - 1 <= BUDGET_MAX,
+               f"budget.first_seed + budget.seeds - 1 must be at most {BUDGET_MAX:,} (the last seed), got "
+               f"{self.first_seed + self.seeds - 1:,}")
         at = self.eval_at
         _check(all(isinstance(i, int) and not isinstance(i, bool) for i in at)
                and list(at) == sorted(set(at)) and all(0 < i < self.iterations for i in at),

@@ -229,6 +229,21 @@ class Prepared:
                                        unroll=self.sequential(settings.recipe.encoder))
 
 
+def check_task(recorded: dict | None, spec: SweepSpec, where: str) -> None:
+    """Refuses (ValueError, one line) a dataset whose metadata (`minari_io.dataset_metadata`) names another task
+    or observation mode than the sweep's, with the flags that fit it; one that names none passes (its shapes are
+    checked once loaded)."""
+    recorded = recorded if isinstance(recorded, dict) else {}
+    settings = recorded.get("settings") if isinstance(recorded.get("settings"), dict) else {}
+    env, obs = settings.get("env", recorded.get("env")), settings.get("obs", recorded.get("obs"))
+    if env is not None and env != spec.env:
+        raise ValueError(f"{where} holds {env}{f' ({obs})' if obs else ''} demonstrations, not {spec.env}'s; pass "
+                         f"--env {env}{f' --obs {obs}' if obs else ''} to train on them")
+    if obs is not None and obs != spec.obs:
+        raise ValueError(f"{where} holds {env or spec.env} demonstrations observed as {obs!r}, not {spec.obs!r}; "
+                         f"pass --obs {obs} to train on them")
+
+
 def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
     """Phase 1: the environment, the demonstrations (collected or cached, or `spec.dataset`), their expert and
     references, the split and the normaliser. A `--dataset` brings its own expert and references
@@ -252,8 +267,10 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
         expert, description = collect.expert_for(env, protocol.expert)
     else:
         where = str(spec.dataset)
+        recorded = minari_io.dataset_metadata(spec.dataset)
+        check_task(recorded, spec, where)   # first: another task's data fails every later check, each its own way
         check_protocol(minari_io.dataset_settings(spec.dataset), spec, where)
-        found = collect.dataset_expert(env, protocol, minari_io.dataset_metadata(spec.dataset), where)
+        found = collect.dataset_expert(env, protocol, recorded, where)
         online = [m for m in spec.methods if methods_lib.get(m).online]
         if online and found.expert is None:
             raise ValueError(f"{', '.join(online)} queries the expert of the demonstrations, but {found.why}; drop "

@@ -23,6 +23,7 @@ import numpy as np
 
 from ape_jax.pipeline import checkpoint as ckpt_lib
 from ape_jax.pipeline import sweep as sweep_lib
+from ape_jax.pipeline.data import write_atomic
 from ape_jax.pipeline.results import Results
 
 
@@ -193,19 +194,11 @@ def captioned(clip: Clip, width: int = 256) -> list:
 
 
 def write_gif(clip: Clip, path: str | pathlib.Path, width: int = 256) -> pathlib.Path:
-    """Writes the captioned clip as an animated GIF (atomically: a temporary name, then renamed)."""
-    import os
-    import tempfile
-
+    """Writes the captioned clip as an animated GIF (atomically: a temporary name, then renamed), with the
+    permissions of any new file (0644 under the usual umask; a `mkstemp` file would keep its 0600)."""
     path = pathlib.Path(path)
     images = captioned(clip, width)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".gif", dir=path.parent)
-    os.close(fd)
-    try:
-        images[0].save(tmp, save_all=True, append_images=images[1:], duration=max(1, round(1000 / clip.fps)), loop=0)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
+    write_atomic(path, lambda f: images[0].save(f, format="GIF", save_all=True, append_images=images[1:],
+                                                duration=max(1, round(1000 / clip.fps)), loop=0))
     return path
