@@ -48,6 +48,13 @@ def _check_name(name: str) -> None:
         raise ValueError(f"unknown env {name!r}; valid: {list(names())}")
 
 
+def default_episode_length(name: str) -> int:
+    """Control steps per episode of environment `name` at its defaults (Brax's 1000, ToyCar's own), read from its
+    config without building it."""
+    _check_name(name)
+    return ToyCarConfig().episode_length if name == "toycar" else brax_env.default_config(name).episode_length
+
+
 def make(name: str, obs: str | None = None, **overrides) -> Env:
     """Builds environment `name` with observation mode `obs`.
 
@@ -96,6 +103,7 @@ __all__ = [
     "ToyCar",
     "ToyCarConfig",
     "Trajectory",
+    "default_episode_length",
     "default_obs",
     "from_observation",
     "make",

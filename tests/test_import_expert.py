@@ -177,7 +177,7 @@ def test_import_writes_the_expert_outside_the_repository_and_the_pipeline_finds_
     # collection names it by its file's SHA-256, so demonstrations of another file are another dataset
     cfg = collect.settings("hopper", "pos", 2, expert="mine")
     assert cfg["expert"]["kind"] == "imported" and cfg["expert"]["sha256"] == digest
-    assert collect._variant(cfg) == "mine"
+    assert collect.ExpertRef.of_key(cfg).variant == "mine" and collect.variant_of("hopper", cfg["expert"]) == "mine"
     assert "protocol.expert=mine" in capsys.readouterr().out
 
 
@@ -228,19 +228,20 @@ def test_labels_are_clipped_or_raw_and_the_executed_action_is_clipped_either_way
     assert stats["raw_outside_share"] == 1.0 and (stats["raw_min"], stats["raw_max"]) == (-1.0, 2.0)
 
 
-def test_labels_name_the_data_only_when_raw_and_the_metadata_records_them(toycar, tmp_path, monkeypatch):
+def test_labels_name_the_data_only_when_raw_and_the_metadata_records_them(toycar, tmp_path):
     clipped = collect.settings("toycar", "full", 2, episode_length=40)
     raw = collect.settings("toycar", "full", 2, labels="raw", episode_length=40)
     assert "labels" not in clipped and raw["labels"] == "raw"   # the names of earlier datasets stay valid
     assert data.cache_path(tmp_path, clipped) != data.cache_path(tmp_path, raw)
-    real = collect.expert_for
-    monkeypatch.setattr(collect, "expert_for", lambda env, variant=None: (
-        lambda obs: 1.5 * real(env, variant)[0](obs), real(env, variant)[1]))
-    demos, meta, _, _ = collect.collect_cached(raw, tmp_path, references={"return_mean": 5.0})
+    class Louder:   # the rule's action × 1.5: raw labels beyond the action range
+        def policy(self, env):
+            return lambda obs: 1.5 * env.expert(obs)
+
+    demos, meta, _, _ = collect.collect_cached(raw, tmp_path, references={"return_mean": 5.0}, expert=Louder())
     assert meta["labels"]["mode"] == "raw" and 0 < meta["labels"]["raw_outside_share"] < 1
     assert demos.action.max() == 1.5 and demos.executed.max() == 1.0
     assert meta["references"] == {"return_mean": 5.0}
-    demos, meta, _, _ = collect.collect_cached(clipped, tmp_path)
+    demos, meta, _, _ = collect.collect_cached(clipped, tmp_path, expert=Louder())
     assert meta["labels"]["mode"] == "clipped" and meta["labels"]["raw_outside_share"] > 0
     assert demos.action.max() == 1.0
 

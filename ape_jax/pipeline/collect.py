@@ -16,7 +16,7 @@ Gaussian noise of std `noise_std` (clipped to the action bounds), while the
 paper's driving data). The metadata records the labels' mode and how many of the
 expert's raw output's entries lay outside the action range (`label_statistics`).
 
-A dataset names its expert (`expert_for`'s description, in its settings); `dataset_expert`
+A dataset names its expert (`setup.ExpertRef`'s description, in its data key); `dataset_expert`
 finds it again for a sweep from the dataset (`--dataset`), with the references the
 dataset recorded.
 """
@@ -24,7 +24,6 @@ dataset recorded.
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import pathlib
 import time
@@ -39,6 +38,8 @@ import numpy as np
 import envs
 from ape_jax import tasks
 from ape_jax.pipeline import data as data_lib
+from ape_jax.pipeline.setup import (ExpertRef, ProtocolSetup, data_key, protocol_setup,  # noqa: F401  (re-exported)
+                                   reference_returns, variant_of)
 
 def default_episodes(env_name: str) -> int:
     """Expert episodes a sweep collects for `env_name` under the `brax` protocol (its task record's: ~20k training
@@ -46,99 +47,12 @@ def default_episodes(env_name: str) -> int:
     return tasks.get(env_name).episodes
 
 
-@dataclasses.dataclass(frozen=True)
-class ProtocolSetup:
-    """A protocol as it applies to one environment: what the sweep, `experiments.collect` and the keyframe picture
-    collect under it, so the three name the same cached dataset.
-
-    Attributes:
-      name: the protocol's name (`ape_jax.tasks.PROTOCOLS`).
-      settings: every field, resolved for the environment (results.json's `protocol`).
-      env_overrides: the `envs.make` settings it fixes (frame skip, episode length, reward scale).
-      episodes: expert episodes to collect: as many whole episodes as its expert steps take, else the task's.
-      expert: the expert variant demonstrating (`ape_jax.tasks.Protocol.expert`; None: the task's own).
-      labels: what the demonstrations store as the label, `"clipped"` or `"raw"` (`ape_jax.tasks.Protocol.labels`).
-    """
-
-    name: str
-    settings: dict
-    env_overrides: dict
-    episodes: int
-    expert: str | None = None
-    labels: str = "clipped"
-
-
-def protocol_setup(env_name: str, obs: str, protocol: str | tasks.Protocol | None = None) -> ProtocolSetup:
-    """Protocol `protocol` (a name, None: the task's default for `obs`, or a record, e.g. with `--set` changes) for
-    `env_name`; `ValueError` for one the task cannot take."""
-    if isinstance(protocol, tasks.Protocol):
-        tasks.get(env_name).protocol(protocol.name, obs)  # ValueError for a protocol the task cannot take
-        proto = protocol
-    else:
-        proto = tasks.get(env_name).protocol(protocol, obs)
-    brax = env_name in envs.brax_env.brax_names()
-    standard = envs.brax_env.default_frame_skip(env_name) if brax else None
-    settings = proto.settings(standard)
-    if settings["episode_length"] is None:
-        settings["episode_length"] = envs.make(env_name, obs="full" if brax else None).episode_length
-    episodes = (-(-proto.collect_transitions // settings["episode_length"]) if proto.collect_transitions is not None
-                else proto.episodes or default_episodes(env_name))
-    return ProtocolSetup(proto.name, settings, proto.env_overrides(standard), episodes, proto.expert, proto.labels)
-
-
-def reference_returns(env_name: str, protocol: tasks.Protocol) -> dict | None:
-    """The returns results are normalised by under `protocol` (`envs.experts.reference`: the expert's mean return
-    `return_mean` and a random policy's `random_return_mean`, measured under the protocol), None for a task
-    whose expert has no card (a rule-based one, e.g. ToyCar's).
-
-    Raises:
-      envs.experts.ExpertError: no reference measured under the protocol (naming the command that measures it).
-    """
-    if not tasks.get(env_name).has_card:
-        return None
-    from envs import experts
-
-    return experts.reference(protocol.expert_name(env_name), protocol.reference or protocol.name)
-
-
 def expert_for(env: envs.Env, variant: str | None = None) -> tuple[Callable[[jax.Array], jax.Array], dict]:
     """The expert of `env` as `full_obs -> action` (its output as it gives it: unbounded for a `"linear"` head; see
-    `labeller`), and a description of it for metadata.
-
-    A task with a rule-based expert (`ape_jax.tasks.Task.expert`) uses the
-    environment's own `expert`; any other uses the shipped checkpoint
-    (`envs.experts.load`: `envs/experts/<env>/`, or with `variant` the one shipped beside it,
-    `envs/experts/<env>-<variant>/`), else an imported one of that name (`envs.experts.imported`: its
-    description names the file's SHA-256, format and origin, not the card, so measuring its references again
-    keeps the data's name); `ExpertError` if there is none.
-    """
-    from envs import experts
-
-    if tasks.get(env.name).expert == "rule-based":
-        if variant is not None:
-            raise ValueError(f"{env.name}'s expert is rule-based: it has no variant {variant!r} (protocol.expert)")
-        # the rule and the physics it drives are code: their settings name the data (a changed default,
-        # e.g. ToyCar's rolling resistance, must not reuse demonstrations cached before it)
-        config = getattr(env, "config", None)
-        config = json.loads(json.dumps(dataclasses.asdict(config))) if dataclasses.is_dataclass(config) else None
-        return env.expert, {"kind": "rule-based", "function": f"{type(env).__module__}.expert_action",
-                            "config": config}
-    name = env.name if variant is None else f"{env.name}-{variant}"
-    policy = experts.load(name)
-    card = experts.card(name)
-    if experts.is_imported(name):
-        source = card.get("source", {})
-        return policy, {"kind": "imported", "name": name, "variant": variant, "format": source.get("format"),
-                        "sha256": source.get("sha256"), "origin": source.get("origin"),
-                        "network": {k: v for k, v in card["network"].items() if k != "layer_sizes"}}
-    card_file = experts.directory(name) / experts.CARD
-    return policy, {
-        "kind": "checkpoint", "path": f"envs/experts/{name}",
-        "card_sha256": hashlib.sha256(card_file.read_bytes()).hexdigest(),
-        "algorithm": card.get("algorithm"), "return_mean": card.get("return_mean"),
-        "return_std": card.get("return_std"), "random_return_mean": card.get("random_return_mean"),
-        "env_steps": card.get("env_steps"),
-    }
+    `labeller`), and its description for metadata (`setup.ExpertRef`: a rule-based expert, the shipped checkpoint
+    `envs/experts/<env>[-<variant>]/`, else an imported one of that name); `ExpertError` if there is none."""
+    ref = ExpertRef.resolve(env.name, variant, env=env)
+    return ref.policy(env), ref.description
 
 
 def labeller(expert: Callable[[jax.Array], jax.Array], env: envs.Env,
@@ -258,33 +172,17 @@ def _flatten(traj: envs.Trajectory, keep: int, first_episode: int) -> data_lib.D
 def settings(env_name: str, obs: str, episodes: int, seed: int = 0, noise_frac: float = 0.0,
              noise_std: float = 0.0, batch: int = 32, expert: str | None = None, labels: str = "clipped",
              **env_overrides) -> dict:
-    """The collection settings that name a cached dataset (see `data.cache_path`); `expert`: the expert variant
-    (`expert_for`; None: the task's own), named through its card in the settings' `expert`; `labels`: recorded
-    only when not `"clipped"`, so the names of datasets collected before the field stay valid."""
+    """The collection settings that name a cached dataset (`setup.data_key`) for expert variant `expert` (None:
+    the task's own); the environment's settings are checked by making it (a sweep's `Setup` builds none)."""
     env = envs.make(env_name, obs=obs, **env_overrides)
-    _, expert_info = expert_for(env, expert)
-    if labels not in tasks.LABELS:
-        raise ValueError(f"labels {labels!r} is not one of {', '.join(tasks.LABELS)}")
-    overrides = {k: (list(v) if isinstance(v, tuple) else v) for k, v in sorted(env_overrides.items())}
-    return {"env": env_name, "obs": obs, "episodes": int(episodes), "seed": int(seed),
-            "noise_frac": float(noise_frac), "noise_std": float(noise_std), "batch": int(batch),
-            "env_overrides": overrides, "expert": expert_info, "format": data_lib.FORMAT,
-            **({"labels": labels} if labels != "clipped" else {})}
-
-
-def _variant(cfg: dict) -> str | None:
-    """The expert variant collection settings name (`settings`): an imported expert's `variant`, else the suffix
-    of the shipped expert's directory, if any."""
-    info = cfg.get("expert") or {}
-    if info.get("kind") == "imported":
-        return info.get("variant")
-    name = (info.get("path") or "").rsplit("/", 1)[-1]
-    return name[len(cfg["env"]) + 1:] if name.startswith(cfg["env"] + "-") else None
+    return data_key(env_name, obs, episodes, ExpertRef.resolve(env_name, expert, env=env), seed, noise_frac,
+                    noise_std, batch, labels, **env_overrides)
 
 
 def collect_cached(cfg: dict, data_dir, force: bool = False, progress=None, save: bool = True,
-                   references: dict | None = None):
-    """The dataset of settings `cfg` (from `settings`): loaded if cached, else collected and saved.
+                   references: dict | None = None, expert: ExpertRef | None = None):
+    """The dataset of settings `cfg` (a data key: `setup.data_key`): loaded if cached, else collected by `expert`
+    (its `ExpertRef`, whose policy is loaded once; None: the one `cfg` names, resolved again) and saved.
 
     `save=False` (a sweep's processes other than process 0) writes nothing, and
     collects rather than fail on a cached file it cannot read (another process
@@ -306,10 +204,10 @@ def collect_cached(cfg: dict, data_dir, force: bool = False, progress=None, save
             return demos, meta, path, True
     env = envs.make(cfg["env"], obs=cfg["obs"], **{k: (tuple(v) if isinstance(v, list) else v)
                                                      for k, v in cfg["env_overrides"].items()})
-    expert, _ = expert_for(env, _variant(cfg))
+    policy = (expert or ExpertRef.of_key(cfg)).policy(env)
     labels = cfg.get("labels", "clipped")
     t0 = time.perf_counter()
-    demos = collect(env, expert, jax.random.PRNGKey(cfg["seed"]), cfg["episodes"], cfg["noise_frac"],
+    demos = collect(env, policy, jax.random.PRNGKey(cfg["seed"]), cfg["episodes"], cfg["noise_frac"],
                     cfg["noise_std"], cfg["batch"], progress, labels="raw")
     seconds = time.perf_counter() - t0
     label_stats = {"mode": labels, **label_statistics(demos.action, env.action_bounds)}
@@ -353,10 +251,6 @@ class DatasetExpert:
     references_from: str | None = None
 
 
-def _variant_of(description: dict, env_name: str) -> str | None:
-    return _variant({"env": env_name, "expert": description})
-
-
 def dataset_expert(env: envs.Env, protocol: tasks.Protocol, meta: dict | None, where: str) -> DatasetExpert:
     """The expert of a dataset whose metadata is `meta` (`minari_io.dataset_metadata`: the collection `settings`,
     recorded `references`), for a sweep of `protocol` on `env`.
@@ -378,7 +272,7 @@ def dataset_expert(env: envs.Env, protocol: tasks.Protocol, meta: dict | None, w
     task = tasks.get(env.name)
     variant = protocol.expert
     if description is not None:
-        variant = _variant_of(description, env.name)
+        variant = variant_of(env.name, description)
         if variant != protocol.expert:
             name = "the task's own expert" if variant is None else f"expert {variant!r}"
             fix = "drop --set protocol.expert" if variant is None else f"pass --set protocol.expert={variant}"

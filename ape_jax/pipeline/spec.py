@@ -24,10 +24,10 @@ import numpy as np
 
 from ape_jax import methods as methods_lib
 from ape_jax import tasks
-from ape_jax.pipeline import collect
 from ape_jax.pipeline import results as results_lib
 from ape_jax.pipeline.data import Demonstrations
 from ape_jax.pipeline.presets import Settings, resolve
+from ape_jax.pipeline.setup import Setup
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,7 +77,7 @@ class SweepSpec:
             if why:
                 raise ValueError(why)
         _ = self.setup  # ValueError for a protocol the task cannot take
-        length, history = self.setup.settings.get("episode_length"), self.protocol.history
+        length, history = self.setup.applied.settings.get("episode_length"), self.protocol.history
         if isinstance(length, int) and history > length:
             raise ValueError(f"protocol.history {history} is longer than an episode ({length:,} steps): a history "
                              f"can hold at most the frames one episode stores")
@@ -115,10 +115,10 @@ class SweepSpec:
         return self.settings.preset
 
     @functools.cached_property
-    def setup(self) -> collect.ProtocolSetup:
-        """The protocol as it applies to this environment (`collect.protocol_setup`), resolved once: a protocol
-        without an episode length of its own makes the environment to read it."""
-        return collect.protocol_setup(self.env, self.obs, self.protocol)
+    def setup(self) -> Setup:
+        """The task, observation mode and protocol resolved once (`setup.Setup`): how the protocol applies to the
+        environment, its expert, references and data key. Pure data: nothing is built or restored."""
+        return Setup.resolve(self.env, self.obs, self.protocol)
 
     @property
     def episodes(self) -> int:
@@ -127,25 +127,21 @@ class SweepSpec:
 
     def protocol_settings(self) -> dict:
         """Every field of the protocol as it applies to this environment (results.json's `protocol`)."""
-        return dict(self.setup.settings)
+        return dict(self.setup.applied.settings)
 
     def collection_overrides(self) -> dict:
         """The `envs.make` settings demonstrations are collected with: the protocol's, and the image size."""
-        size = self.protocol.image_size
-        image = {"image_size": size} if self.obs == "image" and size else {}
-        return {**self.setup.env_overrides, **image}
+        return dict(self.setup.collection)
 
     def env_overrides(self) -> dict:
         """The `envs.make` settings policies are evaluated with: the collection's, and the protocol's `eval_steps`."""
-        steps = self.protocol.eval_steps
-        return {**self.collection_overrides(), **({"episode_length": steps} if steps is not None else {})}
+        return dict(self.setup.evaluation)
 
     def data_settings(self) -> dict:
-        """What names the demonstrations: the collection settings, or the dataset file's path and size."""
+        """What names the demonstrations: the protocol's expert's data key (`Setup.data_key`), or the dataset
+        file's path and size."""
         if self.dataset is None:
-            return collect.settings(self.env, self.obs, self.episodes, seed=0, expert=self.protocol.expert,
-                                    labels=self.protocol.labels,
-                                    **self.collection_overrides())
+            return self.setup.data_key
         path = pathlib.Path(self.dataset)
         files = ([path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
                  if path.is_dir() else [])

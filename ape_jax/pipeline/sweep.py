@@ -257,14 +257,16 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
     settings = spec.data_settings()
     protocol = spec.protocol
     if spec.dataset is None:
-        card = collect.reference_returns(spec.env, protocol)  # a reference not measured is refused before collecting
+        found = spec.setup.expert
+        card = spec.setup.references()  # a reference not measured is refused before collecting
         with hooks.bar(desc="collect", total=spec.episodes, unit="episode") as b:
             demos, meta, path, cached = collect.collect_cached(settings, spec.data_dir or data_lib.cache_dir(),
                                                             progress=lambda n: b.update(n - b.n),
-                                                            save=jax.process_index() == 0, references=card)
+                                                            save=jax.process_index() == 0, references=card,
+                                                            expert=found)
             b.update(spec.episodes - b.n)
         source, digest = ("cached" if cached else "collected"), meta.get("sha256")
-        expert, description = collect.expert_for(env, protocol.expert)
+        expert, description = found.policy(env), found.description  # the policy loaded once per sweep
     else:
         where = str(spec.dataset)
         recorded = minari_io.dataset_metadata(spec.dataset)
