@@ -52,6 +52,14 @@ def _loaded(tmp_path, obj, name="r.json"):
     return report.load(_write(tmp_path, name, obj))
 
 
+def _index(files, figure_dir=None):
+    """The results page (`index.md`) of `files`: every table across tasks; figures written to `figure_dir` if given."""
+    built = report.build(files, figure_dir)
+    for path, fig in built.figures.items():
+        figures.save_png(fig, path)
+    return built.pages["index.md"].text
+
+
 def _schema2(obj, command=None, methods=None, protocol=None):
     """A schema-1 fixture as the sweep writes schema 2: with its command, protocol (default brax's) and methods."""
     return {**obj, "schema": 2, "command": command, "protocol": protocol or {"name": "brax", "dt": 0.008},
@@ -132,6 +140,10 @@ def test_provenance_quotes_the_recorded_command():
     assert line.startswith("`python -m experiments.sweep --env hopper --out 'runs/my sweep' --seeds 2` — 30,000 "
                            "iterations, 2 seeds")
     assert "rebuilt" not in line and "schema" not in line
+    # machine paths go: a run folder from its `runs/`, any other absolute path by its name
+    command = ["python", "-m", "experiments.sweep", "--out", "/home/me/runs/s7/hopper", "--data-dir=/data/cache"]
+    line = report.provenance(Results.from_json(_schema2(_results(), command=command)))
+    assert line.startswith("`python -m experiments.sweep --out runs/s7/hopper --data-dir=cache` — ")
     from_python = report.provenance(Results.from_json(_schema2(_results())))   # schema 2, run from Python
     assert "--seeds 2` (rebuilt from its settings: the sweep ran from Python)" in from_python
     # a schema-3 one records its settings whole: it is given the arguments that resolve to them, its dataset too
@@ -145,15 +157,33 @@ def test_provenance_quotes_the_recorded_command():
         "ran from Python)")
 
 
-def test_the_cli_writes_the_report_section_and_keeps_the_rest(tmp_path, capsys):
+def test_the_cli_writes_the_block_and_the_pages_and_keeps_the_hand_written_text(tmp_path, capsys):
     main = _write(tmp_path, "main.json", _results())
     out = tmp_path / "BENCHMARKS.md"
     out.write_text("# Benchmarks\n\nhand-written prose\n")
     assert report.main([str(main), "--out", str(out)]) == 0
     first = out.read_text()
-    assert "hand-written prose" in first and "<!-- report:start -->" in first and "| BC-SO | 300 ± 10 (15%) |" in first
+    assert "hand-written prose" in first and "<!-- report:start -->" in first
+    assert "Every table: [the results](docs/results/index.md)." in first
+    pages = tmp_path / "docs" / "results"
+    assert sorted(p.name for p in pages.iterdir()) == ["hopper-pos.md", "index.md"]
+    index, hopper = (pages / "index.md").read_text(), (pages / "hopper-pos.md").read_text()
+    assert index.startswith("# Results\n\n<!-- report:start -->\n") and "| BC-SO | 300 ± 10 (15%) |" in index
+    assert "| [Hopper, `pos` observations](hopper-pos.md) | 1 | 1 |" in index
+    assert hopper.startswith("# Hopper, `pos` observations\n") and "## Protocol brax" in hopper
+    assert "- [`main.json`](../../main.json): `python -m experiments.sweep" in hopper
+    # text written by hand around a page's markers stays; regenerating changes nothing else
+    (pages / "hopper-pos.md").write_text(hopper.replace("# Hopper, `pos` observations\n", "# Hopper\n\nnotes\n"))
     assert report.main([str(main), "--out", str(out)]) == 0
-    assert out.read_text() == first   # regenerating replaces the section, nothing else
+    assert out.read_text() == first and (pages / "index.md").read_text() == index
+    assert (pages / "hopper-pos.md").read_text() == hopper.replace("# Hopper, `pos` observations\n",
+                                                                   "# Hopper\n\nnotes\n")
+    # --pages elsewhere, linked from the block; --pages without --out is refused
+    assert report.main([str(main), "--out", str(out), "--pages", str(tmp_path / "site")]) == 0
+    assert "Every table: [the results](site/index.md)." in out.read_text()
+    with pytest.raises(SystemExit) as exc:
+        report.main([str(main), "--pages", str(tmp_path / "site")])
+    assert exc.value.code == 2 and "--pages" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("content, message", [
@@ -283,7 +313,8 @@ def test_the_papers_settings_are_set_against_the_grids_best_in_numbers(tmp_path)
     assert softmax.best["hparams"] == {"tau": 10.0}
     assert gap(softmax.chosen, softmax.best, "normalized").gap == pytest.approx(65.0)
     text = report.report([_loaded(tmp_path, r)])
-    assert "so its τ 0.2 is about τ 8.0 here" in text   # the sentence uses those numbers
+    assert ("| softmax, nearest the paper's τ on our APE scale (τ 8.0): τ 10 | 70.0 ± 0.5 | τ 10 | 70.0 ± 0.5 | 0.0 | "
+            "0.5 | best |") in text   # the table shows those numbers
 
 
 # -- figures ------------------------------------------------------------------------------------------------------
@@ -312,17 +343,19 @@ def test_the_cli_draws_figures_next_to_out_and_links_them_relatively(tmp_path, c
     assert sorted(p.name for p in figures.iterdir()) == ["grid-hopper.png", "grid-walker2d.png", "returns.png"]
     for png in figures.iterdir():
         _check_png(png)
-    text = out.read_text()
-    assert "![Return per method and environment](figures/returns.png)" in text
-    assert "![Hopper grid search](figures/grid-hopper.png)" in text and "](figures/grid-walker2d.png)" in text
+    pages = out.parent / "docs" / "results"
+    text = (pages / "index.md").read_text()
+    assert "![Return per method and environment](../../figures/returns.png)" in text
+    assert "![Hopper grid search](../../figures/grid-hopper.png)" in (pages / "hopper-pos.md").read_text()
+    assert "](../../figures/grid-walker2d.png)" in (pages / "walker2d-pos.md").read_text()
     assert "wrote " + str(figures / "returns.png") in capsys.readouterr().out
     # deterministic: a second run gives the same markdown and the same PNG bytes
     first, png = text, (figures / "grid-hopper.png").read_bytes()
     assert report.main([str(main), str(base), str(walker), "--out", str(out)]) == 0
-    assert out.read_text() == first and (figures / "grid-hopper.png").read_bytes() == png
-    # --figures elsewhere: links relative to --out's folder
+    assert (pages / "index.md").read_text() == first and (figures / "grid-hopper.png").read_bytes() == png
+    # --figures elsewhere: links relative to each page's folder
     assert report.main([str(main), "--out", str(out), "--figures", str(tmp_path / "figs")]) == 0
-    assert "![Hopper grid search](../figs/grid-hopper.png)" in out.read_text()
+    assert "![Hopper grid search](../../../figs/grid-hopper.png)" in (pages / "hopper-pos.md").read_text()
     _check_png(tmp_path / "figs" / "returns.png")
 
 
@@ -369,16 +402,16 @@ def test_copycat_diagnostics_are_tabulated_for_runs_that_have_them(tmp_path):
             run["eval"].update(rollout_ape=0.2 + 0.1 * run["seed"] if copycat else 0.9,
                                imitation_error=0.5 if copycat else 0.25)
     text = report.report([_loaded(tmp_path, r)])
-    table = text[text.index("Copycat diagnostics"):]
+    table = text[text.index("| method | hparams | seeds | rollout APE"):]
     assert "| expert (validation demonstrations) | — | — | 1.30 | 0 | 100 |" in table
     assert "| BC-OH | — | 2 | 0.250 | 0.5000 | 50.0 |" in table          # the mean over its two seeds
     assert "| Ours (step) | thr 0.1, w 5 | 2 | 0.900 | 0.2500 | 75.0 |" in table   # the registry's label
     assert "| BC-SO |" not in table                                        # no diagnostics recorded: left out
-    assert "Copycat diagnostics" not in report.report([_loaded(tmp_path, _results(), "plain.json")])
+    assert "rollout APE" not in report.report([_loaded(tmp_path, _results(), "plain.json")])
     # trained on the raw APE: val_mean is raw, not on rollout_ape's scale (÷ the training mean), so no expert row
     r["config"]["ape"] = {"normalization": "none", "scale": 1.0, "val_mean": 0.03}
     table = report.report([_loaded(tmp_path, r, "raw.json")])
-    table = table[table.index("Copycat diagnostics"):]
+    table = table[table.index("| method | hparams | seeds | rollout APE"):]
     assert "expert (validation demonstrations)" not in table and "| BC-OH | — | 2 | 0.250 | 0.5000 | 50.0 |" in table
 
 
@@ -386,11 +419,10 @@ def test_the_sensitivity_study_sits_next_to_the_papers_numbers(tmp_path):
     methods = [("ours-softmax", {"tau": t}, ret) for t, ret in ((0.1, 700.0), (0.2, 760.0), (0.5, 730.0))] + \
               [("ours-step", {"thr": 0.1, "w": w}, ret) for w, ret in ((4.0, 800.0), (5.0, 1000.0), (6.0, 900.0))]
     text = report.report([_loaded(tmp_path, _results(env="walker2d", methods=methods))])
-    table = text[text.index("### Sensitivity"):]
+    table = text[text.index("## Sensitivity"):]
     assert "| softmax τ 0.2 | 760 ± 10 | 38.0 | Walker2d 769 ± 97 |" in table
     assert "| step THR 10%, W 6 | 900 ± 10 | 45.0 | driving 41.3% success |" in table
-    assert "Over τ: the means span 60, beyond the largest std over seeds (10)." in table
-    assert "### Sensitivity" not in report.report([_loaded(tmp_path, _results(), "hopper.json")])
+    assert "## Sensitivity" not in report.report([_loaded(tmp_path, _results(), "hopper.json")])
 
 
 def test_training_curves_and_weight_histograms_are_drawn_from_files_that_record_them(tmp_path):
@@ -403,9 +435,9 @@ def test_training_curves_and_weight_histograms_are_drawn_from_files_that_record_
         run["train_curve"] = [1.0 / (1 + i + run["seed"]) for i in range(100)]
     out = tmp_path / "B.md"
     assert report.main([str(_write(tmp_path, "r.json", r)), "--out", str(out)]) == 0
-    text = out.read_text()
-    assert "![Training curves](figures/curves.png)" in text
-    assert "![Weight concentration within a batch](figures/weights.png)" in text
+    text = (tmp_path / "docs" / "results" / "index.md").read_text()
+    assert "![Training curves](../../figures/curves.png)" in text
+    assert "![Weight concentration within a batch](../../figures/weights.png)" in text
     # uniform weights: the heaviest of 128 carries 1/128, the heaviest 13 carry 13/128; the step setting's 10%
     # of samples at W 5 carry about 5·0.1 / (5·0.1 + 0.9) = 36%; a small τ gives one sample nearly everything
     assert "| Hopper | uniform (BC-OH) | 1% | 10% | 1% | 10% |" in text       # raw APE and ÷ its mean alike
@@ -420,9 +452,7 @@ def test_training_curves_and_weight_histograms_are_drawn_from_files_that_record_
     for name in ("curves.png", "weights.png"):
         with Image.open(tmp_path / "figures" / name) as im:
             assert im.size[0] > 300 and im.size[1] > 200
-    plain = tmp_path / "plain.md"
-    assert report.main([str(_write(tmp_path, "p.json", _results())), "--out", str(plain)]) == 0
-    assert "Training curves" not in plain.read_text()  # older files: no section, no figures
+    assert "Training curves" not in report.report([_loaded(tmp_path, _results(), "p.json")])  # older files: none
 
 
 def test_image_results_and_a_task_judged_by_a_rate_get_their_tables(tmp_path):
@@ -442,9 +472,9 @@ def test_image_results_and_a_task_judged_by_a_rate_get_their_tables(tmp_path):
     for row in sandbox["summary"]:  # as the sweep summarises it: normalized = 100 · success
         row.update(normalized_mean=92.5, normalized_std=2.5)
     text = report.report([_loaded(tmp_path, image, "image.json"), _loaded(tmp_path, sandbox, "sandbox.json")])
-    img = text[text.index("### MuJoCo-Image"):]
+    img = text[text.index("## MuJoCo-Image"):]
     assert "| BC-OH | 1,000 ± 10 (50%) |" in img
-    table = text[text.index(f"### {car.title} (the supplement's Table 4 protocol)"):]
+    table = text[text.index(f"## {car.title} (the supplement's Table 4 protocol)"):]
     assert ("| method | seeds | success % | red-light violations | progress | average speed | stuck % | "
             "success % of all episodes [Wilson 95%] | paper: success % |") in table
     # mean ± std over seeds, and the mean's bootstrap interval over the two seeds (their extremes); every episode
@@ -454,7 +484,7 @@ def test_image_results_and_a_task_judged_by_a_rate_get_their_tables(tmp_path):
     assert ("| BC-OH | 2 | 92.50 ± 2.50 [90.00, 95.00] | 0.00 ± 0.00 [0.00, 0.00] | 0.80 ± 0.00 [0.80, 0.80] | "
             f"0.50 ± 0.00 [0.50, 0.50] | 5.00 ± 5.00 [0.00, 10.00] | {100 * pooled.value:.2f} [{100 * pooled.low:.2f}, "
             f"{100 * pooled.high:.2f}] | 95.1 ± 4.5 |") in table
-    assert "Wall time of the run: 2 min (test CPU), compile included." in table
+    assert "100 s in all" in table and "test CPU" in table   # the run's wall time, in its provenance
     assert "| Ours, step THR 10% W 5 | 2 |" in table and "97.8 ± 0.5" in table   # the paper's, from the task record
     # its measure is success, not its (zero) reward: in the grid table and the bootstrap
     assert "| method | hparams | seeds | success % |" in table
@@ -464,7 +494,7 @@ def test_image_results_and_a_task_judged_by_a_rate_get_their_tables(tmp_path):
     assert (f"| {car.title} (image) | BC-OH − BC-SO (does the history help?) | 2 / 2 | +0 (success, % points) |"
             in text)
     assert f"({car.title}: in success rate)" in text
-    assert "### MuJoCo-State" not in text
+    assert "MuJoCo-State" not in text
 
 
 def test_the_first_image_presets_files_are_a_table_of_their_own_beside_todays_preset(tmp_path):
@@ -481,8 +511,8 @@ def test_the_first_image_presets_files_are_a_table_of_their_own_beside_todays_pr
         obj = _schema2({**first, "config": {**first["config"], "preset_iterations": iterations}})
         assert former_preset(_loaded(tmp_path, obj, f"{iterations}.json")) == former
     text = report.report(files)
-    now = text[text.index("### MuJoCo-Image\n"):text.index("### MuJoCo-Image, the first image preset")]
-    old = text[text.index("### MuJoCo-Image, the first image preset"):]
+    now = text[text.index("## MuJoCo-Image\n"):text.index("## MuJoCo-Image, the first image preset")]
+    old = text[text.index("## MuJoCo-Image, the first image preset"):]
     assert "| BC-OH | 1,400 ± 10 (70%) |" in now and "1,000 ± 10" not in now
     assert "| BC-OH | 1,000 ± 10 (50%) |" in old and "small conv encoder" in old
     assert "| Hopper (image, brax, first image preset) | BC-OH − BC-SO (does the history help?) |" in text
@@ -577,16 +607,17 @@ def test_fca_and_brax_results_of_one_task_are_merged_apart_into_two_tables(tmp_p
     assert [m.title for m in merged.values()] == ["Hopper (fca)", "Hopper (fca, frame skip 2)",
                                                      "Hopper (fca, frame skip 4)", "Hopper (brax)"]
     text = report.report(files)
-    fca = text[text.index("### MuJoCo-State, the paper's protocol (fca): frame skip 1, 500 standard steps of "
-                          "simulated time, 20,000 training transitions"):text.index("### MuJoCo-State, Brax's")]
-    brax = text[text.index("### MuJoCo-State, Brax's frame skip, where the history helps (the project's first "
-                           "results)"):text.index("### The copycat map")]
+    index = _index(files)
+    fca = index[index.index("## MuJoCo-State, the paper's protocol (fca): frame skip 1, 500 standard steps of "
+                            "simulated time, 20,000 training transitions"):index.index("## MuJoCo-State, Brax's")]
+    brax = index[index.index("## MuJoCo-State, Brax's frame skip (the project's first results)"):
+                 index.index("## The copycat map")]
     assert "| BC-SO | 600 ± 8 (30%) |" in fca and "| FCA (TCA) | 1,200 ± 8 (60%) |" in fca
     assert "| BC-SO | 300 ± 10 (15%) |" in brax and "| expert (ours) | 3,000 ± 80 |" in brax
-    assert text.count("| method | Hopper |") == 2          # frame skips 2 and 4 get no state table: they feed the map
+    assert index.count("| method | Hopper |") == 2         # frame skips 2 and 4 get no state table: they feed the map
     assert "| Hopper (fca) | BC-OH − BC-SO (does the history help?) | 3 / 3 |" in text
     assert "| Hopper (brax) | BC-OH − BC-SO (does the history help?) | 2 / 2 | +700 (return) |" in text
-    assert "### Hopper, `pos` observations, protocol fca, frame skip 4: every configuration" in text
+    assert "## Protocol fca, frame skip 4\n" in text
     assert ("protocol fca-fs2, frame skip 2 (the environment's own: 4), 1,000-step episodes, 20,000 training "
             "transitions; commit") in text
     assert "protocol brax (not recorded: results schema 1 predates protocols" in text
@@ -604,9 +635,9 @@ def test_fca_and_brax_results_of_one_task_are_merged_apart_into_two_tables(tmp_p
 
 
 def test_the_fca_table_shows_the_papers_returns_beside_ours_on_one_scale(tmp_path):
-    text = report.report(_map_files(tmp_path))
-    table = text[text.index("The supplement's Table 5 beside it, on the same scale (rewards summed over 500 "
-                            "standard control steps"):text.index("### MuJoCo-State, Brax's")]
+    text = _index(_map_files(tmp_path))
+    table = text[text.index("The supplement's Table 5 beside ours: mean return (the paper's scale)"):
+                 text.index("## MuJoCo-State, Brax's")]
     # absolute returns side by side, ours ± std over seeds; the ratio to BC-OH of each source in brackets
     assert "| BC-SO | 275 (0.94×) | 600 ± 8 (0.98×) |" in table
     assert "| BC-OH | 293 (1.00×) | 610 ± 8 (1.00×) |" in table
@@ -614,7 +645,8 @@ def test_the_fca_table_shows_the_papers_returns_beside_ours_on_one_scale(tmp_pat
     assert "| Ours, step THR 10% W 5 | 641 (2.19×) | 1,000 ± 8 (1.64×) |" in table
     assert "| expert | not published | 2,000 |" in table
     # under brax only the ratios compare: no ±, no expert row
-    brax = text[text.index("Next to the supplement's Table 5"):text.index("### The copycat map")]
+    brax = text[text.index("The supplement's Table 5 beside ours: mean return (other scales"):
+                text.index("## The copycat map")]
     assert "| BC-SO | 275 (0.94×) | 300 (0.30×) |" in brax and "not published" not in brax
 
 
@@ -635,15 +667,10 @@ def test_the_copycat_map_gives_each_frame_skip_its_row_and_gaps(tmp_path):
     assert ("| Hopper | 2 | 20,000 | fca-fs2 | 30.0 ± 0.5 | 50.0 ± 0.5 | 55.0 ± 0.5 | 2 / 2 / 2 | +20.0 [+19.0, "
             "+21.0] | 50.0 |") in text
     low, high = cm.rows[0].history_ci.low, cm.rows[0].history_ci.high
-    assert low < 0 < high
-    assert (f"- Hopper: at frame skip 4 the history lifts BC-OH 60.0 points of expert above BC-SO (95% CI [+59.0, "
-            f"+61.0]); at frame skip 2 it lifts it 20.0 points (95% CI [+19.0, +21.0]); at frame skip 1 it lifts it "
-            f"0.5 points (95% CI [{low:+.1f}, {high:+.1f}]). BC-OH is significantly above BC-SO at frame skip 2, 4, "
-            "not at 1. BC-OH's gap to the expert: 69.5 points at frame skip 1, 50.0 points at frame skip 2, 20.0 "
-            "points at frame skip 4.") in text
+    assert low < 0 < high   # at frame skip 1 the history is not significant; at 2 and 4 it is
     # one frame skip of the family is no map
     assert report.copycat_map(report.merge([files[0], files[3]])) == []
-    assert "### The copycat map" not in report.report([files[0], files[3]])
+    assert "The copycat map" not in report.report([files[0], files[3]])
 
 
 def test_figure_names_are_unique_per_protocol(tmp_path):
@@ -654,10 +681,10 @@ def test_figure_names_are_unique_per_protocol(tmp_path):
     assert names == ["copycat-map.png", "grid-hopper-fca-fs2.png", "grid-hopper-fca-fs4.png", "grid-hopper-fca.png",
                      "grid-hopper.png", "returns.png"]
     _check_png(tmp_path / "figures" / "copycat-map.png")
-    text = out.read_text()
-    assert "![The copycat map: % of expert per frame skip](figures/copycat-map.png)" in text
-    assert "![Hopper (fca, frame skip 2) grid search](figures/grid-hopper-fca-fs2.png)" in text
-    assert "![Hopper (brax) grid search](figures/grid-hopper.png)" in text     # brax keeps its name
+    assert "![The copycat map: % of expert per frame skip](figures/copycat-map.png)" in out.read_text()
+    text = (tmp_path / "docs" / "results" / "hopper-pos.md").read_text()
+    assert "![Hopper (fca, frame skip 2) grid search](../../figures/grid-hopper-fca-fs2.png)" in text
+    assert "![Hopper (brax) grid search](../../figures/grid-hopper.png)" in text     # brax keeps its name
     fig = figures.copycat_map_figure(report.copycat_map(report.merge(files)))
     ax = fig.axes[0]
     assert [t.get_text() for t in ax.get_xticklabels()] == ["1", "2", "4"] and ax.get_xscale() == "log"
@@ -689,9 +716,8 @@ def test_the_weight_table_compares_raw_and_mean_normalised_ape(tmp_path):
     row = (f"| Hopper (fca) | softmax τ 0.1 | 1% | {100 * raw[12]:.0f}% | {100 * by_mean[0]:.0f}% | "
            f"{100 * by_mean[12]:.0f}% |")
     assert row in text
-    assert ("- Hopper (fca): its softmax runs trained with `normalization: none`, on the raw APE (the official code, "
-            "our default); its raw training APE's mean, estimated from the recorded quantiles, is 0.01, so dividing "
-            "by it multiplies the APE by 100.") in text
+    raw_ape = report.analysis.APE_SCALES["none"]
+    assert f"| Hopper (fca) | `normalization: none`, the {raw_ape} | 0.01 (estimated) |" in text
     # the same raw APE recorded as a mean-normalised run records it (÷ its mean 0.01): the same weights
     by_scale = _loaded(tmp_path, _ape_file(np.linspace(0, 2, 101), "mean", 0.01), "mean.json")
     (m,) = report.weight_shares(report.merge([by_scale]))
@@ -701,22 +727,17 @@ def test_the_weight_table_compares_raw_and_mean_normalised_ape(tmp_path):
         np.testing.assert_allclose(a_mean, b_mean)
 
 
-def test_the_plain_reading_follows_the_numbers(tmp_path):
-    """The plain reading's numbers are `analysis.history_difference`, `ours_differences` and the copycat map's; its
-    branch follows their verdicts (the golden snapshot pins its words on the committed files)."""
+def test_the_numbers_of_the_fca_reading_follow_the_verdicts(tmp_path):
+    """The numbers the readings of the paper's protocol rest on: `analysis.history_difference` (does the history
+    help?), `ours_differences` (does keyframe weighting beat BC-OH, at the paper's setting and at the best of the
+    grids?) and their verdicts, which flip with the returns."""
     from experiments.report.analysis import Key, history_difference, ours_differences, verdict
 
     def fca_group(files):
         return report.merge(files)[Key("hopper", "pos", "fca")]
 
-    def reading(files):
-        text = report.report(files)
-        return text[text.index("### Does keyframe weighting help where the history does not?"):
-                    text.index("### Hopper, `pos`")]
-
     # BC-OH ≈ BC-SO under fca: the return signature of copycat; Ours well above BC-OH
-    files = _map_files(tmp_path)
-    m = fca_group(files)
+    m = fca_group(_map_files(tmp_path))
     history = history_difference(m)
     assert history.diff == pytest.approx(10.0) and history == report.bootstrap_difference([600.0, 610.0, 620.0],
                                                                                           [590.0, 600.0, 610.0])
@@ -724,29 +745,16 @@ def test_the_plain_reading_follows_the_numbers(tmp_path):
     (label, row, paper), *grids = ours_differences(m)
     assert row["hparams"] == {"thr": 0.1, "w": 5.0} and paper.diff == pytest.approx(390.0) and \
         verdict(paper) == "Ours better"
-    text = reading(files)
-    assert "the history adds nothing, the return signature the paper attributes to copycat" in text
-    assert "whether it copies is not measured" in text   # the fixture's runs record no diagnostics: never inferred
-    assert "keyframe weighting at the paper's setting beats BC-OH on these seeds" in text
-    assert "at frame skip 4 the history lifts BC-OH 60.0 points of expert above BC-SO" in text   # the map's numbers
-    # the history helping under fca, and Ours below BC-OH: the branch flips with the verdicts
-    files = _map_files(tmp_path, fs1=(300.0, 1000.0, 900.0))
-    m = fca_group(files)
+    # the history helping under fca, and Ours below BC-OH: the verdicts flip
+    m = fca_group(_map_files(tmp_path, fs1=(300.0, 1000.0, 900.0)))
     assert verdict(history_difference(m), "BC-OH", "BC-SO") == "BC-OH better"
     assert verdict(ours_differences(m)[0][2]) == "BC-OH better"
-    flipped = reading(files)
-    assert "the history helps" in flipped and "BC-OH beats it" in flipped
-    assert "the return signature the paper attributes" not in flipped and \
-        "So where the history does not help" not in flipped
-    # the best of the grids is the softmax τ 0.2 row here, named as selected after the fact
-    files = _map_files(tmp_path, fs1=(600.0, 610.0, 500.0))
-    best = max(ours_differences(fca_group(files))[1:], key=lambda x: x[2].diff)
+    # the best of the grids is the softmax τ 0.2 row here, below BC-OH
+    best = max(ours_differences(fca_group(_map_files(tmp_path, fs1=(600.0, 610.0, 500.0))))[1:],
+               key=lambda x: x[2].diff)
     assert best[1]["hparams"] == {"tau": 0.2} and best[2].diff == pytest.approx(290.0)
-    worse = reading(files)
-    assert "softmax τ 0.2 (selected after the fact" in worse and "does worse than BC-OH on these seeds" in worse
-    assert "does not detectably beat BC-OH on these seeds." in reading(_map_files(tmp_path, fs1=(600.0, 610.0, 615.0)))
-    # no fca results: nothing to read
-    assert "### Does keyframe weighting" not in report.report([_loaded(tmp_path, _results(), "brax.json")])
+    tie = ours_differences(fca_group(_map_files(tmp_path, fs1=(600.0, 610.0, 615.0))))[0][2]
+    assert verdict(tie).startswith("not significant")
 
 
 def test_the_sensitivity_study_reads_the_brax_group_of_walker2d(tmp_path):
@@ -755,7 +763,7 @@ def test_the_sensitivity_study_reads_the_brax_group_of_walker2d(tmp_path):
     fca = _loaded(tmp_path, _schema2(_results(env="walker2d", methods=[("ours-softmax", {"tau": 0.2}, 1500.0)]),
                                      protocol=_fca(1)), "fca.json")
     table = report.report([fca, brax])
-    table = table[table.index("### Sensitivity"):]
+    table = table[table.index("## Sensitivity"):]
     assert "Walker2d (states, protocol brax)" in table and "| softmax τ 0.2 | 700 ± 10 | 35.0 |" in table
 
 
@@ -786,20 +794,20 @@ def test_a_longer_run_is_its_own_group_compared_configuration_by_configuration(t
     merged = report.merge(files)
     key = ("hopper", "pos", "fca", 100_000)
     assert key in merged and merged[key].title == "Hopper (fca, 100,000 iterations)"
-    text = report.report(files, tmp_path / "figures")
-    section = text[text.index("### Training longer"):]
+    text = _index(files, tmp_path / "figures")
+    section = text[text.index("## Training longer"):]
     assert ("| Hopper (fca, 100,000 iterations): configuration | 30,000 iterations | seeds | "
             "100,000 iterations |") in section
     assert "| BC-OH | 610 ± 8 (30%) | 3 | 700 ± 10 (35%) | 2 |" in section
     assert "| Ours (step), THR 10% W 5 | 1,000 ± 8 (50%) | 3 | 1,300 ± 10 (65%) | 2 |" in section
     assert (tmp_path / "figures" / "grid-hopper-fca-100000it.png").exists()
-    assert "| BC-OH | 610 ± 8 (30%) |" in text[text.index("### MuJoCo-State, the paper's protocol"):]
+    assert "| BC-OH | 610 ± 8 (30%) |" in text[text.index("## MuJoCo-State, the paper's protocol"):]
 
 
 
 def test_the_copycat_map_adds_training_set_sizes_at_frame_skip_1(tmp_path):
     """fca-train5k / fca-train80k files give the map rows at frame skip 1 by training-set size (fca's own 20,000
-    among them), apart from the frame-skip rows, in the table, a sentence and a second figure panel."""
+    among them), apart from the frame-skip rows, in the table and a second figure panel."""
     files = _map_files(tmp_path)
     for i, (train, rets) in enumerate(((5_000, (500.0, 480.0, 520.0)), (80_000, (700.0, 1500.0, 1600.0)))):
         obj = _results("hopper", (("bc-so", {}, rets[0]), ("bc-oh", {}, rets[1]),
@@ -810,31 +818,29 @@ def test_the_copycat_map_adds_training_set_sizes_at_frame_skip_1(tmp_path):
     assert [(r.train_transitions, r.protocol) for r in cm.data_rows] == [
         (5_000, "fca-train5k"), (20_000, "fca"), (80_000, "fca-train80k")]
     assert [r.history for r in cm.data_rows] == [-1.0, 0.5, 40.0]
-    text = report.report(files, tmp_path / "figures")
+    assert [r.cells[1].mean for r in cm.data_rows] == pytest.approx([24.0, 30.5, 75.0])   # BC-OH per size
+    text = _index(files, tmp_path / "figures")
     assert "| Hopper | 1 | 80,000 | fca-train80k | 35.0 ± 0.5 | 75.0 ± 0.5 | 80.0 ± 0.5 |" in text
     assert text.count("| Hopper | 1 | 20,000 | fca |") == 1                   # fca's row once
-    assert ("Hopper, frame skip 1: with 5,000 training transitions the history leaves BC-OH 1.0 points of expert "
-            "below BC-SO") in text
-    assert "BC-OH reaches 24.0% of expert with 5,000, 30.5% of expert with 20,000, 75.0% of expert with 80,000." in text
     assert (tmp_path / "figures" / "copycat-map.png").exists()
-    assert "### Hopper, `pos` observations, protocol fca, 80,000 training transitions: every configuration" in text
+    assert "## Protocol fca, 80,000 training transitions\n" in report.report(files)
     assert (tmp_path / "figures" / "grid-hopper-fca-train80k.png").exists()
 
 
-def test_the_plain_reading_names_no_best_of_a_grid_that_did_not_run(tmp_path):
-    """A sweep of BC-SO, BC-OH and the paper's step setting alone selected nothing: no "best of our grids"."""
+def test_no_grid_beside_the_papers_setting_selects_no_best_of_it(tmp_path):
+    """A sweep of BC-SO, BC-OH and the paper's step setting alone selected nothing: its only step row is the paper's."""
+    from experiments.report.analysis import Key, ours_differences
+
     only = _results("hopper", (("bc-so", {}, 600.0), ("bc-oh", {}, 610.0),
                                ("ours-step", {"thr": 0.1, "w": 5.0}, 1000.0)))
-    text = report.report([_loaded(tmp_path, _schema2(only, protocol=_fca(1)), "only.json")])
-    reading = text[text.index("### Does keyframe weighting help where the history does not?"):]
-    assert "Ours at the paper's step setting (THR 10%, W 5) − BC-OH: +390 return" in reading
-    assert "best of our step and softmax grids" not in reading
+    m = report.merge([_loaded(tmp_path, _schema2(only, protocol=_fca(1)), "only.json")])[Key("hopper", "pos", "fca")]
+    ours = ours_differences(m)
+    assert ours[0][2].diff == pytest.approx(390.0) and all(row is ours[0][1] for _, row, _ in ours)
 
 
-def test_every_method_is_compared_with_bc_oh_under_fca_in_a_table_and_in_the_reading(tmp_path):
+def test_every_method_is_compared_with_bc_oh_under_fca_in_a_table(tmp_path):
     """Under fca each row of the state table but BC-OH gets `row − BC-OH` with its bootstrap CI (bold when the
-    interval excludes 0), and the plain reading sorts the other methods by verdict; a method BC-OH never ran
-    beside gets a dash."""
+    interval excludes 0, either way); a method BC-OH never ran beside gets a dash."""
     base = _results("hopper", (("bc-so", {}, 600.0), ("bc-oh", {}, 610.0),
                                ("ours-step", {"thr": 0.1, "w": 5.0}, 615.0),
                                ("fca", {"alpha": 0.1}, 900.0), ("kmeans", {"k": 6}, 300.0),
@@ -852,15 +858,8 @@ def test_every_method_is_compared_with_bc_oh_under_fca_in_a_table_and_in_the_rea
     assert f"| k-means | **{kmeans.diff:+,.0f} [{kmeans.low:+,.0f}, {kmeans.high:+,.0f}]** | — |" in table
     assert f"| ActFreq | {actfreq.diff:+,.0f} [{actfreq.low:+,.0f}, {actfreq.high:+,.0f}] | — |" in table
     assert "| BC-OH |" not in table
-    reading = text[text.index("**Hopper.**"):]
     boosting = report.bootstrap_difference([390.0, 400.0, 410.0], [600.0, 610.0, 620.0])
-    below = {"Boosting": f"Boosting (-210, 95% CI [{boosting.low:+,.0f}, {boosting.high:+,.0f}])",
-             "k-means": f"k-means (-310, 95% CI [{kmeans.low:+,.0f}, {kmeans.high:+,.0f}])"}
-    order = [name for name in ("Boosting", "k-means") if f"| {name} |" in table]   # the state table's order
-    order.sort(key=lambda name: table.index(f"| {name} |"))
-    assert (f"The other methods under fca against BC-OH (in return): significantly above: FCA (TCA) (+290, 95% CI "
-            f"[{fca.low:+,.0f}, {fca.high:+,.0f}]); significantly below: {', '.join(below[n] for n in order)}; "
-            "not significantly different: ActFreq.") in reading
+    assert f"| Boosting | **{boosting.diff:+,.0f} [{boosting.low:+,.0f}, {boosting.high:+,.0f}]** | — |" in table
     # no BC-OH under a protocol: no table for it
     assert "| method − BC-OH |" not in report.report([files[1]])
 
@@ -898,12 +897,12 @@ def test_the_recipe_table_compares_recipes_under_one_protocol_apart_from_the_who
         pytest.approx(70.0)
     assert rows["BC-OH"].difference.diff == pytest.approx(20.0) and rows["BC-OH"].difference.low > 0
     assert rows["FCA (TCA)"].cells["mlp"].mean == pytest.approx(40.0)   # the task's α (Hopper: 2.0), not the best
-    text, _ = report.build(files)
-    assert "### The paper's recipe" in text and "| BC-OH | 50.0 [49.5, 50.5] | 70.0 [69.5, 70.5] | **+20.0" in text
-    assert "recipe fca: BC-OH − BC-SO **+35.0" in text
+    text = report.build(files).pages["index.md"].text
+    assert "## The paper's recipe" in text and "| BC-OH | 50.0 [49.5, 50.5] | 70.0 [69.5, 70.5] | **+20.0" in text
+    assert "| fca | BC-OH − BC-SO | **+35.0" in text
     assert "| fca | alpha 0.1, adversary_lr 0.0004 | 55.0 [54.5, 55.5] | — | — |" in text   # recipe mlp
     assert "| fca | alpha 2, adversary_lr 0.0004 | 60.0 [59.5, 60.5] | 0.5 | 0.6 |" in text
-    assert "### MuJoCo-State, the paper's protocol (fca)" in text   # the whole-episode files keep their tables
+    assert "## MuJoCo-State, the paper's protocol (fca)" in text   # the whole-episode files keep their tables
 
 
 def test_a_rate_pools_every_episode_with_wilsons_interval():
@@ -920,27 +919,47 @@ def test_a_rate_pools_every_episode_with_wilsons_interval():
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 
-def test_the_committed_report_section_is_what_the_committed_results_give(tmp_path):
-    """Golden snapshot: `build` over the committed `results/*.json` gives BENCHMARKS.md's report section byte for
-    byte (as `python -m experiments.report results/*.json --out BENCHMARKS.md` wrote it), and draws exactly the
-    report's committed figures (here into `tmp_path`, where `build` writes nothing)."""
-    files = [report.load(path) for path in sorted((ROOT / "results").glob("*.json"))]
-    text, drawn = report.build(files, tmp_path / "figures", tmp_path)
-    committed = (ROOT / "BENCHMARKS.md").read_text()
+def _section(text: str) -> str:
+    """What a file holds between `<!-- report:start -->` and `<!-- report:end -->`."""
     start, end = "<!-- report:start -->\n", "<!-- report:end -->"
-    expected = committed[committed.index(start) + len(start):committed.index(end)]
-    if text != expected:
-        got, want = text.splitlines(), expected.splitlines()
-        line = next((i for i, (a, b) in enumerate(zip(got, want)) if a != b), min(len(got), len(want)))
-        pytest.fail(f"the report differs from BENCHMARKS.md from line {line + 1} of its section:\n"
-                    f"  generated: {got[line] if line < len(got) else '(end)'}\n"
-                    f"  committed: {want[line] if line < len(want) else '(end)'}")
-    assert sorted(path.name for path in drawn) == sorted(
+    return text[text.index(start) + len(start):text.index(end)]
+
+
+def test_the_committed_report_is_what_the_committed_results_give(tmp_path):
+    """Golden snapshot: `build` over the committed `results/*.json` gives BENCHMARKS.md's block and every page of
+    docs/results/ byte for byte (as `python -m experiments.report results/*.json --out BENCHMARKS.md` wrote them),
+    no page more or less (but the hand-written notes.md), and draws exactly the committed figures (here into
+    `tmp_path`, where `build` writes nothing)."""
+    (tmp_path / "results").symlink_to(ROOT / "results")   # the links as from the root: ../../results/NAME
+    files = [report.load(tmp_path / "results" / path.name) for path in sorted((ROOT / "results").glob("*.json"))]
+    built = report.build(files, tmp_path / "figures", tmp_path, tmp_path / "docs" / "results")
+    pages = ROOT / "docs" / "results"
+    assert sorted(built.pages) == sorted(p.name for p in pages.glob("*.md") if p.name != "notes.md")
+    for name, text in [("BENCHMARKS.md", built.summary), *((n, p.text) for n, p in built.pages.items())]:
+        expected = _section(((pages / name) if name in built.pages else ROOT / name).read_text())
+        if text != expected:
+            got, want = text.splitlines(), expected.splitlines()
+            line = next((i for i, (a, b) in enumerate(zip(got, want)) if a != b), min(len(got), len(want)))
+            pytest.fail(f"{name} differs from what the results give from line {line + 1} of its section:\n"
+                        f"  generated: {got[line] if line < len(got) else '(end)'}\n"
+                        f"  committed: {want[line] if line < len(want) else '(end)'}")
+    assert sorted(path.name for path in built.figures) == sorted(
         path.name for path in (ROOT / "figures").glob("*.png") if not path.name.startswith("keyframes-"))
-    assert all(path.parent == tmp_path / "figures" for path in drawn) and not (tmp_path / "figures").exists()
+    assert all(path.parent == tmp_path / "figures" for path in built.figures) and not (tmp_path / "figures").exists()
 
 
-def test_a_sections_figure_is_drawn_only_with_a_figure_folder_and_linked_relative_to_the_markdown(tmp_path):
+def test_the_findings_and_the_pages_link_only_files_that_exist():
+    """Every relative link of BENCHMARKS.md and docs/results/*.md names a file of the repository."""
+    import re
+
+    for page in [ROOT / "BENCHMARKS.md", *(ROOT / "docs" / "results").glob("*.md")]:
+        for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text()):
+            path = target.split("#")[0]
+            if path and "://" not in path:
+                assert (page.parent / path).exists(), f"{page.relative_to(ROOT)} links {target}"
+
+
+def test_a_sections_figure_is_drawn_once_only_with_a_figure_folder_and_linked_relative_to_the_page(tmp_path):
     from experiments.report.sections import Context, Section
 
     calls = []
@@ -949,13 +968,13 @@ def test_a_sections_figure_is_drawn_only_with_a_figure_folder_and_linked_relativ
         calls.append(1)
         return "a figure"
 
-    none = Context({}, None, tmp_path).figure("x.png", "X", draw)
-    assert none.lines == [] and none.figures == {} and calls == []
-    drawn = Context({}, tmp_path / "out" / "figs", tmp_path / "out").figure("x.png", "X", draw)
-    assert drawn.lines == ["![X](figs/x.png)", ""]
-    assert drawn.figures == {tmp_path / "out" / "figs" / "x.png": "a figure"}
-    assert Section("T", "intro", ["table\n"]).lines() == ["### T", "", "intro", "", "table\n"]
-    assert Section("", "note").lines() == ["note", ""]
+    assert Context({}, None, tmp_path).figure("x.png", "X", draw) == [] and calls == []
+    ctx = Context({}, tmp_path / "out" / "figs", tmp_path / "out")
+    assert ctx.figure("x.png", "X", draw) == ["![X](figs/x.png)", ""]
+    assert ctx.on(tmp_path / "out" / "docs").figure("x.png", "X", draw) == ["![X](../figs/x.png)", ""]
+    assert ctx.drawn == {tmp_path / "out" / "figs" / "x.png": "a figure"} and calls == [1]   # drawn once
+    assert Section("T", "caption", ["table\n"]).lines() == ["## T", "", "caption", "", "table\n"]
+    assert Section("", "note").lines(3) == ["note", ""]
 
 
 def test_no_report_module_uses_another_modules_private_names():
@@ -976,17 +995,6 @@ def test_no_report_module_uses_another_modules_private_names():
         assert not private, f"{path.relative_to(ROOT)} uses {private}"
 
 
-def test_the_committed_contents_are_what_the_committed_headings_give():
-    """BENCHMARKS.md's table of contents cannot go stale: rebuilding it from the committed file changes nothing."""
-    from experiments.report import toc
-
-    committed = (ROOT / "BENCHMARKS.md").read_text()
-    assert toc.START in committed and toc.END in committed
-    assert toc.refresh(committed) == committed
-    assert "- [Sweep results: MuJoCo-State (issues 4 and 5)](#sweep-results-mujoco-state-issues-4-and-5)\n" in committed
-    assert committed.count("  - Every configuration: [") == 1
-
-
 def test_the_speed_sections_live_in_docs_speed_md():
     """`python -m experiments.bench_NAME --write docs/speed.md` replaces its section there, never appends one."""
     speed, benchmarks = (ROOT / "docs" / "speed.md").read_text(), (ROOT / "BENCHMARKS.md").read_text()
@@ -995,26 +1003,12 @@ def test_the_speed_sections_live_in_docs_speed_md():
         assert f"<!-- {name}:" not in benchmarks, name
 
 
-def test_the_cli_refreshes_the_contents_of_a_file_that_has_them_and_adds_none_to_one_that_does_not(tmp_path):
-    from experiments.report import toc
-
-    main = _write(tmp_path, "main.json", _results())
-    with_toc, without = tmp_path / "with.md", tmp_path / "without.md"
-    with_toc.write_text(f"# Benchmarks\n\n{toc.START}\n- [Gone](#gone)\n{toc.END}\n\n## Hand-written\n\nprose\n")
-    without.write_text("# Benchmarks\n\n## Hand-written\n\nprose\n")
-    for out in (with_toc, without):
-        assert report.main([str(main), "--out", str(out)]) == 0
-    text = with_toc.read_text()
-    assert "Gone" not in text and toc.refresh(text) == text
-    assert "- [Hand-written](#hand-written)\n" in text and \
-        "  - Every configuration: [Hopper, `pos` observations" in text
-    assert text.index(toc.END) < text.index("## Hand-written") < text.index("<!-- report:start -->")
-    assert "toc:" not in without.read_text() and "<!-- report:start -->" in without.read_text()
-
-
 def test_a_file_trained_again_shows_the_first_trainings_returns_beside_its_own(tmp_path):
     """A file written by `experiments.evaluate RUN --replaces FILE` carries the replaced file's record: the grid gains
-    a "first training" column (the replaced summary, matched by configuration) and the provenance says why."""
+    a "first training" column (the replaced summary, matched by configuration), `analysis.retrained_shift` says how
+    far the means moved, and the provenance says why."""
+    from experiments.report.analysis import retrained_shift
+
     first = _schema2(_results(methods=(("bc-so", {}, 300.0), ("bc-oh", {}, 1000.0))),
                      command=["python", "-m", "experiments.sweep", "--env", "hopper"])
     again = _schema2(_results(methods=(("bc-so", {}, 320.0), ("bc-oh", {}, 950.0),
@@ -1028,13 +1022,16 @@ def test_a_file_trained_again_shows_the_first_trainings_returns_beside_its_own(t
     assert "| BC-OH | — | 2 | 950.0 ± 10.0 | 47.5 | 1,000.0 ± 10.0 |" in text    # the new numbers are the table's
     assert "| **Ours (step)** | thr 0.1, w 5 | 2 | **990.0 ± 10.0** | 49.5 | — |" in text   # not in the first one
     # how far the means moved: BC-SO +20, BC-OH −50, each against a standard error of sqrt(2 · 10² / 2) = 10
-    assert ("Trained again, 2 configuration(s) moved by -50.0 to +20.0 in mean return from the first training (the "
-            "\"first training\" column), a median of 3.50 standard errors of the difference") in text
-    assert "; 1 of 2 by more than two, where new seeds would put about 5% beyond two" in text   # +20 is two, not more
+    (m,) = report.merge([_loaded(tmp_path, again)]).values()
+    assert retrained_shift(m) == (2, -50.0, 20.0, 3.5, 1)   # +20 is two standard errors, not more
+    assert ("Trained again: 2 configuration(s) moved by -50.0 to +20.0 in mean return, a median of 3.50 standard "
+            "errors; 1 of 2 by more than two.") in text
     line = report.provenance(Results.from_json(again))
     assert "trained again with its policies kept, to replace the file of commit `f4e2e9a`" in line
     assert "that file's command `python -m experiments.sweep --env hopper`" in line
     assert "first training" not in report.report([_loaded(tmp_path, first, "f.json")])  # only where a file replaced
+    (m,) = report.merge([_loaded(tmp_path, first, "f.json")]).values()
+    assert retrained_shift(m) is None
     bad = {**again, "replaces": {"summary": [{"method": "bc-oh"}]}}
     with pytest.raises(report.ReportError, match="replaces.summary"):
         _loaded(tmp_path, bad, "bad.json")

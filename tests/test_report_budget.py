@@ -70,9 +70,10 @@ def test_budget_rows_hold_every_point_with_table5_beside_its_methods(tmp_path):
 
 
 def test_the_report_shows_the_paper_budget_table_beside_table5_with_differences_and_diagnostics(tmp_path):
-    text, drawn = report.build([_paper_file(tmp_path), report.load(FCA_BC)], figure_dir=tmp_path / "figures")
-    section = text[text.index("### The paper's budget with the paper's recipe"):]
-    section = section[:section.index("\n### ")]
+    built = report.build([_paper_file(tmp_path), report.load(FCA_BC)], figure_dir=tmp_path / "figures")
+    text, drawn = built.pages["index.md"].text, built.figures
+    section = text[text.index("## The paper's budget with the paper's recipe"):]
+    section = section[:section.index("\n## ")]
     end = np.mean(_normalized("bc-oh"))
     row = next(line for line in section.splitlines() if line.startswith("| Hopper | BC-OH | 5 | "))
     assert row.startswith(f"| Hopper | BC-OH | 5 | {end - 20:.1f} [") and f"| {end:.1f} [" in row
@@ -80,8 +81,9 @@ def test_the_report_shows_the_paper_budget_table_beside_table5_with_differences_
     assert next(line for line in section.splitlines()
                 if line.startswith("| Hopper | BC-SO |")).endswith(f"| 275 | {275 / 293:.2f}× |")
     assert "| Hopper | BC-OH − BC-SO | " in section and "| Hopper | Ours, step THR 10% W 5 − BC-OH | " in section
-    assert "| Hopper | BC-OH | 1.5 → 1.5 → 0.2 | 1.2 → 1.2 → 0.3 | 0/5 → 0/5 → 5/5 |" in section
-    assert "it is judged copycat in 0 of 5 seeds at 30k, 0 of 5 seeds at 100k, 5 of 5 seeds at 300k" in section
+    assert "| Hopper | BC-OH | 1.5 → 1.5 → 0.2 | 1.2 → 1.2 → 0.3 | 0/5 (first verdict only) → 0/5 (first verdict " \
+        "only) → 5/5 (first verdict only) |" in section
+    assert "### Table 5 at the paper's budget" in built.summary and row in built.summary   # the findings' block too
     assert {p.name for p in drawn} >= {"paper-budget.png", "copycat-map-extended.png"}
 
 
@@ -91,13 +93,12 @@ def test_the_extended_map_has_the_budget_axis_and_names_where_copycat_was_judged
     assert [(q.run, q.iteration) for q in points] == [(30_000, 30_000), (300_000, 30_000), (300_000, 100_000),
                                                       (300_000, 300_000)]
     assert [q.diagnostics.copycats for q in points] == [0, 0, 0, 5]   # the committed file: read, none copycat
-    text, _ = report.build(files)
-    section = text[text.index("### Where copycat appears: the map, extended"):]
-    assert "| Hopper | fca, rows | 1 | 20,000 | 300k | 100k | " in section
     # the committed file's cell has the controlled verdict (none copycat); the fixture's, the first verdict only
-    assert "Of the 1 cells whose BC-OH policies have the controlled verdict, none has a seed judged copycat." in section
-    assert ("Of the 4 cells whose BC-OH policies were diagnosed, by the first verdict, 1 has a seed judged copycat: "
-            "Hopper recipe fca, split by rows, frame skip 1, 20,000 transitions, at 300k of 300k (5/5)." in section)
+    assert [(q.diagnostics.judged, q.diagnostics.controlled) for q in points] == [(5, 0), (0, 0), (0, 0), (0, 0)]
+    text = report.build(files).pages["index.md"].text
+    section = text[text.index("## Where copycat appears: the map, extended"):]
+    assert "| Hopper | fca, rows | 1 | 20,000 | 300k | 100k | " in section
+    assert "| Hopper | fca, rows | 1 | 20,000 | 300k | 300k | " in section and "| 5/5 (first verdict only) |" in section
 
 
 def test_a_longer_history_is_a_setting_of_its_own_in_the_map_and_stays_out_of_the_recipe_table(tmp_path):
@@ -111,13 +112,13 @@ def test_a_longer_history_is_a_setting_of_its_own_in_the_map_and_stays_out_of_th
     settings = [q.setting for q in extended_map(merged)]
     assert settings == ["recipe mlp, split by rows", "recipe fca, split by rows",
                         "recipe fca, split by rows, history 7"]
-    text, _ = report.build(files)
-    recipe = text[text.index("### The paper's recipe"):]
-    recipe = recipe[:recipe.index("\n### ")]
+    built = report.build(files)
+    text = built.pages["index.md"].text
+    recipe = text[text.index("## The paper's recipe"):]
+    recipe = recipe[:recipe.index("\n## ")]
     assert "history 7" not in recipe   # the recipe table compares mlp with fca at the protocol's own history
     assert "| Hopper | fca, rows, history 7 | 1 | 20,000 | 30k | 30k | " in text
-    assert "### Hopper, `pos` observations, protocol fca, split by rows, recipe fca, history 7: every configuration" \
-        in text
+    assert "## Protocol fca, split by rows, recipe fca, history 7\n" in built.pages["hopper-pos.md"].text
 
 
 def test_another_expert_is_a_setting_of_its_own(tmp_path):
@@ -129,7 +130,7 @@ def test_another_expert_is_a_setting_of_its_own(tmp_path):
     assert Key("hopper", "pos", "fca.rows.fca.ppo") in merged
     assert [q.setting for q in extended_map(merged)] == ["recipe fca, split by rows",
                                                          "recipe fca, split by rows, expert ppo"]
-    assert "| Hopper | fca, rows, expert ppo | 1 | 20,000 | 30k | 30k | " in report.build([report.load(path)])[0]
+    assert "| Hopper | fca, rows, expert ppo | 1 | 20,000 | 30k | 30k | " in report.build([report.load(path)]).text
 
 
 def _with_iterations(tmp_path, name: str, preset: str, iterations: int, recorded: int | None):

@@ -37,7 +37,7 @@ def test_bc_full_joins_the_state_table_as_the_ceiling_and_the_report_states_the_
     assert lines[2].startswith("| (BC-OH − BC-SO) / (BC-full − BC-SO) | 50% [") and lines[2].endswith("| — |")
     assert "of +1,200" in lines[2]
     text = report.report([_loaded(tmp_path, with_full, "h.json")])
-    assert CEILING_LABEL in text and "The share of the gap between BC-SO and it" in text
+    assert CEILING_LABEL in text and "The history's share of the gap to BC-full" in text
 
 
 def test_files_without_bc_full_lack_the_row_and_the_share(tmp_path):
@@ -78,5 +78,5 @@ def test_the_extended_map_shows_bc_full_and_the_historys_share_where_it_ran(tmp_
     assert np.isclose(with_full.ceiling.mean, 80.0) and with_full.share.share == pytest.approx(0.5)
     assert without.ceiling is None and without.share is None
     text = report.report(files)
-    assert "The cells where BC-full ran" in text
+    assert "Where BC-full (the full state) ran" in text
     assert "| Hopper | mlp, rows | 1 | 20,000 | 30k | 30k | 80.0 ± 0.7 | 50% [" in text

@@ -1,4 +1,5 @@
-"""`python -m experiments.report RESULTS... [--out BENCHMARKS.md] [--figures DIR]` (see `experiments.report`)."""
+"""`python -m experiments.report RESULTS... [--out BENCHMARKS.md] [--pages DIR] [--figures DIR]` (see
+`experiments.report`)."""
 
 import sys
 

@@ -1,74 +1,124 @@
-"""The report's markdown: `build` runs the section functions in report order and joins what they return.
+"""The report's pages: `build` runs the section functions of each page and joins what they return.
 
-Each section is a function `(Context) -> list[Section]` (`experiments.report.sections`): it reads the merged
-results, formats its tables and sentences from `experiments.report.analysis`'s numbers, and asks the figure
-builders (`experiments.report.figures`) for the figures it links. `build` writes nothing.
+- the findings' block (`SUMMARY`), which `--out` (BENCHMARKS.md) holds between `<!-- report:start -->` and
+  `<!-- report:end -->`: the headline tables;
+- `index.md` in the pages folder: the task pages listed, then every table across tasks (`ACROSS`);
+- one page per task and observation mode, `ENV-OBS.md` (`page_name`): per group, every configuration, its files'
+  provenance, the loss analysis and the diagnostics (`detail.group_sections`), and the task's own metrics.
+
+Each section is a function `(Context) -> list[Section]` (`experiments.report.sections`). `build` writes nothing.
 """
 
 from __future__ import annotations
 
 import pathlib
 from collections.abc import Callable, Sequence
+from typing import NamedTuple
 
 from matplotlib.figure import Figure
 
+from ape_jax import tasks
 from ape_jax.pipeline import results as results_lib
-from experiments.report.analysis import ReportError, check_references, merge
+from experiments.report.analysis import check_references, merge, ordered
 from experiments.report.sections import (copycat, curves, detail, differences, ranking, recipe, regime, state,
-                                        task_metrics)
-from experiments.report.sections.common import Context, Section, figures_note
+                                         task_metrics)
+from experiments.report.sections.common import Context, Section, figures_note, table
 
-# The report's sections in order.
-SECTIONS: tuple[Callable[[Context], list[Section]], ...] = (
+# The findings' block: the headline tables.
+SUMMARY: tuple[Callable[[Context], list[Section]], ...] = (
+    recipe.budget_summary,                # the paper's budget beside Table 5, with the differences
+    regime.regime_summary,                # Table 5 with FCA's expert, returns only
+    ranking.ranking_section,              # the later methods (RAP, PALR, MINE) ranked with the paper's
+    copycat.copycat_map_section,          # the copycat map per frame skip
+)
+
+# `index.md`: the tables across tasks, in order.
+ACROSS: tuple[Callable[[Context], list[Section]], ...] = (
     state.state_sections,                 # MuJoCo-State per protocol, with Table 5
     recipe.recipe_section,                # the paper's recipe: mlp against fca
     recipe.paper_budget_section,          # the paper's budget over training, beside Table 5
     regime.regime_section,                # Table 5 with FCA's expert (an expert of FCA's kind, labels raw or clipped)
-    ranking.ranking_section,              # the later methods (RAP, PALR, MINE) ranked with the paper's
+    ranking.ranking_section,              # the later methods ranked with the paper's
+    copycat.copycat_map_section,          # the copycat map per frame skip
     copycat.extended_map_section,         # where copycat appears: the map, extended
     state.image_sections,                 # MuJoCo-Image
-    task_metrics.task_metric_sections,    # a task's own metrics (the supplement's Table 4 protocol)
-    figures_note,                         # printed without --figures: none drawn
-    copycat.copycat_map_section,          # the copycat map per frame skip
     differences.differences_section,      # BC-OH − BC-SO and Ours − BC-OH with bootstrap intervals
-    differences.plain_reading_section,    # does keyframe weighting help where the history does not?
     differences.longer_section,           # training longer
     curves.sensitivity_section,           # the supplement's §4
     curves.curves_and_weights_section,    # training curves and weights within a batch
-    detail.group_sections,                # per group: every configuration, losses, diagnostics, provenance
 )
+
+INDEX = "index.md"
+
+
+def page_name(env: str, obs: str) -> str:
+    """A task page's file name: `hopper-pos.md`."""
+    return f"{env}-{obs}.md"
+
+
+class Page(NamedTuple):
+    """One generated page: its title (the file's `#` heading, written once when the file is new) and its markdown."""
+
+    title: str
+    text: str
+
+
+class Built(NamedTuple):
+    """What `build` returns: the findings' block, the pages by file name (`index.md` first) and the figures to
+    write (`{path: Figure}`, for `experiments.report.figures.save_png`)."""
+
+    summary: str
+    pages: dict[str, Page]
+    figures: dict[pathlib.Path, Figure]
+
+    @property
+    def text(self) -> str:
+        """Everything as one markdown text: the block, then each page under its title (what printing shows)."""
+        return "\n".join([self.summary, *(f"# {p.title}\n\n{p.text}" for p in self.pages.values())])
+
+
+def _join(sections: list[Section], level: int = 2) -> str:
+    text = "".join(line + "\n" for s in sections for line in s.lines(level))
+    return text.rstrip("\n") + "\n\n" if text else ""   # a blank line before whatever follows
 
 
 def build(files: Sequence[results_lib.Results], figure_dir: pathlib.Path | None = None,
-          base: pathlib.Path | None = None) -> tuple[str, dict[pathlib.Path, Figure]]:
-    """The report's markdown and its figures, nothing written.
+          base: pathlib.Path | None = None, pages: pathlib.Path | None = None) -> Built:
+    """The report's block and pages, and its figures, nothing written.
 
     Args:
       files: loaded results files (`experiments.report.load`).
       figure_dir: where the figures will be written; None draws none (the text says so).
-      base: the folder the markdown's links are relative to (the `--out` file's); default the working folder.
-
-    Returns:
-      `(text, figures)`: the markdown, and `{path: matplotlib Figure}` to write with
-      `experiments.report.figures.save_png`.
+      base: the folder the block's links are relative to (the `--out` file's); default the working folder.
+      pages: the folder of the pages, their links relative to it; default `base`.
 
     Raises:
-      ReportError: files that cannot be merged, a file judged by its return without expert references (its tables
-        are in % of expert: `check_references`), or two figures for one path.
+      ReportError: files that cannot be merged, or a file judged by its return without expert references (its tables
+        are in % of expert: `check_references`).
     """
     for res in files:
         check_references(res)
-    ctx = Context(merge(files), None if figure_dir is None else pathlib.Path(figure_dir),
-                  pathlib.Path.cwd() if base is None else pathlib.Path(base))
-    lines: list[str] = []
-    drawn: dict[pathlib.Path, Figure] = {}
-    for section_fn in SECTIONS:
-        for section in section_fn(ctx):
-            lines += section.lines()
-            for path, fig in section.figures.items():
-                # one file per figure (`analysis.file_stem`): never let one group's overwrite another's
-                if path in drawn:
-                    raise ReportError(f"two of the report's figures would be written to {path}; pass fewer results "
-                                      "files")
-                drawn[path] = fig
-    return "\n".join(lines), drawn
+    base = pathlib.Path.cwd() if base is None else pathlib.Path(base)
+    ctx = Context(merge(files), None if figure_dir is None else pathlib.Path(figure_dir), base)
+    here = ctx.on(base if pages is None else pathlib.Path(pages))
+    keys: dict[tuple[str, str], list] = {}
+    for key, _ in ordered(ctx.merged):
+        keys.setdefault((key.env, key.obs), []).append(key)
+    out: dict[str, Page] = {}
+    for (env, obs), group in keys.items():
+        sections = [s for key in group for s in task_metrics.task_metric_sections(here, key)]
+        sections += [s for key in group for s in detail.group_sections(here, key)]
+        out[page_name(env, obs)] = Page(f"{tasks.get(env).title}, `{obs}` observations",
+                                        f"Every configuration, by protocol; across tasks: [the results]({INDEX}).\n\n"
+                                        + _join(sections))
+    listed = table(["page", "groups", "results files"],
+                   [[f"[{p.title}]({name})", str(len(group)), str(len({s.path for k in group
+                                                                       for s in ctx.merged[k].sources}))]
+                     for (name, p), group in zip(out.items(), keys.values())])
+    index = [Section("", "The tables across tasks; per task, every configuration and where it came from:\n\n"
+                         + listed.rstrip("\n"))]
+    index += [s for fn in (figures_note, *ACROSS) for s in fn(here)]
+    summary = _join([s for fn in SUMMARY for s in fn(ctx)], level=3)
+    summary += f"Every table: [the results]({ctx.link(here.base / INDEX)}).\n"
+    return Built(summary, {INDEX: Page("Results", _join(index)), **out},
+                 {path: fig for path, fig in ctx.drawn.items() if fig is not None})

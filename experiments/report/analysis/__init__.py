@@ -49,9 +49,10 @@ from experiments.report.analysis.ranking import (LATER, RANKED, CellResult, Fami
                                                  ranking, ranking_cells)
 from experiments.report.analysis.regime import (REGIME_METHODS, RegimeRow, RegimeTable, is_regime, regime_groups,
                                                 regime_table)
-from experiments.report.analysis.selection import (CEILING, CEILING_LABEL, Choice, Gap, LongerRow, best_of, choices,
-                                                   comparisons, copycat_groups, display_metric, expert_ape,
-                                                   extra_methods, gap, has_ceiling, headline, hparams_suffix,
+from experiments.report.analysis.selection import (CEILING, CEILING_LABEL, Choice, Gap, LongerRow, Shift, best_of,
+                                                   choices, comparisons, copycat_groups, display_metric, expert_ape,
+                                                   extra_methods, first_training, gap, has_ceiling, headline,
+                                                   hparams_suffix, retrained_shift,
                                                    is_finite, is_number, known_methods,
                                                    label, longer_runs, loss_rows, method_rows, metric_value,
                                                    ok_runs, paper_step_row, percent, seed_values, sensitivity,
@@ -69,6 +70,7 @@ __all__ = [
     "MAP_METHODS", "MUJOCO", "RECIPE_METHODS", "AlphaRow", "BudgetPoint", "BudgetRow", "Choice", "CopycatMap",
     "DiagnosticsRow", "Difference", "Gap", "Group", "Interval", "Key", "LongerRow", "MapCell", "MapPoint", "MapRow",
     "Merged", "PolicyDiagnostics", "RecipeCell", "RecipeRow", "ReportError", "Source", "Spread", "TrainingPoint",
+    "Shift", "first_training", "retrained_shift",
     "WeightShares", "alpha_rows", "ape_mean", "best_of", "bootstrap_difference", "bootstrap_mean", "bootstrap_rows",
     "bootstrap_unit", "budget_differences", "budget_of", "budget_rows", "choices", "comparisons", "config_key",
     "copycat_groups", "copycat_map", "diagnostics_block", "diagnostics_rows", "diagnostics_thresholds",

@@ -5,6 +5,7 @@
   then the name;
 - `seed_values`, `ok_runs`: a configuration's per-seed numbers and runs;
 - `choices`: the paper's settings against the best of the grid;
+- `first_training`, `retrained_shift`: a file trained again, against the first training it replaced;
 - `longer_runs`: configurations trained longer, beside the same configuration at its preset's budget.
 
 Tasks are told apart by their record (`ape_jax.tasks`), never by name: a task judged by a rate (its main metric is
@@ -14,6 +15,7 @@ not the return) is shown in %.
 from __future__ import annotations
 
 import math
+import statistics
 from typing import NamedTuple
 from collections.abc import Mapping, Sequence
 
@@ -311,6 +313,40 @@ def choices(m: Group) -> list[Choice]:
             choice = choice._replace(scale=scale, equivalent=equivalent, closest=closest)
         out.append(choice)
     return out
+
+
+# -- trained again -------------------------------------------------------------------------------------------------
+
+def first_training(m: Group) -> dict[tuple, dict]:
+    """The summary rows of the files `m`'s files were trained again to replace (`replaces`), by configuration."""
+    return {config_key(row): row for s in m.sources if s.replaces for row in s.replaces["summary"]}
+
+
+class Shift(NamedTuple):
+    """How far the configurations trained again moved from their first training (`retrained_shift`): the number of
+    configurations, the smallest and largest move of the mean return, the median |move| in standard errors of the
+    difference, and how many moved by more than two of them (new seeds would put ~5% there, with a median ~0.67)."""
+
+    n: int
+    low: float
+    high: float
+    median_se: float
+    beyond: int
+
+
+def retrained_shift(m: Group) -> Shift | None:
+    """The `Shift` of group `m`'s configurations trained again (`replaces`), each move against the standard error from
+    the two trainings' std over seeds; None where no file of `m` replaced one."""
+    first = first_training(m)
+    pairs = [(row, first[config_key(row)]) for row in m.summary
+             if config_key(row) in first and row["n_seeds"] and first[config_key(row)]["n_seeds"]]
+    moved = [(a["return_mean"] - b["return_mean"],
+              math.sqrt(a["return_std"] ** 2 / a["n_seeds"] + b["return_std"] ** 2 / b["n_seeds"])) for a, b in pairs]
+    ratio = [abs(d) / se for d, se in moved if se > 0]
+    if not ratio:
+        return None
+    return Shift(len(pairs), min(d for d, _ in moved), max(d for d, _ in moved), statistics.median(ratio),
+                 sum(r > 2 for r in ratio))
 
 
 # -- training longer -----------------------------------------------------------------------------------------------

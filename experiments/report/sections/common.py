@@ -1,9 +1,8 @@
 """What every section shares: `Section` (what a section function returns), `Context` (what it reads), the cells.
 
 A section function takes the `Context` and returns the report's sections of one kind, `list[Section]` (empty
-when the results have nothing for it); `experiments.report.markdown.build` calls them in order and joins their
-lines. Figures are drawn through `Context.figure`, which links them relative to the markdown and hands them back
-with the section, so nothing is written until the caller writes them.
+when the results have nothing for it). Figures are drawn through `Context.figure`, which links them relative to
+the page and keeps them in `Context.drawn`, so nothing is written until the caller writes them.
 """
 
 from __future__ import annotations
@@ -11,8 +10,7 @@ from __future__ import annotations
 import dataclasses
 import os
 import pathlib
-from typing import NamedTuple
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 
 from matplotlib.figure import Figure
 
@@ -21,33 +19,23 @@ from experiments.report.analysis import Interval, Merged, PolicyDiagnostics, Spr
 
 @dataclasses.dataclass(frozen=True)
 class Section:
-    """One part of the report: a heading, the paragraph under it, what follows, and the figures it links.
+    """One part of a page: a heading, a one-line caption under it, and what follows.
 
     Attributes:
-      title: the heading's text (written `### title`); "" for a paragraph without a heading.
-      intro: the paragraph under the heading; "" for none.
+      title: the heading's text; "" for a caption without a heading.
+      caption: one line under the heading; "" for none.
       body: the markdown after it, one line or block each (a table is one string that ends in a newline; "" is a
         blank line).
-      figures: `{path: Figure}` the body links, to write with `experiments.report.figures.save_png`.
     """
 
     title: str
-    intro: str = ""
+    caption: str = ""
     body: Sequence[str] = ()
-    figures: Mapping[pathlib.Path, Figure] = dataclasses.field(default_factory=dict)
 
-    def lines(self) -> list[str]:
-        """The section as the lines `build` joins with newlines: heading, blank, intro, blank, body."""
-        head = [f"### {self.title}", ""] if self.title else []
-        return head + ([self.intro, ""] if self.intro else []) + list(self.body)
-
-
-class Drawn(NamedTuple):
-    """A figure as a section links it: its markdown (the image link and a blank line; none when not drawn) and
-    `{path: Figure}` (empty when not drawn)."""
-
-    lines: list[str]
-    figures: dict[pathlib.Path, Figure]
+    def lines(self, level: int = 2) -> list[str]:
+        """The section as lines to join with newlines: heading (`level` `#`s), blank, caption, blank, body."""
+        head = ["#" * level + f" {self.title}", ""] if self.title else []
+        return head + ([self.caption, ""] if self.caption else []) + list(self.body)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,25 +45,44 @@ class Context:
     Attributes:
       merged: the results per group (`analysis.merge`).
       figure_dir: where the figures will be written; None draws none (the report says so).
-      base: the folder the markdown's links are relative to (the `--out` file's).
+      base: the folder the page's links are relative to.
+      drawn: `{path: Figure}`, every figure drawn so far (shared by the contexts of one report's pages: a figure
+        linked from two pages is drawn once).
     """
 
     merged: Merged
     figure_dir: pathlib.Path | None
     base: pathlib.Path
+    drawn: dict = dataclasses.field(default_factory=dict)
 
-    def figure(self, name: str, alt: str, draw: Callable[[], Figure | None]) -> Drawn:
-        """`draw()`'s figure, to be written as `figure_dir/name`, linked with `alt`; nothing without a `figure_dir`
-        (`draw` is then not called) or when `draw` returns None."""
-        fig = draw() if self.figure_dir is not None else None
-        if fig is None:
-            return Drawn([], {})
+    def link(self, path: str | os.PathLike) -> str:
+        """`path` relative to the page's folder, with `/` separators."""
+        return pathlib.Path(os.path.relpath(pathlib.Path(path).absolute(), self.base.absolute())).as_posix()
+
+    def figure(self, name: str, alt: str, draw: Callable[[], Figure | None]) -> list[str]:
+        """The image link (and a blank line) of `draw()`'s figure, to be written as `figure_dir/name`; nothing without
+        a `figure_dir` (`draw` is then not called) or when `draw` returns None. Drawn once per report."""
+        if self.figure_dir is None:
+            return []
         path = pathlib.Path(self.figure_dir) / name
-        link = pathlib.Path(os.path.relpath(path.absolute(), self.base.absolute())).as_posix()
-        return Drawn([f"![{alt}]({link})", ""], {path: fig})
+        if path not in self.drawn:
+            self.drawn[path] = draw()
+        return [] if self.drawn[path] is None else [f"![{alt}]({self.link(path)})", ""]
+
+    def on(self, base: pathlib.Path) -> Context:
+        """The same report's context for a page in folder `base`."""
+        return dataclasses.replace(self, base=pathlib.Path(base))
 
 
-# -- cells and phrases the sections share ----------------------------------------------------------------------
+def table(head: Sequence[str], rows: Sequence[Sequence[str]], align: str | int = 1) -> str:
+    """A markdown table ending in a newline: `head` the headings, `rows` the cells; `align` one `l` (left) or `r`
+    (right) per column, or the number of leading columns left-aligned (the rest, numbers, right)."""
+    align = "l" * align + "r" * (len(head) - align) if isinstance(align, int) else align
+    return "\n".join(["| " + " | ".join(head) + " |", "|" + "".join("---|" if a == "l" else "---:|" for a in align),
+                      *("| " + " | ".join(row) + " |" for row in rows)]) + "\n"
+
+
+# -- cells the sections share --------------------------------------------------------------------------------------
 
 def return_cell(row: dict | None) -> str:
     """`"1,000 ± 8 (50%)"`: a summary row's mean return ± std over seeds, with its % of expert; "—" for None."""
@@ -90,17 +97,19 @@ def norm_cell(row: dict | None) -> str:
     return "—" if row is None or row.get("normalized_mean") is None else f"{row['normalized_mean']:.1f}"
 
 
-def pct_cell(cell) -> str:
+def pct_cell(cell, fmt: str = ".1f") -> str:
     """`"50.0 [49.5, 50.5]"`: a mean over seeds with its 95% bootstrap interval (`RecipeCell`); "—" for None."""
-    return "—" if cell is None else f"{cell.mean:.1f} [{cell.low:.1f}, {cell.high:.1f}]"
+    return "—" if cell is None else f"{cell.mean:{fmt}} [{cell.low:{fmt}}, {cell.high:{fmt}}]"
 
 
-def diff_cell(ci: Interval | None) -> str:
-    """`"+20.0 [+19.5, +20.5]"`: a difference with its interval, bold where `significant`; "—" for None."""
+def diff_cell(ci: Interval | None, fmt: str = "+.1f", either: bool = False) -> str:
+    """`"+20.0 [+19.5, +20.5]"`: a difference with its interval, bold where `significant` (with `either`, where it
+    excludes 0 either way with ≥ 2 seeds per arm); "—" for None."""
     if ci is None:
         return "—"
-    text = f"{ci.diff:+.1f} [{ci.low:+.1f}, {ci.high:+.1f}]"
-    return f"**{text}**" if significant(ci) else text
+    text = f"{ci.diff:{fmt}} [{ci.low:{fmt}}, {ci.high:{fmt}}]"
+    bold = significant(ci) or (either and min(ci.n_a, ci.n_b) >= 2 and ci.high < 0)
+    return f"**{text}**" if bold else text
 
 
 def ratio_text(s: Spread | None, with_range: bool = True) -> str:
@@ -126,31 +135,24 @@ def verdict_count(d: PolicyDiagnostics) -> str:
     return "—" if not d.read else f"copycat {copycat_count(d)}"
 
 
-def ci_text(ci: Interval, fmt: str = "+.1f") -> str:
-    """`"95% CI [+1.0, +3.0]"`: an interval's bounds in format `fmt`."""
-    return f"95% CI [{ci.low:{fmt}}, {ci.high:{fmt}}]"
-
-
 def significant(ci: Interval | None) -> bool:
     """Whether `ci` says its first arm is better: ≥ 2 seeds per arm and the interval above 0."""
     return ci is not None and min(ci.n_a, ci.n_b) >= 2 and ci.low > 0
 
 
-def lift(points: float, unit: str = "points of expert") -> str:
-    """`"lifts BC-OH 12.3 points of expert above BC-SO"`, or `"leaves BC-OH 4.0 ... below BC-SO"` when negative."""
-    if points >= 0:
-        return f"lifts BC-OH {points:.1f} {unit} above BC-SO"
-    return f"leaves BC-OH {-points:.1f} {unit} below BC-SO"
+def hparams_text(hparams) -> str:
+    """`"thr 0.1, w 5"` from a dict or `(key, value)` pairs; "—" for none."""
+    return ", ".join(f"{k} {v:g}" for k, v in dict(hparams).items()) or "—"
 
 
-# How sentences name a weighting's setting, per kind: `"THR 10% W 5"`, `"τ 0.2"`.
+# How tables name a weighting's setting, per kind: `"THR 10% W 5"`, `"τ 0.2"`.
 SETTING_WORDS = {"step": lambda hp: f"THR {percent(hp['thr'])} W {hp['w']:g}",
                  "softmax": lambda hp: f"τ {hp['tau']:g}"}
 
 
 def expert_text(found: dict | None, protocol: dict) -> str:
     """Who demonstrated and what the labels are, for a provenance line: `"expert `hopper-fca`, imported from a
-    cs294-pickle file (SHA-256 `…`), from ORIGIN; labels raw (…)"`, a shipped one by its folder and card's SHA-256.
+    cs294-pickle file (SHA-256 `…`), from ORIGIN; labels raw"`, a shipped one by its folder and card's SHA-256.
 
     Args:
       found: the file's demonstrator record (`analysis.demonstrator`), or None where it records none.
@@ -170,14 +172,12 @@ def expert_text(found: dict | None, protocol: dict) -> str:
     else:
         text = f"expert `{protocol['expert']}`" if protocol.get("expert") else "the task's own expert"
     labels = protocol.get("labels") or "clipped"
-    return text + ("; labels raw (the expert's output as it gave it; the executed action clipped to the action range)"
-                   if labels == "raw" else f"; labels {labels} to the action range" if labels == "clipped"
-                   else f"; labels {labels}")
+    return text + ("; labels raw (the executed action clipped)" if labels == "raw"
+                   else f"; labels {labels}" + (" to the action range" if labels == "clipped" else ""))
 
 
 def figures_note(ctx: Context) -> list[Section]:
     """Where the figures went when the report draws none (printed without `--figures`); nothing otherwise."""
     if ctx.figure_dir is not None:
         return []
-    return [Section("", "_Figures not drawn: the report was printed without `--figures DIR` (with `--out` they go to "
-                        "`figures/` next to it)._")]
+    return [Section("", "_Figures not drawn: printed without `--figures DIR`._")]

@@ -1,42 +1,20 @@
 """Copycat diagnostics as tables: per configuration (a group's, or the recipe section's per task and recipe), the
-column explanations once, the thresholds the files record, and the policies over training."""
+thresholds the files record, and the policies over training."""
 
 from __future__ import annotations
 
 from experiments.report.analysis import (DiagnosticsRow, Group, diagnostics_rows, diagnostics_thresholds,
                                          display_metric, training_points)
-from experiments.report.sections.common import pct_cell, ratio_text, verdict_count
+from experiments.report.sections.common import hparams_text, pct_cell, ratio_text, table, verdict_count
 
 
-# What each column of a diagnostics table shows (`diagnostics_table`), one line each, under its first table.
-DIAGNOSTICS_COLUMNS = (
-    "seeds: the configuration's trained policies; % of expert: their mean",
-    "embedding ratio: a probe's held-out MSE predicting the expert's previous action a_{t−1} from the frozen "
-    "policy's embedding ÷ the same probe's from a_t alone, median over seeds (their range in brackets); below 1 "
-    "the embedding holds a_{t−1} beyond what a_t gives",
-    "velocity 1 − R²: the probe's held-out MSE predicting the true joint velocity from the embedding ÷ the "
-    "velocity's variance, median over seeds; near 0 the policy extracts velocity (— where the data has none)",
-    "predictability ratio: ψ's held-out MSE on the policy's own rollout actions ÷ on the expert's rollouts (as "
-    "many steps), median over seeds (range); below 1 the policy's actions are more predictable than the expert's",
-    "control ratio (where the files record it): the same probe's held-out MSE on a_{t−1} from the policy's "
-    "embedding ÷ the median of the no-history control's (BC-SO trained on the same rows, probed the same way), "
-    "median over seeds (range); below 1 the policy's past tells it more about a_{t−1} than the current "
-    "observation does; BC-SO sits near 1 by construction, whatever the expert",
-    "verdict: the seeds the controlled verdict judged copycat / the seeds it judged, the first verdict's count "
-    "beside it (its copycats / the seeds whose diagnostics could be read; \"first verdict only\" where the files "
-    "record no control; — where no seed could be read)",
-    "embedding ÷ state (where the files record it): the embedding probe's MSE ÷ the same probe's from the true "
-    "state at t (the expert's observation: joint positions and velocities), median (range). The expert's "
-    "previous action follows from the previous state, which the current one nearly fixes, so reading the state "
-    "well carries a_{t−1} without copying it; but the small probe reads a trained embedding (a feature made to "
-    "predict a_t, which a_{t−1} is close to) more easily than the raw state, so a ratio below 1 is expected even "
-    "without a history: compare it with BC-SO's, which has none",
-)
+# Where the diagnostics tables' columns are explained: the hand-written notes beside the generated pages.
+COLUMNS = "columns explained in [the notes](notes.md#the-copycat-diagnostics)"
 
 
 def _diagnostics_cells(row: DiagnosticsRow, control: bool) -> list[str]:
     d = row.diagnostics
-    return [", ".join(f"{k} {v:g}" for k, v in row.hparams.items()) or "—", str(row.seeds),
+    return [hparams_text(row.hparams), str(row.seeds),
             "—" if row.normalized is None else f"{row.normalized:.1f}", ratio_text(d.embedding),
             *([ratio_text(d.control)] if control else []), ratio_text(d.velocity, with_range=False),
             ratio_text(d.predictability), verdict_count(d)]
@@ -55,13 +33,11 @@ def diagnostics_table(rows: list[tuple[tuple[str, ...], DiagnosticsRow]], heads:
     """
     state = any(row.diagnostics.state is not None for _, row in rows)   # files from before it: no column
     control = any(row.diagnostics.control is not None for _, row in rows)   # files without a control: none
-    lines = ["| " + " | ".join(heads) + f" | hparams | seeds | {unit} | embedding ratio | "
-             + ("control ratio | " if control else "") + "velocity 1 − R² | predictability ratio | verdict |"
-             + (" embedding ÷ state |" if state else ""),
-             "|" + "---|" * (len(heads) + 1) + "---:|" * (5 + control) + "---|" + ("---:|" if state else "")]
-    lines += ["| " + " | ".join([*lead, *_diagnostics_cells(row, control)]) + " |"
-              + (f" {ratio_text(row.diagnostics.state)} |" if state else "") for lead, row in rows]
-    return "\n".join(lines) + "\n"
+    return table([*heads, "hparams", "seeds", unit, "embedding ratio", *(["control ratio"] if control else []),
+                  "velocity 1 − R²", "predictability ratio", "verdict", *(["embedding ÷ state"] if state else [])],
+                 [[*lead, *_diagnostics_cells(row, control), *([ratio_text(row.diagnostics.state)] if state else [])]
+                  for lead, row in rows],
+                 "l" * (len(heads) + 1) + "r" * (5 + control) + "l" + ("r" if state else ""))
 
 
 def thresholds_line(thresholds: list[dict]) -> str:
@@ -105,29 +81,24 @@ def _absent_lines(rows: list[tuple[tuple[str, ...], DiagnosticsRow]], heads: tup
     return out
 
 
-def diagnostics_lines(rows: list[tuple[tuple[str, ...], DiagnosticsRow]], thresholds: list[dict], intro: str,
-                      explained: bool, heads: tuple[str, ...] = ("method",), unit: str = "% of expert") -> list[str]:
-    """A diagnostics table with its caption, the column explanations (unless `explained` above), the thresholds
-    once under it and the seeds it could not read; nothing without rows."""
+def diagnostics_lines(rows: list[tuple[tuple[str, ...], DiagnosticsRow]], thresholds: list[dict], caption: str,
+                      heads: tuple[str, ...] = ("method",), unit: str = "% of expert") -> list[str]:
+    """A diagnostics table with its caption (and where its columns are explained), the thresholds under it and the
+    seeds it could not read; nothing without rows."""
     if not rows:
         return []
-    if explained:
-        out = [intro.rstrip(":") + " (the columns as explained under the first such table above):", ""]
-    else:
-        out = [intro, "", *(f"- {c}" for c in DIAGNOSTICS_COLUMNS), ""]
     absent = _absent_lines(rows, heads)
-    out += [diagnostics_table(rows, heads, unit), thresholds_line(thresholds), ""]
-    return out + (absent + [""] if absent else [])
+    return [f"{caption.rstrip(':.')} ({COLUMNS}):", "", diagnostics_table(rows, heads, unit),
+            thresholds_line(thresholds), "", *(absent + [""] if absent else [])]
 
 
-def group_diagnostics(m: Group, explained: bool) -> list[str]:
+def group_diagnostics(m: Group) -> list[str]:
     """Group `m`'s copycat diagnostics per configuration (`analysis.diagnostics_rows`); nothing for a group whose
     files predate them."""
     rows = [((r.label,), r) for r in diagnostics_rows(m)]
     unit = display_metric(m)[1] if display_metric(m)[0] == "normalized" else "% of expert"
-    return diagnostics_lines(rows, diagnostics_thresholds(m.sources),
-                             "Copycat diagnostics per trained policy (`ape_jax.diagnostics`), from its embedding "
-                             "and its own rollouts:", explained, unit=unit)
+    return diagnostics_lines(rows, diagnostics_thresholds(m.sources), "Copycat diagnostics per configuration",
+                             unit=unit)
 
 
 def training_table(m: Group) -> list[str]:
@@ -139,16 +110,11 @@ def training_table(m: Group) -> list[str]:
         return []
     unit = display_metric(m)[1] if display_metric(m)[0] == "normalized" else "% of expert"
     control = any(p.diagnostics.control is not None for p in points)
-    lines = ["The same policies over training (the runs also evaluated at `budget.eval_at`'s iterations, on the "
-             "same episodes, with the same diagnostics; a run's learning-rate schedule is its whole run's):", "",
-             f"| method | hparams | iteration | {unit} [95% CI] | training loss | embedding ratio | "
-             + ("control ratio | " if control else "") + "predictability ratio | verdict |",
-             "|---|---|---:|---:|---:|---:|" + "---:|" * control + "---:|---|"]
-    for p in points:
-        hps = ", ".join(f"{k} {v:g}" for k, v in p.hparams.items()) or "—"
-        loss = "—" if p.train_loss is None else f"{p.train_loss:.4g}"
-        lines.append(f"| {p.label} | {hps} | {p.iteration:,} | {pct_cell(p.normalized)} | {loss} | "
-                     f"{ratio_text(p.diagnostics.embedding)} | "
-                     + (f"{ratio_text(p.diagnostics.control)} | " if control else "")
-                     + f"{ratio_text(p.diagnostics.predictability)} | {verdict_count(p.diagnostics)} |")
-    return [*lines, ""]
+    return ["The same policies over training (evaluated at `budget.eval_at`'s iterations):", "",
+            table(["method", "hparams", "iteration", f"{unit} [95% CI]", "training loss", "embedding ratio",
+                   *(["control ratio"] if control else []), "predictability ratio", "verdict"],
+                  [[p.label, hparams_text(p.hparams), f"{p.iteration:,}", pct_cell(p.normalized),
+                    "—" if p.train_loss is None else f"{p.train_loss:.4g}", ratio_text(p.diagnostics.embedding),
+                    *([ratio_text(p.diagnostics.control)] if control else []),
+                    ratio_text(p.diagnostics.predictability), verdict_count(p.diagnostics)] for p in points],
+                  "ll" + "r" * (5 + control) + "l")]
