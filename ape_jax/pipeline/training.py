@@ -182,3 +182,19 @@ def _concat(metrics: list[dict]) -> dict:
     """Per-chunk metrics `[G, n]` joined along the iteration axis."""
     return jax.tree.map(lambda *xs: np.concatenate(xs, axis=1), *metrics)
 
+
+@dataclasses.dataclass(frozen=True)
+class Trained:
+    """One program's output: its policies (leaves `[len(runs), ...]`), per-iteration metrics, and times."""
+
+    program: Program
+    params: Any
+    metrics: dict
+    compile_s: float
+    train_s: float
+    snapshots: dict = dataclasses.field(default_factory=dict)  # {iteration: params} at `Budget.eval_at`
+
+
+def observation_of(program: Program) -> str | None:
+    """The observation a program's policies read (`Method.observation` of its methods: one per program)."""
+    return methods_lib.get(program.runs[0].method).observation

@@ -1,0 +1,246 @@
+"""A sweep's first two phases (`ape_jax.pipeline.sweep`): `prepare` (the environment, the demonstrations split
+as the protocol says, their expert and references, the observation normaliser) and `fit_ape` (ψ on the training
+actions, both splits' APE)."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ape_jax import ape as ape_lib
+from ape_jax import methods as methods_lib
+from ape_jax import observations, tasks
+from ape_jax.learner import Data, LearnerConfig
+from ape_jax.pipeline import checkpoint as ckpt_lib
+from ape_jax.pipeline import collect, minari_io
+from ape_jax.pipeline import data as data_lib
+from ape_jax.pipeline.checkpoint import SweepCheckpoint
+from ape_jax.pipeline.data import Part
+from ape_jax.pipeline.hooks import Hooks
+from ape_jax.pipeline.presets import Settings
+from ape_jax.pipeline.spec import SweepSpec, check_fits, check_protocol
+from ape_jax.pipeline.training import trains_sequentially
+
+# -- 1. prepare -----------------------------------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class Normalizer:
+    """Per-dimension standardisation of state observations with training statistics; images pass as they are."""
+
+    mean: np.ndarray | None
+    std: np.ndarray | None
+
+    @classmethod
+    def fit(cls, obs: np.ndarray) -> Normalizer:
+        obs = np.asarray(obs)
+        if obs.dtype == np.uint8:
+            return cls(None, None)
+        return cls(obs.mean(0).astype(np.float32), (obs.std(0) + 1e-6).astype(np.float32))
+
+    def __call__(self, obs: jax.Array) -> jax.Array:
+        obs = jnp.asarray(obs)
+        return obs if self.mean is None else (obs - self.mean) / self.std
+
+
+@dataclasses.dataclass(frozen=True)
+class Prepared:
+    """The prepare phase's output: what every later phase trains and evaluates on.
+
+    Attributes:
+      env: the environment the policies are evaluated in.
+      task: its task record.
+      train, val: the demonstrations' training and validation rows (`data.Part`: rows of whole episodes).
+      normalizer: fitted on the training rows.
+      expert: the expert's label as `full observation -> action` (`collect.labeller`: clipped to the action
+        bounds, or raw, as `protocol.labels` says): the demonstrations' own expert (a `--dataset`'s, found by
+        `collect.dataset_expert`); None for a dataset whose expert cannot be queried.
+      card: the returns to normalise by (`return_mean`, `return_std`, `random_return_mean`): the expert's under the
+        protocol, or a `--dataset`'s recorded ones; None for a rule-based expert or a dataset without references.
+      expert_description: how the demonstrations describe their expert (`collect.expert_for`'s description:
+        its card's or file's SHA-256, origin), None where they name none.
+      data_path: where the demonstrations came from; `source`: "cached", "collected" or "from".
+      settings: what names the demonstrations (`SweepSpec.data_settings`).
+      data_sha256: the SHA-256 of the collected (or cached) demonstrations' file, which tells two collections
+        with the same settings apart; None for `--dataset` and for a file another process is still writing.
+      views: the other observations' views built so far (`view`), by observation.
+    """
+
+    env: Any
+    task: tasks.Task
+    train: Part
+    val: Part
+    normalizer: Normalizer
+    expert: Callable[[jax.Array], jax.Array] | None
+    card: dict | None
+    data_path: str
+    source: str
+    settings: dict
+    data_sha256: str | None = None
+    expert_description: dict | None = None
+    views: dict = dataclasses.field(default_factory=dict, compare=False, repr=False)
+
+    def observing(self, observation: str | None) -> str | None:
+        """The observation `observation` (`Method.observation`) names here: None where it is the sweep's own
+        (`"full"` in a sweep with `--obs full`), else itself. Policies are grouped by it."""
+        return None if observation in (None, self.env.obs_mode) else observation
+
+    def view(self, observation: str | None) -> Prepared:
+        """The sweep as policies reading `observation` (`Method.observation`) see it: this record for the sweep's
+        own; for `"full"` the same rows observed in the `obs="full"` environment (`observations.full_state`: the
+        demonstrations' simulator state observed by the environment's own code), standardised with their own
+        training statistics. Built once and kept. Raises `observations.FullStateError` (one line) for
+        demonstrations without the simulator state."""
+        observation = self.observing(observation)
+        if observation is None:
+            return self
+        if observation not in self.views:
+            demos = {id(p.demos): p.demos for p in (self.train, self.val)}   # one copy where both parts share it
+            env = None
+            for key, d in demos.items():
+                env, demos[key] = observations.full_state(self.env, d, self.data_path)
+            train, val = (Part(demos[id(p.demos)], p.rows) for p in (self.train, self.val))
+            self.views[observation] = dataclasses.replace(self, env=env, train=train, val=val,
+                                                          normalizer=Normalizer.fit(train.obs), views={})
+        return self.views[observation]
+
+    def sequential(self, encoder: str) -> bool:
+        """Whether policies of `encoder` train one configuration after another here (`trains_sequentially`)."""
+        return trains_sequentially(self.env.observation_shape, encoder)
+
+    def data(self, part: Part, ape: jax.Array, scores: jax.Array | None = None) -> Data:
+        """`part` on device with its APE (and score table), observations standardised: the whole episodes, and
+        the part's rows among them."""
+        d = part.demos
+        return Data(obs=self.normalizer(d.obs), action=jnp.asarray(d.action), t=jnp.asarray(d.t),
+                    ape=jnp.asarray(ape), scores=scores,
+                    rows=None if part.rows is None else jnp.asarray(part.rows, jnp.int32))
+
+    def learner_config(self, settings: Settings, history: int) -> LearnerConfig:
+        return settings.learner_config(self.env.observation_shape, self.env.action_size, history, self.task.loss,
+                                       unroll=self.sequential(settings.recipe.encoder))
+
+
+def check_task(recorded: dict | None, spec: SweepSpec, where: str) -> None:
+    """Refuses (ValueError, one line) a dataset whose metadata (`minari_io.dataset_metadata`) names another task
+    or observation mode than the sweep's, with the flags that fit it; one that names none passes (its shapes are
+    checked once loaded)."""
+    recorded = recorded if isinstance(recorded, dict) else {}
+    settings = recorded.get("settings") if isinstance(recorded.get("settings"), dict) else {}
+    env, obs = settings.get("env", recorded.get("env")), settings.get("obs", recorded.get("obs"))
+    if env is not None and env != spec.env:
+        raise ValueError(f"{where} holds {env}{f' ({obs})' if obs else ''} demonstrations, not {spec.env}'s; pass "
+                         f"--env {env}{f' --obs {obs}' if obs else ''} to train on them")
+    if obs is not None and obs != spec.obs:
+        raise ValueError(f"{where} holds {env or spec.env} demonstrations observed as {obs!r}, not {spec.obs!r}; "
+                         f"pass --obs {obs} to train on them")
+
+
+def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
+    """Phase 1: the environment, the demonstrations (collected or cached, or `spec.dataset`), their expert and
+    references, the split and the normaliser. A `--dataset` brings its own expert and references
+    (`collect.dataset_expert`). Raises `ValueError` (one line) for demonstrations that do not fit the environment
+    or are too few, a dataset whose labels leave the action range without `protocol.labels=raw`, and an online
+    method (DAgger) where the dataset's expert cannot be queried.
+    """
+    import envs
+
+    env = envs.make(spec.env, obs=spec.obs, **spec.env_overrides())
+    settings = spec.data_settings()
+    protocol = spec.protocol
+    if spec.dataset is None:
+        found = spec.setup.expert
+        card = spec.setup.references()  # a reference not measured is refused before collecting
+        with hooks.bar(desc="collect", total=spec.episodes, unit="episode") as b:
+            demos, meta, path, cached = collect.collect_cached(settings, spec.data_dir or data_lib.cache_dir(),
+                                                            progress=lambda n: b.update(n - b.n),
+                                                            save=jax.process_index() == 0, references=card,
+                                                            expert=found)
+            b.update(spec.episodes - b.n)
+        source, digest = ("cached" if cached else "collected"), meta.get("sha256")
+        expert, description = found.policy(env), found.description  # the policy loaded once per sweep
+    else:
+        where = str(spec.dataset)
+        recorded = minari_io.dataset_metadata(spec.dataset)
+        check_task(recorded, spec, where)   # first: another task's data fails every later check, each its own way
+        check_protocol(minari_io.dataset_settings(spec.dataset), spec, where)
+        found = collect.dataset_expert(env, protocol, recorded, where)
+        online = [m for m in spec.methods if methods_lib.get(m).online]
+        if online and found.expert is None:
+            raise ValueError(f"{', '.join(online)} queries the expert of the demonstrations, but {found.why}; drop "
+                             f"{', '.join(online)} from --methods")
+        demos, path = minari_io.load_dataset(spec.dataset)
+        collect.check_labels(demos, env, protocol.labels, str(path))
+        source, digest = "from", None
+        expert, description, card = found.expert, found.description, found.references
+        if card is None and spec.task.has_card:
+            hooks.log(f"no normalised scores: {collect.no_references_advice(found, where)}")
+    check_fits(demos, env, str(path))
+    if spec.protocol.prev_action:  # the previous action in view, in the rollouts and the demonstrations alike
+        env, demos = observations.with_previous_action(env, demos)
+    hooks.log(f"demonstrations: {len(demos):,} transitions in {demos.num_episodes} episodes ({source}: {path})")
+    train, val = data_lib.split_parts(demos, protocol.split, protocol.train_transitions, protocol.val_transitions,
+                                      protocol.val_frac, seed=0)
+    if len(train) < spec.recipe.batch_size:
+        raise ValueError(f"the training split has {len(train)} transitions, fewer than the batch size "
+                         f"{spec.recipe.batch_size}; collect more episodes")
+    expert = None if expert is None else collect.labeller(expert, env, protocol.labels)
+    return Prepared(env=env, task=spec.task, train=train, val=val, normalizer=Normalizer.fit(train.obs),
+                    expert=expert, card=card, data_path=str(path), source=source, settings=settings,
+                    data_sha256=digest, expert_description=description)
+
+
+# -- 2. fit APE -----------------------------------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class ApeFit:
+    """The APE phase's output: ψ and both splits' (normalised) APE.
+
+    Attributes:
+      params: ψ's parameters (`ape_jax.ape`).
+      train, val: `[N]`, `[M]` float32 APE, divided by `scale`.
+      scale: the normalisation's divisor (1 for `"none"`).
+      final_fit_mse: ψ's training loss at the end of the fit.
+    """
+
+    params: Any
+    train: Any
+    val: Any
+    scale: float
+    final_fit_mse: float
+
+    @property
+    def raw_mean(self) -> float:
+        """The training split's mean APE before normalisation (what the copycat diagnostic `rollout_ape` divides by)."""
+        return float(self.scale * np.mean(self.train))
+
+
+def part_errors(params: Any, part: Part) -> np.ndarray:
+    """`[len(part)]` APE of a part's rows, ψ reading the past actions of their whole episodes."""
+    d = part.demos
+    return part.own(ape_lib.errors(params, jnp.asarray(d.action), jnp.asarray(d.t)))
+
+
+def fit_ape(prepared: Prepared, settings: Settings, hooks: Hooks = Hooks(),
+            checkpoint: SweepCheckpoint | None = None) -> ApeFit:
+    """Phase 2: ψ fitted on the training rows' actions (key 0, deterministic), reused from `checkpoint`."""
+    steps = settings.budget.ape_steps
+    with hooks.bar(desc="fit APE", total=steps, unit="step") as b:
+        fit = ckpt_lib.load_ape(checkpoint, ApeFit)
+        if fit is None:
+            train = prepared.train
+            rows = None if train.rows is None else jnp.asarray(train.rows, jnp.int32)
+            run = jax.jit(lambda k, a, t, r: ape_lib.fit(k, a, t, steps=steps, rows=r))
+            params, losses = run(jax.random.PRNGKey(0), jnp.asarray(train.demos.action), jnp.asarray(train.demos.t),
+                                 rows)
+            ape_train, ape_val = part_errors(params, train), part_errors(params, prepared.val)
+            ape_train, ape_val, scale = ape_lib.normalize(ape_train, ape_val, settings.recipe.ape_normalization)
+            fit = ApeFit(params=params, train=np.asarray(ape_train), val=np.asarray(ape_val), scale=float(scale),
+                         final_fit_mse=float(np.mean(np.asarray(losses)[-50:])))
+            ckpt_lib.save_ape(checkpoint, fit)
+        b.update(steps)
+    return fit
