@@ -608,8 +608,8 @@ def test_fca_and_brax_results_of_one_task_are_merged_apart_into_two_tables(tmp_p
                                                      "Hopper (fca, frame skip 4)", "Hopper (brax)"]
     text = report.report(files)
     index = _index(files)
-    fca = index[index.index("## MuJoCo-State, the paper's protocol (fca): frame skip 1, 500 standard steps of "
-                            "simulated time, 20,000 training transitions"):index.index("## MuJoCo-State, Brax's")]
+    fca = index[index.index("## MuJoCo-State, the paper's protocol (fca)\n\nFrame skip 1, 500 standard steps of "
+                            "simulated time, 20,000 training transitions, split"):index.index("## MuJoCo-State, Brax's")]
     brax = index[index.index("## MuJoCo-State, Brax's frame skip (the project's first results)"):
                  index.index("## The copycat map")]
     assert "| BC-SO | 600 ± 8 (30%) |" in fca and "| FCA (TCA) | 1,200 ± 8 (60%) |" in fca
@@ -948,15 +948,30 @@ def test_the_committed_report_is_what_the_committed_results_give(tmp_path):
     assert all(path.parent == tmp_path / "figures" for path in built.figures) and not (tmp_path / "figures").exists()
 
 
-def test_the_findings_and_the_pages_link_only_files_that_exist():
-    """Every relative link of BENCHMARKS.md and docs/results/*.md names a file of the repository."""
+def _anchors(markdown: str) -> set[str]:
+    """The anchors of `markdown`'s headings as GitHub (and the docs site's slugify) make them: lowercase, word
+    characters, hyphens and spaces kept, spaces made hyphens (duplicates not numbered)."""
+    import re
+
+    heads = re.findall(r"^#{1,6} +(.+?) *$", re.sub(r"^```.*?^```", "", markdown, flags=re.M | re.S), flags=re.M)
+    return {re.sub(r"[^\w\- ]", "", re.sub(r"\[([^\]]*)\]\([^)]*\)", r"\1", h).lower()).replace(" ", "-")
+            for h in heads}
+
+
+def test_the_findings_and_the_pages_link_only_files_and_headings_that_exist():
+    """Every relative link of BENCHMARKS.md and docs/results/*.md names a file of the repository, and a link into a
+    markdown file (or the page itself) names one of its headings."""
     import re
 
     for page in [ROOT / "BENCHMARKS.md", *(ROOT / "docs" / "results").glob("*.md")]:
         for target in re.findall(r"\]\(([^)\s]+)\)", page.read_text()):
-            path = target.split("#")[0]
-            if path and "://" not in path:
-                assert (page.parent / path).exists(), f"{page.relative_to(ROOT)} links {target}"
+            path, _, anchor = target.partition("#")
+            if "://" in path:
+                continue
+            assert (page.parent / path).exists(), f"{page.relative_to(ROOT)} links {target}"
+            if anchor:
+                linked = (page.parent / path) if path else page
+                assert anchor in _anchors(linked.read_text()), f"{page.relative_to(ROOT)} links {target}"
 
 
 def test_a_sections_figure_is_drawn_once_only_with_a_figure_folder_and_linked_relative_to_the_page(tmp_path):

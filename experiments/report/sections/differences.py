@@ -44,7 +44,7 @@ def differences_section(ctx: Context) -> list[Section]:
                  f"bootstrap; with {seeds} seed{'s' * (seeds != 1)} per arm each arm has only "
                  f"{math.comb(2 * seeds - 1, seeds)} distinct resamples, so read a verdict as a hint.", "",
                  bootstrap_table(boot)]
-    return [Section("Differences over seeds: Ours − BC-OH, and BC-OH − BC-SO", body=body)]
+    return [Section("Differences over seeds", "Ours − BC-OH, and BC-OH − BC-SO, per group.", body)]
 
 
 def longer_section(ctx: Context) -> list[Section]:

@@ -52,7 +52,7 @@ def recipe_section(ctx: Context) -> list[Section]:
     out += diagnostics_lines([((title, n, r.label), r) for title, n, r in recipe_diagnostics(groups)],
                              diagnostics_thresholds(sources), "Copycat diagnostics per task, recipe and configuration:",
                              heads=("task", "recipe", "method"))
-    return [Section("The paper's recipe: the FCA code's network and optimiser against the project's first",
+    return [Section("The paper's recipe against the project's first",
                     "Same protocol, data, budget and seeds; `mlp` the project's first recipe, `fca` the FCA code's. "
                     "% of expert [95% bootstrap interval].", out)]
 
@@ -118,10 +118,10 @@ def paper_budget_section(ctx: Context) -> list[Section]:
             table(["task", "method", "embedding ratio", *(["control ratio"] if control else []), "predictability ratio",
                    "copycat", *(["embedding ÷ state"] if state else [])], diagnostics, 2),
             thresholds_line(diagnostics_thresholds([src for m in groups for src in m.sources])), ""]
-    return [Section(f"The paper's budget with the paper's recipe: the same runs at {', '.join(f'{i:,}' for i in its)} "
-                    "iterations",
+    return [Section("The paper's budget with the paper's recipe",
                     f"Protocol {FCA}, split by {groups[0].protocol.get('split')}, recipe fca, learning rate × 0.1 at a "
-                    "third and two thirds; each run evaluated at every point.", body)]
+                    f"third and two thirds; each run evaluated at {', '.join(f'{i:,}' for i in its)} iterations.",
+                    body)]
 
 
 def budget_summary(ctx: Context) -> list[Section]:

@@ -85,9 +85,10 @@ def regime_lines(ctx: Context, diagnostics: bool = True) -> list[str]:
 def regime_section(ctx: Context) -> list[Section]:
     """"Table 5 with FCA's expert" (`regime_lines`); nothing where no group of the regime exists."""
     lines = regime_lines(ctx)
-    return [Section("Table 5 with FCA's expert: an expert of FCA's kind, labels raw or clipped",
-                    "Protocol fca, split by rows, recipe fca; % of expert and return [95% bootstrap interval]; "
-                    "− BC-OH bold where its interval excludes 0.", lines)] if lines else []
+    return [Section("Table 5 with FCA's expert",
+                    "An expert of FCA's kind, labels raw or clipped; protocol fca, split by rows, recipe fca; % of "
+                    "expert and return [95% bootstrap interval]; − BC-OH bold where its interval excludes 0.",
+                    lines)] if lines else []
 
 
 def regime_summary(ctx: Context) -> list[Section]:

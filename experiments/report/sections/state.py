@@ -182,15 +182,15 @@ def state_sections(ctx: Context) -> list[Section]:
         groups = groups_of(ctx.merged, "pos", protocol)
         heading = protocol_heading(groups)
         if protocol == FCA:
-            title = f"MuJoCo-State, the paper's protocol ({FCA})" + (f": {heading}" if heading else "")
+            title = f"MuJoCo-State, the paper's protocol ({FCA})"
         elif protocol == BRAX:
             title = "MuJoCo-State, Brax's frame skip (the project's first results)"
         elif not in_fca_family(protocol) and not any(m.protocol.get("variant_of") for m in groups):
-            title = f"MuJoCo-State, protocol {protocol}" + (f": {heading}" if heading else "")
+            title = f"MuJoCo-State, protocol {protocol}"
         else:
             continue
-        out.append(Section(title, "Positions only (velocities removed). " + CAPTION,
-                           _state_body(ctx.merged, protocol)))
+        out.append(Section(title, (f"{heading[0].upper()}{heading[1:]}; p" if heading else "P")
+                           + "ositions only (velocities removed). " + CAPTION, _state_body(ctx.merged, protocol)))
     return out
 
 
