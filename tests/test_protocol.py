@@ -10,6 +10,7 @@ import pytest
 
 import envs
 from ape_jax import tasks
+from ape_jax.pipeline import collect as collect_lib
 from ape_jax.pipeline import sweep as S
 from ape_jax.pipeline.checkpoint import CheckpointError, SweepCheckpoint
 from ape_jax.pipeline.data import Demonstrations
@@ -141,7 +142,7 @@ def test_collect_names_the_dataset_the_sweep_of_the_same_protocol_uses(protocol,
     spec = S.SweepSpec.make("hopper", "pos", ("bc-oh",), protocol=protocol)
     assert args.setup.name == spec.protocol.name == (protocol or "fca")
     assert args.episodes == spec.episodes
-    mine = S.collect.settings("hopper", "pos", args.episodes, args.seed, **args.overrides)
+    mine = collect_lib.settings("hopper", "pos", args.episodes, args.seed, **args.overrides)
     assert mine == spec.data_settings()   # the same settings: the same cached file
 
 

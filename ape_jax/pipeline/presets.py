@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import types
 import typing
 from typing import Any
 from collections.abc import Iterable, Mapping
@@ -32,6 +31,8 @@ from ape_jax.ape import NORMALIZATIONS
 from ape_jax.learner import LOSSES, NETWORKS, LearnerConfig, lr_boundaries
 from ape_jax.models import IMAGE_ENCODERS, INITS, NORMS, StatePolicy
 from ape_jax.tasks import Protocol
+from ape_jax.pipeline.hints import SettingsError, check as _check, coerce as _coerce, describe as _describe
+from ape_jax.pipeline.hints import format_value as _format, parse as _parse
 
 STEP_GRID = tuple((thr, w) for thr in (0.1, 0.2) for w in (3.0, 5.0, 10.0))
 SOFTMAX_GRID = (0.1, 0.2, 0.5, 1.0, 5.0, 10.0)
@@ -44,15 +45,6 @@ RAP_UNITS = StatePolicy.hidden[0]  # RAP's branches split the state policy's enc
 # the most any budget count may be: the device counts steps, seeds and episodes in 32-bit integers (a larger
 # one passed every check, trained, then overflowed at the first step); cost is `experiments.sweep`'s check
 BUDGET_MAX = 2**31 - 1
-
-
-class SettingsError(ValueError):
-    """An unknown preset, recipe or field, or a value a field cannot take (one line)."""
-
-
-def _check(ok: bool, message: str) -> None:
-    if not ok:
-        raise SettingsError(message)
 
 
 def _one_of(name: str, value: Any, valid: tuple) -> None:
@@ -475,97 +467,3 @@ def _record(section: str, values: Mapping[str, Any]):
         raise
     except (TypeError, ValueError) as e:  # a required field missing; a protocol's own check
         raise SettingsError(str(e) if str(e).startswith(section) else f"{section}: {e}") from None
-
-
-def _coerce(hint: Any, value: Any, name: str) -> Any:
-    """`value` (from Python or JSON) as type `hint`: lists to tuples; a wrong type is a `SettingsError`."""
-    args = [a for a in typing.get_args(hint) if a is not type(None)]
-    if value is None:
-        _check(type(None) in typing.get_args(hint), f"{name} cannot be none")
-        return None
-    origin = typing.get_origin(hint)
-    if origin in (typing.Union, types.UnionType):
-        return _coerce(args[0], value, name)
-    if origin is tuple:
-        _check(isinstance(value, (list, tuple)), f"{name} must be a list, got {value!r}")
-        inner = typing.get_args(hint)
-        if len(inner) == 2 and inner[1] is Ellipsis:
-            return tuple(_coerce(inner[0], v, name) for v in value)
-        _check(len(value) == len(inner), f"{name} must have {len(inner)} entries, got {value!r}")
-        return tuple(_coerce(h, v, name) for h, v in zip(inner, value))
-    if hint is bool:
-        _check(isinstance(value, bool), f"{name} must be true or false, got {value!r}")
-    elif hint is int:
-        _check(isinstance(value, int) and not isinstance(value, bool), f"{name} must be an integer, got {value!r}")
-    elif hint is float:
-        _check(isinstance(value, (int, float)) and not isinstance(value, bool),
-               f"{name} must be a number, got {value!r}")
-        value = float(value)
-    elif hint is str:
-        _check(isinstance(value, str), f"{name} must be a string, got {value!r}")
-    return value
-
-
-def _parse(hint: Any, text: str) -> Any:
-    """Command-line text as type `hint` (`parse_set`)."""
-    args = [a for a in typing.get_args(hint) if a is not type(None)]
-    if text.lower() in ("none", "null") and type(None) in typing.get_args(hint):
-        return None
-    origin = typing.get_origin(hint)
-    if origin in (typing.Union, types.UnionType):
-        return _parse(args[0], text)
-    if origin is tuple:
-        inner = typing.get_args(hint)
-        if len(inner) == 2 and inner[1] is Ellipsis:
-            items = [t.strip() for t in text.split(",") if t.strip()]
-            if typing.get_origin(inner[0]) is tuple:  # pairs: THR:W
-                return tuple(tuple(_parse(h, p) for h, p in zip(typing.get_args(inner[0]), _pair(t)))
-                             for t in items)
-            return tuple(_parse(inner[0], t) for t in items)
-        parts = [t.strip() for t in text.replace("x", ",").split(",")]
-        if len(parts) != len(inner):
-            raise ValueError(f"{text!r} has {len(parts)} entries, not {len(inner)}")
-        return tuple(_parse(h, p) for h, p in zip(inner, parts))
-    if hint is bool:
-        if text.lower() not in ("true", "false"):
-            raise ValueError(f"{text!r} is not true or false")
-        return text.lower() == "true"
-    if hint is int:
-        return int(text)
-    if hint is float:
-        return float(text)
-    return text
-
-
-def _format(hint: Any, value: Any) -> str:
-    """`value` as command-line text that `_parse(hint, ...)` reads back."""
-    args = [a for a in typing.get_args(hint) if a is not type(None)]
-    if value is None:
-        return "none"
-    origin = typing.get_origin(hint)
-    if origin in (typing.Union, types.UnionType):
-        return _format(args[0], value)
-    if origin is tuple:
-        inner = typing.get_args(hint)
-        if len(inner) == 2 and inner[1] is Ellipsis:
-            if typing.get_origin(inner[0]) is tuple:  # pairs: THR:W
-                return ",".join(":".join(_format(h, v) for h, v in zip(typing.get_args(inner[0]), pair))
-                                for pair in value)
-            return ",".join(_format(inner[0], v) for v in value)
-        return ",".join(_format(h, v) for h, v in zip(inner, value))
-    if hint is bool:
-        return "true" if value else "false"
-    if hint is float:
-        return str(int(value)) if float(value).is_integer() and abs(value) < 1e15 else repr(float(value))
-    return str(value)
-
-
-def _pair(text: str) -> list[str]:
-    parts = text.split(":")
-    if len(parts) != 2:
-        raise ValueError(f"{text!r} is not THR:W (e.g. 0.1:5)")
-    return parts
-
-
-def _describe(hint: Any) -> str:
-    return str(hint).replace("typing.", "").replace("<class '", "").replace("'>", "")
