@@ -36,7 +36,7 @@ from experiments.report.analysis.diagnostics import (DiagnosticsRow, PolicyDiagn
                                                      spread, training_points)
 from experiments.report.analysis.groups import (BRAX, FCA, FCA_TRAIN, FIRST_IMAGE_PRESET, MUJOCO, Group, Key, Merged,
                                                 ReportError, Source, budget_of, check_references, config_key,
-                                                demonstrator, envs_of, expert_part, expert_words, file_stem,
+                                                demonstrator, expert_part, expert_words, file_stem,
                                                 former_preset, group_title, groups_of, raw_labels,
                                                 in_fca_family, is_rate, load, main_metric, merge, ordered,
                                                 other_history, other_setting, protocol_of, protocol_words, protocols_of,
@@ -74,7 +74,7 @@ __all__ = [
     "WeightShares", "alpha_rows", "ape_mean", "best_of", "bootstrap_difference", "bootstrap_mean", "bootstrap_rows",
     "bootstrap_unit", "budget_differences", "budget_of", "budget_rows", "choices", "comparisons", "config_key",
     "copycat_groups", "copycat_map", "diagnostics_block", "diagnostics_rows", "diagnostics_thresholds",
-    "display_metric", "envs_of", "expert_ape", "extended_map", "extra_methods", "file_stem", "gap", "group_title",
+    "display_metric", "expert_ape", "extended_map", "extra_methods", "file_stem", "gap", "group_title",
     "groups_of", "has_diagnostics", "headline", "history_difference", "hparams_suffix", "in_fca_family", "is_finite",
     "is_number", "is_rate", "known_methods", "label", "load", "longer_runs", "loss_rows", "main_metric", "mean_cell",
     "merge", "method_rows", "metric_value", "ok_runs", "ordered", "other_history", "other_setting",

@@ -451,8 +451,3 @@ def protocols_of(merged: Merged, obs: str) -> list[str]:
     """The protocols of the state tasks' groups with observations `obs`, in report order (`_protocol_rank`)."""
     found = {m.protocol["name"]: m.protocol for k, m in ordered(merged) if k.env in MUJOCO and k.obs == obs}
     return sorted(found, key=lambda n: _protocol_rank(found[n]))
-
-
-def envs_of(merged: Merged, obs: str, protocol: str = BRAX) -> list[str]:
-    """The state tasks (`MUJOCO`) `merged` has results of with observations `obs` under `protocol`, in order."""
-    return [m.env for m in groups_of(merged, obs, protocol)]
