@@ -417,14 +417,19 @@ def _pm(mean, sd, scale: float, unit: str) -> str:
 def main(argv=None) -> int:
     """The sweep from the command line; returns the exit status (0 done or reported, 2 refused, 130 Ctrl-C)."""
     state: dict = {}   # what was made, for the cleanup whatever ends the sweep
+    code = None
     try:
-        return _main(argv, state)
+        code = _main(argv, state)
+        return code
+    except SystemExit as e:
+        code = e.code
+        raise
     except KeyboardInterrupt:
         print(f"\n{_prog()}: {_interrupted(argv, state.get('args'))}", file=sys.stderr)
         return 130
     finally:
         if (lock := state.get("lock")) is not None:
-            lock.release()
+            lock.release(restore=code == 2)   # a refusal leaves --out as it found it, a stale lock file too
         out = state["args"].out if state.get("created") else None
         if out is not None and out.is_dir() and not any(out.iterdir()):
             out.rmdir()  # a sweep refused or stopped before any work leaves no empty folder behind

@@ -241,7 +241,11 @@ def test_a_second_sweep_into_a_held_folder_is_refused_naming_the_holder_and_a_ki
     finally:
         holder.kill()
         holder.wait()
-    assert (out / LOCK).exists()   # a killed sweep leaves its file, and no lock: taken over
+    stale = (out / LOCK).read_bytes()   # a killed sweep leaves its file, and no lock: taken over
+    (out / "checkpoints").mkdir()
+    (out / "checkpoints" / "notes.txt").write_text("someone else's")
+    err = refused(capsys, lambda: sweep.main([*TINY, "--out", str(out)]))   # taken, then refused: left as found
+    assert "is not a checkpoint of this project's sweep" in err and (out / LOCK).read_bytes() == stale
     with OutLock(out):
         record = json.loads((out / LOCK).read_text())
         assert record["pid"] == os.getpid() and record["host"] == socket.gethostname()

@@ -218,7 +218,8 @@ def test_a_dataset_that_does_not_fit_the_environment_is_refused(workdir, referen
     collected = reference["config"]["data"]["path"]
     image = [*ARGS[:ARGS.index("--obs")], "--obs", "image", *ARGS[ARGS.index("--obs") + 2:]]
     err = refused([*image, "--dataset", collected, "--out", str(workdir / "misfit")], capsys)
-    assert "do not fit 'toycar'" in err and "pick the matching --env/--obs" in err
+    # its metadata names its observations: refused before its shapes are read, with the flag that fits it
+    assert "holds toycar demonstrations observed as 'full', not 'image'; pass --obs full to train on them" in err
     assert not (workdir / "misfit").exists()  # nothing left behind
 
 

@@ -78,17 +78,26 @@ class OutLock:
     start time, from the file) when another process has it. The kernel drops the lock when its process ends,
     however it ends, so the file a killed sweep leaves is simply taken over. `release` deletes the file, then
     unlocks; a process that opened the file before it was deleted finds, after locking, that the path no longer
-    names the file it locked, and opens it again.
+    names the file it locked, and opens it again. `release(restore=True)` (a sweep that refused, having done
+    nothing) leaves the folder as it was found instead: a file it took over gets its old contents back.
     """
 
     def __init__(self, out: os.PathLike):
         self.path = pathlib.Path(out) / LOCK
         self._fd: int | None = None
+        self._found: bytes | None = None   # the contents of a file that was there before `acquire`
 
     def acquire(self) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         while True:
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fd, found = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o644), None
+            except FileExistsError:
+                try:
+                    fd = os.open(self.path, os.O_RDWR)
+                except FileNotFoundError:  # deleted by its holder's release since: create it
+                    continue
+                found = os.pread(fd, 1 << 16, 0)
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:
@@ -110,13 +119,17 @@ class OutLock:
                   "command": sys.argv}
         os.ftruncate(fd, 0)
         os.pwrite(fd, (json.dumps(record) + "\n").encode(), 0)
-        self._fd = fd
+        self._fd, self._found = fd, found
 
-    def release(self) -> None:
+    def release(self, restore: bool = False) -> None:
         if self._fd is None:
             return
         try:
-            self.path.unlink(missing_ok=True)
+            if restore and self._found is not None:
+                os.ftruncate(self._fd, 0)
+                os.pwrite(self._fd, self._found, 0)
+            else:
+                self.path.unlink(missing_ok=True)
         finally:
             os.close(self._fd)  # closing drops the lock
             self._fd = None
