@@ -13,8 +13,8 @@ Per minibatch (uniform sampling with replacement) the loss is
 (`"l2"`, MuJoCo) or the absolute error (`"l1"`, ToyCar), and `w` from
 `ape_jax.weighting` (stop-gradient). The policy sees the last `H` observations,
 padded at episode starts by repeating the first one. Adam (β1, β2 of the
-config) with learning rate `lr · 0.1^k`, `k` the number of `cfg.lr_boundaries`
-passed (the paper: ×0.1 at 100k and 200k of 300k iterations).
+config) with learning rate `lr` × `lr_schedule(cfg)` (the paper's piecewise schedule:
+×0.1 at 100k and 200k of 300k iterations; constant and cosine with warm-up too).
 
 **Rows.** A split may be rows drawn from whole episodes (the FCA code's split):
 `Data.rows` names the rows a minibatch is drawn from, while histories (and ψ's
@@ -62,6 +62,7 @@ from ape_jax.weighting import Weighting
 
 LOSSES = ("l2", "l1")
 NETWORKS = ("mlp", "bn-mlp")
+SCHEDULES = ("piecewise", "constant", "cosine")  # the learning rate over a run (`lr_schedule`)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,7 +74,10 @@ class LearnerConfig:
     history: int = 2             # H: 1 for BC-SO
     iterations: int = 300_000
     batch_size: int = 128
-    lr_boundaries: tuple[int, ...] = (100_000, 200_000)  # steps at which the learning rate drops ×0.1
+    lr_boundaries: tuple[int, ...] = (100_000, 200_000)  # piecewise: steps at which the learning rate drops
+    lr_schedule: str = "piecewise"  # `SCHEDULES`; what `lr_schedule` builds
+    lr_decay: float = 0.1        # piecewise: the factor at each boundary
+    warmup_steps: int = 0        # cosine: steps the learning rate climbs from 0 to its peak
     beta1: float = 0.9           # Adam's moment decays (the FCA code: 0.5, 0.999)
     beta2: float = 0.999
     network: str = "mlp"         # state policies: "mlp", or "bn-mlp" (the FCA code's, BatchNorm in the encoder)
@@ -111,6 +115,8 @@ class LearnerConfig:
                              f"the encoder ({list(IMAGE_ENCODERS)})")
         if self.init not in INITS:
             raise ValueError(f"unknown init {self.init!r}; valid: {list(INITS)}")
+        if self.lr_schedule not in SCHEDULES:
+            raise ValueError(f"unknown lr_schedule {self.lr_schedule!r}; valid: {list(SCHEDULES)}")
         if list(self.lr_boundaries) != sorted(self.lr_boundaries) or any(b < 1 for b in self.lr_boundaries):
             raise ValueError(f"lr_boundaries must be increasing steps >= 1, got {self.lr_boundaries}")
         for name in ("beta1", "beta2"):
@@ -289,11 +295,33 @@ def dataset_losses(learner: Learner, params: Any, data: Data, chunk: int | None 
     return losses.reshape(-1)[:n]
 
 
+def lr_schedule(cfg: LearnerConfig) -> optax.Schedule:
+    """The learning rate's factor over a run, an optax schedule (`step -> factor`, traceable):
+
+    - `"piecewise"` (the paper's): `lr_decay^k`, `k` the boundaries of `cfg.lr_boundaries` that `step` has reached;
+    - `"constant"`: 1;
+    - `"cosine"`: from 0 to 1 over `cfg.warmup_steps`, then a cosine to 0 at `cfg.iterations`
+      (`optax.warmup_cosine_decay_schedule`).
+
+    The traced learning rate of a configuration (`Hparams.lr`) is multiplied by it at each step
+    (`learning_rate`), which is what `optax.inject_hyperparams` would do, with the rate a grid axis.
+    """
+    if cfg.lr_schedule == "constant":
+        return optax.constant_schedule(1.0)
+    if cfg.lr_schedule == "cosine":
+        return optax.warmup_cosine_decay_schedule(0.0, 1.0, cfg.warmup_steps, cfg.iterations)
+    boundaries, decay = cfg.lr_boundaries, cfg.lr_decay
+
+    def piecewise(step):
+        passed = sum((step >= b).astype(jnp.float32) for b in boundaries) if boundaries else 0.0
+        return decay ** jnp.asarray(passed, jnp.float32)
+
+    return piecewise
+
+
 def learning_rate(cfg: LearnerConfig, lr: jax.Array, step: jax.Array) -> jax.Array:
-    """The schedule every learner uses: `lr · 0.1^k`, `k` the boundaries of `cfg.lr_boundaries` that `step` has
-    reached (traced `lr` and `step`)."""
-    passed = sum((step >= b).astype(jnp.float32) for b in cfg.lr_boundaries) if cfg.lr_boundaries else 0.0
-    return lr * 0.1 ** jnp.asarray(passed, jnp.float32)
+    """The learning rate every learner uses at `step`: `lr` × `lr_schedule(cfg)(step)` (traced `lr` and `step`)."""
+    return lr * lr_schedule(cfg)(step)
 
 
 def lr_boundaries(iterations: int, fractions: tuple[float, ...]) -> tuple[int, ...]:

@@ -208,3 +208,30 @@ def test_the_sequential_grid_runner_equals_the_vmapped_one_and_compiles_once():
     for i in range(3):
         row = lambda tree: jax.tree.map(lambda x: x[i], tree)  # noqa: E731
         assert update_mismatch(row(seq_params), row(vm_params), row(init)) < UPDATE_RTOL, i
+
+
+def test_the_learning_rate_schedules_are_optax_schedules_and_the_papers_is_unchanged():
+    import dataclasses
+
+    from ape_jax.learner import lr_schedule
+    from ape_jax.pipeline.presets import SettingsError, resolve
+
+    steps = jnp.arange(300)
+    paper = jax.vmap(lr_schedule(dataclasses.replace(CFG, lr_boundaries=(100, 200))))(steps)
+    passed = (steps >= 100).astype(jnp.float32) + (steps >= 200).astype(jnp.float32)
+    np.testing.assert_array_equal(paper, 0.1 ** jnp.asarray(passed, jnp.float32))   # the formula before schedules
+    assert (paper[0], paper[150]) == (1.0, np.float32(0.1)) and paper[250] == pytest.approx(0.01)
+    constant = jax.vmap(lr_schedule(dataclasses.replace(CFG, lr_schedule="constant")))(steps)
+    np.testing.assert_array_equal(constant, np.ones(300))
+    cosine = np.asarray(jax.vmap(lr_schedule(dataclasses.replace(CFG, lr_schedule="cosine", warmup_steps=30)))(steps))
+    assert cosine[0] == 0.0 and cosine[30] == pytest.approx(1.0) and cosine[165] == pytest.approx(0.5, abs=0.01)
+    assert np.all(np.diff(cosine[:31]) > 0) and np.all(np.diff(cosine[30:]) <= 0) and cosine[-1] < 1e-3
+
+    s = resolve("hopper", "pos", sets=["recipe.lr_schedule=cosine", "recipe.warmup=0.1"])
+    cfg = s.learner_config((5,), 3, 2, "l2")
+    assert (cfg.lr_schedule, cfg.warmup_steps, cfg.lr_boundaries) == ("cosine", s.budget.iterations // 10, ())
+    assert resolve("hopper", "pos").learner_config((5,), 3, 2, "l2").lr_boundaries == (1000, 2000)   # quick: 3k
+    for sets, message in ((["recipe.warmup=0.1"], "cosine schedule's"), (["recipe.lr_schedule=linear"], "lr_schedule"),
+                          (["recipe.lr_decay=0"], "lr_decay must be in")):
+        with pytest.raises(SettingsError, match=message):
+            resolve("hopper", "pos", sets=sets)

@@ -28,7 +28,7 @@ from collections.abc import Iterable, Mapping
 
 from ape_jax import tasks
 from ape_jax.ape import NORMALIZATIONS
-from ape_jax.learner import LOSSES, NETWORKS, LearnerConfig, lr_boundaries
+from ape_jax.learner import LOSSES, NETWORKS, SCHEDULES, LearnerConfig, lr_boundaries
 from ape_jax.models import IMAGE_ENCODERS, INITS, NORMS, StatePolicy
 from ape_jax.tasks import Protocol
 from ape_jax.pipeline.hints import SettingsError, check as _check, coerce as _coerce, describe as _describe
@@ -108,7 +108,13 @@ class Recipe:
         image's shorter side.
       lr, beta1, beta2: Adam's learning rate and moment decays, for every method that trains a policy.
       batch_size: minibatch rows per update.
-      lr_decay_at: fractions of the run at which the learning rate drops ×0.1 (the paper: 100k and 200k of 300k).
+      lr_schedule: the learning rate over the run (`ape_jax.learner.lr_schedule`, an optax schedule):
+        `"piecewise"` (× `lr_decay` at each of `lr_decay_at`: the paper's), `"constant"`, or `"cosine"` (from 0 to
+        `lr` over the first `warmup` of the run, then a cosine to 0 at its end).
+      lr_decay_at: piecewise: fractions of the run at which the learning rate drops × `lr_decay` (the paper: ×0.1
+        at 100k and 200k of 300k).
+      lr_decay: piecewise: the factor at each of `lr_decay_at`, in (0, 1].
+      warmup: cosine: the fraction of the run its learning rate climbs from 0, in [0, 1).
       bn_momentum: BatchNorm's running statistics' update, PyTorch's convention (0.1).
       loss: `"l2"` or `"l1"`; None: the task's (L2 for MuJoCo, L1 for the driving sandbox).
       ape_normalization: `"none"` (the raw APE, as the official code) or `"mean"`.
@@ -138,6 +144,9 @@ class Recipe:
     beta2: float = 0.999
     batch_size: int = 128
     lr_decay_at: tuple[float, ...] = (1 / 3, 2 / 3)
+    lr_schedule: str = "piecewise"
+    lr_decay: float = 0.1
+    warmup: float = 0.0
     bn_momentum: float = 0.1
     loss: str | None = None
     ape_normalization: str = "none"
@@ -176,6 +185,12 @@ class Recipe:
                f"recipe.batch_size must be an integer >= 1, got {self.batch_size!r}")
         _check(all(0.0 < f < 1.0 for f in self.lr_decay_at) and list(self.lr_decay_at) == sorted(set(self.lr_decay_at)),
                f"recipe.lr_decay_at must be increasing fractions in (0, 1), got {self.lr_decay_at!r}")
+        _one_of("recipe.lr_schedule", self.lr_schedule, SCHEDULES)
+        _check(0.0 < self.lr_decay <= 1.0, f"recipe.lr_decay must be in (0, 1], got {self.lr_decay!r}")
+        _check(0.0 <= self.warmup < 1.0, f"recipe.warmup must be a fraction in [0, 1), got {self.warmup!r}")
+        _check(self.warmup == 0.0 or self.lr_schedule == "cosine",
+               f"recipe.warmup is the cosine schedule's (--set recipe.lr_schedule=cosine), got lr_schedule "
+               f"{self.lr_schedule!r}")
         for thr, w in self.step_grid:
             _check(0.0 < thr < 1.0 and 1.0 <= w < math.inf,
                    f"recipe.step_grid: THR must be in (0, 1) and W a finite number >= 1, got {thr:g}:{w:g}")
@@ -259,7 +274,9 @@ class Settings:
         images = len(obs_shape) == 3
         return LearnerConfig(obs_shape=tuple(obs_shape), action_dim=action_dim, history=history,
                              iterations=iterations, batch_size=r.batch_size,
-                             lr_boundaries=lr_boundaries(iterations, r.lr_decay_at), beta1=r.beta1, beta2=r.beta2,
+                             lr_schedule=r.lr_schedule, lr_decay=r.lr_decay, warmup_steps=round(r.warmup * iterations),
+                             lr_boundaries=(lr_boundaries(iterations, r.lr_decay_at) if r.lr_schedule == "piecewise"
+                                            else ()), beta1=r.beta1, beta2=r.beta2,
                              network="mlp" if images else r.network, init=r.init, bn_momentum=r.bn_momentum,
                              loss=r.loss or task_loss, unroll=unroll, encoder=r.encoder if images else "small",
                              encoder_norm=r.encoder_norm if images else "none",
