@@ -203,7 +203,8 @@ def provenance(r: results_lib.Results) -> str:
     if t.get("peak_rss_mb"):
         line += f", peak resident memory {t['peak_rss_mb'] / 1024:.1f} GB"
     width = ((r.settings or {}).get("budget") or {}).get("width")
-    line += f"; `budget.width` {width}" if width else "; each program vmapped whole (width 0)"
+    line += (f"; {width} configuration(s) per device per call (`budget.width`)" if width else
+             "; each program vmapped whole (width 0)")
     if r.replaces:
         was = r.replaces
         commit = (was.get("system") or {}).get("commit")
