@@ -55,6 +55,7 @@ from typing import Any
 import numpy as np
 
 from ape_jax.pipeline.data import write_atomic
+from ape_jax.pipeline.rundir import RunDir
 
 FINGERPRINT = "sweep.json"
 _GROUP_FIELDS = ("runs", "history", "observation")  # a policy group's record in `<name>.json`, not in orbax
@@ -64,7 +65,7 @@ class CheckpointError(ValueError):
     """A checkpoint directory that cannot be resumed: foreign, of another sweep, or unreadable."""
 
 
-LOCK = "sweep.lock"
+LOCK = RunDir.LOCK
 
 
 class LockHeld(CheckpointError):
@@ -83,7 +84,7 @@ class OutLock:
     """
 
     def __init__(self, out: os.PathLike):
-        self.path = pathlib.Path(out) / LOCK
+        self.path = RunDir(out).lock
         self._fd: int | None = None
         self._found: bytes | None = None   # the contents of a file that was there before `acquire`
 

@@ -13,6 +13,7 @@
 | `curves/<program>.csv` | every iteration's training metrics | `logs.write_curves`, `logs.CurveLog` |
 | `tensorboard/<run label>/` | the same, downsampled, for TensorBoard | `logs.write_curves`, `logs.CurveLog` |
 | `videos/` | GIFs of evaluation episodes | `experiments.evaluate --video` (`watch`) |
+| `sweep.lock` | who holds the folder while a sweep runs (pid, host, start) | `checkpoint.OutLock`, deleted at the end |
 
 Nothing here writes: it says where (and `finished` looks).
 """
@@ -43,6 +44,7 @@ class RunDir:
     CURVES: ClassVar[str] = "curves"
     TENSORBOARD: ClassVar[str] = "tensorboard"
     VIDEOS: ClassVar[str] = "videos"
+    LOCK: ClassVar[str] = "sweep.lock"
 
     def __post_init__(self):
         object.__setattr__(self, "root", pathlib.Path(os.fspath(self.root)))
@@ -74,6 +76,10 @@ class RunDir:
     @property
     def videos(self) -> pathlib.Path:
         return self.root / self.VIDEOS
+
+    @property
+    def lock(self) -> pathlib.Path:
+        return self.root / self.LOCK
 
     def curve_csv(self, program: str) -> pathlib.Path:
         """One program's training curves: `curves/<program>.csv`."""
