@@ -609,7 +609,8 @@ def test_fca_and_brax_results_of_one_task_are_merged_apart_into_two_tables(tmp_p
     text = report.report(files)
     index = _index(files)
     fca = index[index.index("## MuJoCo-State, the paper's protocol (fca)\n\nFrame skip 1, 500 standard steps of "
-                            "simulated time, 20,000 training transitions, split"):index.index("## MuJoCo-State, Brax's")]
+                            "simulated time, 20,000 training transitions, split"):
+                index.index("## MuJoCo-State, Brax's")]
     brax = index[index.index("## MuJoCo-State, Brax's frame skip (the project's first results)"):
                  index.index("## The copycat map")]
     assert "| BC-SO | 600 ± 8 (30%) |" in fca and "| FCA (TCA) | 1,200 ± 8 (60%) |" in fca
