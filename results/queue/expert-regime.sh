@@ -23,7 +23,9 @@ sweep() {  # sweep NAME ARGS...: one sweep into $RUNS/NAME, its results to resul
   if [ -f "results/$name.json" ]; then echo "skip $name (results/$name.json exists)"; return; fi
   if [ ! -f "$RUNS/$name/results.json" ]; then
     echo "start $name $(date -u +%FT%TZ)"
-    "$PY" -m experiments.sweep "$@" --out "$RUNS/$name" --resume > "$RUNS/$name.log" 2>&1 \
+    # --resume where a sweep was started (a folder without one is refused with it), else a fresh start
+    local resume=(); [ -f "$RUNS/$name/checkpoints/sweep.json" ] && resume=(--resume)
+    "$PY" -m experiments.sweep "$@" --out "$RUNS/$name" "${resume[@]}" > "$RUNS/$name.log" 2>&1 \
       || { echo "FAILED $name (exit $?; $RUNS/$name.log)"; return; }
   fi
   cp "$RUNS/$name/results.json" "results/$name.json" && echo "done $name $(date -u +%FT%TZ)"
