@@ -212,7 +212,7 @@ def cost(env: str, settings, names) -> Cost | None:
     """The sweep's `Cost` from its settings and methods, before anything runs; None where a method's grid cannot
     be listed without the demonstrations (a plugin's that reads the training split's size)."""
     from ape_jax import methods, tasks
-    from ape_jax.pipeline.spec import grid_runs
+    from ape_jax.pipeline.sweep import grid_runs
 
     recipe, budget = settings.recipe, settings.budget
     ctx = methods.GridContext(task=tasks.get(env), step_grid=recipe.step_grid, softmax_grid=recipe.softmax_grid,

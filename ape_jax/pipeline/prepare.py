@@ -20,10 +20,10 @@ from ape_jax.pipeline import checkpoint as ckpt_lib
 from ape_jax.pipeline import collect, minari_io
 from ape_jax.pipeline import data as data_lib
 from ape_jax.pipeline.checkpoint import SweepCheckpoint
-from ape_jax.pipeline.data import Part
+from ape_jax.pipeline.data import Demonstrations, Part
 from ape_jax.pipeline.hooks import Hooks
 from ape_jax.pipeline.presets import Settings
-from ape_jax.pipeline.spec import SweepSpec, check_fits, check_protocol
+from ape_jax.pipeline.spec import SweepSpec
 from ape_jax.pipeline.training import trains_sequentially
 
 # -- 1. prepare -----------------------------------------------------------------------------------------------------
@@ -125,6 +125,36 @@ class Prepared:
                                        unroll=self.sequential(settings.recipe.encoder))
 
 
+PROTOCOL_KEYS = ("n_frames", "episode_length", "reward_scale")  # the collection settings a protocol fixes
+
+
+def check_protocol(recorded: dict | None, spec: SweepSpec, where: str) -> None:
+    """Refuses (ValueError, one line) a dataset whose recorded collection settings are of another protocol.
+
+    `recorded`: the dataset's collection settings (`minari_io.dataset_settings`); None (a dataset that
+    records none, e.g. your own or a Minari one) cannot be checked and passes.
+    """
+    if recorded is None:
+        return
+    had = {k: v for k, v in (recorded.get("env_overrides") or {}).items() if k in PROTOCOL_KEYS}
+    want = {k: v for k, v in spec.setup.collection.items() if k in PROTOCOL_KEYS}
+    if had != want:
+        raise ValueError(f"{where} was collected with {had or 'the environment defaults'}, not under the "
+                         f"{spec.protocol.name!r} protocol's {want or 'environment defaults'}; pass the --protocol it "
+                         "was collected under, or collect it again")
+
+
+def check_fits(demos: Demonstrations, env, where: str) -> None:
+    """Refuses (ValueError, one line) demonstrations whose observations or actions the environment cannot take."""
+    obs_shape, action_dim = tuple(np.shape(demos.obs)[1:]), int(np.shape(demos.action)[1])
+    if obs_shape != tuple(env.observation_shape) or action_dim != env.action_size:
+        raise ValueError(f"{where}: observations {list(obs_shape)} and {action_dim}-d actions do not fit "
+                         f"{env.name!r}, which has observations {list(env.observation_shape)} and "
+                         f"{env.action_size}-d actions; pick the matching --env/--obs")
+    if len(env.observation_shape) == 3 and np.asarray(demos.obs).dtype != np.uint8:
+        raise ValueError(f"{where}: image observations must be uint8, got {np.asarray(demos.obs).dtype}")
+
+
 def check_task(recorded: dict | None, spec: SweepSpec, where: str) -> None:
     """Refuses (ValueError, one line) a dataset whose metadata (`minari_io.dataset_metadata`) names another task
     or observation mode than the sweep's, with the flags that fit it; one that names none passes (its shapes are
@@ -149,20 +179,21 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
     """
     import envs
 
-    env = envs.make(spec.env, obs=spec.obs, **spec.env_overrides())
-    settings = spec.data_settings()
+    setup = spec.setup
+    env = envs.make(spec.env, obs=spec.obs, **setup.evaluation)
+    settings = setup.data_key if spec.dataset is None else spec.data_settings()   # what names the demonstrations
     protocol = spec.protocol
     if spec.dataset is None:
-        found = spec.setup.expert
-        card = spec.setup.references()  # a reference not measured is refused before collecting
-        with hooks.bar(desc="collect", total=spec.episodes, unit="episode") as b:
+        found = setup.expert
+        expert, description = found.policy(env), found.description  # restored once: collection and labels use it
+        card = setup.references()  # a reference not measured is refused before collecting
+        with hooks.bar(desc="collect", total=setup.episodes, unit="episode") as b:
             demos, meta, path, cached = collect.collect_cached(settings, spec.data_dir or data_lib.cache_dir(),
                                                             progress=lambda n: b.update(n - b.n),
                                                             save=jax.process_index() == 0, references=card,
                                                             expert=found)
-            b.update(spec.episodes - b.n)
+            b.update(setup.episodes - b.n)
         source, digest = ("cached" if cached else "collected"), meta.get("sha256")
-        expert, description = found.policy(env), found.description  # the policy loaded once per sweep
     else:
         where = str(spec.dataset)
         recorded = minari_io.dataset_metadata(spec.dataset)

@@ -206,6 +206,7 @@ class Setup:
       applied: the protocol as it applies to the environment (`protocol_setup`).
       collection: the `envs.make` settings demonstrations are collected with (the protocol's, and the image size).
       evaluation: the settings policies are evaluated with (the collection's, and the protocol's `eval_steps`).
+      episodes: expert episodes collected: as many as the protocol's expert steps take, else its or the task's.
     The expert (`expert`), its references (`references`) and the data key (`data_key`) are resolved on first
     use, once: a setup for a `--dataset` sweep never reads the protocol's expert.
     """
@@ -216,6 +217,7 @@ class Setup:
     applied: ProtocolSetup
     collection: dict
     evaluation: dict
+    episodes: int
 
     @classmethod
     def resolve(cls, env: str, obs: str, protocol: tasks.Protocol) -> Setup:
@@ -225,12 +227,7 @@ class Setup:
         collection = {**applied.env_overrides, **({"image_size": size} if obs == "image" and size else {})}
         steps = protocol.eval_steps
         evaluation = {**collection, **({"episode_length": steps} if steps is not None else {})}
-        return cls(env, obs, protocol, applied, collection, evaluation)
-
-    @property
-    def episodes(self) -> int:
-        """Expert episodes collected: as many as the protocol's expert steps take, else its or the task's count."""
-        return self.applied.episodes
+        return cls(env, obs, protocol, applied, collection, evaluation, applied.episodes)
 
     @functools.cached_property
     def expert(self) -> ExpertRef:

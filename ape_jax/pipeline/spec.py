@@ -15,18 +15,15 @@ that run a spec are `ape_jax.pipeline.sweep`'s.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import pathlib
 from collections.abc import Sequence
 
 import jax
-import numpy as np
 
 from ape_jax import methods as methods_lib
 from ape_jax import tasks
 from ape_jax.pipeline import results as results_lib
-from ape_jax.pipeline.data import Demonstrations
-from ape_jax.pipeline.presets import Settings, resolve
+from ape_jax.pipeline.presets import Budget, Recipe, Settings, resolve
 from ape_jax.pipeline.setup import Setup
 
 
@@ -69,6 +66,13 @@ class SweepSpec:
     dataset: str | None = None
     data_dir: pathlib.Path | None = None
     command: tuple[str, ...] | None = None
+    # resolved once, from the fields above (`__post_init__`): read them, never derive them again
+    task: tasks.Task = dataclasses.field(init=False, repr=False, compare=False)
+    protocol: tasks.Protocol = dataclasses.field(init=False, repr=False, compare=False)
+    budget: Budget = dataclasses.field(init=False, repr=False, compare=False)
+    recipe: Recipe = dataclasses.field(init=False, repr=False, compare=False)
+    preset_name: str = dataclasses.field(init=False, repr=False, compare=False)
+    setup: Setup = dataclasses.field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
         for m in self.methods:
@@ -76,7 +80,14 @@ class SweepSpec:
             why = method.refuses(self.settings, self.obs) if method.refuses is not None else None
             if why:
                 raise ValueError(why)
-        _ = self.setup  # ValueError for a protocol the task cannot take
+        resolved = {"task": tasks.get(self.env), "protocol": self.settings.protocol, "budget": self.settings.budget,
+                    "recipe": self.settings.recipe, "preset_name": self.settings.preset,
+                    # the task, observation mode and protocol (`setup.Setup`): how the protocol applies to the
+                    # environment, its expert, references and data key. Pure data: nothing is built or restored.
+                    # ValueError for a protocol the task cannot take.
+                    "setup": Setup.resolve(self.env, self.obs, self.settings.protocol)}
+        for name, value in resolved.items():
+            object.__setattr__(self, name, value)
         length, history = self.setup.applied.settings.get("episode_length"), self.protocol.history
         if isinstance(length, int) and history > length:
             raise ValueError(f"protocol.history {history} is longer than an episode ({length:,} steps): a history "
@@ -95,35 +106,9 @@ class SweepSpec:
         return cls(env, obs, settings, tuple(methods if methods is not None else methods_lib.default()), **kw)
 
     @property
-    def task(self) -> tasks.Task:
-        return tasks.get(self.env)
-
-    @property
-    def protocol(self) -> tasks.Protocol:
-        return self.settings.protocol
-
-    @property
-    def budget(self):
-        return self.settings.budget
-
-    @property
-    def recipe(self):
-        return self.settings.recipe
-
-    @property
-    def preset_name(self) -> str:
-        return self.settings.preset
-
-    @functools.cached_property
-    def setup(self) -> Setup:
-        """The task, observation mode and protocol resolved once (`setup.Setup`): how the protocol applies to the
-        environment, its expert, references and data key. Pure data: nothing is built or restored."""
-        return Setup.resolve(self.env, self.obs, self.protocol)
-
-    @property
     def episodes(self) -> int:
         """Expert episodes collected: as many as the protocol's expert steps take, else its or the task's count."""
-        return self.setup.episodes
+        return self.setup.applied.episodes
 
     def protocol_settings(self) -> dict:
         """Every field of the protocol as it applies to this environment (results.json's `protocol`)."""
@@ -152,42 +137,3 @@ class SweepSpec:
         these, and so does a rerun with a finished `results.json`)."""
         return results_lib.fingerprint(self.env, self.obs, self.preset_name, self.settings.to_json(), self.methods,
                                        self.data_settings(), self.protocol_settings())
-
-
-def grid_runs(names: Sequence[str], seeds: int, ctx: methods_lib.GridContext, first_seed: int = 0) -> list[Run]:
-    """Every (method, hparams, seed) of the sweep, seeds `first_seed, ..., first_seed + seeds - 1`: methods in
-    registry order, then settings, then seeds."""
-    order = [m for m in methods_lib.names() if m in names]
-    return [Run(m, settings, seed) for m in order for settings in methods_lib.get(m).settings(ctx)
-            for seed in range(first_seed, first_seed + seeds)]
-
-
-PROTOCOL_KEYS = ("n_frames", "episode_length", "reward_scale")  # the collection settings a protocol fixes
-
-
-def check_protocol(recorded: dict | None, spec: SweepSpec, where: str) -> None:
-    """Refuses (ValueError, one line) a dataset whose recorded collection settings are of another protocol.
-
-    `recorded`: the dataset's collection settings (`minari_io.dataset_settings`); None (a dataset that
-    records none, e.g. your own or a Minari one) cannot be checked and passes.
-    """
-    if recorded is None:
-        return
-    had = {k: v for k, v in (recorded.get("env_overrides") or {}).items() if k in PROTOCOL_KEYS}
-    want = {k: v for k, v in spec.collection_overrides().items() if k in PROTOCOL_KEYS}
-    if had != want:
-        raise ValueError(f"{where} was collected with {had or 'the environment defaults'}, not under the "
-                         f"{spec.protocol.name!r} protocol's {want or 'environment defaults'}; pass the --protocol it "
-                         "was collected under, or collect it again")
-
-
-def check_fits(demos: Demonstrations, env, where: str) -> None:
-    """Refuses (ValueError, one line) demonstrations whose observations or actions the environment cannot take."""
-    obs_shape, action_dim = tuple(np.shape(demos.obs)[1:]), int(np.shape(demos.action)[1])
-    if obs_shape != tuple(env.observation_shape) or action_dim != env.action_size:
-        raise ValueError(f"{where}: observations {list(obs_shape)} and {action_dim}-d actions do not fit "
-                         f"{env.name!r}, which has observations {list(env.observation_shape)} and "
-                         f"{env.action_size}-d actions; pick the matching --env/--obs")
-    if len(env.observation_shape) == 3 and np.asarray(demos.obs).dtype != np.uint8:
-        raise ValueError(f"{where}: image observations must be uint8, got {np.asarray(demos.obs).dtype}")
-

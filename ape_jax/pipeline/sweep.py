@@ -62,10 +62,11 @@ from ape_jax.pipeline.checkpoint import SweepCheckpoint
 from ape_jax.pipeline.evaluation import (DIAGNOSTICS_SEED, EVAL_SEED, Evaluated, PolicyGroup, diagnosable, evaluate,
                                          evaluate_group, group_diagnostics)
 from ape_jax.pipeline.hooks import Hooks
-from ape_jax.pipeline.prepare import ApeFit, Normalizer, Prepared, fit_ape, part_errors, prepare
+from ape_jax.pipeline.prepare import (PROTOCOL_KEYS, ApeFit, Normalizer, Prepared, check_fits, check_protocol, fit_ape,
+                                      part_errors, prepare)
 from ape_jax.pipeline.records import (COPYCAT_METRICS, CURVE_POINTS, DIAG, diagnostics_config, diagnostics_record,
                                       eval_record, run_record, snapshot_record, window_means)
-from ape_jax.pipeline.spec import PROTOCOL_KEYS, Run, SweepSpec, check_fits, check_protocol, grid_runs
+from ape_jax.pipeline.spec import Run, SweepSpec
 from ape_jax.pipeline.training import (CPU_IMAGE_CHUNK, Program, Trained, observation_of, traced_hparams,
                                        train_program, trains_sequentially)
 from ape_jax.scores import method_scores, score_rows, score_table
@@ -88,6 +89,14 @@ __all__ = [
 
 
 # -- 3. plan and train ----------------------------------------------------------------------------------------------
+
+def grid_runs(names: Sequence[str], seeds: int, ctx: methods_lib.GridContext, first_seed: int = 0) -> list[Run]:
+    """Every (method, hparams, seed) of the sweep, seeds `first_seed, ..., first_seed + seeds - 1`: methods in
+    registry order, then settings, then seeds."""
+    order = [m for m in methods_lib.names() if m in names]
+    return [Run(m, settings, seed) for m in order for settings in methods_lib.get(m).settings(ctx)
+            for seed in range(first_seed, first_seed + seeds)]
+
 
 def plan(spec: SweepSpec, prepared: Prepared) -> list[Program]:
     """Phase 3a: the sweep's runs, grouped by the program they train in (in registry order)."""
@@ -187,7 +196,7 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
     # the flat view readers of schemas 1 and 2 know (the records are stored apart, as `protocol`, `budget`, `recipe`)
     flat = {**blocks["budget"], **{k: v for k, v in blocks["recipe"].items() if k != "name"},
             **{k: blocks["protocol"][k] for k in ("history", "eval_steps", "val_frac", "image_size")},
-            "episodes": spec.episodes, "recipe": spec.recipe.name}
+            "episodes": spec.setup.episodes, "recipe": spec.recipe.name}
     config = {**flat, **({"smoke": True} if spec.settings.smoke else {}),
               **({"preset_iterations": spec.settings.preset_iterations}
                  if spec.settings.preset_iterations is not None else {}),
@@ -216,12 +225,12 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
     if (diag := diagnostics_config(prepared.train.demos, evaluated.outputs)) is not None:
         config["diagnostics"] = diag
     config["env"] = {"dt": float(prepared.env.dt), "episode_length": int(prepared.env.episode_length),
-                     "overrides": {k: list(v) if isinstance(v, tuple) else v for k, v in spec.env_overrides().items()}}
+                     "overrides": {k: list(v) if isinstance(v, tuple) else v for k, v in spec.setup.evaluation.items()}}
     res = results_lib.Results(
         env=spec.env, obs=spec.obs, preset=spec.preset_name, config=config, expert=expert, runs=runs,
         summary=results_lib.summarize(runs, task.metrics), timing=timing,
         command=list(spec.command) if spec.command is not None else None,
-        protocol=spec.protocol_settings(), settings=blocks,
+        protocol=dict(spec.setup.applied.settings), settings=blocks,
         methods={m: results_lib.method_info(m) for m in dict.fromkeys(r["method"] for r in runs)})
     return judge_lib.judge_own(res)  # the controlled copycat verdict, where the sweep trained its control (BC-SO)
 
