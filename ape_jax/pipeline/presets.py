@@ -233,7 +233,6 @@ BUDGETS: Mapping[str, Budget] = {
     "paper": Budget(iterations=300_000, seeds=5, eval_episodes=100, ape_steps=20_000, chunk=10_000,
                     eval_at=(30_000, 100_000)),
 }
-PRESETS = BUDGETS  # the preset names are the budgets'
 # Image observations. A conv policy trains tens of times slower per iteration than the state MLP on a
 # 2-core CPU, so there `quick` and `default` shrink the images and the grid to the paper's step setting;
 # `paper` keeps the supplement's protocol with its ResNet-18, for GPUs. Keys are fields of any of the three
