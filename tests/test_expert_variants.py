@@ -60,7 +60,7 @@ def test_the_protocols_expert_names_the_data_and_is_recorded_only_when_set(varia
     a = collect.settings("hopper", "pos", 2, **collect.protocol_setup("hopper", "pos", own).env_overrides)
     b = collect.settings("hopper", "pos", 2, expert=setup.expert, **setup.env_overrides)
     assert (a["expert"]["path"], b["expert"]["path"]) == ("envs/experts/hopper", "envs/experts/hopper-ppo")
-    assert (collect._variant(a), collect._variant(b)) == (None, "ppo")
+    assert (collect.ExpertRef.of_key(a).variant, collect.ExpertRef.of_key(b).variant) == (None, "ppo")
 
 
 def test_a_bad_or_missing_variant_is_refused_with_its_command(variant_root):
