@@ -105,3 +105,30 @@ def test_the_driving_sandbox_reads_like_table_4_and_dagger_alone_beats_bc_oh_on_
             if row is not None and ci is not None and ci.low > 0:
                 above[(env, row["method"])] = f"{ci.diff:+.0f} [{ci.low:+.0f}, {ci.high:+.0f}]"
     assert above == {("walker2d", "dagger"): "+251 [+167, +342]"}   # no offline baseline above BC-OH anywhere
+
+
+def test_with_fcas_own_expert_the_history_helps_and_no_remedy_beats_bc_oh():
+    """Claim 12 and its reading: Hopper on FCA's expert's demonstrations (raw labels, 8 seeds, 30k): BC-OH's % of
+    expert and seeds, BC-OH − BC-SO, each remedy against BC-OH, the history's share of the gap to BC-full, and the
+    two verdicts' counts."""
+    from experiments.report.analysis import regime_groups, regime_table
+
+    groups = [m for m in regime_groups(_merged("hopper-pos-fca-rows-default-fca-fcaexpert-*.json"))
+              if m.protocol.get("expert_sha256", "").startswith("56145a42") and m.protocol.get("labels") == "raw"]
+    assert len(groups) == 1
+    t = regime_table(groups[0])
+    rows = {r.label: r for r in t.rows}
+    bcoh = rows["BC-OH"]
+    assert round(bcoh.normalized.mean, 1) == 39.6 and len(bcoh.normalized.seeds) == 8
+    assert (round(min(bcoh.normalized.seeds)), round(max(bcoh.normalized.seeds))) == (8, 82)
+    assert _text(rows["BC-SO"].versus) == "-26.1 [-41.8, -11.8]"
+    versus = {label: _text(rows[label].versus) for label in (
+        "Ours (step), THR 10% W 5", "Ours (softmax), τ 0.2", "FCA (TCA), α 0.1", "FCA (TCA), α 2")}
+    assert versus == {"Ours (step), THR 10% W 5": "+1.5 [-16.4, +18.9]", "Ours (softmax), τ 0.2": "+7.0 [-12.5, +26.7]",
+                      "FCA (TCA), α 0.1": "-6.9 [-25.8, +10.6]", "FCA (TCA), α 2": "+4.0 [-14.2, +22.2]"}
+    assert round(100 * t.share.share) == 31
+    history = [r for r in t.rows if r.method in ("bc-oh", "ours-step", "ours-softmax", "fca")]
+    assert sum(r.diagnostics.copycats for r in history) == 13 and sum(r.diagnostics.read for r in history) == 40
+    assert sum(r.diagnostics.controlled for r in history) == 0
+    controls = [r.diagnostics.control.median for r in history]
+    assert (round(min(controls), 2), round(max(controls), 2)) == (0.52, 0.74)
