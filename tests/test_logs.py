@@ -246,3 +246,15 @@ def test_a_curve_log_gathers_tiny_chunks_into_at_most_fifty_writes(tmp_path):
     log.close()
     assert len(read_csv(tmp_path / "curves" / "grid.csv")) == 3 * total
     assert len(list((tmp_path / "tensorboard" / run_label(RUNS[0])).iterdir())) == 1   # rewritten whole
+
+
+def test_the_csv_gets_the_mode_any_new_file_gets(tmp_path):
+    """Written through a private temporary file (0600), it ends with the umask's mode, like the run folder's others."""
+    import os
+
+    old = os.umask(0o022)
+    try:
+        write_curves(tmp_path, "grid", RUNS, {"loss": np.ones((len(RUNS), 3), np.float32)})
+    finally:
+        os.umask(old)
+    assert (tmp_path / "curves" / "grid.csv").stat().st_mode & 0o777 == 0o644

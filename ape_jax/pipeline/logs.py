@@ -285,6 +285,13 @@ def _write_rows(f, runs: Sequence[Any], labels: list[str], metrics: dict[str, np
             f.write((row * len(chunk)) % tuple(chunk.ravel().tolist()))
 
 
+def _umask() -> int:
+    """The process's umask (read by setting it and putting it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def _write_csv(path: pathlib.Path, runs: Sequence[Any], labels: list[str], metrics: dict[str, np.ndarray] | None,
                names: Sequence[str] | None = None) -> None:
     """The whole CSV, atomically: the header (`names`: the metrics', default `metrics`'s), then `metrics`'s rows."""
@@ -295,6 +302,7 @@ def _write_csv(path: pathlib.Path, runs: Sequence[Any], labels: list[str], metri
             f.write(_csv_fields([*_FIXED_COLUMNS, *(names if names is not None else metrics)]) + "\n")
             if metrics is not None:
                 _write_rows(f, runs, labels, metrics)
+        os.chmod(tmp, 0o666 & ~_umask())   # mkstemp makes it 0600: give it the mode any new file gets here
         os.replace(tmp, path)
     except BaseException:
         os.unlink(tmp)
