@@ -4,6 +4,7 @@ actions, both splits' APE)."""
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from collections.abc import Callable
 from typing import Any
@@ -181,7 +182,8 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
 
     setup = spec.setup
     env = envs.make(spec.env, obs=spec.obs, **setup.evaluation)
-    settings = setup.data_key if spec.dataset is None else spec.data_settings()   # what names the demonstrations
+    # what names the demonstrations (the prepared sweep's own copy: the setup's stays as resolved)
+    settings = copy.deepcopy(setup.data_key) if spec.dataset is None else spec.data_settings()
     protocol = spec.protocol
     if spec.dataset is None:
         found = setup.expert

@@ -14,6 +14,7 @@ that run a spec are `ape_jax.pipeline.sweep`'s.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import pathlib
 from collections.abc import Sequence
@@ -126,7 +127,7 @@ class SweepSpec:
         """What names the demonstrations: the protocol's expert's data key (`Setup.data_key`), or the dataset
         file's path and size."""
         if self.dataset is None:
-            return self.setup.data_key
+            return copy.deepcopy(self.setup.data_key)   # the caller's own: the setup's stays as resolved
         path = pathlib.Path(self.dataset)
         files = ([path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
                  if path.is_dir() else [])
