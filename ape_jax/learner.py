@@ -230,6 +230,24 @@ class Learner(NamedTuple):
     init_policy: Callable[[jax.Array, Data], Any] | None = None  # fresh `cfg.model()` variables (`make_train`'s)
 
 
+def scanned_learner(cfg: LearnerConfig, base: Learner, init: Callable[[jax.Array, Any, Data], Any],
+                    update: Callable[[Any, Any, Data], tuple[Any, dict]],
+                    policy_params: Callable[[Any], Any] = lambda state: state.params) -> Learner:
+    """A one-round learner on BC's network (`base`: `make_train(cfg)`'s policy input, per-sample loss and policy
+    init): `run` scans `update(state, hp, data) -> (state, metrics)` `n` times, `train` runs `cfg.iterations` from
+    `init` and returns `policy_params` of the end state. FCA, RAP, PALR and MINE are built this way."""
+    def run(state: Any, hp: Any, data: Data, n: int):
+        return jax.lax.scan(lambda s, _: update(s, hp, data), state, None, length=n, unroll=cfg.unroll)
+
+    def train(key: jax.Array, hp: Any, data: Data):
+        state, metrics = run(init(key, hp, data), hp, data, cfg.iterations)
+        return policy_params(state), metrics
+
+    return Learner(init=init, run=run, train=train, policy_input=base.policy_input,
+                   per_sample_loss=base.per_sample_loss, policy_params=policy_params,
+                   round_iterations=cfg.iterations, init_policy=base.init_policy)
+
+
 def train_in_rounds(learner: Learner, key: jax.Array, hp: Any, data: Data) -> tuple[Any, dict]:
     """`init`, then each round's `run` with `next_round` between rounds: a `Learner.train` for round-based methods."""
     state, metrics = learner.init(key, hp, data), []

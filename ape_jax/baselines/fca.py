@@ -151,7 +151,7 @@ from flax import struct
 
 from ape_jax.history import history_index
 from ape_jax.learner import (Data, Learner, LearnerConfig, adam_step, augment, learning_rate, make_train, policy_apply,
-                             trainable)
+                             scanned_learner, trainable)
 from ape_jax import methods
 
 ADVERSARY_HIDDEN = (300, 300)
@@ -298,16 +298,7 @@ def make_fca(cfg: LearnerConfig) -> Learner:
         return state, {"loss": loss, "unweighted_loss": bc, "adversary_loss": d_loss, "reference_loss": r_loss,
                        "kl": kl}
 
-    def run(state: FcaState, hp: FcaHparams, data: Data, n: int):
-        return jax.lax.scan(lambda s, _: update(s, hp, data), state, None, length=n, unroll=cfg.unroll)
-
-    def train(key: jax.Array, hp: FcaHparams, data: Data):
-        state, metrics = run(init(key, hp, data), hp, data, cfg.iterations)
-        return state.policy, metrics
-
-    return Learner(init=init, run=run, train=train, policy_input=base.policy_input,
-                   per_sample_loss=base.per_sample_loss, policy_params=lambda state: state.policy,
-                   round_iterations=cfg.iterations, init_policy=base.init_policy)
+    return scanned_learner(cfg, base, init, update, policy_params=lambda state: state.policy)
 
 
 def _learner(ctx) -> Learner:

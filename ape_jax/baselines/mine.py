@@ -63,7 +63,8 @@ from flax import struct
 
 from ape_jax import methods
 from ape_jax.baselines._batch import OWN_KEYS, errors, sample_batch
-from ape_jax.learner import Data, Learner, LearnerConfig, adam_step, learning_rate, make_train, policy_apply, trainable
+from ape_jax.learner import (Data, Learner, LearnerConfig, adam_step, learning_rate, make_train, policy_apply,
+                             scanned_learner, trainable)
 
 DEFAULT_WEIGHT = 0.1        # train.py: reg_coef = 0.1 for FCA and MINE
 ESTIMATOR_LR = 1e-4         # train.py: inner_lr = 1e-4 (MINE_BC's mine_lr)
@@ -233,16 +234,7 @@ def make_mine(cfg: LearnerConfig, inner_steps: int = INNER_STEPS) -> Learner:
         return state, {"loss": bc + hp.weight * mi, "unweighted_loss": bc, "mi": mi,
                        "estimator_mi": later[-1] if inner_steps > 1 else mi}
 
-    def run(state: MineState, hp: MineHparams, data: Data, n: int):
-        return jax.lax.scan(lambda s, _: update(s, hp, data), state, None, length=n, unroll=cfg.unroll)
-
-    def train(key: jax.Array, hp: MineHparams, data: Data):
-        state, metrics = run(init(key, hp, data), hp, data, cfg.iterations)
-        return state.params, metrics
-
-    return Learner(init=init, run=run, train=train, policy_input=base.policy_input,
-                   per_sample_loss=base.per_sample_loss, round_iterations=cfg.iterations,
-                   init_policy=base.init_policy)
+    return scanned_learner(cfg, base, init, update)
 
 
 def _grid(ctx) -> list[dict]:

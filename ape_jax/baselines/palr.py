@@ -53,7 +53,7 @@ from flax import struct
 from ape_jax import methods
 from ape_jax.baselines._batch import action_statistics, errors, sample_batch
 from ape_jax.learner import (Data, Learner, LearnerConfig, gradient_step, learning_rate, make_train, policy_apply,
-                             trainable)
+                             scanned_learner, trainable)
 
 DEFAULT_WEIGHT = 10.0     # train.py: reg_coef_list = [10.]
 DEFAULT_BANDWIDTH = 1.0   # core/hscic.py: sigma2 = 1. (k = exp(-d² / sigma2)) unless use_median
@@ -174,16 +174,7 @@ def make_palr(cfg: LearnerConfig, rows: int = HSCIC_ROWS) -> Learner:
         state = state.replace(params=params, opt_state=opt_state, step=state.step + 1)
         return state, {"loss": loss, "unweighted_loss": bc, "hscic": penalty}
 
-    def run(state: PalrState, hp: PalrHparams, data: Data, n: int):
-        return jax.lax.scan(lambda s, _: update(s, hp, data), state, None, length=n, unroll=cfg.unroll)
-
-    def train(key: jax.Array, hp: PalrHparams, data: Data):
-        state, metrics = run(init(key, hp, data), hp, data, cfg.iterations)
-        return state.params, metrics
-
-    return Learner(init=init, run=run, train=train, policy_input=base.policy_input,
-                   per_sample_loss=base.per_sample_loss, round_iterations=cfg.iterations,
-                   init_policy=base.init_policy)
+    return scanned_learner(cfg, base, init, update)
 
 
 def _recipe_value(ctx, name: str, default):

@@ -59,7 +59,8 @@ from flax import struct
 
 from ape_jax import methods
 from ape_jax.baselines._batch import Batch, errors, sample_batch
-from ape_jax.learner import Data, Learner, LearnerConfig, adam_step, learning_rate, make_train, trainable
+from ape_jax.learner import (Data, Learner, LearnerConfig, adam_step, learning_rate, make_train, scanned_learner,
+                             trainable)
 from ape_jax.models import StatePolicy
 
 DEFAULT_WEIGHT = 1.0   # both implementations: the memory learns from the residual loss alone
@@ -274,16 +275,7 @@ def make_rap(cfg: LearnerConfig) -> Learner:
                               residual_opt=residual_opt, step=state.step + 1)
         return state, {"loss": loss, "unweighted_loss": bc, "residual_loss": res, "zero_residual_loss": zero}
 
-    def run(state: RapState, hp: RapHparams, data: Data, n: int):
-        return jax.lax.scan(lambda s, _: update(s, hp, data), state, None, length=n, unroll=cfg.unroll)
-
-    def train(key: jax.Array, hp: RapHparams, data: Data):
-        state, metrics = run(init(key, hp, data), hp, data, cfg.iterations)
-        return state.params, metrics
-
-    return Learner(init=init, run=run, train=train, policy_input=base.policy_input,
-                   per_sample_loss=base.per_sample_loss, round_iterations=cfg.iterations,
-                   init_policy=base.init_policy)
+    return scanned_learner(cfg, base, init, update)
 
 
 def refusal(settings, obs: str) -> str | None:
