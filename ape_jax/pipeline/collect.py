@@ -38,8 +38,8 @@ import numpy as np
 import envs
 from ape_jax import tasks
 from ape_jax.pipeline import data as data_lib
-from ape_jax.pipeline.setup import (ExpertRef, ProtocolSetup, data_key, protocol_setup,  # noqa: F401  (re-exported)
-                                   reference_returns, variant_of)
+from ape_jax.pipeline.setup import ExpertRef, data_key, variant_of
+from ape_jax.pipeline.setup import protocol_setup, reference_returns  # noqa: F401  (the entry points import them here)
 
 def default_episodes(env_name: str) -> int:
     """Expert episodes a sweep collects for `env_name` under the `brax` protocol (its task record's: ~20k training
