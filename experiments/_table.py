@@ -7,6 +7,8 @@ from __future__ import annotations
 import math
 import statistics
 
+from experiments import stats
+
 
 def table(res) -> str:
     """The printed summary: one row per configuration, the task's main metric first, the best marked; where runs
@@ -25,7 +27,7 @@ def table(res) -> str:
 
     def spread(r, key):  # the sample sd over seeds of the per-seed means (the summary keeps the population sd)
         v = seed_values(res, r, key)
-        return statistics.stdev(v) if len(v) >= 2 else None
+        return stats.sample_sd(v)
 
     diagnosed = bool(read(res.runs))
     controlled = any("controlled_verdict" in b for b in read(res.runs))   # judged against its BC-SO
@@ -102,20 +104,6 @@ def table(res) -> str:
     return "\n".join(lines)
 
 
-# Student's t 0.975 quantiles for 1..30 degrees of freedom (a 95% two-sided interval); past 30, `_t975`'s expansion
-_T975 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131,
-         2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042)
-
-
-def _t975(df: int) -> float:
-    """Student's t 0.975 quantile with `df` >= 1 degrees of freedom (the table; past 30 the Cornish-Fisher
-    expansion about the normal's 1.96, within 1e-3)."""
-    if df <= len(_T975):
-        return _T975[df - 1]
-    z = 1.959964
-    return z + (z**3 + z) / (4 * df) + (5 * z**5 + 16 * z**3 + 3 * z) / (96 * df**2)
-
-
 def seed_values(res, row: dict, key: str) -> list[float]:
     """The per-seed values of `key` (a field of each run's `eval`) of one summary row's finished runs."""
     return [x["eval"][key] for x in res.runs if x["method"] == row["method"] and x["hparams"] == row["hparams"]
@@ -138,8 +126,7 @@ def best_configuration(res) -> tuple[dict | None, str]:
     top, row, values = means[0]
     if len(values) < 2:
         return None, "1 seed: no interval, so none is marked best (--seeds 3 or more for one)"
-    half = _t975(len(values) - 1) * statistics.stdev(values) / math.sqrt(len(values))
-    if top - half > means[1][0]:
+    if stats.mean_interval(values).low > means[1][0]:
         return row, "* = best: its 95% interval over seeds (Student's t) lies above every other configuration's mean"
     return None, ("no * (best): no configuration's 95% interval over seeds (Student's t) lies above every other's "
                   "mean")

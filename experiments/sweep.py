@@ -37,7 +37,7 @@ import shutil
 import sys
 
 from experiments import _distributed
-from experiments._table import _t975, table  # noqa: F401  (_t975: tests read it here)
+from experiments._table import table
 from experiments._cli import Parser, add_compile_cache_flag, fail, unwritable, use_compile_cache
 
 PROG = "python -m experiments.sweep"

@@ -13,7 +13,8 @@ from ape_jax.pipeline.presets import resolve
 from ape_jax.pipeline.results import Results, summarize
 from experiments.report.analysis import former_preset
 from experiments import report
-from experiments.report import figures, stats
+from experiments import stats
+from experiments.report import figures
 
 
 def _results(env="hopper", methods=(("bc-so", {}, 300.0), ("bc-oh", {}, 1000.0),
@@ -103,10 +104,10 @@ def test_the_report_merges_files_per_environment_and_builds_every_table(tmp_path
                                                   preset_methods=["fca", "dagger"]))
     text = report.report([report.load(main), report.load(base)])
     state = text[text.index("| method | Hopper |"):]
-    assert "| BC-OH | 1,000 ± 10 (50%) |" in state
-    assert "| Ours, step THR 10% W 5 | 1,500 ± 10 (75%) |" in state
-    assert "| Ours, best step | 1,600 ± 10 (80%) <br>(thr 0.2, w 3) |" in state     # the best, with its setting
-    assert "| FCA (TCA) | 1,100 ± 10 (55%) |" in state and "| DAgger (online) | 1,900 ± 10 (95%) |" in state
+    assert "| BC-OH | 1,000 ± 14 (50%) |" in state           # ± the sample sd over the 2 seeds, 1,000 ∓ 10
+    assert "| Ours, step THR 10% W 5 | 1,500 ± 14 (75%) |" in state
+    assert "| Ours, best step | 1,600 ± 14 (80%) <br>(thr 0.2, w 3) |" in state     # the best, with its setting
+    assert "| FCA (TCA) | 1,100 ± 14 (55%) |" in state and "| DAgger (online) | 1,900 ± 14 (95%) |" in state
     assert state.index("| DAgger (online) |") < state.index("| FCA (TCA) |")               # the registry's order
     assert "HistoryDropout" not in state                                               # in no file: no row
     # next to the paper: ratios to BC-OH within each source
@@ -130,7 +131,7 @@ def test_the_report_merges_files_per_environment_and_builds_every_table(tmp_path
     assert "100 s in all (resumed after an interruption" in report.provenance(
         Results.from_json({**_results(), "timing": {"total_s": 100.0, "resumed": True}}))
     # the grid marks the best configuration; the loss table averages seeds
-    assert "| **DAgger (online)** | rounds 4, budget 100 | 2 | **1,900.0 ± 10.0** | 95.0 |" in text
+    assert "| **DAgger (online)** | rounds 4, budget 100 | 2 | **1,900.0 ± 14.1** | 95.0 |" in text
     assert "| BC-OH | 0.6000 | 0.3000 | 0.0500 | 0.6000 | 0.3000 | 0.0500 |" in text
 
 
@@ -168,7 +169,7 @@ def test_the_cli_writes_the_block_and_the_pages_and_keeps_the_hand_written_text(
     pages = tmp_path / "docs" / "results"
     assert sorted(p.name for p in pages.iterdir()) == ["hopper-pos.md", "index.md"]
     index, hopper = (pages / "index.md").read_text(), (pages / "hopper-pos.md").read_text()
-    assert index.startswith("# Results\n\n<!-- report:start -->\n") and "| BC-SO | 300 ± 10 (15%) |" in index
+    assert index.startswith("# Results\n\n<!-- report:start -->\n") and "| BC-SO | 300 ± 14 (15%) |" in index
     assert "| [Hopper, `pos` observations](hopper-pos.md) | 1 | 1 |" in index
     assert hopper.startswith("# Hopper, `pos` observations\n") and "## Protocol brax" in hopper
     assert "- [`main.json`](../../main.json): `python -m experiments.sweep" in hopper
@@ -233,7 +234,7 @@ def test_one_sweep_split_by_seeds_merges_into_the_rows_of_all_its_seeds(tmp_path
     split = report.merge(parts)
     (w,), (s,) = whole.values(), split.values()
     assert len(s.runs) == 20 and sorted({r["seed"] for r in s.runs}) == [0, 1, 2, 3]
-    expected = summarize(w.runs)  # what the sweep writes for all four seeds (the fixture's own rows are round)
+    expected = summarize(w.runs, ddof=1)  # all four seeds, ± their sample sd (the fixture's own rows are round)
     assert [(r["method"], r["hparams"]) for r in s.summary] == [(r["method"], r["hparams"]) for r in expected]
     for a, b in zip(s.summary, expected):
         assert a["n_seeds"] == b["n_seeds"] == 4
@@ -253,34 +254,34 @@ def test_one_sweep_split_by_seeds_merges_into_the_rows_of_all_its_seeds(tmp_path
 
 def test_the_bootstrap_ci_excludes_zero_for_a_clear_difference_and_contains_it_for_overlapping_seeds():
     ours, bcoh = [1000.0, 1012.0, 990.0], [500.0, 515.0, 480.0]
-    ci = report.bootstrap_difference(ours, bcoh)
+    ci = report.mean_difference(ours, bcoh)
     assert ci.diff == pytest.approx(1000.6667 - 498.3333, abs=1e-3) and (ci.n_a, ci.n_b) == (3, 3)
     assert 0 < ci.low <= ci.diff <= ci.high and report.verdict(ci) == "Ours better"
-    assert report.verdict(report.bootstrap_difference(bcoh, ours)) == "BC-OH better"
-    overlap = report.bootstrap_difference([100.0, 300.0, 200.0], [150.0, 260.0, 90.0])
+    assert report.verdict(report.mean_difference(bcoh, ours)) == "BC-OH better"
+    overlap = report.mean_difference([100.0, 300.0, 200.0], [150.0, 260.0, 90.0])
     assert overlap.low < 0 < overlap.high
     assert report.verdict(overlap) == "not significant (CI contains 0)"
     # the CI is a fixed function of its inputs (fixed RNG seed), and one seed per arm gives no verdict
-    assert report.bootstrap_difference([100.0, 300.0, 200.0], [150.0, 260.0, 90.0]) == overlap
-    assert report.verdict(report.bootstrap_difference([5.0], [1.0])).startswith("no verdict")
+    assert report.mean_difference([100.0, 300.0, 200.0], [150.0, 260.0, 90.0]) == overlap
+    assert report.verdict(report.mean_difference([5.0], [1.0])).startswith("no verdict")
 
 
 def test_the_report_tabulates_the_bootstrap_per_environment(tmp_path):
     methods = (("bc-oh", {}, 1000.0), ("ours-step", {"thr": 0.1, "w": 5.0}, 1500.0),
                ("ours-step", {"thr": 0.2, "w": 3.0}, 1005.0), ("ours-softmax", {"tau": 5.0}, 800.0))
     text = report.report([_loaded(tmp_path, _results(methods=methods))])
-    # seeds are ret ± 10: each arm's resampled mean is one of ret − 10, ret, ret + 10
-    assert ("| Hopper | Ours, step THR 10% W 5 (the paper's) − BC-OH | 2 / 2 | +500 (return) | [+480, +520] | "
+    # seeds are ret ± 10: Welch's interval with 2 degrees of freedom, 500 ± t(0.975, 2) · √(200 / 2 · 2) = ± 61
+    assert ("| Hopper | Ours, step THR 10% W 5 (the paper's) − BC-OH | 2 / 2 | +500 (return) | [+439, +561] | "
             "Ours better |") in text
     assert ("| Hopper | Ours, best step (thr 0.1, w 5; selected after the fact) − BC-OH | 2 / 2 | +500 (return) | "
-            "[+480, +520] | Ours better |") in text
+            "[+439, +561] | Ours better |") in text
     assert ("| Hopper | Ours, best softmax (tau 5; selected after the fact) − BC-OH | 2 / 2 | -200 (return) | "
-            "[-220, -180] | BC-OH better |") in text
+            "[-261, -139] | BC-OH better |") in text
     assert "BC-OH − BC-SO" not in text.split("| task | comparison |")[1]    # no BC-SO in the fixture: no such row
-    assert "with 2 seeds per arm each arm has only 3 distinct resamples" in text
+    assert "95% Welch t-interval (down to 2 seeds per arm" in text
     close = report.report([_loaded(tmp_path, _results(methods=(("bc-oh", {}, 1000.0),
                                                                ("ours-step", {"thr": 0.1, "w": 5.0}, 1005.0))))])
-    assert "| +5 (return) | [-15, +25] | not significant (CI contains 0) |" in close
+    assert "| +5 (return) | [-56, +66] | not significant (CI contains 0) |" in close
 
 
 # -- the grid search: the paper's choices -------------------------------------------------------------------------
@@ -296,7 +297,9 @@ def test_the_papers_settings_are_set_against_the_grids_best_in_numbers(tmp_path)
     assert step.kind == "step" and step.chosen["hparams"] == {"thr": 0.1, "w": 5.0}
     assert step.best["hparams"] == {"thr": 0.2, "w": 3.0} and step.closest is None
     g = gap(step.chosen, step.best, "normalized")
-    assert (g.chosen, g.best, g.gap, g.noise, g.is_best, g.within) == ((75.0, 0.5), (80.0, 0.5), 5.0, 0.5, False, False)
+    sd = 0.5 ** 0.5  # the sample sd of 75 ∓ 0.5
+    assert (*g.chosen, *g.best, g.gap, g.noise) == pytest.approx((75.0, sd, 80.0, sd, 5.0, sd))
+    assert (g.is_best, g.within) == (False, False)
 
     methods = (("bc-oh", {}, 1000.0), ("ours-step", {"thr": 0.1, "w": 5.0}, 1500.0),
                ("ours-step", {"thr": 0.2, "w": 3.0}, 1505.0),
@@ -313,8 +316,8 @@ def test_the_papers_settings_are_set_against_the_grids_best_in_numbers(tmp_path)
     assert softmax.best["hparams"] == {"tau": 10.0}
     assert gap(softmax.chosen, softmax.best, "normalized").gap == pytest.approx(65.0)
     text = report.report([_loaded(tmp_path, r)])
-    assert ("| softmax, nearest the paper's τ on our APE scale (τ 8.0): τ 10 | 70.0 ± 0.5 | τ 10 | 70.0 ± 0.5 | 0.0 | "
-            "0.5 | best |") in text   # the table shows those numbers
+    assert ("| softmax, nearest the paper's τ on our APE scale (τ 8.0): τ 10 | 70.0 ± 0.7 | τ 10 | 70.0 ± 0.7 | 0.0 | "
+            "0.7 | best |") in text   # the table shows those numbers
 
 
 # -- figures ------------------------------------------------------------------------------------------------------
@@ -420,8 +423,8 @@ def test_the_sensitivity_study_sits_next_to_the_papers_numbers(tmp_path):
               [("ours-step", {"thr": 0.1, "w": w}, ret) for w, ret in ((4.0, 800.0), (5.0, 1000.0), (6.0, 900.0))]
     text = report.report([_loaded(tmp_path, _results(env="walker2d", methods=methods))])
     table = text[text.index("## Sensitivity"):]
-    assert "| softmax τ 0.2 | 760 ± 10 | 38.0 | Walker2d 769 ± 97 |" in table
-    assert "| step THR 10%, W 6 | 900 ± 10 | 45.0 | driving 41.3% success |" in table
+    assert "| softmax τ 0.2 | 760 ± 14 | 38.0 | Walker2d 769 ± 97 |" in table
+    assert "| step THR 10%, W 6 | 900 ± 14 | 45.0 | driving 41.3% success |" in table
     assert "## Sensitivity" not in report.report([_loaded(tmp_path, _results(), "hopper.json")])
 
 
@@ -466,29 +469,29 @@ def test_image_results_and_a_task_judged_by_a_rate_get_their_tables(tmp_path):
     sandbox["expert"] = {"return_mean": None, "return_std": None, "random_return_mean": None}
     sandbox["config"] = {**sandbox["config"],   # its task's default preset budget
                          "iterations": resolve(car.name, "image", preset="default").budget.iterations}
-    for run in sandbox["runs"]:
+    for run in sandbox["runs"]:  # as the sweep records it: normalized = 100 · success
         run["eval"].update(success=0.9 + 0.05 * run["seed"], red_light_violations=0.0, progress=0.8,
-                           avg_speed=0.5, stuck=0.1 * run["seed"])
-    for row in sandbox["summary"]:  # as the sweep summarises it: normalized = 100 · success
+                           avg_speed=0.5, stuck=0.1 * run["seed"], normalized=100 * (0.9 + 0.05 * run["seed"]))
+    for row in sandbox["summary"]:
         row.update(normalized_mean=92.5, normalized_std=2.5)
     text = report.report([_loaded(tmp_path, image, "image.json"), _loaded(tmp_path, sandbox, "sandbox.json")])
     img = text[text.index("## MuJoCo-Image"):]
-    assert "| BC-OH | 1,000 ± 10 (50%) |" in img
+    assert "| BC-OH | 1,000 ± 14 (50%) |" in img
     table = text[text.index(f"## {car.title} (the supplement's Table 4 protocol)"):]
     assert ("| method | seeds | success % | red-light violations | progress | average speed | stuck % | "
             "success % of all episodes [Wilson 95%] | paper: success % |") in table
-    # mean ± std over seeds, and the mean's bootstrap interval over the two seeds (their extremes); every episode
-    # pooled: 0.90 and 0.95 of each seed's episodes
+    # mean ± sd over seeds, and the mean's t-interval over the two seeds (a share's clipped to [0, 100]); every
+    # episode pooled: 0.90 and 0.95 of each seed's episodes
     episodes = [run["eval"]["episodes"] for run in sandbox["runs"] if run["method"] == "bc-oh"]
     pooled = stats.wilson(round(0.9 * episodes[0]) + round(0.95 * episodes[1]), sum(episodes))
-    assert ("| BC-OH | 2 | 92.50 ± 2.50 [90.00, 95.00] | 0.00 ± 0.00 [0.00, 0.00] | 0.80 ± 0.00 [0.80, 0.80] | "
-            f"0.50 ± 0.00 [0.50, 0.50] | 5.00 ± 5.00 [0.00, 10.00] | {100 * pooled.value:.2f} [{100 * pooled.low:.2f}, "
+    assert ("| BC-OH | 2 | 92.50 ± 3.54 [60.73, 100.00] | 0.00 ± 0.00 [0.00, 0.00] | 0.80 ± 0.00 [0.80, 0.80] | "
+            f"0.50 ± 0.00 [0.50, 0.50] | 5.00 ± 7.07 [0.00, 68.53] | {100 * pooled.value:.2f} [{100 * pooled.low:.2f}, "
             f"{100 * pooled.high:.2f}] | 95.1 ± 4.5 |") in table
     assert "100 s in all" in table and "test CPU" in table   # the run's wall time, in its provenance
     assert "| Ours, step THR 10% W 5 | 2 |" in table and "97.8 ± 0.5" in table   # the paper's, from the task record
     # its measure is success, not its (zero) reward: in the grid table and the bootstrap
     assert "| method | hparams | seeds | success % |" in table
-    assert "| Ours (step) | thr 0.1, w 5 | 2 | 92.5 ± 2.5 |" in table
+    assert "| Ours (step) | thr 0.1, w 5 | 2 | 92.5 ± 3.5 |" in table
     assert (f"| {car.title} (image) | Ours, step THR 10% W 5 (the paper's) − BC-OH | 2 / 2 | +0 (success, % points) |"
             in text)
     assert (f"| {car.title} (image) | BC-OH − BC-SO (does the history help?) | 2 / 2 | +0 (success, % points) |"
@@ -513,8 +516,8 @@ def test_the_first_image_presets_files_are_a_table_of_their_own_beside_todays_pr
     text = report.report(files)
     now = text[text.index("## MuJoCo-Image\n"):text.index("## MuJoCo-Image, the first image preset")]
     old = text[text.index("## MuJoCo-Image, the first image preset"):]
-    assert "| BC-OH | 1,400 ± 10 (70%) |" in now and "1,000 ± 10" not in now
-    assert "| BC-OH | 1,000 ± 10 (50%) |" in old and "small conv encoder" in old
+    assert "| BC-OH | 1,400 ± 14 (70%) |" in now and "1,000 ± 14" not in now
+    assert "| BC-OH | 1,000 ± 14 (50%) |" in old and "small conv encoder" in old
     assert "| Hopper (image, brax, first image preset) | BC-OH − BC-SO (does the history help?) |" in text
     assert ("`python -m experiments.sweep --env hopper --obs image --preset default` (rebuilt from its settings"
             in text and "`--preset default` being the first image preset then" in text)
@@ -543,10 +546,10 @@ def test_the_sandbox_reading_says_whether_ours_beats_bc_oh_and_whether_inertia_a
     (m,) = report.merge([_loaded(tmp_path, _sandbox(success, stuck))]).values()
     r = rate_reading(m)
     assert r.metric == "success" and r.episodes == 200 and r.learned
-    assert r.bcso == pytest.approx((92.4, 91.6, 93.2, 5), abs=0.05)
+    assert r.bcso == pytest.approx((92.4, 91.0, 93.8, 5), abs=0.05)   # Student's t over the 5 seeds
     (a, b, history), (c, d, ours) = r.differences
     assert (a, b, c, d) == ("bc-oh", "bc-so", "ours-step", "bc-oh")
-    assert (history.diff, history.low, history.high) == pytest.approx((-12.0, -13.2, -10.8), abs=0.05)
+    assert (history.diff, history.low, history.high) == pytest.approx((-12.0, -13.7, -10.3), abs=0.05)
     assert verdict(history, "BC-OH", "BC-SO") == "BC-SO better"
     assert ours.diff == pytest.approx(8.6) and verdict(ours) == "Ours better"
     assert r.inertia.mean == pytest.approx(4.0) and r.others == {"bc-so": 0.0, "ours-step": 0.0}
@@ -578,9 +581,9 @@ def test_a_plugin_and_the_baselines_are_listed_by_their_recorded_labels(tmp_path
     rows = [line.split(" | ")[0][2:] for line in state.splitlines()[2:13]]
     assert rows[5:] == ["DAgger (online)", "FCA (TCA)", "My plugin", "My online plugin (online)", "expert (ours)",
                         "random policy"]
-    assert "| My plugin | 1,700 ± 10 (85%) | — |" in state        # not run on Walker2d: a dash
-    assert "| My online plugin (online) | 1,300 ± 10 (65%) | — |" in state
-    assert "| My plugin | thr 0.1, w 5 | 2 | 1,700.0 ± 10.0 | 85.0 |" in text        # the grid table
+    assert "| My plugin | 1,700 ± 14 (85%) | — |" in state        # not run on Walker2d: a dash
+    assert "| My online plugin (online) | 1,300 ± 14 (65%) | — |" in state
+    assert "| My plugin | thr 0.1, w 5 | 2 | 1,700.0 ± 14.1 | 85.0 |" in text        # the grid table
     assert "`python -m experiments.sweep --env hopper --plugins my_plugin` — " in text   # its recorded command
     fig = figures.returns_figure(report.merge(files))
     labels = [t.get_text() for t in fig.axes[0].get_yticklabels()]
@@ -594,7 +597,7 @@ def test_python_m_experiments_report_runs(tmp_path):
     done = subprocess.run([sys.executable, "-m", "experiments.report", str(path)], cwd=root, capture_output=True,
                           text=True, timeout=300)
     assert done.returncode == 0, done.stderr
-    assert "| BC-SO | 300 ± 10 (15%) |" in done.stdout
+    assert "| BC-SO | 300 ± 14 (15%) |" in done.stdout
 
 
 # -- protocols: fca, its other frame skips, brax -----------------------------------------------------------------
@@ -613,8 +616,8 @@ def test_fca_and_brax_results_of_one_task_are_merged_apart_into_two_tables(tmp_p
                 index.index("## MuJoCo-State, Brax's")]
     brax = index[index.index("## MuJoCo-State, Brax's frame skip (the project's first results)"):
                  index.index("## The copycat map")]
-    assert "| BC-SO | 600 ± 8 (30%) |" in fca and "| FCA (TCA) | 1,200 ± 8 (60%) |" in fca
-    assert "| BC-SO | 300 ± 10 (15%) |" in brax and "| expert (ours) | 3,000 ± 80 |" in brax
+    assert "| BC-SO | 600 ± 10 (30%) |" in fca and "| FCA (TCA) | 1,200 ± 10 (60%) |" in fca
+    assert "| BC-SO | 300 ± 14 (15%) |" in brax and "| expert (ours) | 3,000 ± 80 |" in brax
     assert index.count("| method | Hopper |") == 2         # frame skips 2 and 4 get no state table: they feed the map
     assert "| Hopper (fca) | BC-OH − BC-SO (does the history help?) | 3 / 3 |" in text
     assert "| Hopper (brax) | BC-OH − BC-SO (does the history help?) | 2 / 2 | +700 (return) |" in text
@@ -640,10 +643,10 @@ def test_the_fca_table_shows_the_papers_returns_beside_ours_on_one_scale(tmp_pat
     table = text[text.index("The supplement's Table 5 beside ours: mean return (the paper's scale)"):
                  text.index("## MuJoCo-State, Brax's")]
     # absolute returns side by side, ours ± std over seeds; the ratio to BC-OH of each source in brackets
-    assert "| BC-SO | 275 (0.94×) | 600 ± 8 (0.98×) |" in table
-    assert "| BC-OH | 293 (1.00×) | 610 ± 8 (1.00×) |" in table
-    assert "| FCA (TCA) | 1,086 (3.71×) | 1,200 ± 8 (1.97×) |" in table
-    assert "| Ours, step THR 10% W 5 | 641 (2.19×) | 1,000 ± 8 (1.64×) |" in table
+    assert "| BC-SO | 275 (0.94×) | 600 ± 10 (0.98×) |" in table
+    assert "| BC-OH | 293 (1.00×) | 610 ± 10 (1.00×) |" in table
+    assert "| FCA (TCA) | 1,086 (3.71×) | 1,200 ± 10 (1.97×) |" in table
+    assert "| Ours, step THR 10% W 5 | 641 (2.19×) | 1,000 ± 10 (1.64×) |" in table
     assert "| expert | not published | 2,000 |" in table
     # under brax only the ratios compare: no ±, no expert row
     brax = text[text.index("The supplement's Table 5 beside ours: mean return (other scales"):
@@ -661,12 +664,13 @@ def test_the_copycat_map_gives_each_frame_skip_its_row_and_gaps(tmp_path):
                                                             [20.0, 80.0, 75.0]]
     assert [[c.n for c in r.cells] for r in cm.rows] == [[3, 3, 3], [2, 2, 2], [2, 2, 2]]
     assert [r.history for r in cm.rows] == [0.5, 20.0, 60.0] and [r.ceiling for r in cm.rows] == [69.5, 50.0, 20.0]
-    # two seeds at ±0.5 points per arm: each arm's resampled mean is m − 0.5, m or m + 0.5
-    assert [(r.history_ci.low, r.history_ci.high) for r in cm.rows[1:]] == [(19.0, 21.0), (59.0, 61.0)]
-    assert cm.rows[0].history_ci == report.bootstrap_difference([30.0, 30.5, 31.0], [29.5, 30.0, 30.5])
+    # two seeds at ±0.5 points per arm: Welch's half width t(0.975, 2) · √(0.5 / 2 · 2) = 3.04
+    assert [x for r in cm.rows[1:] for x in (r.history_ci.low, r.history_ci.high)] == pytest.approx(
+        [16.957, 23.043, 56.957, 63.043], abs=1e-3)
+    assert cm.rows[0].history_ci == report.mean_difference([30.0, 30.5, 31.0], [29.5, 30.0, 30.5])
     text = report.report(files)
-    assert ("| Hopper | 2 | 20,000 | fca-fs2 | 30.0 ± 0.5 | 50.0 ± 0.5 | 55.0 ± 0.5 | 2 / 2 / 2 | +20.0 [+19.0, "
-            "+21.0] | 50.0 |") in text
+    assert ("| Hopper | 2 | 20,000 | fca-fs2 | 30.0 ± 0.7 | 50.0 ± 0.7 | 55.0 ± 0.7 | 2 / 2 / 2 | +20.0 [+17.0, "
+            "+23.0] | 50.0 |") in text
     low, high = cm.rows[0].history_ci.low, cm.rows[0].history_ci.high
     assert low < 0 < high   # at frame skip 1 the history is not significant; at 2 and 4 it is
     # one frame skip of the family is no map
@@ -740,7 +744,7 @@ def test_the_numbers_of_the_fca_reading_follow_the_verdicts(tmp_path):
     # BC-OH ≈ BC-SO under fca: the return signature of copycat; Ours well above BC-OH
     m = fca_group(_map_files(tmp_path))
     history = history_difference(m)
-    assert history.diff == pytest.approx(10.0) and history == report.bootstrap_difference([600.0, 610.0, 620.0],
+    assert history.diff == pytest.approx(10.0) and history == report.mean_difference([600.0, 610.0, 620.0],
                                                                                           [590.0, 600.0, 610.0])
     assert verdict(history, "BC-OH", "BC-SO").startswith("not significant")
     (label, row, paper), *grids = ours_differences(m)
@@ -765,7 +769,7 @@ def test_the_sensitivity_study_reads_the_brax_group_of_walker2d(tmp_path):
                                      protocol=_fca(1)), "fca.json")
     table = report.report([fca, brax])
     table = table[table.index("## Sensitivity"):]
-    assert "Walker2d (states, protocol brax)" in table and "| softmax τ 0.2 | 700 ± 10 | 35.0 |" in table
+    assert "Walker2d (states, protocol brax)" in table and "| softmax τ 0.2 | 700 ± 14 | 35.0 |" in table
 
 
 def test_the_experts_rollout_ape_reference_is_put_on_the_raw_training_means_scale():
@@ -799,10 +803,10 @@ def test_a_longer_run_is_its_own_group_compared_configuration_by_configuration(t
     section = text[text.index("## Training longer"):]
     assert ("| Hopper (fca, 100,000 iterations): configuration | 30,000 iterations | seeds | "
             "100,000 iterations |") in section
-    assert "| BC-OH | 610 ± 8 (30%) | 3 | 700 ± 10 (35%) | 2 |" in section
-    assert "| Ours (step), THR 10% W 5 | 1,000 ± 8 (50%) | 3 | 1,300 ± 10 (65%) | 2 |" in section
+    assert "| BC-OH | 610 ± 10 (30%) | 3 | 700 ± 14 (35%) | 2 |" in section
+    assert "| Ours (step), THR 10% W 5 | 1,000 ± 10 (50%) | 3 | 1,300 ± 14 (65%) | 2 |" in section
     assert (tmp_path / "figures" / "grid-hopper-fca-100000it.png").exists()
-    assert "| BC-OH | 610 ± 8 (30%) |" in text[text.index("## MuJoCo-State, the paper's protocol"):]
+    assert "| BC-OH | 610 ± 10 (30%) |" in text[text.index("## MuJoCo-State, the paper's protocol"):]
 
 
 
@@ -821,7 +825,7 @@ def test_the_copycat_map_adds_training_set_sizes_at_frame_skip_1(tmp_path):
     assert [r.history for r in cm.data_rows] == [-1.0, 0.5, 40.0]
     assert [r.cells[1].mean for r in cm.data_rows] == pytest.approx([24.0, 30.5, 75.0])   # BC-OH per size
     text = _index(files, tmp_path / "figures")
-    assert "| Hopper | 1 | 80,000 | fca-train80k | 35.0 ± 0.5 | 75.0 ± 0.5 | 80.0 ± 0.5 |" in text
+    assert "| Hopper | 1 | 80,000 | fca-train80k | 35.0 ± 0.7 | 75.0 ± 0.7 | 80.0 ± 0.7 |" in text
     assert text.count("| Hopper | 1 | 20,000 | fca |") == 1                   # fca's row once
     assert (tmp_path / "figures" / "copycat-map.png").exists()
     assert "## Protocol fca, 80,000 training transitions\n" in report.report(files)
@@ -853,13 +857,13 @@ def test_every_method_is_compared_with_bc_oh_under_fca_in_a_table(tmp_path):
     text = report.report(files)
     table = text[text.index("| method − BC-OH |"):]
     table = table[:table.index("\n\n")]
-    fca, kmeans, actfreq = (report.bootstrap_difference([v + d for d in (-10.0, 0.0, 10.0)],
+    fca, kmeans, actfreq = (report.mean_difference([v + d for d in (-10.0, 0.0, 10.0)],
                                                         [600.0, 610.0, 620.0]) for v in (900.0, 300.0, 612.0))
     assert f"| FCA (TCA) | **{fca.diff:+,.0f} [{fca.low:+,.0f}, {fca.high:+,.0f}]** | — |" in table
     assert f"| k-means | **{kmeans.diff:+,.0f} [{kmeans.low:+,.0f}, {kmeans.high:+,.0f}]** | — |" in table
     assert f"| ActFreq | {actfreq.diff:+,.0f} [{actfreq.low:+,.0f}, {actfreq.high:+,.0f}] | — |" in table
     assert "| BC-OH |" not in table
-    boosting = report.bootstrap_difference([390.0, 400.0, 410.0], [600.0, 610.0, 620.0])
+    boosting = report.mean_difference([390.0, 400.0, 410.0], [600.0, 610.0, 620.0])
     assert f"| Boosting | **{boosting.diff:+,.0f} [{boosting.low:+,.0f}, {boosting.high:+,.0f}]** | — |" in table
     # no BC-OH under a protocol: no table for it
     assert "| method − BC-OH |" not in report.report([files[1]])
@@ -899,10 +903,10 @@ def test_the_recipe_table_compares_recipes_under_one_protocol_apart_from_the_who
     assert rows["BC-OH"].difference.diff == pytest.approx(20.0) and rows["BC-OH"].difference.low > 0
     assert rows["FCA (TCA)"].cells["mlp"].mean == pytest.approx(40.0)   # the task's α (Hopper: 2.0), not the best
     text = report.build(files).pages["index.md"].text
-    assert "## The paper's recipe" in text and "| BC-OH | 50.0 [49.5, 50.5] | 70.0 [69.5, 70.5] | **+20.0" in text
+    assert "## The paper's recipe" in text and "| BC-OH | 50.0 [48.8, 51.2] | 70.0 [68.8, 71.2] | **+20.0" in text
     assert "| fca | BC-OH − BC-SO | **+35.0" in text
-    assert "| fca | alpha 0.1, adversary_lr 0.0004 | 55.0 [54.5, 55.5] | — | — |" in text   # recipe mlp
-    assert "| fca | alpha 2, adversary_lr 0.0004 | 60.0 [59.5, 60.5] | 0.5 | 0.6 |" in text
+    assert "| fca | alpha 0.1, adversary_lr 0.0004 | 55.0 [53.8, 56.2] | — | — |" in text   # recipe mlp
+    assert "| fca | alpha 2, adversary_lr 0.0004 | 60.0 [58.8, 61.2] | 0.5 | 0.6 |" in text
     assert "## MuJoCo-State, the paper's protocol (fca)" in text   # the whole-episode files keep their tables
 
 
@@ -1034,13 +1038,14 @@ def test_a_file_trained_again_shows_the_first_trainings_returns_beside_its_own(t
                          "timing": first["timing"], "summary": first["summary"], "runs": []}
     text = report.report([_loaded(tmp_path, again)])
     assert "| return | % of expert | first training |" in text
-    assert "| BC-SO | — | 2 | 320.0 ± 10.0 | 16.0 | 300.0 ± 10.0 |" in text
-    assert "| BC-OH | — | 2 | 950.0 ± 10.0 | 47.5 | 1,000.0 ± 10.0 |" in text    # the new numbers are the table's
-    assert "| **Ours (step)** | thr 0.1, w 5 | 2 | **990.0 ± 10.0** | 49.5 | — |" in text   # not in the first one
-    # how far the means moved: BC-SO +20, BC-OH −50, each against a standard error of sqrt(2 · 10² / 2) = 10
+    assert "| BC-SO | — | 2 | 320.0 ± 14.1 | 16.0 | 300.0 ± 14.1 |" in text   # ± the sample sd, both trainings
+    assert "| BC-OH | — | 2 | 950.0 ± 14.1 | 47.5 | 1,000.0 ± 14.1 |" in text    # the new numbers are the table's
+    assert "| **Ours (step)** | thr 0.1, w 5 | 2 | **990.0 ± 14.1** | 49.5 | — |" in text   # not in the first one
+    # how far the means moved: BC-SO +20, BC-OH −50, each against a standard error of sqrt(2 · 14.1² / 2) = 14.1
+    # (the sample sd of ∓ 10 over 2 seeds): 1.41 and 3.54 of them, median 2.47
     (m,) = report.merge([_loaded(tmp_path, again)]).values()
-    assert retrained_shift(m) == (2, -50.0, 20.0, 3.5, 1)   # +20 is two standard errors, not more
-    assert ("Trained again: 2 configuration(s) moved by -50.0 to +20.0 in mean return, a median of 3.50 standard "
+    assert retrained_shift(m) == pytest.approx((2, -50.0, 20.0, (20 + 50) / 2 / 200 ** 0.5, 1))
+    assert ("Trained again: 2 configuration(s) moved by -50.0 to +20.0 in mean return, a median of 2.47 standard "
             "errors; 1 of 2 by more than two.") in text
     line = report.provenance(Results.from_json(again))
     assert "trained again with its policies kept, to replace the file of commit `f4e2e9a`" in line

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from experiments import report
-from experiments.report.analysis import (Key, budget_differences, budget_rows, bootstrap_difference, extended_map,
+from experiments.report.analysis import (Key, budget_differences, budget_rows, mean_difference, extended_map,
                                          paper_budget_groups)
 
 RESULTS = pathlib.Path(__file__).resolve().parents[1] / "results"
@@ -63,7 +63,7 @@ def test_budget_rows_hold_every_point_with_table5_beside_its_methods(tmp_path):
     assert [p.normalized.mean for p in bcoh.points] == pytest.approx([end - 20, end - 10, end])
     assert [(p.diagnostics.copycats, p.diagnostics.read) for p in bcoh.points] == [(0, 5), (0, 5), (5, 5)]
     (lab, history), *others = budget_differences(list(rows.values()))
-    assert lab == "BC-OH − BC-SO" and history[300_000] == bootstrap_difference(_normalized("bc-oh"),
+    assert lab == "BC-OH − BC-SO" and history[300_000] == mean_difference(_normalized("bc-oh"),
                                                                                _normalized("bc-so"))
     assert history[30_000].diff == pytest.approx(history[300_000].diff)   # both shifted alike
     assert [o[0] for o in others] == ["Ours, step THR 10% W 5 − BC-OH"]

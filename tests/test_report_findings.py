@@ -39,11 +39,11 @@ def test_at_the_papers_budget_the_history_helps_every_task_and_no_bc_oh_is_a_cop
     judged copycat at any point (0 of 14)."""
     history = {env: d["BC-OH − BC-SO"][300_000] for env, (_, d) in budget.items()}
     assert {env: _text(ci) for env, ci in history.items()} == {
-        "hopper": "+59.2 [+54.2, +63.5]", "halfcheetah": "+66.9 [+63.8, +69.5]", "walker2d": "+33.7 [+28.9, +38.6]"}
+        "hopper": "+59.2 [+53.4, +65.0]", "halfcheetah": "+66.9 [+60.0, +73.8]", "walker2d": "+33.7 [+24.4, +43.1]"}
     assert all(verdict(ci, "BC-OH", "BC-SO") == "BC-OH better" for ci in history.values())
     assert {env: round(rows["bc-oh"].at(300_000).normalized.mean, 1) for env, (rows, _) in budget.items()} == {
         "hopper": 91.3, "halfcheetah": 98.0, "walker2d": 57.8}
-    assert _text(budget["walker2d"][1]["BC-OH − BC-SO"][30_000]) == "-9.5 [-16.5, -3.7]"
+    assert _text(budget["walker2d"][1]["BC-OH − BC-SO"][30_000]) == "-9.5 [-25.6, +6.5]"
     bcoh = [p.diagnostics for rows, _ in budget.values() for p in rows["bc-oh"].points]
     assert sum(rows["bc-oh"].at(300_000).diagnostics.read for rows, _ in budget.values()) == 14
     assert all(d.read and not d.copycats and not d.controlled for d in bcoh)
@@ -51,12 +51,12 @@ def test_at_the_papers_budget_the_history_helps_every_task_and_no_bc_oh_is_a_cop
 
 def test_at_the_papers_budget_neither_keyframe_weighting_nor_fca_beats_bc_oh(budget):
     """Claims 3-4: Ours (step THR 10% W 5) and FCA (TCA + IB) against BC-OH at 300k, in points and as ratios of
-    returns; of the twelve comparisons with BC-OH none above, five below, seven ties."""
+    returns; of the twelve comparisons with BC-OH none above, one below, eleven ties."""
     step = "Ours, step THR 10% W 5 − BC-OH"
     assert [_text(d[step][300_000]) for _, d in budget.values()] == [
-        "-2.8 [-9.2, +3.5]", "+0.4 [-0.2, +1.0]", "-3.6 [-8.4, +0.6]"]
+        "-2.8 [-10.4, +4.7]", "+0.4 [-0.8, +1.5]", "-3.6 [-12.1, +4.8]"]
     assert [_text(d["FCA (TCA + IB) − BC-OH"][300_000]) for _, d in budget.values()] == [
-        "-1.5 [-7.5, +4.5]", "-0.2 [-0.8, +0.3]", "-8.3 [-15.7, -1.1]"]
+        "-1.5 [-8.5, +5.5]", "-0.2 [-1.2, +0.8]", "-8.3 [-22.9, +6.4]"]
 
     def ratio(rows, method):
         return round(rows[method].at(300_000).returns.mean / rows["bc-oh"].at(300_000).returns.mean, 2)
@@ -64,7 +64,10 @@ def test_at_the_papers_budget_neither_keyframe_weighting_nor_fca_beats_bc_oh(bud
     assert [ratio(rows, "ours-step") for rows, _ in budget.values()] == [0.97, 1.00, 0.94]
     assert [ratio(rows, "fca-ib") for rows, _ in budget.values()] == [0.98, 1.00, 0.86]
     verdicts = [verdict(ci[300_000]) for _, d in budget.values() for lab, ci in d.items() if lab != "BC-OH − BC-SO"]
-    assert len(verdicts) == 12 and verdicts.count("Ours better") == 0 and verdicts.count("BC-OH better") == 5
+    assert len(verdicts) == 12 and verdicts.count("Ours better") == 0 and verdicts.count("BC-OH better") == 1
+    below = [(env, lab) for env, (_, d) in budget.items() for lab, ci in d.items()
+             if lab != "BC-OH − BC-SO" and verdict(ci[300_000]) == "BC-OH better"]
+    assert below == [("halfcheetah", "Ours, softmax τ 0.1 − BC-OH")]
 
 
 def test_the_copycat_map_and_where_weighting_costs():
@@ -86,7 +89,7 @@ def test_keyframe_weighting_lowers_the_loss_on_keyframes_and_the_step_weight_har
                                                                                          0.0388]
     tau, w = sensitivity(_merged("walker2d-pos-default*.json")[Key("walker2d", "pos", "brax")])
     assert [round(r["return_mean"]) for _, r in w] == [821, 829, 828]
-    assert [round(r["return_std"]) for _, r in w] == [197, 268, 355]
+    assert [round(r["return_std"]) for _, r in w] == [242, 329, 435]   # the sample sd over seeds
     assert [round(r["return_mean"]) for _, r in tau] == [26, 100, 31]
 
 
@@ -95,7 +98,7 @@ def test_the_driving_sandbox_reads_like_table_4_and_dagger_alone_beats_bc_oh_on_
     r = rate_reading(_merged("toycar-*.json")[Key("toycar", "image", "brax")])
     assert round(r.bcso.mean, 1) == 98.3
     (_, _, history), (_, _, ours) = r.differences
-    assert (_text(history), _text(ours)) == ("-1.2 [-1.7, -0.6]", "+1.4 [+0.9, +1.9]")
+    assert (_text(history), _text(ours)) == ("-1.2 [-2.0, -0.4]", "+1.4 [+0.6, +2.2]")
     assert r.inertia.mean == 0 and r.others == {"bc-so": 0.0, "ours-step": 0.0}
     merged = _merged("*-pos-fca-default-*.json")
     above = {}
@@ -104,7 +107,7 @@ def test_the_driving_sandbox_reads_like_table_4_and_dagger_alone_beats_bc_oh_on_
         for _, row, ci in versus_bcoh(merged[key], extra_methods({key: merged[key]})):
             if row is not None and ci is not None and ci.low > 0:
                 above[(env, row["method"])] = f"{ci.diff:+.0f} [{ci.low:+.0f}, {ci.high:+.0f}]"
-    assert above == {("walker2d", "dagger"): "+251 [+167, +342]"}   # no offline baseline above BC-OH anywhere
+    assert above == {("walker2d", "dagger"): "+251 [+128, +374]"}   # no offline baseline above BC-OH anywhere
 
 
 def test_with_fcas_own_expert_the_history_helps_and_no_remedy_beats_bc_oh():
@@ -121,11 +124,11 @@ def test_with_fcas_own_expert_the_history_helps_and_no_remedy_beats_bc_oh():
     bcoh = rows["BC-OH"]
     assert round(bcoh.normalized.mean, 1) == 39.6 and len(bcoh.normalized.seeds) == 8
     assert (round(min(bcoh.normalized.seeds)), round(max(bcoh.normalized.seeds))) == (8, 82)
-    assert _text(rows["BC-SO"].versus) == "-26.1 [-41.8, -11.8]"
+    assert _text(rows["BC-SO"].versus) == "-26.1 [-45.4, -6.9]"
     versus = {label: _text(rows[label].versus) for label in (
         "Ours (step), THR 10% W 5", "Ours (softmax), τ 0.2", "FCA (TCA), α 0.1", "FCA (TCA), α 2")}
-    assert versus == {"Ours (step), THR 10% W 5": "+1.5 [-16.4, +18.9]", "Ours (softmax), τ 0.2": "+7.0 [-12.5, +26.7]",
-                      "FCA (TCA), α 0.1": "-6.9 [-25.8, +10.6]", "FCA (TCA), α 2": "+4.0 [-14.2, +22.2]"}
+    assert versus == {"Ours (step), THR 10% W 5": "+1.5 [-19.7, +22.6]", "Ours (softmax), τ 0.2": "+7.0 [-16.0, +30.1]",
+                      "FCA (TCA), α 0.1": "-6.9 [-28.7, +14.9]", "FCA (TCA), α 2": "+4.0 [-17.8, +25.8]"}
     assert round(100 * t.share.share) == 31
     history = [r for r in t.rows if r.method in ("bc-oh", "ours-step", "ours-softmax", "fca")]
     assert sum(r.diagnostics.copycats for r in history) == 13 and sum(r.diagnostics.read for r in history) == 40

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from experiments import report
-from experiments.report import stats
+from experiments import stats
 from experiments.report.analysis import is_copycat_cell, merge, ranking, ranking_cells
 from test_report_regime import SHIPPED, _load, regime_file
 

@@ -1,4 +1,5 @@
-"""`experiments.report.stats`: cross-task statistics checked against values worked out by hand."""
+"""`experiments.stats`: the intervals over seeds and the cross-task statistics, checked against values worked out
+by hand or by scipy."""
 
 from __future__ import annotations
 
@@ -7,14 +8,68 @@ import math
 import numpy as np
 import pytest
 
-from experiments.report.stats import (Estimate, iqm, iqm_across_tasks, performance_profile,
-                                      probability_of_improvement, stratified_bootstrap, wilson)
+from experiments.stats import (Estimate, gap_share, iqm, iqm_across_tasks, mean_interval, performance_profile,
+                               probability_of_improvement, sample_sd, stratified_bootstrap, t_quantile,
+                               welch_difference, wilson)
 
 Z95 = 1.959963984540054  # the standard normal's 0.975 quantile
 
 
 def _mean_of_task_means(scores: dict[str, np.ndarray]) -> float:
     return float(np.mean([np.mean(v) for v in scores.values()]))
+
+
+# --- per task, over seeds: Student's, Welch's, the gap's share -----------------------------------------------
+
+
+def test_the_t_quantiles_are_students():
+    assert t_quantile(1) == pytest.approx(12.7062047, abs=1e-6)      # the tables' t(0.975, 1)
+    assert t_quantile(4) == pytest.approx(2.7764451, abs=1e-6)
+    assert t_quantile(2, 0.90) == pytest.approx(2.9199856, abs=1e-6)
+    assert t_quantile(1e9) == pytest.approx(Z95, abs=1e-6)           # many degrees of freedom: the normal's
+    with pytest.raises(ValueError, match="degrees of freedom"):
+        t_quantile(0)
+
+
+def test_the_mean_interval_is_students_by_hand():
+    # 1, 2, 3: mean 2, sd 1, half width t(0.975, 2) · 1 / √3 = 4.302652730 / 1.732050808 = 2.484137712
+    e = mean_interval([1.0, 2.0, 3.0])
+    assert (e.value, e.low, e.high) == pytest.approx((2.0, 2.0 - 2.484137712, 2.0 + 2.484137712))
+    assert mean_interval([7.0]) == Estimate(7.0, 7.0, 7.0)            # one seed: no spread known
+    assert sample_sd([1.0, 2.0, 3.0]) == pytest.approx(1.0) and sample_sd([7.0]) is None
+    with pytest.raises(ValueError, match="non-empty"):
+        mean_interval([])
+
+
+def test_welchs_interval_matches_scipys_and_the_formula():
+    scipy_stats = pytest.importorskip("scipy.stats")
+    a, b = np.array([60.0, 55.0, 71.0, 64.0]), np.array([50.0, 30.0, 52.0])
+    ci = scipy_stats.ttest_ind(a, b, equal_var=False).confidence_interval(0.95)
+    e = welch_difference(a, b)
+    assert (e.value, e.low, e.high) == pytest.approx((a.mean() - b.mean(), ci.low, ci.high))
+    # by hand: s_a² = 137 / 3, s_b² = 296 / 2; v = s² / n; df = (v_a + v_b)² / (v_a²/3 + v_b²/2)
+    va, vb = 137.0 / 3 / 4, 148.0 / 3
+    df = (va + vb) ** 2 / (va ** 2 / 3 + vb ** 2 / 2)
+    assert e.high - e.value == pytest.approx(t_quantile(df) * math.sqrt(va + vb))
+
+
+def test_welch_with_one_seed_in_an_arm_uses_the_others_spread_and_none_gives_a_point():
+    e = welch_difference([10.0], [1.0, 2.0, 3.0])               # the one seed adds no variance; df = 2
+    assert e.value == pytest.approx(8.0) and e.high - e.value == pytest.approx(t_quantile(2) / math.sqrt(3))
+    assert welch_difference([5.0], [1.0]) == Estimate(4.0, 4.0, 4.0)
+    assert welch_difference([5.0, 5.0], [1.0, 1.0]) == Estimate(4.0, 4.0, 4.0)
+    with pytest.raises(ValueError, match="NaN"):
+        welch_difference([1.0, math.nan], [1.0, 2.0])
+
+
+def test_the_gap_share_is_the_ratio_of_the_differences_with_a_seeded_interval():
+    a, b, c = [5.0, 6.0, 7.0], [0.0, 1.0, 2.0], [10.0, 11.0, 12.0]
+    e = gap_share(a, b, c)
+    assert e.value == pytest.approx(0.5) and e.low < 0.5 < e.high
+    assert gap_share(a, b, c) == e                                # seeded: the same inputs, the same interval
+    assert gap_share(a, b, b) is None                             # no gap to share
+    wide = gap_share(a, b, [0.5, 1.5, 1.0, 1.2])                  # a gap about as large as its noise: wide
+    assert wide.high - wide.low > 10 * (e.high - e.low)
 
 
 # --- wilson -----------------------------------------------------------------------------------------------------

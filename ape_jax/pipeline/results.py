@@ -337,11 +337,12 @@ def replaced_record(old: Results, file: str, new: Results | None = None) -> dict
 
 # -- the summary ----------------------------------------------------------------------------------------------------
 
-def summarize(runs: Sequence[dict], metrics: Sequence[str] = ()) -> list[dict]:
+def summarize(runs: Sequence[dict], metrics: Sequence[str] = (), ddof: int = 0) -> list[dict]:
     """Mean and std over seeds of the per-seed means, per (method, hparams); failed runs left out.
 
-    `metrics` (the task's own per-episode metrics) are summarised the same way
-    under each row's `metrics`.
+    `metrics` (the task's own per-episode metrics) are summarised the same way under each row's `metrics`. The std
+    is the population one (`ddof` 0) in `results.json`, as every file has written it; the report asks for the
+    sample sd (`ddof` 1), None where fewer than 2 seeds leave no spread to estimate.
     """
     groups: dict[tuple, list[dict]] = {}
     for r in runs:
@@ -352,7 +353,9 @@ def summarize(runs: Sequence[dict], metrics: Sequence[str] = ()) -> list[dict]:
 
         def stats(key):
             values = np.array([np.nan if r["eval"].get(key) is None else r["eval"][key] for r in ok], np.float64)
-            return (float(values.mean()), float(values.std())) if len(ok) else (None, None)
+            if not ok:
+                return None, None
+            return float(values.mean()), float(values.std(ddof=ddof)) if len(ok) > ddof else None
 
         row = {"method": method, "hparams": dict(hp), "n_seeds": len(ok)}
         row["return_mean"], row["return_std"] = stats("return_mean")

@@ -21,7 +21,7 @@ Without `--out` it prints everything (figures only with `--figures`). No number 
 regenerate them after every sweep. The tables state results; the readings are written by hand beside them and
 held true by tests on `analysis`'s numbers.
 
-The package: `analysis` (loading, merging, the rows each table picks, the bootstrap, the copycat map, the weights),
+The package: `analysis` (loading, merging, the rows each table picks, the differences, the copycat map, the weights),
 `paper` (every number of the paper the report sets beside ours), `sections` (each a function
 `(Context) -> list[Section]`), `markdown` (`build`: the block and the pages), `figures` (drawing primitives and the
 report's figures) and `stats` (the cross-task estimators `experiments.compare` shares).
@@ -38,13 +38,13 @@ import pathlib
 import sys
 
 from experiments._cli import Parser, fail, unwritable, unwritable_file
-from experiments.report.analysis import (ReportError, bootstrap_difference, bootstrap_rows, copycat_map, load, merge,
+from experiments.report.analysis import (ReportError, mean_difference, difference_rows, copycat_map, load, merge,
                                          verdict, weight_shares)
 from experiments.report.figures import save_png
 from experiments.report.markdown import Built, build
 from experiments.report.sections.detail import provenance
 
-__all__ = ["Built", "ReportError", "bootstrap_difference", "bootstrap_rows", "build", "copycat_map", "load", "main",
+__all__ = ["Built", "ReportError", "mean_difference", "difference_rows", "build", "copycat_map", "load", "main",
            "merge", "provenance", "report", "verdict", "weight_shares"]
 
 

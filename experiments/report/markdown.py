@@ -42,7 +42,7 @@ ACROSS: tuple[Callable[[Context], list[Section]], ...] = (
     copycat.copycat_map_section,          # the copycat map per frame skip
     copycat.extended_map_section,         # where copycat appears: the map, extended
     state.image_sections,                 # MuJoCo-Image
-    differences.differences_section,      # BC-OH − BC-SO and Ours − BC-OH with bootstrap intervals
+    differences.differences_section,      # BC-OH − BC-SO and Ours − BC-OH with Welch t-intervals
     differences.longer_section,           # training longer
     curves.sensitivity_section,           # the supplement's §4
     curves.curves_and_weights_section,    # training curves and weights within a batch

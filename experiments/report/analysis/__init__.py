@@ -1,4 +1,4 @@
-"""The report's numbers: results files loaded and merged, the rows each table picks, the bootstrap, the weights.
+"""The report's numbers: results files loaded and merged, the rows each table picks, the differences, the weights.
 
 Nothing here formats markdown or draws: `experiments.report.sections` and `experiments.report.figures` do, from
 what these functions return. One module per concern, each re-exported here:
@@ -9,8 +9,8 @@ what these functions return. One module per concern, each re-exported here:
 - `selection`: method labels, the rows each table picks (`method_rows`, `best_of`, `paper_step_row`,
   `headline`, ...), per-seed values (`seed_values`), the paper's settings against the grid (`choices`), longer
   runs;
-- `bootstrap`: `bootstrap_difference`, `bootstrap_mean`, `verdict`, and per group BC-OH − BC-SO and Ours − BC-OH
-  (`bootstrap_rows`);
+- `differences`: `mean_difference`, `mean_estimate`, `verdict`, and per group BC-OH − BC-SO and Ours − BC-OH
+  (`difference_rows`);
 - `diagnostics`: copycat diagnostics per configuration, at the end and over training;
 - `copycat`: the copycat map (`copycat_map`) and the extended map (`extended_map`);
 - `recipe`: the recipe comparison (mlp against fca) and the paper's budget beside Table 5;
@@ -24,10 +24,10 @@ what these functions return. One module per concern, each re-exported here:
 The paper's own numbers are in `experiments.report.paper`.
 """
 
-from experiments.report.analysis.bootstrap import (BOOTSTRAP_RESAMPLES, BOOTSTRAP_SEED, Difference, Interval,
-                                                   RecipeCell, Share, bootstrap_difference, bootstrap_mean,
-                                                   bootstrap_rows, bootstrap_share, bootstrap_unit, history_difference,
-                                                   history_share, mean_cell, ours_differences, verdict, versus_bcoh)
+from experiments.report.analysis.differences import (Difference, Interval, RecipeCell, Share, difference_rows,
+                                                     difference_unit, gap_share, history_difference, history_share,
+                                                     mean_cell, mean_difference, mean_estimate, ours_differences,
+                                                     verdict, versus_bcoh)
 from experiments.report.analysis.copycat import (MAP_METHODS, CopycatMap, MapCell, MapPoint, MapRow, copycat_map,
                                                  extended_map)
 from experiments.report.analysis.diagnostics import (DiagnosticsRow, PolicyDiagnostics, Spread, TrainingPoint,
@@ -64,15 +64,15 @@ __all__ = [
     "LATER", "RANKED", "CellResult", "Family", "Ranked", "is_copycat_cell", "ranking", "ranking_cells",
     "REGIME_METHODS", "RegimeRow", "RegimeTable", "is_regime", "regime_groups", "regime_table",
     "check_references", "demonstrator", "expert_part", "expert_words", "raw_labels",
-    "CEILING", "CEILING_LABEL", "Share", "bootstrap_share", "has_ceiling", "history_share",
-    "APE_SCALES", "BOOTSTRAP_RESAMPLES", "LEARNED", "Estimate", "RateReading", "per_seed", "rate_reading",
-    "BOOTSTRAP_SEED", "BRAX", "BUDGET_METHODS", "FCA", "FCA_TRAIN", "FIRST_IMAGE_PRESET", "former_preset",
+    "CEILING", "CEILING_LABEL", "Share", "gap_share", "has_ceiling", "history_share",
+    "APE_SCALES", "LEARNED", "Estimate", "RateReading", "per_seed", "rate_reading",
+    "BRAX", "BUDGET_METHODS", "FCA", "FCA_TRAIN", "FIRST_IMAGE_PRESET", "former_preset",
     "MAP_METHODS", "MUJOCO", "RECIPE_METHODS", "AlphaRow", "BudgetPoint", "BudgetRow", "Choice", "CopycatMap",
     "DiagnosticsRow", "Difference", "Gap", "Group", "Interval", "Key", "LongerRow", "MapCell", "MapPoint", "MapRow",
     "Merged", "PolicyDiagnostics", "RecipeCell", "RecipeRow", "ReportError", "Source", "Spread", "TrainingPoint",
     "Shift", "first_training", "retrained_shift",
-    "WeightShares", "alpha_rows", "ape_mean", "best_of", "bootstrap_difference", "bootstrap_mean", "bootstrap_rows",
-    "bootstrap_unit", "budget_differences", "budget_of", "budget_rows", "choices", "comparisons", "config_key",
+    "WeightShares", "alpha_rows", "ape_mean", "best_of", "mean_difference", "mean_estimate", "difference_rows",
+    "difference_unit", "budget_differences", "budget_of", "budget_rows", "choices", "comparisons", "config_key",
     "copycat_groups", "copycat_map", "diagnostics_block", "diagnostics_rows", "diagnostics_thresholds",
     "display_metric", "expert_ape", "extended_map", "extra_methods", "file_stem", "gap", "group_title",
     "groups_of", "has_diagnostics", "headline", "history_difference", "hparams_suffix", "in_fca_family", "is_finite",

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from experiments.report.analysis.bootstrap import Interval, Share, bootstrap_difference, bootstrap_share
+from experiments.report.analysis.differences import Interval, Share, mean_difference, gap_share
 from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics, run_at
 from experiments.report.analysis.groups import (FCA, FCA_TRAIN, MUJOCO, Group, Key, Merged, ReportError, expert_words,
                                                 group_title, in_fca_family, ordered, other_history)
@@ -42,7 +42,7 @@ class MapRow(NamedTuple):
 
     `cells` are aligned with `MAP_METHODS` (None: not run there); `history` is
     BC-OH − BC-SO in points of % of expert (means from the summary) and
-    `history_ci` its bootstrap interval over seeds; `ceiling` is BC-OH's gap to
+    `history_ci` its Welch t-interval over seeds; `ceiling` is BC-OH's gap to
     the expert, 100 − BC-OH's % of expert. Each is None where its methods did not run.
     """
 
@@ -119,7 +119,7 @@ def _map_row(m: Group, skip: int, train: int) -> MapRow:
     cells = tuple(_map_cell(m, method, hp) for _, method, hp in MAP_METHODS)
     bcso, bcoh = cells[0], cells[1]
     history = None if bcso is None or bcoh is None else bcoh.mean - bcso.mean
-    ci = (bootstrap_difference(bcoh.seeds, bcso.seeds)
+    ci = (mean_difference(bcoh.seeds, bcso.seeds)
           if bcso is not None and bcoh is not None and bcso.seeds and bcoh.seeds else None)
     return MapRow(skip, m.protocol["name"], cells, history, ci, None if bcoh is None else 100.0 - bcoh.mean,
                   train)
@@ -180,7 +180,7 @@ def extended_map(merged: Merged) -> list[MapPoint]:
     """Every state group of the fca family (the paper's protocol at each frame skip and training-set size, under
     every recipe, split and budget) as map points: one per iteration its runs were evaluated at (`Budget.eval_at`,
     then the end), with BC-SO, BC-OH and Ours (step THR 10% W 5) in % of expert, BC-OH − BC-SO with its 95%
-    bootstrap interval over seeds, and BC-OH's copycat diagnostics; where BC-full ran, its % of expert and the
+    Welch t-interval over seeds, and BC-OH's copycat diagnostics; where BC-full ran, its % of expert and the
     history's share of the gap between BC-SO and it. In task, setting (recipe mlp before fca,
     whole episodes before rows), frame skip, size, run length and iteration order."""
     out = []
@@ -199,8 +199,8 @@ def extended_map(merged: Merged) -> list[MapPoint]:
             *cells, ceiling = (_seed_cell([a["eval"]["normalized"] for a in xs
                                            if is_finite(a["eval"].get("normalized"))]) for xs in at)
             bcso, bcoh = cells[0], cells[1]
-            history = bootstrap_difference(bcoh.seeds, bcso.seeds) if bcso and bcoh else None
-            share = bootstrap_share(bcoh.seeds, bcso.seeds, ceiling.seeds) if bcso and bcoh and ceiling else None
+            history = mean_difference(bcoh.seeds, bcso.seeds) if bcso and bcoh else None
+            share = gap_share(bcoh.seeds, bcso.seeds, ceiling.seeds) if bcso and bcoh and ceiling else None
             out.append(MapPoint(key.env, p.get("recipe") or "mlp", p.get("split") or "episodes", int(p["frame_skip"]),
                                 int(p.get("train_transitions") or FCA_TRAIN), end, iteration, tuple(cells), history,
                                 policy_diagnostics(at[1]) if at[1] else None, other_history(p), expert_words(p),

@@ -14,7 +14,7 @@ import numpy as np
 
 from ape_jax import tasks
 from ape_jax.pipeline import results as results_lib
-from experiments.report.analysis.bootstrap import RecipeCell, mean_cell
+from experiments.report.analysis.differences import RecipeCell, mean_cell
 from experiments.report.analysis.groups import Group
 from experiments.report.analysis.selection import is_finite, label, ok_runs, seed_values
 
@@ -146,7 +146,7 @@ def recipe_diagnostics(groups: dict[tuple[str, str, str], dict[str, Group]]
 
 class TrainingPoint(NamedTuple):
     """One configuration at one iteration of its runs (an `eval_at` point, or the end): % of expert over its
-    seeds with a 95% bootstrap interval, its training loss (mean over seeds of the 100 minibatches before; None
+    seeds with a 95% t-interval, its training loss (mean over seeds of the 100 minibatches before; None
     where not recorded) and its `PolicyDiagnostics` there."""
 
     label: str

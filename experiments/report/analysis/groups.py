@@ -315,8 +315,8 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
     came from, as a `Group` each.
 
     One configuration's seeds may come from several files of one sweep split by seeds (`--set
-    budget.first_seed=K`, the same settings otherwise): its runs are joined and its summary row computed from them
-    all (`results.summarize`).
+    budget.first_seed=K`, the same settings otherwise): its runs are joined. Every summary row is computed from
+    its runs (`results.summarize`), its std the sample sd over seeds (ddof 1; None for one seed).
 
     Raises:
       ReportError: the same configuration and seed in two files of one group, or the same configuration in two
@@ -338,7 +338,6 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
         m = merged.setdefault(key, {"env": r.env, "obs": r.obs, "protocol": protocol, "budget": key.budget,
                                     "expert": r.expert, "demonstrator": demonstrator(r),
                                     "summary": [], "runs": [], "sources": [], "methods": {}, "metric": main_metric(r),
-                                    "split": set(),
                                     "task_metrics": tuple(r.config.get("task_metrics", tasks.get(r.env).metrics))})
         group = f"{r.env} ({r.obs}, protocol {key.protocol}" + (f", {key.budget:,} iterations)" if key.budget else ")")
         if m["expert"] != r.expert:
@@ -352,7 +351,6 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
         for row in r.summary:
             if config_key(row) in seen:
                 _check_seed_split(r, row, m, where, group)
-                m["split"].add(config_key(row))
         m["summary"] += [row for row in r.summary if config_key(row) not in seen]
         m["runs"] += r.runs
         m["sources"].append(r)
@@ -360,10 +358,11 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
         m["protocol"] = {**protocol, **{k: v for k, v in m["protocol"].items() if v is not None}}
     groups = {}
     for key, m in merged.items():
-        if split := m.pop("split"):  # one configuration's seeds in several files: its row, from all its runs
-            rows = {config_key(row): row for row in results_lib.summarize(
-                [run for run in m["runs"] if config_key(run) in split], m["task_metrics"])}
-            m["summary"] = [rows.get(config_key(row), row) for row in m["summary"]]
+        # every row from its runs (a configuration's seeds may come from several files), its ± the sample sd over
+        # seeds (ddof 1; None for one seed) where the files record the population one
+        rows = {config_key(row): row for row in results_lib.summarize(m["runs"], m["task_metrics"], ddof=1)}
+        m["summary"] = [{**row, **{k: v for k, v in rows[config_key(row)].items() if k != "hparams"}}
+                        if config_key(row) in rows else row for row in m["summary"]]
         shows_protocol = key.protocol != BRAX or any(k[:2] == key[:2] and k.protocol != key.protocol for k in merged)
         title = group_title(key, m["protocol"], shows_protocol)
         if key.budget:

@@ -10,7 +10,7 @@ into two families, by their setting (never by their results):
 Per family, `ranking` gives each method of `RANKED` that ran in every cell of the family: the interquartile mean of
 % of expert over all its seeds with a stratified bootstrap interval (`stats.iqm_across_tasks`), the probability
 that one of its runs beats one of BC-OH's (`stats.probability_of_improvement`), and per cell its difference from
-BC-OH in points with a percentile bootstrap interval (`bootstrap.bootstrap_difference`) and its controlled copycat
+BC-OH in points with Welch's t-interval (`differences.mean_difference`) and its controlled copycat
 counts. A method with several configurations in a cell is represented by its best one there (by mean % of expert,
 as `experiments.compare` and the report's best rows choose: optimistic for methods with many configurations).
 """
@@ -23,8 +23,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ape_jax import tasks
-from experiments.report import stats
-from experiments.report.analysis.bootstrap import Interval, bootstrap_difference
+from experiments import stats
+from experiments.report.analysis.differences import Interval, mean_difference
 from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics
 from experiments.report.analysis.groups import Group, Merged, ordered
 from experiments.report.analysis.regime import is_regime
@@ -102,7 +102,7 @@ def _cell_result(m: Group, method: str, reference: tuple[float, ...]) -> CellRes
     seeds = () if row is None else _seeds(m, row)
     if not seeds:
         return None
-    versus = bootstrap_difference(seeds, reference) if method != REFERENCE and reference else None
+    versus = mean_difference(seeds, reference) if method != REFERENCE and reference else None
     return CellResult(cell_title(m), dict(row["hparams"]), seeds, versus,
                       policy_diagnostics(ok_runs(m, method, row["hparams"])))
 

@@ -7,15 +7,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from experiments.report.analysis.bootstrap import Interval, bootstrap_difference, bootstrap_mean
+from experiments.report.analysis.differences import Interval, mean_difference, mean_estimate
 from experiments.report.analysis.groups import Group, is_rate
 from experiments.report.analysis.selection import task_metric_rows
 
-LEARNED = 90.0  # % of episodes: BC-SO has learned the task when its rate's bootstrap interval is above this
+LEARNED = 90.0  # % of episodes: BC-SO has learned the task when its rate's t-interval is above this
 
 
 class Estimate(NamedTuple):
-    """A mean over seeds (in %) with its 95% bootstrap interval, and the number of seeds."""
+    """A mean over seeds (in %) with its 95% t-interval, and the number of seeds."""
 
     mean: float
     low: float
@@ -59,12 +59,12 @@ def rate_reading(m: Group) -> RateReading | None:
     episodes = sorted({int(r["eval"]["episodes"]) for runs in rows.values() for r in runs if "episodes" in r["eval"]})
     bcso = None
     if "bc-so" in rows:
-        bcso = Estimate(*bootstrap_mean(per_seed(rows["bc-so"], metric, 100.0)), len(rows["bc-so"]))
-    differences = [(a, b, bootstrap_difference(per_seed(rows[a], metric, 100.0), per_seed(rows[b], metric, 100.0)))
+        bcso = Estimate(*mean_estimate(per_seed(rows["bc-so"], metric, 100.0)), len(rows["bc-so"]))
+    differences = [(a, b, mean_difference(per_seed(rows[a], metric, 100.0), per_seed(rows[b], metric, 100.0)))
                    for a, b in (("bc-oh", "bc-so"), ("ours-step", "bc-oh")) if a in rows and b in rows]
     stuck = {method: per_seed(runs, "stuck", 100.0) for method, runs in rows.items()}
     inertia, others = None, {}
     if "bc-oh" in stuck and len(stuck["bc-oh"]):
-        inertia = Estimate(*bootstrap_mean(stuck["bc-oh"]), len(stuck["bc-oh"]))
+        inertia = Estimate(*mean_estimate(stuck["bc-oh"]), len(stuck["bc-oh"]))
         others = {k: float(stuck[k].mean()) for k in ("bc-so", "ours-step") if k in stuck and len(stuck[k])}
     return RateReading(metric, bcso, episodes[0] if len(episodes) == 1 else None, differences, inertia, others)

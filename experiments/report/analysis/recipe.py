@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ape_jax import tasks
-from experiments.report.analysis.bootstrap import (Interval, RecipeCell, bootstrap_difference, bootstrap_mean,
+from experiments.report.analysis.differences import (Interval, RecipeCell, mean_difference, mean_estimate,
                                                    mean_cell)
 from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics, run_at
 from experiments.report.analysis.groups import FCA, MUJOCO, Group, Merged, ordered, other_setting, trained_its_preset
@@ -61,26 +61,26 @@ def recipe_groups(merged: Merged) -> dict[tuple[str, str, str], dict[str, Group]
 
 
 def recipe_rows(recipes: dict[str, Group], order: Sequence[str] = ("mlp", "fca")) -> list[RecipeRow]:
-    """Per method of `RECIPE_METHODS` that ran under some recipe: its % of expert per recipe (bootstrap mean) and
-    fca − mlp (bootstrap difference of means over seeds, in points of % of expert)."""
+    """Per method of `RECIPE_METHODS` that ran under some recipe: its % of expert per recipe (with its t-interval) and
+    fca − mlp (difference of means over seeds with Welch's t-interval, in points of % of expert)."""
     names = [r for r in order if r in recipes] + [r for r in recipes if r not in order]
     out = []
     for lab, method, hparams in RECIPE_METHODS:
         cells = {}
         for name in names:
             seeds = seed_values(recipes[name], _recipe_row(recipes[name], method, hparams), "normalized")
-            cells[name] = RecipeCell(*bootstrap_mean(seeds), tuple(seeds)) if seeds else None
+            cells[name] = RecipeCell(*mean_estimate(seeds), tuple(seeds)) if seeds else None
         if not any(cells.values()):
             continue
         env = next(iter(recipes.values())).env
         both = len(names) >= 2 and cells[names[0]] is not None and cells[names[1]] is not None
-        diff = bootstrap_difference(cells[names[1]].seeds, cells[names[0]].seeds) if both else None
+        diff = mean_difference(cells[names[1]].seeds, cells[names[0]].seeds) if both else None
         out.append(RecipeRow(env, lab, cells, diff))
     return out
 
 
 class AlphaRow(NamedTuple):
-    """FCA at one α: % of expert over seeds (bootstrap mean), and its adversary's final loss against the reference
+    """FCA at one α: % of expert over seeds (with its t-interval), and its adversary's final loss against the reference
     predictor of a_{t−1} from a_t alone (means over seeds; None where the files predate them)."""
 
     method: str
@@ -106,7 +106,7 @@ def alpha_rows(m: Group) -> list[AlphaRow]:
                 values = [f[k] for f in finals if f.get(k) is not None]
                 return float(np.mean(values)) if values else None
 
-            out.append(AlphaRow(method, row["hparams"], RecipeCell(*bootstrap_mean(seeds), tuple(seeds)),
+            out.append(AlphaRow(method, row["hparams"], RecipeCell(*mean_estimate(seeds), tuple(seeds)),
                                 mean_of("adversary_loss"), mean_of("reference_loss")))
     return out
 
@@ -122,7 +122,7 @@ BUDGET_METHODS = (("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), (PAPER_STEP_LA
 
 class BudgetPoint(NamedTuple):
     """One configuration at one iteration of its runs (an `eval_at` point or the end): % of expert and mean return
-    over seeds, each with its 95% bootstrap interval (None where no seed recorded it), and the diagnostics there."""
+    over seeds, each with its 95% t-interval (None where no seed recorded it), and the diagnostics there."""
 
     iteration: int
     normalized: RecipeCell | None
@@ -202,7 +202,7 @@ def budget_differences(rows: Sequence[BudgetRow]) -> list[tuple[str, dict[int, I
         for p in a.points:
             q = b.at(p.iteration)
             if p.normalized is not None and q is not None and q.normalized is not None:
-                diffs[p.iteration] = bootstrap_difference(p.normalized.seeds, q.normalized.seeds)
+                diffs[p.iteration] = mean_difference(p.normalized.seeds, q.normalized.seeds)
         if diffs:
             out.append((lab, diffs))
     return out

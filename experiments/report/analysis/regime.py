@@ -3,20 +3,20 @@
 - `regime_groups`: the groups whose demonstrations came from an imported expert (`experiments.import_expert`: FCA's
   own CS294 Hopper policy is the reference one) or stored the expert's labels raw (as FCA stored them: the rough
   experts' runs), under the fca protocol (split by rows) and the fca recipe, at any budget;
-- `regime_table`: per such group, every configuration in % of expert and return over seeds (bootstrap intervals),
-  the supplement's Table 5 beside it, its difference against BC-OH (bootstrap interval, in points of % of expert),
+- `regime_table`: per such group, every configuration in % of expert and return over seeds (t-intervals),
+  the supplement's Table 5 beside it, its difference against BC-OH (Welch t-interval, in points of % of expert),
   its copycat diagnostics (both verdicts' counts, the control and predictability ratios), and the history's share
   of the gap between BC-SO and BC-full.
 
-Arrays in, intervals out: every number comes from `bootstrap`'s estimators over the runs' per-seed values; the
-sentences are `experiments.report.sections.regime`'s.
+Arrays in, intervals out: every number comes from `differences`' estimators (`experiments.stats`) over the runs'
+per-seed values; the sentences are `experiments.report.sections.regime`'s.
 """
 
 from __future__ import annotations
 
 from typing import NamedTuple
 
-from experiments.report.analysis.bootstrap import (Interval, RecipeCell, Share, bootstrap_difference, history_share,
+from experiments.report.analysis.differences import (Interval, RecipeCell, Share, mean_difference, history_share,
                                                    mean_cell)
 from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics
 from experiments.report.analysis.groups import FCA, MUJOCO, Group, Merged, ordered, other_history, raw_labels
@@ -33,11 +33,11 @@ class RegimeRow(NamedTuple):
     Attributes:
       method, hparams: the configuration.
       label: how the table names it (`"Ours (step), THR 10% W 5"`, `"FCA (TCA), α 2"`).
-      normalized, returns: % of expert and mean return over its seeds, each with its 95% bootstrap interval (None
+      normalized, returns: % of expert and mean return over its seeds, each with its 95% t-interval (None
         where no seed recorded it).
       paper: the supplement's Table 5 return of the same method (None: Table 5 has no such row); FCA's one number
         stands beside every α (Table 5 does not say which α gave it).
-      versus: its % of expert − BC-OH's over seeds, in points, with its 95% bootstrap interval (None for BC-OH itself
+      versus: its % of expert − BC-OH's over seeds, in points, with its 95% Welch t-interval (None for BC-OH itself
         or where either arm has no seeds).
       diagnostics: its copycat diagnostics over seeds (`policy_diagnostics`).
     """
@@ -125,7 +125,7 @@ def regime_table(m: Group) -> RegimeTable:
     for row in chosen:
         runs = ok_runs(m, row["method"], row["hparams"])
         normalized = mean_cell(_values(runs, "normalized"))
-        versus = (bootstrap_difference(normalized.seeds, bcoh.seeds)
+        versus = (mean_difference(normalized.seeds, bcoh.seeds)
                   if normalized is not None and bcoh is not None and row["method"] != "bc-oh" else None)
         rows.append(RegimeRow(row["method"], dict(row["hparams"]), _row_label(m, row), normalized,
                               mean_cell(_values(runs, "return_mean")), _paper(m, row), versus,

@@ -318,8 +318,15 @@ def choices(m: Group) -> list[Choice]:
 # -- trained again -------------------------------------------------------------------------------------------------
 
 def first_training(m: Group) -> dict[tuple, dict]:
-    """The summary rows of the files `m`'s files were trained again to replace (`replaces`), by configuration."""
-    return {config_key(row): row for s in m.sources if s.replaces for row in s.replaces["summary"]}
+    """The summary rows of the files `m`'s files were trained again to replace (`replaces`), by configuration, their
+    std the sample sd over seeds as the group's rows have it (`merge`; the file records the population one)."""
+    return {config_key(row): {**row, **{k: _sample_sd(row[k], row["n_seeds"]) for k in ("return_std", "normalized_std")
+                                        if k in row}}
+            for s in m.sources if s.replaces for row in s.replaces["summary"]}
+
+
+def _sample_sd(population: float | None, n: int) -> float | None:
+    return population * math.sqrt(n / (n - 1)) if population is not None and n > 1 else None
 
 
 class Shift(NamedTuple):
@@ -339,7 +346,7 @@ def retrained_shift(m: Group) -> Shift | None:
     the two trainings' std over seeds; None where no file of `m` replaced one."""
     first = first_training(m)
     pairs = [(row, first[config_key(row)]) for row in m.summary
-             if config_key(row) in first and row["n_seeds"] and first[config_key(row)]["n_seeds"]]
+             if config_key(row) in first and row["n_seeds"] > 1 and first[config_key(row)]["n_seeds"] > 1]
     moved = [(a["return_mean"] - b["return_mean"],
               math.sqrt(a["return_std"] ** 2 / a["n_seeds"] + b["return_std"] ** 2 / b["n_seeds"])) for a, b in pairs]
     ratio = [abs(d) / se for d, se in moved if se > 0]

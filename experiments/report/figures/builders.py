@@ -55,7 +55,7 @@ def grid_figure(m: Group) -> Figure | None:
     if bcoh is not None:
         center, std = metric_value(bcoh, prefix)
         ref = f"; BC-OH {center:.1f} ± {std:.1f}"
-    title = (f"{m.title}: grid search, {unit} (mean ± std over {seeds} seeds){ref}")
+    title = (f"{m.title}: grid search, {unit} (mean ± sd over {seeds} seeds){ref}")
     return heatmap(title, panels, center, unit)
 
 
@@ -177,13 +177,13 @@ def copycat_map_figure(maps: list[CopycatMap]) -> Figure | None:
         ax.grid(color="0.9")
         ax.tick_params(labelsize=8)
         ax.legend(fontsize=7, frameon=False, loc="best")
-    fig.suptitle("The copycat map: % of expert\n(the paper's protocol; mean ± std over seeds)", fontsize=10)
+    fig.suptitle("The copycat map: % of expert\n(the paper's protocol; mean ± sd over seeds)", fontsize=10)
     return fig
 
 
 def budget_figure(rows: Sequence[Sequence[BudgetRow]]) -> Figure | None:
     """The paper's budget (`analysis.budget_rows`, one list per task): per task, % of expert against the iteration
-    each policy was evaluated at (log axis) with its 95% bootstrap band, a line per method; below, BC-OH's and the
+    each policy was evaluated at (log axis) with its 95% t-interval band, a line per method; below, BC-OH's and the
     others' median embedding ratio (the embedding probe's a_{t−1} error ÷ a_t alone's: below 1, the embedding carries
     the previous action) with its range over seeds. None when no task has two points."""
     tasks_rows = [r for r in rows if r and any(len(x.points) > 1 for x in r)]
@@ -205,7 +205,7 @@ def budget_figure(rows: Sequence[Sequence[BudgetRow]]) -> Figure | None:
                             ([p.diagnostics.embedding.low for p in pts], [p.diagnostics.embedding.high for p in pts]),
                             style))
         ticks = sorted({p.iteration for r in task for p in r.points})
-        returns.append(Lines(title, "iterations", "% of expert (95% bootstrap band)", series, log_x=True,
+        returns.append(Lines(title, "iterations", "% of expert (95% t-interval band)", series, log_x=True,
                              xticks=ticks))
         if emb:
             emb.append(("", [min(p.iteration for r in task for p in r.points),
@@ -219,7 +219,7 @@ def budget_figure(rows: Sequence[Sequence[BudgetRow]]) -> Figure | None:
 def extended_map_figure(points: Sequence[MapPoint]) -> Figure | None:
     """The extended copycat map (`analysis.extended_map`): per task and axis with two or more points (frame skip;
     training transitions at frame skip 1; the iteration of the runs that were evaluated during training), BC-OH −
-    BC-SO in points of % of expert with its 95% bootstrap band, and BC-OH's median embedding and predictability
+    BC-SO in points of % of expert with its 95% t-interval band, and BC-OH's median embedding and predictability
     ratios, a line per setting (recipe, split). None where no axis has two points."""
     panels = []
     for env in dict.fromkeys(q.env for q in points):

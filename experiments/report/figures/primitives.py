@@ -130,7 +130,7 @@ def heatmap(title: str, panels: Sequence[Grid], center: float | None, unit: str 
     cbar.ax.tick_params(labelsize=7)
     fig.suptitle(title, fontsize=10)
     fig.supxlabel("solid box: best cell of the panel; dashed box: the paper's choice; "
-                  "cells: mean ± std over seeds", fontsize=8, color="0.25")
+                  "cells: mean ± sd over seeds", fontsize=8, color="0.25")
     return fig
 
 

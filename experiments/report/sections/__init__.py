@@ -7,7 +7,7 @@
 - `regime`: Table 5 with FCA's expert (an imported expert or raw labels), against BC-OH and with its diagnostics;
 - `ranking`: the later methods (RAP, PALR, MINE) ranked with the paper's, per family of cells;
 - `copycat`: the copycat map and the extended map;
-- `differences`: the bootstrap table and training longer;
+- `differences`: the differences' table and training longer;
 - `curves`: the sensitivity study, the training curves and the weights;
 - `diagnostics`: the copycat diagnostics tables the other sections use;
 - `detail`: per group, every configuration, the loss analysis and each file's provenance.

@@ -84,12 +84,17 @@ def table(head: Sequence[str], rows: Sequence[Sequence[str]], align: str | int =
 
 # -- cells the sections share --------------------------------------------------------------------------------------
 
+def plus_minus(mean: float, sd: float | None, fmt: str = ",.0f") -> str:
+    """`"1,000 ± 8"`: a mean ± the sample sd over seeds; the mean alone where one seed gives no sd (None)."""
+    return f"{mean:{fmt}}" if sd is None else f"{mean:{fmt}} ± {sd:{fmt}}"
+
+
 def return_cell(row: dict | None) -> str:
-    """`"1,000 ± 8 (50%)"`: a summary row's mean return ± std over seeds, with its % of expert; "—" for None."""
+    """`"1,000 ± 8 (50%)"`: a summary row's mean return ± sd over seeds, with its % of expert; "—" for None."""
     if row is None:
         return "—"
     norm = f" ({row['normalized_mean']:.0f}%)" if row.get("normalized_mean") is not None else ""
-    return f"{row['return_mean']:,.0f} ± {row['return_std']:,.0f}{norm}"
+    return plus_minus(row["return_mean"], row["return_std"]) + norm
 
 
 def norm_cell(row: dict | None) -> str:
@@ -98,7 +103,7 @@ def norm_cell(row: dict | None) -> str:
 
 
 def pct_cell(cell, fmt: str = ".1f") -> str:
-    """`"50.0 [49.5, 50.5]"`: a mean over seeds with its 95% bootstrap interval (`RecipeCell`); "—" for None."""
+    """`"50.0 [49.5, 50.5]"`: a mean over seeds with its 95% t-interval (`RecipeCell`); "—" for None."""
     return "—" if cell is None else f"{cell.mean:{fmt}} [{cell.low:{fmt}}, {cell.high:{fmt}}]"
 
 

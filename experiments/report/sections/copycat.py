@@ -19,7 +19,7 @@ def _map_cell(cell) -> str:
 
 def copycat_map_table(maps: list[CopycatMap]) -> str:
     """The copycat map as one table: per task and frame skip, BC-SO, BC-OH and Ours (step THR 10% W 5) in % of
-    expert (mean ± std over seeds), the seeds, BC-OH − BC-SO with its 95% CI, and expert − BC-OH."""
+    expert (mean ± sd over seeds), the seeds, BC-OH − BC-SO with its 95% CI, and expert − BC-OH."""
     rows = []
     for cm in maps:
         shown = {(r.frame_skip, r.train_transitions) for r in cm.rows}
@@ -63,7 +63,8 @@ def extended_map_section(ctx: Context) -> list[Section]:
     out.append(table([*LEAD, *NAMES, "BC-OH − BC-SO [95% CI]"],
                      [[*_cells(q), *map(_map_cell, q.cells), diff_cell(q.history)] for q in points], 2))
     if ceiling := [q for q in points if q.ceiling is not None]:
-        out += ["Where BC-full (the full state) ran: the history's share of the gap to it, 95% bootstrap interval.",
+        out += ["Where BC-full (the full state) ran: the history's share of the gap to it, 95% percentile bootstrap "
+                "interval.",
                 "", table([*LEAD, "BC-full", "(BC-OH − BC-SO) / (BC-full − BC-SO)"],
                           [[*_cells(q), _map_cell(q.ceiling), "—" if (s := q.share) is None else
                             f"{100 * s.share:.0f}% [{100 * s.low:.0f}%, {100 * s.high:.0f}%]"] for q in ceiling], 2)]
@@ -80,7 +81,7 @@ def extended_map_section(ctx: Context) -> list[Section]:
                 thresholds_line(diagnostics_thresholds([src for _, m in ordered(ctx.merged) for src in m.sources])), ""]
     return [Section("Where copycat appears: the map, extended",
                     f"Every result of the paper's protocol ({FCA}) and its variants, by recipe and split, frame skip, "
-                    "training-set size and budget; % of expert, mean ± std over seeds.", out)]
+                    "training-set size and budget; % of expert, mean ± sd over seeds.", out)]
 
 
 def copycat_map_section(ctx: Context) -> list[Section]:
@@ -92,6 +93,6 @@ def copycat_map_section(ctx: Context) -> list[Section]:
     skips = sorted({r.frame_skip for cm in maps for r in cm.rows})
     return [Section("The copycat map: the history's benefit per frame skip",
                     f"Protocol {FCA} at frame skips {', '.join(map(str, skips))}, the same simulated time and data; "
-                    "% of expert, mean ± std over seeds; BC-OH − BC-SO with its 95% bootstrap interval.",
+                    "% of expert, mean ± sd over seeds; BC-OH − BC-SO with its 95% Welch t-interval.",
                     [*ctx.figure("copycat-map.png", "The copycat map: % of expert per frame skip",
                                  lambda: figures.copycat_map_figure(maps)), copycat_map_table(maps)])]

@@ -64,7 +64,7 @@ def sensitivity_section(ctx: Context) -> list[Section]:
     if not found:
         return []
     return [Section("Sensitivity (the supplement's §4)",
-                    f"Walker2d (states, protocol {SENSITIVITY.protocol}), return mean ± std over seeds; the paper's W "
+                    f"Walker2d (states, protocol {SENSITIVITY.protocol}), return mean ± sd over seeds; the paper's W "
                     "study was on CARLA driving.", [found])]
 
 

@@ -15,7 +15,7 @@ from experiments.report.analysis import (BRAX, Group, Key, best_of, choices, con
                                          display_metric, expert_ape, file_stem, first_training, former_preset, gap,
                                          is_rate, label, loss_rows, metric_value, protocol_words, raw_labels,
                                          retrained_shift)
-from experiments.report.sections.common import (SETTING_WORDS, Context, Section, expert_text, hparams_text,
+from experiments.report.sections.common import (SETTING_WORDS, Context, Section, expert_text, hparams_text, plus_minus,
                                                 table)
 from experiments.report.sections.diagnostics import group_diagnostics, training_table
 
@@ -29,15 +29,15 @@ def grid_table(m: Group) -> str:
     rows = []
     for r in m.summary:
         was = first.get(config_key(r))
-        before = [] if not first else [f"{was['return_mean']:,.1f} ± {was['return_std']:,.1f}"
+        before = [] if not first else [plus_minus(was["return_mean"], was["return_std"], ",.1f")
                                        if was and was["n_seeds"] else "—"]
         mark = "**" if r is best else ""
         if not r["n_seeds"] or (rate and r.get("normalized_mean") is None):
             cells = ["failed"] + ([] if rate else [""])
         elif rate:
-            cells = [f"{mark}{r['normalized_mean']:.1f} ± {r['normalized_std']:.1f}{mark}"]
+            cells = [f"{mark}{plus_minus(r['normalized_mean'], r['normalized_std'], '.1f')}{mark}"]
         else:
-            cells = [f"{mark}{r['return_mean']:,.1f} ± {r['return_std']:,.1f}{mark}",
+            cells = [f"{mark}{plus_minus(r['return_mean'], r['return_std'], ',.1f')}{mark}",
                      f"{r['normalized_mean']:.1f}" if r.get("normalized_mean") is not None else "—"]
         rows.append([f"{mark}{label(m.methods, r['method'])}{mark}", hparams_text(r["hparams"]), str(r["n_seeds"]),
                      *cells, *before])

@@ -103,7 +103,7 @@ def group_diagnostics(m: Group) -> list[str]:
 
 def training_table(m: Group) -> list[str]:
     """Group `m`'s configurations over training (`Budget.eval_at`): per configuration and iteration, % of expert
-    with its 95% bootstrap interval over seeds, the training loss, the copycat diagnostics' medians and the
+    with its 95% t-interval over seeds, the training loss, the copycat diagnostics' medians and the
     verdict count; nothing for a group evaluated at the end only."""
     points = training_points(m)
     if not points:

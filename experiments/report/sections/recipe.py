@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from ape_jax import tasks
 from experiments.report import figures
-from experiments.report.analysis import (FCA, BudgetRow, alpha_rows, bootstrap_difference, budget_differences,
+from experiments.report.analysis import (FCA, BudgetRow, alpha_rows, mean_difference, budget_differences,
                                          budget_rows, diagnostics_thresholds, paper_budget_groups, recipe_diagnostics,
                                          recipe_groups, recipe_rows, thousands, verdict)
 from experiments.report.paper import PAPER_STEP_LABEL, PAPER_TABLE5
@@ -37,7 +37,7 @@ def recipe_section(ctx: Context) -> list[Section]:
             cells = {r.label: r.cells.get(n) for r in rows}
             for a, b in COMPARISONS:
                 if cells.get(a) is not None and cells.get(b) is not None:
-                    ci = bootstrap_difference(cells[a].seeds, cells[b].seeds)
+                    ci = mean_difference(cells[a].seeds, cells[b].seeds)
                     within.append([n, f"{a} − {b}", diff_cell(ci), verdict(ci, a, b)])
         if within:
             out.append(table(["recipe", "difference", "points [95% CI]", "verdict"], within, "llrl"))
@@ -54,7 +54,7 @@ def recipe_section(ctx: Context) -> list[Section]:
                              heads=("task", "recipe", "method"))
     return [Section("The paper's recipe against the project's first",
                     "Same protocol, data, budget and seeds; `mlp` the project's first recipe, `fca` the FCA code's. "
-                    "% of expert [95% bootstrap interval].", out)]
+                    "% of expert [95% t-interval].", out)]
 
 
 def _bcoh_at(rows: list[BudgetRow], iteration: int) -> float | None:
@@ -89,7 +89,7 @@ def budget_table(rows: list[list[BudgetRow]]) -> str:
 
 def budget_differences_table(rows: list[list[BudgetRow]]) -> str:
     """Per task, BC-OH − BC-SO and each other method − BC-OH in points of % of expert at each iteration, with 95%
-    bootstrap intervals (`analysis.budget_differences`), bold where the interval is above 0."""
+    Welch t-intervals (`analysis.budget_differences`), bold where the interval is above 0."""
     its = sorted({p.iteration for task in rows for r in task for p in r.points})
     return table(["task", "difference", *(f"at {i:,}" for i in its)],
                  [[tasks.get(task[0].env).title, lab, *(diff_cell(ci.get(i)) for i in its)]
@@ -112,7 +112,7 @@ def paper_budget_section(ctx: Context) -> list[Section]:
                     *([_ratios(r, its, "state")] if state else [])] for task in rows for r in task]
     body = [*ctx.figure("paper-budget.png", "The paper's budget: % of expert and the embedding ratio against "
                         "iterations", lambda: figures.budget_figure(rows)),
-            budget_table(rows), "Differences in points of % of expert, 95% bootstrap interval (bold: above 0).", "",
+            budget_table(rows), "Differences in points of % of expert, 95% Welch t-interval (bold: above 0).", "",
             budget_differences_table(rows),
             f"Copycat diagnostics, medians over seeds at {' → '.join(thousands(i) for i in its)}.", "",
             table(["task", "method", "embedding ratio", *(["control ratio"] if control else []), "predictability ratio",
@@ -130,7 +130,7 @@ def budget_summary(ctx: Context) -> list[Section]:
     if not groups:
         return []
     rows = [budget_rows(m) for m in groups]
-    return [Section("Table 5 at the paper's budget", "% of expert [95% bootstrap interval]; return on the paper's "
+    return [Section("Table 5 at the paper's budget", "% of expert [95% t-interval]; return on the paper's "
                     "scale beside the supplement's Table 5.",
-                    [budget_table(rows), "Differences in points of % of expert, 95% bootstrap interval "
+                    [budget_table(rows), "Differences in points of % of expert, 95% Welch t-interval "
                      "(bold: above 0).", "", budget_differences_table(rows)])]

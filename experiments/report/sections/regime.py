@@ -87,12 +87,12 @@ def regime_section(ctx: Context) -> list[Section]:
     lines = regime_lines(ctx)
     return [Section("Table 5 with FCA's expert",
                     "An expert of FCA's kind, labels raw or clipped; protocol fca, split by rows, recipe fca; % of "
-                    "expert and return [95% bootstrap interval]; − BC-OH bold where its interval excludes 0.",
+                    "expert and return [95% t-interval]; − BC-OH bold where its interval excludes 0.",
                     lines)] if lines else []
 
 
 def regime_summary(ctx: Context) -> list[Section]:
     """The returns tables of "Table 5 with FCA's expert" (`regime_lines` without diagnostics), for the findings."""
     lines = regime_lines(ctx, diagnostics=False)
-    return [Section("Table 5 with FCA's expert", "% of expert and return [95% bootstrap interval]; − BC-OH bold where "
+    return [Section("Table 5 with FCA's expert", "% of expert and return [95% t-interval]; − BC-OH bold where "
                     "its interval excludes 0.", lines)] if lines else []

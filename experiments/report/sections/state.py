@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from ape_jax import tasks
 from experiments.report.analysis import (BRAX, CEILING, CEILING_LABEL, FCA, Group, Key, Merged, best_of,
-                                         bootstrap_unit, extra_methods, groups_of, has_ceiling, headline,
+                                         difference_unit, extra_methods, groups_of, has_ceiling, headline,
                                          history_share, hparams_suffix, in_fca_family, known_methods, label,
                                          method_rows, paper_step_row, protocols_of, versus_bcoh)
 from experiments.report.paper import PAPER_STEP_LABEL, PAPER_TABLE5
@@ -29,7 +29,7 @@ def _titles(groups: list[Group]) -> list[str]:
 
 def state_table(merged: Merged, obs: str = "pos", protocol: str = BRAX) -> str:
     """Every method per MuJoCo task with observations `obs` ("pos": MuJoCo-State, "image": MuJoCo-Image) under
-    `protocol`: return mean ± std over seeds (% of expert), the methods besides ours those groups ran, our
+    `protocol`: return mean ± sd over seeds (% of expert), the methods besides ours those groups ran, our
     expert and a random policy; BC-full (the full state's ceiling) last where any of the groups ran it."""
     groups = groups_of(merged, obs, protocol)
     if not groups:
@@ -47,8 +47,8 @@ def state_table(merged: Merged, obs: str = "pos", protocol: str = BRAX) -> str:
 
 
 def versus_table(merged: Merged, obs: str = "pos", protocol: str = BRAX) -> str:
-    """The state table's rows against BC-OH, per task: each method's mean − BC-OH's over seeds (in `bootstrap_unit`),
-    its 95% bootstrap CI, bold where the interval excludes 0 with ≥ 2 seeds per arm; "" if no group has BC-OH."""
+    """The state table's rows against BC-OH, per task: each method's mean − BC-OH's over seeds (in `difference_unit`),
+    its 95% Welch t-interval, bold where the interval excludes 0 with ≥ 2 seeds per arm; "" if no group has BC-OH."""
     groups = groups_of(merged, obs, protocol)
     extras = extra_methods({Key(m.env, obs, protocol): m for m in groups})
     columns = [versus_bcoh(m, extras, known_methods(merged), has_ceiling(groups)) for m in groups]
@@ -63,8 +63,8 @@ def versus_table(merged: Merged, obs: str = "pos", protocol: str = BRAX) -> str:
 def ceiling_table(merged: Merged, obs: str = "pos", protocol: str = BRAX) -> str:
     """Per task with observations `obs` under `protocol`, the share of the gap between BC-SO and BC-full (BC on the
     full state, velocities included: the ceiling) that the history recovers, (BC-OH − BC-SO) / (BC-full − BC-SO),
-    with its 95% bootstrap interval (`analysis.history_share`) and the gap in return; "" where no task ran all
-    three."""
+    with its 95% percentile bootstrap interval (`analysis.history_share`) and the gap in return; "" where no task
+    ran all three."""
     groups = groups_of(merged, obs, protocol)
     shares = [history_share(m) for m in groups]
     if not any(shares):
@@ -74,7 +74,7 @@ def ceiling_table(merged: Merged, obs: str = "pos", protocol: str = BRAX) -> str
         if share is None:
             return "—"
         gap = (best_of(method_rows(m, CEILING))["return_mean"] - best_of(method_rows(m, "bc-so"))["return_mean"]
-               if bootstrap_unit(m)[0] == "return_mean" else None)
+               if difference_unit(m)[0] == "return_mean" else None)
         return (f"{100 * share.share:.0f}% [{100 * share.low:.0f}%, {100 * share.high:.0f}%]"
                 + ("" if gap is None else f" <br>of {gap:+,.0f}"))
 
@@ -117,7 +117,7 @@ def paper_table(merged: Merged, protocol: str = BRAX) -> str:
     """Ours under `protocol` next to the supplement's Table 5 (BC-SO, BC-OH, FCA, Ours at step THR 10% W 5).
 
     Under the fca family our returns are on the paper's scale (rewards summed over the same simulated time, in
-    standard control steps), so each cell is the absolute mean return, ours ± std over seeds, with the ratio
+    standard control steps), so each cell is the absolute mean return, ours ± sd over seeds, with the ratio
     to BC-OH of the same source in brackets, and a row for the experts (the paper does not publish its expert's
     return). Under other protocols the returns are on another scale, and only the ratios to BC-OH compare.
     """
@@ -134,7 +134,8 @@ def paper_table(merged: Merged, protocol: str = BRAX) -> str:
              "ceiling": best_of(method_rows(m, CEILING))} for m in groups]
 
     def cell(row: dict | None, bcoh: dict | None) -> str:
-        spread = f" ± {row['return_std']:,.0f}" if same_scale and row is not None else ""
+        spread = f" ± {row['return_std']:,.0f}" if same_scale and row is not None and row["return_std"] is not None \
+            else ""
         return ("—" if row is None or bcoh is None else
                 f"{row['return_mean']:,.0f}{spread} ({row['return_mean'] / bcoh['return_mean']:.2f}×)")
 
@@ -156,16 +157,17 @@ def paper_table(merged: Merged, protocol: str = BRAX) -> str:
 
 # -- the sections ------------------------------------------------------------------------------------------------
 
-CAPTION = "Return mean ± std over seeds (% of expert); \"best\" rows selected on the evaluation episodes (optimistic)."
+CAPTION = "Return mean ± sd over seeds (% of expert); \"best\" rows selected on the evaluation episodes (optimistic)."
 
 
 def _state_body(merged: Merged, protocol: str) -> list[str]:
     """The state table, the rows against BC-OH, the ceiling's share and Table 5 beside ours, each with its caption."""
     body = [state_table(merged, "pos", protocol)]
     if versus := versus_table(merged, "pos", protocol):
-        body += ["Each row − BC-OH, return, 95% bootstrap interval over seeds (bold: excludes 0).", "", versus]
+        body += ["Each row − BC-OH, return, 95% Welch t-interval over seeds (bold: excludes 0).", "", versus]
     if ceiling := ceiling_table(merged, "pos", protocol):
-        body += ["The history's share of the gap to BC-full (the full state), 95% bootstrap interval.", "", ceiling]
+        body += ["The history's share of the gap to BC-full (the full state), 95% percentile bootstrap interval.", "",
+                 ceiling]
     if protocol in (FCA, BRAX):
         body += ["The supplement's Table 5 beside ours: mean return (" + (
             "the paper's scale" if in_fca_family(protocol) else "other scales: compare the ratios") + ") and its ratio "
