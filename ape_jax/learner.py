@@ -55,14 +55,11 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from ape_jax import weighting
+from ape_jax import knobs, weighting
 from ape_jax.history import history_index
-from ape_jax.models import IMAGE_ENCODERS, INITS, NORMS, StatePolicy
+from ape_jax.models import IMAGE_ENCODERS, StatePolicy
 from ape_jax.weighting import Weighting
 
-LOSSES = ("l2", "l1")
-NETWORKS = ("mlp", "bn-mlp")
-SCHEDULES = ("piecewise", "constant", "cosine")  # the learning rate over a run (`lr_schedule`)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,7 +72,7 @@ class LearnerConfig:
     iterations: int = 300_000
     batch_size: int = 128
     lr_boundaries: tuple[int, ...] = (100_000, 200_000)  # piecewise: steps at which the learning rate drops
-    lr_schedule: str = "piecewise"  # `SCHEDULES`; what `lr_schedule` builds
+    lr_schedule: str = "piecewise"  # `knobs.SCHEDULES`; what `lr_schedule` builds
     lr_decay: float = 0.1        # piecewise: the factor at each boundary
     warmup_steps: int = 0        # cosine: steps the learning rate climbs from 0 to its peak
     beta1: float = 0.9           # Adam's moment decays (the FCA code: 0.5, 0.999)
@@ -96,45 +93,31 @@ class LearnerConfig:
     augment_shift: int = 0
 
     def __post_init__(self):
-        if self.loss not in LOSSES:
-            raise ValueError(f"unknown loss {self.loss!r}; valid: {list(LOSSES)}")
+        knobs.check("LearnerConfig.", network=self.network, init=self.init, encoder=self.encoder,
+                    encoder_norm=self.encoder_norm, lr_schedule=self.lr_schedule, loss=self.loss, beta1=self.beta1,
+                    beta2=self.beta2, bn_momentum=self.bn_momentum, lr_decay=self.lr_decay,
+                    batch_size=self.batch_size, augment_shift=self.augment_shift)
         if len(self.obs_shape) not in (1, 3):
             raise ValueError(f"obs_shape must be (D,) or (height, width, channels), got {self.obs_shape}")
-        if self.encoder not in IMAGE_ENCODERS:
-            raise ValueError(f"unknown encoder {self.encoder!r}; valid: {list(IMAGE_ENCODERS)}")
         if self.encoder != "small" and not self.images:
             raise ValueError(f"encoder {self.encoder!r} is for image observations; state observations "
                              f"(obs_shape {self.obs_shape}) use the MLP StatePolicy: leave encoder='small'")
-        for name in ("action_dim", "history", "iterations", "batch_size"):
+        for name in ("action_dim", "history", "iterations"):
             if getattr(self, name) < 1:
                 raise ValueError(f"LearnerConfig.{name} must be >= 1, got {getattr(self, name)}")
-        if self.network not in NETWORKS:
-            raise ValueError(f"unknown network {self.network!r}; valid: {list(NETWORKS)}")
         if self.network != "mlp" and self.images:
             raise ValueError(f"network {self.network!r} is for state observations; image policies use "
                              f"the encoder ({list(IMAGE_ENCODERS)})")
-        if self.init not in INITS:
-            raise ValueError(f"unknown init {self.init!r}; valid: {list(INITS)}")
-        if self.lr_schedule not in SCHEDULES:
-            raise ValueError(f"unknown lr_schedule {self.lr_schedule!r}; valid: {list(SCHEDULES)}")
         if list(self.lr_boundaries) != sorted(self.lr_boundaries) or any(b < 1 for b in self.lr_boundaries):
             raise ValueError(f"lr_boundaries must be increasing steps >= 1, got {self.lr_boundaries}")
-        for name in ("beta1", "beta2"):
-            if not 0.0 <= getattr(self, name) < 1.0:
-                raise ValueError(f"LearnerConfig.{name} must be in [0, 1), got {getattr(self, name)}")
-        if not 0.0 < self.bn_momentum <= 1.0:
-            raise ValueError(f"LearnerConfig.bn_momentum must be in (0, 1], got {self.bn_momentum}")
-        if self.encoder_norm not in NORMS:
-            raise ValueError(f"unknown encoder_norm {self.encoder_norm!r}; valid: {list(NORMS)}")
-        if self.encoder_norm != "none" and (not self.images or self.encoder == "resnet18"):
+        if self.encoder_norm != "none" and not self.images:
             raise ValueError(f"encoder_norm {self.encoder_norm!r} is for the image encoders 'small' and 'patch' "
-                             f"(ResNet-18 has its own; state policies: network='bn-mlp'), got encoder "
-                             f"{self.encoder!r} on obs_shape {self.obs_shape}")
+                             f"(state policies: network='bn-mlp'), got obs_shape {self.obs_shape}")
         if self.augment_shift and not self.images:
             raise ValueError(f"augment_shift is for image observations, got {self.augment_shift} on obs_shape "
                              f"{self.obs_shape}")
         side = min(self.obs_shape[:2]) if self.images else 0
-        if not (isinstance(self.augment_shift, int) and 0 <= self.augment_shift <= side // 4):
+        if self.augment_shift > side // 4:
             raise ValueError(f"augment_shift must be an integer in [0, {side // 4}] (a quarter of the image's "
                              f"shorter side, {side}), got {self.augment_shift!r}")
 

@@ -103,6 +103,11 @@ class Protocol:
             raise ValueError(f"protocol.expert must be a variant name of lowercase letters, digits and _ "
                              f"(e.g. ppo), got {self.expert!r}")
 
+    @property
+    def family(self) -> str:
+        """The family the protocol is listed under (`FAMILIES`: `"fca"` for the paper's and its variants)."""
+        return protocol_family(self.name)
+
     def expert_name(self, env: str) -> str:
         """The shipped expert this protocol's demonstrations come from: `env`, or `env-<expert>` for a variant
         (`envs.experts.load` takes either)."""
@@ -188,12 +193,23 @@ def _palr(history: int) -> Protocol:
 FCA_FRAME_SKIPS = (1, 2, 4)
 FCA_TRAIN_SIZES = (5_000, 80_000)
 PALR_HISTORIES = (2, 4)
-PROTOCOLS: Mapping[str, Protocol] = MappingProxyType({p.name: p for p in (
-    *(_fca(k) for k in FCA_FRAME_SKIPS),
-    *(_fca(1, n) for n in FCA_TRAIN_SIZES),
-    Protocol("brax", doc="the environment's own settings: Brax's frame skip and 1,000-step episodes for MuJoCo"),
-    *(_palr(h) for h in PALR_HISTORIES),
-)})
+# The protocols by family: a family is one setting and its variants (the paper's at other frame skips and
+# training-set sizes: `fca-fs2`, ...; PALR's at other histories), which the report reads together (the copycat
+# map, Table 5 on the paper's scale). A protocol belongs to the family it is listed under, never by its name.
+FAMILIES: Mapping[str, tuple[Protocol, ...]] = MappingProxyType({
+    "fca": (*(_fca(k) for k in FCA_FRAME_SKIPS), *(_fca(1, n) for n in FCA_TRAIN_SIZES)),
+    "brax": (Protocol("brax", doc="the environment's own settings: Brax's frame skip and 1,000-step episodes for "
+                                  "MuJoCo"),),
+    "palr": tuple(_palr(h) for h in PALR_HISTORIES),
+})
+PROTOCOLS: Mapping[str, Protocol] = MappingProxyType({p.name: p for ps in FAMILIES.values() for p in ps})
+_FAMILY_OF = {p.name: family for family, ps in FAMILIES.items() for p in ps}
+
+
+def protocol_family(name: str) -> str:
+    """The family (`FAMILIES`) of the protocol named `name`; a name no family lists (a results file's from
+    elsewhere) is a family of its own."""
+    return _FAMILY_OF.get(name, name)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -156,7 +156,7 @@ def main(argv=None) -> int:
     from envs.experts import ExpertError
 
     try:
-        cfg = collect.settings(args.env, args.obs, args.episodes, args.seed, args.noise_frac, args.noise_std,
+        cfg = collect.data_key(args.env, args.obs, args.episodes, args.seed, args.noise_frac, args.noise_std,
                                args.batch, expert=args.setup.expert, labels=args.setup.labels, **args.overrides)
         references, why = _references(args)
     except ExpertError as e:

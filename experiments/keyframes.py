@@ -112,7 +112,7 @@ def main(argv=None) -> int:
 
     started = time.perf_counter()
     try:
-        cfg = collect.settings(args.env, demo_obs(args.env), args.setup.episodes, seed=0, **args.setup.env_overrides)
+        cfg = collect.data_key(args.env, demo_obs(args.env), args.setup.episodes, seed=0, **args.setup.env_overrides)
     except ExpertError as e:
         return fail(None, str(e))
     if not data.cache_path(args.data_dir, cfg).exists():

@@ -9,6 +9,7 @@ import pytest
 from experiments import _timing, collect
 
 
+@pytest.mark.integration
 def test_importing_and_making_envs_prints_nothing():
     code = "import envs; envs.make('halfcheetah', obs='pos'); envs.make('hopper')"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)

@@ -153,6 +153,7 @@ def data_dir(tmp_path_factory):
     return path
 
 
+@pytest.mark.integration
 def test_ctrl_c_mid_sweep_exits_130_with_one_line_on_resuming_and_the_resume_finishes(tmp_path, data_dir, capsys,
                                                                                        monkeypatch):
     from ape_jax.pipeline import sweep as sweep_lib

@@ -15,6 +15,8 @@ PLUGIN = '''
 import jax.numpy as jnp
 from ape_jax import methods
 
+pytestmark = pytest.mark.integration  # end-to-end sweeps: `pytest -m integration`, which CI runs
+
 @methods.weighting("action-norm")
 def action_norm(key, actions, t):
     return jnp.sum(actions ** 2, axis=-1)

@@ -151,6 +151,7 @@ def test_the_learner_acts_on_its_observation_history_as_at_evaluation(setup):
     _check_speed_updates(env, rec, own, t[1:] != 0)
 
 
+@pytest.mark.integration
 def test_train_gives_model_params_and_vmaps_over_seeds(setup, rounds):
     env, data, mean, std, learner = setup
     keys = jnp.stack([jax.random.PRNGKey(3), jax.random.PRNGKey(4)])   # seed 0 is the `rounds` fixture's

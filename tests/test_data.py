@@ -148,16 +148,16 @@ def test_image_datasets_stay_uint8_and_reject_float_frames(tmp_path):
 
 
 def test_cache_collects_once_and_keys_on_every_setting(tmp_path):
-    cfg = collect.settings("toycar", "full", episodes=2, seed=4)
+    cfg = collect.data_key("toycar", "full", episodes=2, seed=4)
     first, meta, path, cached = collect.collect_cached(cfg, tmp_path)
     assert not cached and path.parent == tmp_path and meta["settings"]["episodes"] == 2
     again, _, path2, cached2 = collect.collect_cached(cfg, tmp_path)
     assert cached2 and path2 == path
     for a, b in zip(jax.tree.leaves(first), jax.tree.leaves(again)):
         np.testing.assert_array_equal(a, b)
-    other = collect.settings("toycar", "full", episodes=2, seed=4, noise_frac=0.1, noise_std=0.2)
+    other = collect.data_key("toycar", "full", episodes=2, seed=4, noise_frac=0.1, noise_std=0.2)
     assert data_lib.cache_path(tmp_path, other) != path
-    assert data_lib.cache_path(tmp_path, collect.settings("toycar", "full", episodes=3, seed=4)) != path
+    assert data_lib.cache_path(tmp_path, collect.data_key("toycar", "full", episodes=3, seed=4)) != path
     # a rule-based expert's settings (ToyCar's physics) are part of the key, so a changed default is new data
     assert cfg["expert"]["config"]["rolling_resistance"] == envs.toycar.ToyCarConfig().rolling_resistance
     changed = json.loads(json.dumps(cfg))
@@ -173,6 +173,7 @@ def test_demonstrations_is_a_pytree_that_jit_can_index(demos):
 
 
 @pytest.mark.parametrize("obs", ["pos", "image"])
+@pytest.mark.integration
 def test_mujoco_collection_records_every_mode_and_a_reobservable_state(obs):
     env = envs.make("hopper", obs=obs, episode_length=30, image_size=16)
     expert = lambda full: jnp.tanh(full[5:8])  # noqa: E731  a stand-in: the shipped expert is tested elsewhere

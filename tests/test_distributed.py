@@ -46,6 +46,8 @@ from ape_jax.learner import LearnerConfig, make_train, stack_hparams
 from ape_jax.pipeline.checkpoint import ProgramCheckpoint
 from ape_jax.pipeline.sweep import Program, Run, train_program
 
+pytestmark = pytest.mark.integration  # end-to-end sweeps: `pytest -m integration`, which CI runs
+
 assert jax.device_count() == 4 and jax.process_count() == count, (jax.devices(), jax.process_count())
 
 

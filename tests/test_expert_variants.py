@@ -57,8 +57,8 @@ def test_the_protocols_expert_names_the_data_and_is_recorded_only_when_set(varia
     assert (own.expert_name("hopper"), ppo.expert_name("hopper")) == ("hopper", "hopper-ppo")
     assert "expert" not in own.settings(4) and ppo.settings(4)["expert"] == "ppo"   # old records stay valid
     setup = collect.protocol_setup("hopper", "pos", ppo)
-    a = collect.settings("hopper", "pos", 2, **collect.protocol_setup("hopper", "pos", own).env_overrides)
-    b = collect.settings("hopper", "pos", 2, expert=setup.expert, **setup.env_overrides)
+    a = collect.data_key("hopper", "pos", 2, **collect.protocol_setup("hopper", "pos", own).env_overrides)
+    b = collect.data_key("hopper", "pos", 2, expert=setup.expert, **setup.env_overrides)
     assert (a["expert"]["path"], b["expert"]["path"]) == ("envs/experts/hopper", "envs/experts/hopper-ppo")
     assert (collect.ExpertRef.of_key(a).variant, collect.ExpertRef.of_key(b).variant) == (None, "ppo")
 
@@ -67,7 +67,7 @@ def test_a_bad_or_missing_variant_is_refused_with_its_command(variant_root):
     with pytest.raises(ValueError, match="protocol.expert must be a variant name"):
         resolve("hopper", "pos", "fca", "quick", sets=["protocol.expert=PPO!"])
     with pytest.raises(ExpertError, match="--env hopper --algorithm sac2"):
-        collect.settings("hopper", "pos", 2, expert="sac2")
+        collect.data_key("hopper", "pos", 2, expert="sac2")
     with pytest.raises(ValueError, match="rule-based"):
-        collect.settings("toycar", "full", 2, expert="ppo")
+        collect.data_key("toycar", "full", 2, expert="ppo")
     assert tasks.get("hopper").expert == "shipped"

@@ -145,6 +145,7 @@ def test_a_damaged_checkpoint_is_refused_in_one_line_and_left_in_place(tmp_path,
 # scaled to 200 steps, and well above random.
 @pytest.mark.parametrize("name", [*envs.MUJOCO_TASKS, "hopper-ppo",   # and the variants shipped beside them
                                   *(f"{task}-rough" for task in envs.MUJOCO_TASKS)])
+@pytest.mark.integration
 def test_shipped_experts_load_and_beat_a_random_policy(name):
     card = experts.card(name)
     policy = experts.load(name)

@@ -98,6 +98,7 @@ def test_the_patch_learner_trains_in_a_scan_and_vmapped_as_the_sweep_trains_it()
     np.testing.assert_allclose(alone_metrics["loss"], loss[1], rtol=1e-4, atol=1e-6)
 
 
+@pytest.mark.integration
 def test_a_sweep_with_the_patch_encoder_trains_its_grid_vmapped_and_diagnoses_it(tmp_path, capsys):
     """`--set recipe.encoder=patch` end to end on tiny ToyCar frames, with GroupNorm and random shifts: the grid
     trains vmapped in scanned chunks (no one-at-a-time message), FCA-IB's bottleneck noise and the diagnostics'

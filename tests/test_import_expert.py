@@ -175,12 +175,13 @@ def test_import_writes_the_expert_outside_the_repository_and_the_pipeline_finds_
     np.testing.assert_allclose(jax.jit(experts.load("hopper-mine"))(obs), _cs294_action(tree, obs), rtol=1e-4,
                                atol=1e-4)
     # collection names it by its file's SHA-256, so demonstrations of another file are another dataset
-    cfg = collect.settings("hopper", "pos", 2, expert="mine")
+    cfg = collect.data_key("hopper", "pos", 2, expert="mine")
     assert cfg["expert"]["kind"] == "imported" and cfg["expert"]["sha256"] == digest
     assert collect.ExpertRef.of_key(cfg).variant == "mine" and collect.variant_of("hopper", cfg["expert"]) == "mine"
     assert "protocol.expert=mine" in capsys.readouterr().out
 
 
+@pytest.mark.integration
 def test_import_refuses_bad_input_and_writes_nothing(tmp_path, expert_dir, no_measuring, capsys):
     rng = np.random.default_rng(3)
     small = _write_pickle(tmp_path / "small.pkl", _cs294(rng, d=7))
@@ -229,8 +230,8 @@ def test_labels_are_clipped_or_raw_and_the_executed_action_is_clipped_either_way
 
 
 def test_labels_name_the_data_only_when_raw_and_the_metadata_records_them(toycar, tmp_path):
-    clipped = collect.settings("toycar", "full", 2, episode_length=40)
-    raw = collect.settings("toycar", "full", 2, labels="raw", episode_length=40)
+    clipped = collect.data_key("toycar", "full", 2, episode_length=40)
+    raw = collect.data_key("toycar", "full", 2, labels="raw", episode_length=40)
     assert "labels" not in clipped and raw["labels"] == "raw"   # the names of earlier datasets stay valid
     assert data.cache_path(tmp_path, clipped) != data.cache_path(tmp_path, raw)
     class Louder:   # the rule's action × 1.5: raw labels beyond the action range

@@ -142,7 +142,7 @@ def test_a_dataset_smaller_than_the_batch_is_refused(data):
 
 
 def test_invalid_static_settings_are_refused():
-    with pytest.raises(ValueError, match="unknown loss 'huber'"):
+    with pytest.raises(ValueError, match="LearnerConfig.loss 'huber' is not one of l2, l1"):
         LearnerConfig(obs_shape=(4,), action_dim=2, loss="huber")
     with pytest.raises(ValueError, match="history must be >= 1"):
         LearnerConfig(obs_shape=(4,), action_dim=2, history=0)
@@ -172,6 +172,7 @@ print("devices", len(sharded[0]["params"]["Head_0"]["action"]["kernel"].sharding
 """
 
 
+@pytest.mark.integration
 def test_the_grid_sharded_over_four_cpu_devices_equals_the_unsharded_run():
     import os
     import pathlib

@@ -137,6 +137,7 @@ def image_sweep(tmp_path_factory):
     return tmp, spec, res, policies
 
 
+@pytest.mark.integration
 def test_bc_full_trains_on_and_is_evaluated_with_the_full_observation(image_sweep):
     tmp, spec, res, policies = image_sweep
     assert set(policies) == {"h1", "full-h1"}
@@ -157,6 +158,7 @@ def test_bc_full_trains_on_and_is_evaluated_with_the_full_observation(image_swee
     assert res.methods["bc-full"]["role"] == "reference"
 
 
+@pytest.mark.integration
 def test_bc_full_policies_reload_and_reevaluate_to_the_same_returns(image_sweep):
     tmp, spec, res, _ = image_sweep
     saved = ckpt_lib.load_policies(tmp / "params")

@@ -43,6 +43,7 @@ def test_a_spec_fills_in_what_the_protocol_leaves_to_the_task():
         S.SweepSpec.make("hopper", "pos", ("nope",))
 
 
+@pytest.mark.integration
 def test_prepare_splits_by_episode_and_standardises_with_training_statistics(small):
     spec, prepared, *_ = small
     train, val = prepared.train.demos, prepared.val.demos
@@ -56,6 +57,7 @@ def test_prepare_splits_by_episode_and_standardises_with_training_statistics(sma
     assert prepared.task.loss == "l1" and prepared.card is None   # the sandbox: L1, a rule-based expert
 
 
+@pytest.mark.integration
 def test_plan_groups_runs_into_their_programs_with_their_history(small):
     spec, prepared, programs, *_ = small
     assert [(p.name, p.cfg.history, len(p.runs)) for p in programs] == [("bc-so", 1, 2), ("grid", 2, 2 + 2 * 2)]
@@ -65,6 +67,7 @@ def test_plan_groups_runs_into_their_programs_with_their_history(small):
     assert [r.seed for r in grid.runs] == [0, 1] * 3
 
 
+@pytest.mark.integration
 def test_fit_ape_gives_the_raw_ape_by_default_and_divides_by_its_mean_on_request(small):
     import jax.numpy as jnp
 
@@ -80,6 +83,7 @@ def test_fit_ape_gives_the_raw_ape_by_default_and_divides_by_its_mean_on_request
     assert np.isclose(mean.raw_mean, ape.raw_mean, rtol=1e-5)
 
 
+@pytest.mark.integration
 def test_the_softmax_weights_a_batch_by_b_softmax_of_the_raw_ape_over_tau(small):
     import jax.numpy as jnp
 
@@ -97,6 +101,7 @@ def test_the_softmax_weights_a_batch_by_b_softmax_of_the_raw_ape_over_tau(small)
         np.testing.assert_allclose(np.asarray(w), want, rtol=1e-4, atol=1e-6)
 
 
+@pytest.mark.integration
 def test_evaluate_and_assemble_give_one_record_per_run_in_plan_order(small):
     spec, prepared, programs, ape, trained = small
     evaluated = S.evaluate(trained, prepared, ape, spec.budget.eval_episodes, probe_steps=spec.budget.probe_steps)
@@ -129,6 +134,7 @@ def test_evaluate_and_assemble_give_one_record_per_run_in_plan_order(small):
         assert d["predictability_steps"] > 0 and d["policy_mse"] > 0
 
 
+@pytest.mark.integration
 def test_a_grid_with_one_more_method_leaves_the_shared_configurations_bit_identical(small, tmp_path):
     spec, _, _, _, trained = small
     wider = dataclasses.replace(spec, methods=("bc-so", "bc-oh", "ours-step", "ours-softmax", "kmeans"))
@@ -145,6 +151,7 @@ def test_a_grid_with_one_more_method_leaves_the_shared_configurations_bit_identi
             np.testing.assert_array_equal(x, y, err_msg=str(ident))
 
 
+@pytest.mark.integration
 def test_run_sweep_from_python_needs_only_the_task_and_defaults_the_cache(tmp_path, monkeypatch):
     """The Python API as documented: `SweepSpec.make` with a task and settings, no `data_dir` (the cache dir)."""
     monkeypatch.setenv("APE_JAX_CACHE", str(tmp_path / "cache"))
@@ -160,6 +167,7 @@ def test_run_sweep_from_python_needs_only_the_task_and_defaults_the_cache(tmp_pa
     assert res.system["jax"] == jax.__version__
 
 
+@pytest.mark.integration
 def test_policies_kept_at_eval_at_are_the_training_state_there_and_leave_training_unchanged(small, tmp_path):
     """`budget.eval_at`: a chunk stops at each point and the policies there are kept, evaluated and recorded; the
     run goes on bit-identically, and with the lr never decayed the policy at 10 iterations is a 10-iteration run's."""

@@ -123,6 +123,22 @@ def test_a_bad_set_is_refused_in_one_line_before_anything_compiles(item, message
     assert code.value.code == 2 and message in err and err.count("\n") == 1
 
 
+@pytest.mark.parametrize("field, value", [("network", "cnn"), ("init", "he"), ("encoder", "vit"),
+                                          ("encoder_norm", "batch"), ("loss", "huber"), ("lr_schedule", "linear"),
+                                          ("beta1", 1.0), ("beta2", -0.1), ("bn_momentum", 0.0), ("lr_decay", 1.5),
+                                          ("batch_size", 0), ("augment_shift", -1)])
+def test_a_knob_the_learner_takes_from_the_recipe_has_one_rule_for_both(field, value):
+    """`ape_jax.knobs`: the recipe (what a user sets) and the LearnerConfig (what a program is built from) refuse a
+    bad value by the same rule, in the same words but for the record's name."""
+    with pytest.raises(SettingsError) as recipe:
+        dataclasses.replace(RECIPES["mlp"], **{field: value})
+    shape = (32, 32, 3) if field in ("encoder", "encoder_norm", "augment_shift") else (5,)
+    with pytest.raises(ValueError) as config:
+        LearnerConfig(obs_shape=shape, action_dim=2, **{field: value})
+    assert str(recipe.value).startswith(f"recipe.{field} ")
+    assert str(config.value) == str(recipe.value).replace("recipe.", "LearnerConfig.", 1)
+
+
 @pytest.mark.parametrize("obs, history, length", [("image", 1_001, 1_000), ("pos", 2_001, 2_000)])
 def test_a_history_longer_than_an_episode_is_refused_before_anything_compiles(obs, history, length, tmp_path,
                                                                             capsys):

@@ -24,6 +24,7 @@ def hopper_frames():
     return env, run(jax.random.PRNGKey(0))
 
 
+@pytest.mark.integration
 def test_frames_are_uint8_images_rendered_in_a_vmapped_scan(hopper_frames):
     env, traj = hopper_frames
     assert traj.obs.shape == (2, 25, 48, 64, 3) and traj.obs.dtype == jnp.uint8
@@ -33,6 +34,7 @@ def test_frames_are_uint8_images_rendered_in_a_vmapped_scan(hopper_frames):
     assert len(np.unique(frame.reshape(-1, 3), axis=0)) > 5, "frame is (nearly) constant"
 
 
+@pytest.mark.integration
 def test_frames_change_when_the_body_moves(hopper_frames):
     _, traj = hopper_frames
     first, later = np.asarray(traj.obs[0, 0]), np.asarray(traj.obs[0, -1])
@@ -40,6 +42,7 @@ def test_frames_change_when_the_body_moves(hopper_frames):
     assert changed > 0.02, f"only {changed:.1%} of pixels changed after 24 steps"
 
 
+@pytest.mark.integration
 def test_floor_and_torso_have_different_colours(hopper_frames):
     env, traj = hopper_frames
     seg, rgb = np.asarray(traj.extra[0][0, 0]), np.asarray(traj.obs[0, 0])

@@ -25,7 +25,7 @@ def test_every_committed_results_file_loads_and_round_trips(path):
     assert {r["method"] for r in res.runs} <= set(res.methods)
     assert all(info["label"] for info in res.methods.values())
     if raw["schema"] == 1:
-        assert res.command is None and res.protocol == {}
+        assert res.command is None and res.protocol == {"name": "brax", "split": "episodes"}
     settings = res.records()   # schema 1/2: rebuilt from the flat config, the mlp recipe split by episode
     assert isinstance(settings, Settings) and settings.budget.iterations == raw["config"]["iterations"]
     if raw["schema"] < 3:

@@ -41,6 +41,8 @@ def save(self, *args, **kwargs):
         os.kill(os.getpid(), signal.SIGKILL)
 setattr(cls, name, save)
 from experiments import sweep
+
+pytestmark = pytest.mark.integration  # end-to-end sweeps: `pytest -m integration`, which CI runs
 sys.exit(sweep.main(sys.argv[1:]))
 """
 

@@ -41,7 +41,7 @@ def test_a_fingerprint_is_pure_data(monkeypatch):
                                             ("toycar", "image", ["protocol.image_size=8,8"])])
 def test_the_data_key_is_the_one_collection_names_datasets_by(env, obs, sets):
     spec = S.SweepSpec.make(env, obs, ("bc-oh",), sets=sets)
-    by_collection = collect.settings(env, obs, spec.episodes, expert=spec.protocol.expert,
+    by_collection = collect.data_key(env, obs, spec.episodes, expert=spec.protocol.expert,
                                      labels=spec.protocol.labels, **spec.collection_overrides())
     assert spec.data_settings() == by_collection
     assert ExpertRef.of_key(by_collection).description == spec.setup.expert.description
@@ -78,3 +78,17 @@ def test_the_expert_is_restored_once_per_sweep(monkeypatch, tmp_path):
                              sets=["protocol.episodes=2", "recipe.batch_size=8"], data_dir=tmp_path)
     S.prepare(again, S.Hooks(log=lambda m: None))   # cached demonstrations: the labeller's load only
     assert loads == ["hopper", "hopper"] and isinstance(Setup.resolve("hopper", "pos", again.protocol), Setup)
+
+
+def test_a_protocol_joins_a_family_by_being_listed_there_never_by_its_name():
+    from ape_jax import tasks
+    from ape_jax.pipeline.presets import default_recipe
+    from experiments.report.analysis import in_fca_family
+
+    assert {name: p.family for name, p in tasks.PROTOCOLS.items()} == {
+        "fca": "fca", "fca-fs2": "fca", "fca-fs4": "fca", "fca-train5k": "fca", "fca-train80k": "fca",
+        "brax": "brax", "palr-h2": "palr", "palr-h4": "palr"}
+    stranger = tasks.Protocol("fca-mine")          # named like the family, listed nowhere: a family of its own
+    assert stranger.family == "fca-mine" and not in_fca_family("fca-mine") and in_fca_family("fca-train5k")
+    assert default_recipe(stranger, "pos") == "mlp" and default_recipe(tasks.PROTOCOLS["fca-fs2"], "pos") == "fca"
+    assert default_recipe(tasks.PROTOCOLS["palr-h4"], "pos") == "palr"

@@ -28,6 +28,7 @@ def finished(tmp_path_factory):
     return out / "run", argv, printed.getvalue()
 
 
+@pytest.mark.integration
 def test_sweep_writes_results_matching_the_schema_with_every_configuration_and_seed(finished):
     out, argv, _ = finished
     r = json.loads((out / "results.json").read_text())
@@ -74,6 +75,7 @@ def test_sweep_writes_results_matching_the_schema_with_every_configuration_and_s
     assert (out / "params" / "h2").is_dir() and (out / "params" / "h1").is_dir()
 
 
+@pytest.mark.integration
 def test_each_record_carries_its_own_runs_curve(finished):
     """results.json's curve of each run is the per-iteration curve OUT/curves/ logged for that run, not another's."""
     out, _, _ = finished
@@ -92,6 +94,7 @@ def test_each_record_carries_its_own_runs_curve(finished):
         assert run["train_loss_final"] == pytest.approx(np.mean(logged[match[0]][-100:]), rel=1e-6)
 
 
+@pytest.mark.integration
 def test_the_printed_table_leads_with_the_tasks_own_metrics(finished):
     _, _, printed = finished
     header = next(line for line in printed.splitlines() if "method" in line and "hparams" in line)
@@ -101,6 +104,7 @@ def test_the_printed_table_leads_with_the_tasks_own_metrics(finished):
     assert csv_header[4:6] == ["success_mean", "success_std"] and "stuck_mean" in csv_header
 
 
+@pytest.mark.integration
 def test_every_baseline_runs_from_the_sweep_under_its_design_name(tmp_path):
     out = tmp_path / "run"
     argv = ["--env", "toycar", "--obs", "full", "--iterations", "24", "--eval-episodes", "2", "--seeds", "1",
@@ -120,6 +124,7 @@ def test_every_baseline_runs_from_the_sweep_under_its_design_name(tmp_path):
     assert (out / "params" / "h2").is_dir()
 
 
+@pytest.mark.integration
 def test_resume_reports_a_finished_sweep_without_rerunning(finished, capsys):
     out, argv, _ = finished
     assert sweep.main([*argv, "--resume"]) == 0
@@ -140,6 +145,7 @@ def test_sweep_refuses_bad_input_before_compiling(argv, message, capsys):
     assert exc.value.code == 2 and message in capsys.readouterr().err
 
 
+@pytest.mark.integration
 def test_a_diverging_configuration_is_recorded_as_failed_and_the_others_finish(tmp_path):
     out = tmp_path / "run"
     argv = ["--env", "toycar", "--obs", "full", "--iterations", "30", "--eval-episodes", "1",

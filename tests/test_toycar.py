@@ -152,6 +152,7 @@ def _drive(env, act, state, steps):
     return jax.lax.scan(step, state, None, length=steps)[1]
 
 
+@pytest.mark.integration
 def test_a_small_bc_so_trained_on_a_few_hundred_samples_stops_for_a_red_light_and_goes_on_green():
     """Behaviour, not a falling loss: BC-SO (one frame of the full state, the project's learner, ToyCar's L1 loss)
     trained on 720 expert steps stops before a red light at a place it never saw in training, never crosses it in 15 s,

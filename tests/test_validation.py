@@ -203,7 +203,7 @@ def _cached(root):
     """The cache file `collect` would load for CAR, holding a small dataset (nothing collected)."""
     from ape_jax.pipeline import collect as collect_lib
 
-    cfg = collect_lib.settings("toycar", "full", 1)
+    cfg = collect_lib.data_key("toycar", "full", 1)
     path = data_lib.cache_path(root, cfg)
     data_lib.save(path, tiny_demos(), {"settings": cfg})
     return path

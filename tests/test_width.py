@@ -77,6 +77,7 @@ TOYCAR = ("toycar", "full", ("budget.iterations=200", "budget.chunk=100", "budge
                              "budget.probe_steps=0", "budget.ape_steps=20", "recipe.batch_size=64"))
 
 
+@pytest.mark.integration
 def test_a_seed_run_from_first_seed_is_bit_identical_to_the_same_seed_of_a_longer_sweep(data_dir):
     """`budget.first_seed`: a long sweep split by seeds into files computes what one sweep of them all does."""
     n2, params2, returns2, loss2 = _bc_oh(data_dir, *NARROW, "budget.seeds=2", seed=1, task=TOYCAR)

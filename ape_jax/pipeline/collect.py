@@ -38,7 +38,8 @@ import numpy as np
 import envs
 from ape_jax import tasks
 from ape_jax.pipeline import data as data_lib
-from ape_jax.pipeline.setup import ExpertRef, data_key, variant_of
+from ape_jax.pipeline import setup as setup_lib
+from ape_jax.pipeline.setup import ExpertRef, variant_of
 from ape_jax.pipeline.setup import protocol_setup, reference_returns  # noqa: F401  (the entry points import them here)
 
 def default_episodes(env_name: str) -> int:
@@ -169,14 +170,15 @@ def _flatten(traj: envs.Trajectory, keep: int, first_episode: int) -> data_lib.D
         sim={k: rows(v) for k, v in traj.extra["sim"].items()})
 
 
-def settings(env_name: str, obs: str, episodes: int, seed: int = 0, noise_frac: float = 0.0,
+def data_key(env_name: str, obs: str, episodes: int, seed: int = 0, noise_frac: float = 0.0,
              noise_std: float = 0.0, batch: int = 32, expert: str | None = None, labels: str = "clipped",
              **env_overrides) -> dict:
     """The collection settings that name a cached dataset (`setup.data_key`) for expert variant `expert` (None:
-    the task's own); the environment's settings are checked by making it (a sweep's `Setup` builds none)."""
+    the task's own), from names: the environment's settings are checked by making it and the expert is resolved
+    (a sweep's `Setup` does both once and calls `setup.data_key` itself)."""
     env = envs.make(env_name, obs=obs, **env_overrides)
-    return data_key(env_name, obs, episodes, ExpertRef.resolve(env_name, expert, env=env), seed, noise_frac,
-                    noise_std, batch, labels, **env_overrides)
+    return setup_lib.data_key(env_name, obs, episodes, ExpertRef.resolve(env_name, expert, env=env), seed,
+                              noise_frac, noise_std, batch, labels, **env_overrides)
 
 
 def collect_cached(cfg: dict, data_dir, force: bool = False, progress=None, save: bool = True,

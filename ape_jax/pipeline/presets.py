@@ -26,10 +26,10 @@ import typing
 from typing import Any
 from collections.abc import Iterable, Mapping
 
-from ape_jax import tasks
+from ape_jax import knobs, tasks
 from ape_jax.ape import NORMALIZATIONS
-from ape_jax.learner import LOSSES, NETWORKS, SCHEDULES, LearnerConfig, lr_boundaries
-from ape_jax.models import IMAGE_ENCODERS, INITS, NORMS, StatePolicy
+from ape_jax.learner import LearnerConfig, lr_boundaries
+from ape_jax.models import StatePolicy
 from ape_jax.tasks import Protocol
 from ape_jax.pipeline.hints import SettingsError, check as _check, coerce as _coerce, describe as _describe
 from ape_jax.pipeline.hints import format_value as _format, parse as _parse
@@ -164,29 +164,17 @@ class Recipe:
     mine_steps: int = 1
 
     def __post_init__(self):
-        _one_of("recipe.network", self.network, NETWORKS)
-        _one_of("recipe.init", self.init, tuple(INITS))
-        _one_of("recipe.encoder", self.encoder, tuple(IMAGE_ENCODERS))
-        _one_of("recipe.encoder_norm", self.encoder_norm, NORMS)
-        _check(self.encoder_norm == "none" or self.encoder != "resnet18",
-               f"recipe.encoder_norm {self.encoder_norm!r} is for the encoders 'small' and 'patch' (resnet18 "
-               "normalises its own layers)")
-        _check(isinstance(self.augment_shift, int) and not isinstance(self.augment_shift, bool)
-               and self.augment_shift >= 0, f"recipe.augment_shift must be an integer >= 0, got {self.augment_shift!r}")
-        _one_of("recipe.loss", self.loss, (None, *LOSSES))
+        # the knobs a LearnerConfig takes from the recipe: one rule each (`ape_jax.knobs`), the config's too
+        knobs.check("recipe.", SettingsError, network=self.network, init=self.init, encoder=self.encoder,
+                    encoder_norm=self.encoder_norm, augment_shift=self.augment_shift, loss=self.loss,
+                    beta1=self.beta1, beta2=self.beta2, bn_momentum=self.bn_momentum, batch_size=self.batch_size,
+                    lr_schedule=self.lr_schedule, lr_decay=self.lr_decay)
         _one_of("recipe.ape_normalization", self.ape_normalization, NORMALIZATIONS)
         _check(self.lr > 0 and math.isfinite(self.lr), f"recipe.lr must be a finite number > 0, got {self.lr!r}")
         _check(self.fca_adversary_lr is None or (self.fca_adversary_lr > 0 and math.isfinite(self.fca_adversary_lr)),
                f"recipe.fca_adversary_lr must be a finite number > 0, got {self.fca_adversary_lr!r}")
-        for name in ("beta1", "beta2"):
-            _check(0.0 <= getattr(self, name) < 1.0, f"recipe.{name} must be in [0, 1), got {getattr(self, name)!r}")
-        _check(0.0 < self.bn_momentum <= 1.0, f"recipe.bn_momentum must be in (0, 1], got {self.bn_momentum!r}")
-        _check(isinstance(self.batch_size, int) and self.batch_size >= 1,
-               f"recipe.batch_size must be an integer >= 1, got {self.batch_size!r}")
         _check(all(0.0 < f < 1.0 for f in self.lr_decay_at) and list(self.lr_decay_at) == sorted(set(self.lr_decay_at)),
                f"recipe.lr_decay_at must be increasing fractions in (0, 1), got {self.lr_decay_at!r}")
-        _one_of("recipe.lr_schedule", self.lr_schedule, SCHEDULES)
-        _check(0.0 < self.lr_decay <= 1.0, f"recipe.lr_decay must be in (0, 1], got {self.lr_decay!r}")
         _check(0.0 <= self.warmup < 1.0, f"recipe.warmup must be a fraction in [0, 1), got {self.warmup!r}")
         _check(self.warmup == 0.0 or self.lr_schedule == "cosine",
                f"recipe.warmup is the cosine schedule's (--set recipe.lr_schedule=cosine), got lr_schedule "
@@ -294,9 +282,9 @@ class Settings:
 def default_recipe(protocol: Protocol, obs: str) -> str:
     """The recipe a sweep uses unless told: the FCA code's under the fca protocols for states, PALR's code's under
     the palr protocols, else `mlp`."""
-    if protocol.name.startswith("palr"):
+    if protocol.family == "palr":
         return "palr"
-    return "fca" if protocol.name.startswith("fca") and obs != "image" else "mlp"
+    return "fca" if protocol.family == "fca" and obs != "image" else "mlp"
 
 
 def smoke_overrides(values: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:

@@ -30,7 +30,8 @@ the summary, a file holds:
 
 A file of an older schema is upgraded on load: `settings` is rebuilt from its flat `config`
 (recipe `mlp`, a split by episode, which is what such sweeps ran), and a schema 1 file's
-`methods` come from the registry (or the name), its `command` and `protocol` empty. Anything
+`methods` come from the registry (or the name), its `command` empty and its `protocol` `brax` (the only
+one before protocols were recorded). Anything
 else that is not a complete, well-typed results file is refused with a one-line `ResultsError`
 naming the file and the field.
 """
@@ -81,11 +82,14 @@ class Results:
     reevaluated: dict | None = None
     replaces: dict | None = None
     schema: int = SCHEMA
+    # the schema the file was written in, before `from_json` upgraded it (None: made in memory); never written
+    written_schema: int | None = None
 
     # -- reading --------------------------------------------------------------------------------------------------
     @classmethod
     def from_json(cls, obj: Any, where: str = "results") -> Results:
-        """Validates `obj` (a parsed results.json) and returns it, schema 1 upgraded to 2."""
+        """Validates `obj` (a parsed results.json) and returns it, an older schema upgraded to `SCHEMA` (the one it
+        was written in kept as `written_schema`)."""
         if not isinstance(obj, dict):
             raise ResultsError(f"{where}: not a sweep results file (a JSON object is expected)")
         missing = [k for k in _REQUIRED if k not in obj]
@@ -96,8 +100,9 @@ class Results:
                                f"{', '.join(map(str, READS))}")
         validate(obj, where)
         obj = json.loads(json.dumps(obj))  # a copy: the caller's object is left as it was
-        if obj["schema"] == 1:
-            obj.update(command=None, protocol={}, methods={})
+        obj["written_schema"] = obj["schema"]
+        if obj["schema"] == 1:  # before protocols: Brax's own frame skip and episodes, the protocol `brax`
+            obj.update(command=None, protocol={"name": "brax"}, methods={})
         if obj["schema"] < 3:
             obj.update(schema=SCHEMA, settings=legacy_settings(obj))
             if obj["protocol"]:

@@ -175,8 +175,12 @@ def budget_of(res: results_lib.Results) -> int | None:
 
 
 def in_fca_family(name: str) -> bool:
-    """Whether protocol `name` is the paper's setting or a variant of it at another frame skip (`fca-...`)."""
-    return name == FCA or name.startswith(FCA + "-")
+    """Whether group `name` (`Key.protocol`, a protocol's name or a variant's, `variant_name`) reads with the paper's
+    protocol family: `fca` itself, or any group of another member of `ape_jax.tasks.FAMILIES["fca"]` (other frame
+    skips, other training-set sizes), whatever its split or recipe. The paper's own protocol under another split or
+    recipe (`fca.rows.fca`) is a group of its own, which the recipe section compares."""
+    base = name.split(".", 1)[0]
+    return name == FCA or (base != FCA and tasks.protocol_family(base) == FCA)
 
 
 def protocol_of(res: results_lib.Results, where: str = "") -> dict:

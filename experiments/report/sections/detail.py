@@ -112,7 +112,7 @@ def choices_table(m: Group) -> str:
 
 def _protocol_provenance(r: results_lib.Results) -> str:
     """The protocol a results file ran under, as its provenance line says it."""
-    if not r.protocol:
+    if r.written_schema == 1:
         return f"protocol {BRAX} (not recorded: results schema 1 predates protocols; Brax's own settings)"
     p = r.protocol
     skip, own = p.get("frame_skip"), p.get("standard_frame_skip")
@@ -135,7 +135,7 @@ def _rebuilt_command(r: results_lib.Results) -> str:
     cfg = r.config
     methods = [] if cfg.get("methods") == list(methods_lib.default()) else ["--methods", ",".join(cfg["methods"])]
     dataset = ((cfg.get("data") or {}).get("settings") or {}).get("dataset")
-    if r.protocol and former_preset(r) is None:  # run from Python: every setting it records, as today's arguments
+    if r.written_schema != 1 and former_preset(r) is None:  # run from Python: every setting, as today's arguments
         try:
             records = dataclasses.replace(r.records(), smoke=bool(cfg.get("smoke")))
             args = presets.arguments(r.env, r.obs, records)
@@ -186,7 +186,7 @@ def provenance(r: results_lib.Results) -> str:
     cfg = r.config
     if r.command is not None:
         cmd = f"`{shlex.join(portable(r.command))}`"
-    elif not r.protocol:
+    elif r.written_schema == 1:
         cmd = (f"`{_rebuilt_command(r)}` (rebuilt from its settings: the file predates results schema 2, its seeds "
                "position-based)")
     else:
