@@ -10,12 +10,13 @@ import pytest
 
 from experiments import compare
 
+pytestmark = pytest.mark.integration  # end-to-end sweeps: `pytest -m integration`, which CI runs
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 PLUGIN = '''
 import jax.numpy as jnp
 from ape_jax import methods
 
-pytestmark = pytest.mark.integration  # end-to-end sweeps: `pytest -m integration`, which CI runs
 
 @methods.weighting("action-norm")
 def action_norm(key, actions, t):

@@ -26,6 +26,8 @@ from _compare import UPDATE_RTOL, update_mismatch
 from experiments import sweep
 from test_learner import LOSS_RTOL
 
+pytestmark = pytest.mark.integration  # end-to-end sweeps: `pytest -m integration`, which CI runs
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
 # Trains a 6-configuration grid through the sweep's `train_program` (padded to 8 rows over 4 devices), then
@@ -46,7 +48,6 @@ from ape_jax.learner import LearnerConfig, make_train, stack_hparams
 from ape_jax.pipeline.checkpoint import ProgramCheckpoint
 from ape_jax.pipeline.sweep import Program, Run, train_program
 
-pytestmark = pytest.mark.integration  # end-to-end sweeps: `pytest -m integration`, which CI runs
 
 assert jax.device_count() == 4 and jax.process_count() == count, (jax.devices(), jax.process_count())
 

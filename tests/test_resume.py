@@ -20,6 +20,8 @@ import pytest
 
 from experiments import sweep
 
+pytestmark = pytest.mark.integration  # end-to-end sweeps: `pytest -m integration`, which CI runs
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 ARGS = ["--env", "toycar", "--obs", "full", "--iterations", "60", "--checkpoint-every", "20", "--eval-episodes", "2",
         "--seeds", "1", "--methods", "bc-oh,ours-step", "--quiet", "--set", "budget.eval_at=30",
@@ -42,7 +44,6 @@ def save(self, *args, **kwargs):
 setattr(cls, name, save)
 from experiments import sweep
 
-pytestmark = pytest.mark.integration  # end-to-end sweeps: `pytest -m integration`, which CI runs
 sys.exit(sweep.main(sys.argv[1:]))
 """
 
