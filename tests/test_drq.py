@@ -215,3 +215,30 @@ def test_a_shipped_results_file_without_dtype_loads_as_float32():
     # its fingerprint against the same sweep's today (every recipe field written): no difference
     today = {**res.fingerprint(), "settings": settings.to_json()}
     assert "dtype" in today["settings"]["recipe"] and checkpoint.differences(res.fingerprint(), today) == []
+
+
+# -- experiments.bench_images ---------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("args, message", [
+    (["--dtype", "float16"], "--dtype: unknown ['float16']; valid: float32, bfloat16"),
+    (["--encoders", "patch@64,drq@12"], "--encoders: drq@12 at 12x12: smaller than the encoder takes (drq: 15)"),
+    (["--encoders", "drq@big"], "--encoders: a size after @ must be an integer"),
+    (["--chunk", "0"], "must be >= 1"),
+])
+def test_bench_images_refuses_bad_input_before_timing(capsys, args, message):
+    from experiments import bench_images
+
+    with pytest.raises(SystemExit) as code:
+        bench_images.main(args)
+    err = capsys.readouterr().err
+    assert code.value.code == 2 and message in err and err.strip().count("\n") == 0, err
+
+
+def test_bench_images_refuses_bfloat16_where_the_backend_has_none(monkeypatch, capsys):
+    from experiments import bench_images
+
+    monkeypatch.setattr(models, "bf16_problem", lambda: "the METAL backend has no bfloat16 arithmetic")
+    with pytest.raises(SystemExit) as code:
+        bench_images.main(["--dtype", "float32,bfloat16", "--no-eval"])
+    err = capsys.readouterr().err
+    assert code.value.code == 2 and "--dtype bfloat16: the METAL backend has no bfloat16 arithmetic" in err
