@@ -12,7 +12,7 @@ import math
 from typing import Any
 from collections.abc import Callable
 
-from ape_jax.models import IMAGE_ENCODERS, INITS, NORMS
+from ape_jax.models import DTYPES, IMAGE_ENCODERS, INITS, NORMS
 
 LOSSES = ("l2", "l1")
 NETWORKS = ("mlp", "bn-mlp")
@@ -51,6 +51,7 @@ RULES: dict[str, Callable[[Any], str | None]] = {
     "lr_decay": _fraction(True, False),
     "batch_size": _integer(1),
     "augment_shift": _integer(0),
+    "dtype": _one_of(DTYPES),
 }
 
 

@@ -55,7 +55,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
-from ape_jax import knobs, weighting
+from ape_jax import knobs, models, weighting
 from ape_jax.history import history_index
 from ape_jax.models import IMAGE_ENCODERS, StatePolicy
 from ape_jax.weighting import Weighting
@@ -83,20 +83,25 @@ class LearnerConfig:
     loss: str = "l2"
     unroll: bool = False         # unroll `run`'s scan: XLA:CPU runs convolutions in loop bodies ~50x slower
     # Image encoder: "small" (`ImagePolicy`, 3 convs, CPU-sized), "patch" (`PatchPolicy`, one 8×8 patch
-    # embedding: ~5× faster on a CPU) or "resnet18" (`ResNet18Policy`, the supplement's MuJoCo-Image
-    # network, ~11M parameters: for GPUs). State observations always use
-    # `StatePolicy`; they accept only "small", so a config never records an encoder it did not use.
+    # embedding: ~5× faster on a CPU), "drq" (`DrQPolicy`, DrQ's four 3×3 convs, 84×84) or "resnet18"
+    # (`ResNet18Policy`, the supplement's MuJoCo-Image network, ~11M parameters: for GPUs). State observations
+    # always use `StatePolicy`; they accept only "small", so a config never records an encoder it did not use.
     encoder: str = "small"
-    # Image encoders "small" and "patch": "group" puts GroupNorm after each encoder layer (`models.encoder_norm`)
+    # Image encoders "small", "patch" and "drq": "group" puts GroupNorm after each encoder layer (`models.encoder_norm`)
     encoder_norm: str = "none"
     # Images: each training sample's frames shifted by one random offset of up to this many pixels (`augment`)
     augment_shift: int = 0
+    # The policy's arithmetic (`models.DTYPES`): "bfloat16" computes every layer in bfloat16 with float32
+    # parameters, optimiser state and loss (mixed precision); refused on a backend without it (`bf16_problem`)
+    dtype: str = "float32"
 
     def __post_init__(self):
         knobs.check("LearnerConfig.", network=self.network, init=self.init, encoder=self.encoder,
                     encoder_norm=self.encoder_norm, lr_schedule=self.lr_schedule, loss=self.loss, beta1=self.beta1,
                     beta2=self.beta2, bn_momentum=self.bn_momentum, lr_decay=self.lr_decay,
-                    batch_size=self.batch_size, augment_shift=self.augment_shift)
+                    batch_size=self.batch_size, augment_shift=self.augment_shift, dtype=self.dtype)
+        if self.dtype == "bfloat16" and (problem := models.bf16_problem()):
+            raise ValueError(f"LearnerConfig.dtype 'bfloat16': {problem}")
         if len(self.obs_shape) not in (1, 3):
             raise ValueError(f"obs_shape must be (D,) or (height, width, channels), got {self.obs_shape}")
         if self.encoder != "small" and not self.images:
@@ -105,13 +110,17 @@ class LearnerConfig:
         for name in ("action_dim", "history", "iterations"):
             if getattr(self, name) < 1:
                 raise ValueError(f"LearnerConfig.{name} must be >= 1, got {getattr(self, name)}")
+        least = IMAGE_ENCODERS[self.encoder].min_side if self.images else 1
+        if self.images and min(self.obs_shape[:2]) < least:
+            raise ValueError(f"encoder {self.encoder!r} takes images of at least {least}×{least} pixels, got "
+                             f"{self.obs_shape[0]}×{self.obs_shape[1]}")
         if self.network != "mlp" and self.images:
             raise ValueError(f"network {self.network!r} is for state observations; image policies use "
                              f"the encoder ({list(IMAGE_ENCODERS)})")
         if list(self.lr_boundaries) != sorted(self.lr_boundaries) or any(b < 1 for b in self.lr_boundaries):
             raise ValueError(f"lr_boundaries must be increasing steps >= 1, got {self.lr_boundaries}")
         if self.encoder_norm != "none" and not self.images:
-            raise ValueError(f"encoder_norm {self.encoder_norm!r} is for the image encoders 'small' and 'patch' "
+            raise ValueError(f"encoder_norm {self.encoder_norm!r} is for the image encoders 'small', 'patch' and 'drq' "
                              f"(state policies: network='bn-mlp'), got obs_shape {self.obs_shape}")
         if self.augment_shift and not self.images:
             raise ValueError(f"augment_shift is for image observations, got {self.augment_shift} on obs_shape "
@@ -128,9 +137,9 @@ class LearnerConfig:
     def model(self) -> nn.Module:
         if self.images:
             norm = {} if self.encoder == "resnet18" else {"norm": self.encoder_norm}
-            return IMAGE_ENCODERS[self.encoder](self.action_dim, **norm)
+            return IMAGE_ENCODERS[self.encoder](self.action_dim, dtype=self.dtype, **norm)
         return StatePolicy(self.action_dim, batchnorm=self.network == "bn-mlp", weights_init=self.init,
-                           bn_momentum=self.bn_momentum)
+                           bn_momentum=self.bn_momentum, dtype=self.dtype)
 
     def optimizer(self) -> optax.GradientTransformation:
         """Adam's moment estimates; the learning rate is applied by hand (`adam_step`), so it can be traced."""

@@ -15,13 +15,20 @@
   with kernel = stride = 8, computed as a matrix product) to the same head; ~5×
   the small encoder's training speed on XLA:CPU, fit for `lax.scan` and `vmap`.
 
+- `DrQPolicy` — the field's pixel encoder (DrQ / DrQ-v2): four 3×3 convolutions of 32
+  channels, the first of stride 2, ReLU, on 84×84 frames, to the same head; its
+  convolutions are matrix products over 3×3 windows (im2col), fit for `lax.scan`.
+
 - `ResNet18Policy` — for images on a GPU: the supplement's MuJoCo-Image
   network, "ResNet-18 with a two-layer 300-unit MLP head" (details and our
   readings in its docstring). Same input as `ImagePolicy`.
 
 All take `return_embedding=True` to return `(action, embedding)`, the
 embedding being the Head's 100-unit `embedding` layer (for FCA's adversary);
-the parameters are the same either way.
+the parameters are the same either way. All take `dtype` (`DTYPES`): the dtype of
+their arithmetic; `"bfloat16"` is mixed precision — parameters stay float32 (Flax's
+`param_dtype`), each layer computes in bfloat16, and the action and embedding come
+back as float32, so the loss and the optimiser see float32 as with `"float32"`.
 """
 
 from __future__ import annotations
@@ -42,6 +49,39 @@ def _lrelu(x: jax.Array) -> jax.Array:
 INITS = {"lecun": nn.initializers.lecun_normal(), "xavier": nn.initializers.xavier_uniform()}
 
 
+# the policies' arithmetic (`LearnerConfig.dtype`, `recipe.dtype`): parameters and optimiser state stay float32
+DTYPES = ("float32", "bfloat16")
+
+
+def bf16_problem() -> str | None:
+    """Why this process's default backend cannot train in bfloat16, or None when it can.
+
+    XLA compiles bfloat16 on every backend, so "has no bfloat16" means has no bfloat16 *arithmetic*: a GPU
+    before compute capability 8.0 (Ampere) emulates it in float32, slower than float32 itself. XLA:CPU also
+    computes bfloat16 by widening, but a CPU is where the tests and the smoke runs check that the knob gives
+    float32's results, so it is accepted (`experiments.bench_images` measures its speed there). Other platforms
+    (a plugin without bfloat16 kernels) are refused.
+    """
+    device = jax.devices()[0]
+    if device.platform in ("cpu", "tpu"):
+        return None
+    if device.platform == "gpu":
+        capability = getattr(device, "compute_capability", None)
+        try:
+            if capability is not None and float(capability) >= 8.0:
+                return None
+        except (TypeError, ValueError):
+            pass
+        return (f"the GPU {device.device_kind} (compute capability {capability}) has no bfloat16 arithmetic "
+                f"(Ampere, 8.0, or later)")
+    return f"the {device.platform} backend has no bfloat16 arithmetic"
+
+
+def _out(x: jax.Array) -> jax.Array:
+    """A policy's outputs (action, embedding) as float32, whatever its arithmetic's dtype."""
+    return x.astype(jnp.float32)
+
+
 def _bn_scale_init(key: jax.Array, shape, dtype=jnp.float32) -> jax.Array:
     """BatchNorm's scale ~ N(1, 0.02), as the FCA code (and DCGAN) initialise it."""
     return 1.0 + 0.02 * jax.random.normal(key, shape, dtype)
@@ -55,18 +95,20 @@ class Head(nn.Module):
     hidden: int = 300
     weights_init: str = "lecun"
     activate_embedding: bool = False
+    dtype: str = "float32"
 
     @nn.compact
     def __call__(self, features: jax.Array, return_embedding: bool = False,
                  embedding_noise: jax.Array | None = None) -> jax.Array | tuple[jax.Array, jax.Array]:
         """`embedding_noise` (`[..., embed]`, FCA-IB's bottleneck sample) is added to the embedding before the
-        head reads it; the embedding returned is the layer's output without it."""
-        dense = lambda n, name: nn.Dense(n, kernel_init=INITS[self.weights_init], name=name)  # noqa: E731
+        head reads it; the embedding returned is the layer's output without it. Both outputs float32."""
+        dense = lambda n, name: nn.Dense(n, kernel_init=INITS[self.weights_init], dtype=self.dtype,  # noqa: E731
+                                         name=name)
         z = dense(self.embed, "embedding")(features)
-        h = z if embedding_noise is None else z + embedding_noise
+        h = z if embedding_noise is None else z + embedding_noise.astype(z.dtype)
         h = _lrelu(h) if self.activate_embedding else h
-        action = dense(self.action_dim, "action")(_lrelu(dense(self.hidden, "head")(h)))
-        return (action, z) if return_embedding else action
+        action = _out(dense(self.action_dim, "action")(_lrelu(dense(self.hidden, "head")(h))))
+        return (action, _out(z)) if return_embedding else action
 
 
 class StatePolicy(nn.Module):
@@ -83,6 +125,7 @@ class StatePolicy(nn.Module):
     batchnorm: bool = False
     weights_init: str = "lecun"
     bn_momentum: float = 0.1
+    dtype: str = "float32"
 
     @nn.compact
     def __call__(self, obs: jax.Array, return_embedding: bool = False, train: bool = False,
@@ -90,30 +133,30 @@ class StatePolicy(nn.Module):
         lead = obs.shape[:-1]
         x = obs.reshape((-1, obs.shape[-1])) if self.batchnorm else obs
         for i, width in enumerate(self.hidden):
-            x = nn.Dense(width, use_bias=not self.batchnorm, kernel_init=INITS[self.weights_init],
+            x = nn.Dense(width, use_bias=not self.batchnorm, kernel_init=INITS[self.weights_init], dtype=self.dtype,
                          name=f"encoder_{i}")(x)
             if self.batchnorm:
                 # Flax's momentum is the old statistics' share: PyTorch's 0.1 is Flax's 0.9
                 x = nn.BatchNorm(use_running_average=not train, momentum=1.0 - self.bn_momentum, epsilon=1e-5,
-                                 scale_init=_bn_scale_init, name=f"norm_{i}")(x)
+                                 scale_init=_bn_scale_init, dtype=self.dtype, name=f"norm_{i}")(x)
             x = _lrelu(x)
         if self.batchnorm:
             x = x.reshape(lead + x.shape[-1:])
-        return Head(self.action_dim, weights_init=self.weights_init, activate_embedding=self.batchnorm)(
-            x, return_embedding, embedding_noise)
+        return Head(self.action_dim, weights_init=self.weights_init, activate_embedding=self.batchnorm,
+                    dtype=self.dtype)(x, return_embedding, embedding_noise)
 
 
 NORMS = ("none", "group")  # the CPU image encoders' normalisation after each layer (`encoder_norm`)
 GROUPS = 8  # GroupNorm's groups (channels per group: 4 of 32, 8 of 64)
 
 
-def encoder_norm(kind: str, name: str):
+def encoder_norm(kind: str, name: str, dtype: str = "float32"):
     """The layer `kind` (`NORMS`) puts after an image encoder's layer, before its activation: GroupNorm over
     `GROUPS` groups of channels (per sample: the same in training and evaluation, in a scan or a vmap), or
-    nothing."""
+    nothing. Its statistics are computed in float32 whatever `dtype` (Flax's norms do so)."""
     if kind == "group":
         # statistics over each sample's [height, width, channels] alone, whatever leading dims it has
-        return nn.GroupNorm(num_groups=GROUPS, epsilon=1e-5, reduction_axes=(-3, -2, -1), name=name)
+        return nn.GroupNorm(num_groups=GROUPS, epsilon=1e-5, reduction_axes=(-3, -2, -1), dtype=dtype, name=name)
     return lambda x: x
 
 
@@ -125,6 +168,8 @@ class ImagePolicy(nn.Module):
     action_dim: int
     channels: Sequence[int] = (32, 64, 64)
     norm: str = "none"
+    dtype: str = "float32"
+    min_side: ClassVar[int] = 1  # the smallest image side it takes (`SAME` padding: any)
     # XLA:CPU runs these convolutions' gradients ~50x slower inside a loop and ~2x slower per model under vmap
     # (`ape_jax.pipeline.training.CPU_IMAGE_CHUNK`): on a CPU the sweep trains it unrolled, one model at a time
     loop_friendly: ClassVar[bool] = False
@@ -132,11 +177,12 @@ class ImagePolicy(nn.Module):
     @nn.compact
     def __call__(self, frames: jax.Array, return_embedding: bool = False,
                  embedding_noise: jax.Array | None = None) -> jax.Array | tuple[jax.Array, jax.Array]:
-        x = frames
+        x = frames.astype(self.dtype)
         for i, c in enumerate(self.channels):
-            x = nn.Conv(c, (5, 5) if i == 0 else (3, 3), strides=2, name=f"conv_{i}")(x)
-            x = _lrelu(encoder_norm(self.norm, f"norm_{i}")(x))
-        return Head(self.action_dim)(x.reshape(x.shape[:-3] + (-1,)), return_embedding, embedding_noise)
+            x = nn.Conv(c, (5, 5) if i == 0 else (3, 3), strides=2, dtype=self.dtype, name=f"conv_{i}")(x)
+            x = _lrelu(encoder_norm(self.norm, f"norm_{i}", self.dtype)(x))
+        return Head(self.action_dim, dtype=self.dtype)(x.reshape(x.shape[:-3] + (-1,)), return_embedding,
+                                                       embedding_noise)
 
 
 class PatchPolicy(nn.Module):
@@ -169,17 +215,20 @@ class PatchPolicy(nn.Module):
     patches: Sequence[int] = (8,)
     channels: Sequence[int] = (64,)
     norm: str = "none"
+    dtype: str = "float32"
+    min_side: ClassVar[int] = 1  # a side that a patch does not divide is padded
     # trains as fast inside `lax.scan` and under `vmap` as outside them on XLA:CPU (matrix products only)
     loop_friendly: ClassVar[bool] = True
 
     @nn.compact
     def __call__(self, frames: jax.Array, return_embedding: bool = False,
                  embedding_noise: jax.Array | None = None) -> jax.Array | tuple[jax.Array, jax.Array]:
-        x = frames
+        x = frames.astype(self.dtype)
         for i, (p, c) in enumerate(zip(self.patches, self.channels, strict=True)):
-            x = nn.Dense(c, name=f"patch_{i}")(patchify(x, p))
-            x = _lrelu(encoder_norm(self.norm, f"norm_{i}")(x))
-        return Head(self.action_dim)(x.reshape(x.shape[:-3] + (-1,)), return_embedding, embedding_noise)
+            x = nn.Dense(c, dtype=self.dtype, name=f"patch_{i}")(patchify(x, p))
+            x = _lrelu(encoder_norm(self.norm, f"norm_{i}", self.dtype)(x))
+        return Head(self.action_dim, dtype=self.dtype)(x.reshape(x.shape[:-3] + (-1,)), return_embedding,
+                                                       embedding_noise)
 
 
 def patchify(x: jax.Array, patch: int) -> jax.Array:
@@ -199,13 +248,94 @@ def patchify(x: jax.Array, patch: int) -> jax.Array:
     return x.reshape(*lead, h // patch, w // patch, patch * patch * c)
 
 
+def windows3x3(x: jax.Array, stride: int) -> jax.Array:
+    """`[..., h, w, C]` -> `[..., h', w', 9·C]`: every 3×3 window of a `VALID` convolution of `stride`, flattened.
+
+    `h' = ⌊(h − 3) / stride⌋ + 1` (likewise `w'`). Each window's values are in `(row, column, channel)` order, so
+    a matrix product with a `[3, 3, C, C']` kernel reshaped to `[9·C, C']` is that convolution (im2col). Built from
+    nine strided slices: its gradient is padding and adding, no convolution.
+    """
+    h, w = x.shape[-3], x.shape[-2]
+    ho, wo = (h - 3) // stride + 1, (w - 3) // stride + 1
+    cols = [x[..., i:i + stride * (ho - 1) + 1:stride, j:j + stride * (wo - 1) + 1:stride, :]
+            for i in range(3) for j in range(3)]
+    return jnp.concatenate(cols, axis=-1)
+
+
+class Conv3x3(nn.Module):
+    """A 3×3 `VALID` convolution `[..., h, w, C]` -> `[..., h', w', features]`, with bias.
+
+    `matmul=True` computes it as a matrix product over `windows3x3` (im2col); `False` as XLA's convolution
+    (`lax.conv_general_dilated`). The parameters (`kernel [3, 3, C, features]`, `bias [features]`) and the
+    result are the same; the speed is not (`DrQPolicy`). Kernels orthogonal with ReLU's gain √2, as DrQ-v2
+    initialises its convolutions; biases zero.
+    """
+
+    features: int
+    stride: int = 1
+    matmul: bool = True
+    dtype: str = "float32"
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        kernel = self.param("kernel", nn.initializers.orthogonal(2.0 ** 0.5), (3, 3, x.shape[-1], self.features))
+        bias = self.param("bias", nn.initializers.zeros_init(), (self.features,))
+        x, kernel, bias = (a.astype(self.dtype) for a in (x, kernel, bias))
+        if self.matmul:
+            return windows3x3(x, self.stride) @ kernel.reshape(-1, self.features) + bias
+        lead = x.shape[:-3]
+        y = jax.lax.conv_general_dilated(x.reshape((-1,) + x.shape[-3:]), kernel, (self.stride, self.stride),
+                                         "VALID", dimension_numbers=("NHWC", "HWIO", "NHWC"))
+        return y.reshape(lead + y.shape[-3:]) + bias
+
+
+class DrQPolicy(nn.Module):
+    """`[..., height, width, 3 * H]` stacked frames in [0, 1] -> `[..., A]` action, through DrQ's encoder.
+
+    The pixel encoder of image-based continuous control since DrQ (Kostrikov, Yarats and Fergus, 2020) and
+    DrQ-v2 (Yarats et al., 2021), written from the papers' description: the frames centred (`x − 0.5`), four 3×3
+    convolutions of 32 channels without padding, the first of stride 2, each followed by ReLU; the `[h', w', 32]`
+    map flattened into the project's `Head` (DrQ-v2's own 50-unit LayerNorm-tanh trunk is the actor's, which
+    here is the `Head`'s 100-unit embedding). At 84×84 the map is 35×35×32 (39,200 features), so the `Head`'s
+    first matrix holds 3.9M of the policy's 4.0M parameters; the history's frames are stacked on channels
+    (DrQ's frame stacking). Random shift (DrQ's ±4 pixels at 84×84) is the recipe's `augment_shift`.
+
+    The smallest side it takes is `min_side` = 15: the three unstrided convolutions need a 7×7 map, which the
+    strided one gives from `2·(7 − 1) + 3` pixels.
+
+    Why im2col (`Conv3x3`, `matmul=True`): XLA:CPU runs convolution gradients inside `lax.scan` tens of times
+    slower than outside it (`ImagePolicy`); as matrix products the encoder trains as fast in a scan and under
+    `vmap` (`loop_friendly`), so the sweep trains its grid like the patch encoder's. `matmul=False` is XLA's
+    convolution, the same function (a test checks it). `norm="group"`: GroupNorm after each convolution.
+    """
+
+    action_dim: int
+    channels: int = 32
+    layers: int = 4
+    norm: str = "none"
+    dtype: str = "float32"
+    matmul: bool = True
+    loop_friendly: ClassVar[bool] = True  # matrix products only (`matmul=True`)
+    min_side: ClassVar[int] = 2 * (2 * (4 - 1)) + 3  # 15: `layers` − 1 unstrided 3×3 convs need 2·3 + 1 pixels
+
+    @nn.compact
+    def __call__(self, frames: jax.Array, return_embedding: bool = False,
+                 embedding_noise: jax.Array | None = None) -> jax.Array | tuple[jax.Array, jax.Array]:
+        x = frames.astype(self.dtype) - 0.5
+        for i in range(self.layers):
+            x = Conv3x3(self.channels, 2 if i == 0 else 1, self.matmul, self.dtype, name=f"conv_{i}")(x)
+            x = nn.relu(encoder_norm(self.norm, f"norm_{i}", self.dtype)(x))
+        return Head(self.action_dim, dtype=self.dtype)(x.reshape(x.shape[:-3] + (-1,)), return_embedding,
+                                                       embedding_noise)
+
+
 # He (Kaiming) normal init, fan-out, as is usual for ReLU ResNets; the convolutions
 # have no bias since a normalisation with its own bias follows each of them.
 _conv_init = nn.initializers.variance_scaling(2.0, "fan_out", "normal")
 
 
-def _group_norm(channels: int, name: str) -> nn.GroupNorm:
-    return nn.GroupNorm(num_groups=min(32, channels), epsilon=1e-5, name=name)
+def _group_norm(channels: int, name: str, dtype: str) -> nn.GroupNorm:
+    return nn.GroupNorm(num_groups=min(32, channels), epsilon=1e-5, dtype=dtype, name=name)
 
 
 class BasicBlock(nn.Module):
@@ -217,19 +347,20 @@ class BasicBlock(nn.Module):
 
     channels: int
     strides: int = 1
+    dtype: str = "float32"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         y = nn.Conv(self.channels, (3, 3), self.strides, padding=((1, 1), (1, 1)), use_bias=False,
-                    kernel_init=_conv_init, name="conv_0")(x)
-        y = nn.relu(_group_norm(self.channels, "norm_0")(y))
+                    kernel_init=_conv_init, dtype=self.dtype, name="conv_0")(x)
+        y = nn.relu(_group_norm(self.channels, "norm_0", self.dtype)(y))
         y = nn.Conv(self.channels, (3, 3), padding=((1, 1), (1, 1)), use_bias=False,
-                    kernel_init=_conv_init, name="conv_1")(y)
-        y = _group_norm(self.channels, "norm_1")(y)
+                    kernel_init=_conv_init, dtype=self.dtype, name="conv_1")(y)
+        y = _group_norm(self.channels, "norm_1", self.dtype)(y)
         if self.strides != 1 or x.shape[-1] != self.channels:
             x = nn.Conv(self.channels, (1, 1), self.strides, padding="VALID", use_bias=False,
-                        kernel_init=_conv_init, name="shortcut_conv")(x)
-            x = _group_norm(self.channels, "shortcut_norm")(x)
+                        kernel_init=_conv_init, dtype=self.dtype, name="shortcut_conv")(x)
+            x = _group_norm(self.channels, "shortcut_norm", self.dtype)(x)
         return nn.relu(x + y)
 
 
@@ -245,16 +376,18 @@ class ResNet18Encoder(nn.Module):
 
     stage_channels: Sequence[int] = (64, 128, 256, 512)
     blocks_per_stage: int = 2
+    dtype: str = "float32"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         x = nn.Conv(self.stage_channels[0], (7, 7), 2, padding=((3, 3), (3, 3)), use_bias=False,
-                    kernel_init=_conv_init, name="stem_conv")(x)
-        x = nn.relu(_group_norm(self.stage_channels[0], "stem_norm")(x))
+                    kernel_init=_conv_init, dtype=self.dtype, name="stem_conv")(x.astype(self.dtype))
+        x = nn.relu(_group_norm(self.stage_channels[0], "stem_norm", self.dtype)(x))
         x = nn.max_pool(x, (3, 3), strides=(2, 2), padding=((1, 1), (1, 1)))
         for s, c in enumerate(self.stage_channels):
             for b in range(self.blocks_per_stage):
-                x = BasicBlock(c, strides=2 if s > 0 and b == 0 else 1, name=f"stage{s + 1}_block{b}")(x)
+                x = BasicBlock(c, strides=2 if s > 0 and b == 0 else 1, dtype=self.dtype,
+                               name=f"stage{s + 1}_block{b}")(x)
         return x.mean(axis=(-3, -2))
 
 
@@ -298,18 +431,21 @@ class ResNet18Policy(nn.Module):
 
     action_dim: int
     hidden: int = 300
+    dtype: str = "float32"
     loop_friendly: ClassVar[bool] = False  # convolutions, as `ImagePolicy`
+    min_side: ClassVar[int] = 1  # padded convolutions and pools: any side
 
     @nn.compact
     def __call__(self, frames: jax.Array, return_embedding: bool = False,
                  embedding_noise: jax.Array | None = None) -> jax.Array | tuple[jax.Array, jax.Array]:
         lead = frames.shape[:-3]
-        features = ResNet18Encoder(name="encoder")(frames.reshape((-1,) + frames.shape[-3:]))
+        features = ResNet18Encoder(dtype=self.dtype, name="encoder")(frames.reshape((-1,) + frames.shape[-3:]))
         features = features.reshape(lead + features.shape[-1:])
-        return Head(self.action_dim, hidden=self.hidden)(_lrelu(nn.Dense(self.hidden, name="mlp")(features)),
-                                                         return_embedding, embedding_noise)
+        mlp = nn.Dense(self.hidden, dtype=self.dtype, name="mlp")
+        return Head(self.action_dim, hidden=self.hidden, dtype=self.dtype)(_lrelu(mlp(features)), return_embedding,
+                                                                           embedding_noise)
 
 
 # `LearnerConfig.encoder` -> the image policy it builds.
 IMAGE_ENCODERS: dict[str, type[nn.Module]] = {"small": ImagePolicy, "resnet18": ResNet18Policy,
-                                               "patch": PatchPolicy}
+                                               "patch": PatchPolicy, "drq": DrQPolicy}

@@ -329,7 +329,7 @@ def test_report_refusals_leave_an_existing_out_untouched(tmp_path, capsys):
     ("bench_experts", lambda root: ["--repeats", "0"], "--batch, --repeats must be >= 1"),
     ("bench_envs", lambda root: ["--write", root], "--write {root}: cannot write there: {root} is a directory"),
     ("bench_images", lambda root: ["--encoders", "big"],
-     "--encoders: unknown ['big']; valid: small, resnet18, patch, each with +group"),
+     "--encoders: unknown ['big']; valid: small, resnet18, patch, drq, each with +group"),
     ("bench_images", lambda root: ["--encoders", "patch+batch"],
      "--encoders: ['patch+batch']: the small and patch encoders take +group"),
     ("bench_images", lambda root: ["--sizes", "4"], "--sizes must be image sides in [8, 512], got [4]"),

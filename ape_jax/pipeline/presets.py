@@ -26,10 +26,10 @@ import typing
 from typing import Any
 from collections.abc import Iterable, Mapping
 
-from ape_jax import knobs, tasks
+from ape_jax import knobs, models, tasks
 from ape_jax.ape import NORMALIZATIONS
 from ape_jax.learner import LearnerConfig, lr_boundaries
-from ape_jax.models import StatePolicy
+from ape_jax.models import IMAGE_ENCODERS, StatePolicy
 from ape_jax.tasks import Protocol
 from ape_jax.pipeline.hints import SettingsError, check as _check, coerce as _coerce, describe as _describe
 from ape_jax.pipeline.hints import format_value as _format, parse as _parse
@@ -99,10 +99,14 @@ class Recipe:
       network: state policies: `"mlp"` (no normalisation) or `"bn-mlp"` (the FCA code's: BatchNorm after each
         encoder layer, LeakyReLU on the embedding; `ape_jax.models.StatePolicy`).
       init: Dense kernels: `"lecun"` (Flax's default) or `"xavier"` (xavier-uniform, the FCA code's).
-      encoder: image policies: `"small"` (CPU), `"patch"` (CPU, ~5× faster per update, `models.PatchPolicy`)
-        or `"resnet18"` (the supplement's, for GPUs).
-      encoder_norm: the image encoders `"small"` and `"patch"`: `"none"` or `"group"` (GroupNorm after each
-        encoder layer, `ape_jax.models.encoder_norm`).
+      encoder: image policies: `"small"` (CPU), `"patch"` (CPU, ~5× faster per update, `models.PatchPolicy`),
+        `"drq"` (DrQ's four 3×3 convolutions, for 84×84 frames, `models.DrQPolicy`) or `"resnet18"` (the
+        supplement's, for GPUs). Each takes images of at least its `min_side` pixels a side (drq: 15).
+      encoder_norm: the image encoders `"small"`, `"patch"` and `"drq"`: `"none"` or `"group"` (GroupNorm after
+        each encoder layer, `ape_jax.models.encoder_norm`).
+      dtype: the policies' arithmetic, `"float32"` or `"bfloat16"` (mixed precision: bfloat16 layers, float32
+        parameters, optimiser state and loss; `ape_jax.models`). A sweep refuses bfloat16 on a backend without
+        bfloat16 arithmetic (`models.bf16_problem`). Settings recorded before this field are float32.
       augment_shift: images: each training sample's frames shifted by a random offset of up to this many pixels,
         the same for its whole history (`ape_jax.learner.random_shift`); 0: none. At most a quarter of the
         image's shorter side.
@@ -139,6 +143,7 @@ class Recipe:
     encoder: str = "small"
     encoder_norm: str = "none"
     augment_shift: int = 0
+    dtype: str = "float32"
     lr: float = 2e-4
     beta1: float = 0.9
     beta2: float = 0.999
@@ -168,7 +173,7 @@ class Recipe:
         knobs.check("recipe.", SettingsError, network=self.network, init=self.init, encoder=self.encoder,
                     encoder_norm=self.encoder_norm, augment_shift=self.augment_shift, loss=self.loss,
                     beta1=self.beta1, beta2=self.beta2, bn_momentum=self.bn_momentum, batch_size=self.batch_size,
-                    lr_schedule=self.lr_schedule, lr_decay=self.lr_decay)
+                    lr_schedule=self.lr_schedule, lr_decay=self.lr_decay, dtype=self.dtype)
         _one_of("recipe.ape_normalization", self.ape_normalization, NORMALIZATIONS)
         _check(self.lr > 0 and math.isfinite(self.lr), f"recipe.lr must be a finite number > 0, got {self.lr!r}")
         _check(self.fca_adversary_lr is None or (self.fca_adversary_lr > 0 and math.isfinite(self.fca_adversary_lr)),
@@ -267,7 +272,7 @@ class Settings:
                              network="mlp" if images else r.network, init=r.init, bn_momentum=r.bn_momentum,
                              loss=r.loss or task_loss, unroll=unroll, encoder=r.encoder if images else "small",
                              encoder_norm=r.encoder_norm if images else "none",
-                             augment_shift=r.augment_shift if images else 0)
+                             augment_shift=r.augment_shift if images else 0, dtype=r.dtype)
 
     def to_json(self) -> dict[str, dict]:
         """`{"protocol": ..., "budget": ..., "recipe": ...}`, every field (results.json's blocks)."""
@@ -356,6 +361,8 @@ def resolve(env: str, obs: str, protocol: str | None = None, preset: str = "quic
     settings = Settings(*(_record(name, values[name]) for name in SECTIONS), preset=preset, smoke=smoke,
                         preset_iterations=preset_iterations)
     _check_image_recipe(settings.recipe, obs, settings.protocol.image_size)
+    if settings.recipe.dtype == "bfloat16" and (problem := models.bf16_problem()):
+        raise SettingsError(f"recipe.dtype 'bfloat16': {problem}; use recipe.dtype=float32")
     return settings
 
 
@@ -368,6 +375,9 @@ def _check_image_recipe(recipe: Recipe, obs: str, image_size: tuple[int, int] | 
         side = min(image_size)
         _check(recipe.augment_shift <= side // 4, f"recipe.augment_shift must be at most a quarter of the "
                f"image's shorter side ({side}: {side // 4}), got {recipe.augment_shift}")
+        least = IMAGE_ENCODERS[recipe.encoder].min_side
+        _check(side >= least, f"recipe.encoder {recipe.encoder!r} takes images of at least {least}×{least} "
+               f"pixels, got protocol.image_size {image_size[0]}x{image_size[1]}")
 
 
 def fields(section: str) -> tuple[str, ...]:
