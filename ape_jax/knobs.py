@@ -69,5 +69,5 @@ def check(where: str, error: type[Exception] = ValueError, **knobs: Any) -> None
         if value is not None and (problem := RULES[name](value)):
             raise error(f"{where}{name} {problem}")
     if knobs.get("encoder") == "resnet18" and knobs.get("encoder_norm", "none") != "none":
-        raise error(f"{where}encoder_norm {knobs['encoder_norm']!r} is for the encoders 'small' and 'patch' "
+        raise error(f"{where}encoder_norm {knobs['encoder_norm']!r} is for the encoders 'small', 'patch' and 'drq' "
                     f"(resnet18 normalises its own layers)")

@@ -273,7 +273,8 @@ def test_group_norm_normalises_each_sample_alone_after_every_encoder_layer(encod
     # and the first layer's features are normalised: at initialisation (biases zero) scaling the frames leaves the
     # action as it was
     np.testing.assert_allclose(model.apply({"params": params}, 3.0 * x), out, rtol=1e-3, atol=1e-4)
-    with pytest.raises(ValueError, match="encoder_norm 'group' is for the encoders 'small' and 'patch' \\(resnet18"):
+    with pytest.raises(ValueError, match=r"encoder_norm 'group' is for the encoders 'small', 'patch' and 'drq' "
+                                         r"\(resnet18"):
         LearnerConfig(obs_shape=(16, 16, 3), action_dim=2, encoder="resnet18", encoder_norm="group")
 
 

@@ -168,7 +168,7 @@ def test_an_image_setting_the_observations_cannot_take_is_refused_before_anythin
     err = capsys.readouterr().err
     assert code.value.code == 2 and message in err and err.count("\n") == 1
     # the paper's image preset (ResNet-18) normalises its own layers
-    with pytest.raises(SettingsError, match="is for the encoders 'small' and 'patch'"):
+    with pytest.raises(SettingsError, match="is for the encoders 'small', 'patch' and 'drq'"):
         resolve("hopper", "image", preset="paper", sets=["recipe.encoder_norm=group"])
 
 
