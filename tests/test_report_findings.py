@@ -135,3 +135,24 @@ def test_with_fcas_own_expert_the_history_helps_and_no_remedy_beats_bc_oh():
     assert sum(r.diagnostics.controlled for r in history) == 0
     controls = [r.diagnostics.control.median for r in history]
     assert (round(min(controls), 2), round(max(controls), 2)) == (0.52, 0.74)
+
+
+def test_with_fcas_expert_and_clipped_labels_the_answer_is_the_same():
+    """The reading's clipped-label sentence: Hopper on FCA's expert's demonstrations with labels clipped to the
+    action range (8 seeds, 30k): BC-OH's % of expert, BC-SO − BC-OH, each remedy against BC-OH (every interval
+    across 0), and the two verdicts' counts."""
+    from experiments.report.analysis import regime_groups, regime_table
+
+    groups = [m for m in regime_groups(_merged("hopper-pos-fca-rows-default-fca-fcaexpert-*.json"))
+              if m.protocol.get("expert_sha256", "").startswith("56145a42") and m.protocol.get("labels") != "raw"]
+    assert len(groups) == 1
+    rows = {r.label: r for r in regime_table(groups[0]).rows}
+    assert round(rows["BC-OH"].normalized.mean, 1) == 24.7 and len(rows["BC-OH"].normalized.seeds) == 8
+    assert _text(rows["BC-SO"].versus) == "-11.2 [-20.9, -1.6]"
+    remedies = ("Ours (step), THR 10% W 5", "Ours (softmax), τ 0.2", "FCA (TCA), α 0.1", "FCA (TCA), α 2")
+    assert [f"{rows[r].versus.diff:+.1f}" for r in remedies] == ["+4.0", "+6.5", "+4.2", "+1.4"]
+    assert _text(rows[remedies[0]].versus) == "+4.0 [-10.3, +18.3]"
+    assert all(rows[r].versus.low < 0 < rows[r].versus.high for r in remedies)
+    history = [r for r in rows.values() if r.method in ("bc-oh", "ours-step", "ours-softmax", "fca")]
+    assert sum(r.diagnostics.copycats for r in history) == 22 and sum(r.diagnostics.read for r in history) == 40
+    assert sum(r.diagnostics.controlled for r in history) == 0

@@ -15,7 +15,8 @@ mkdir -p "$RUNS"
 while pgrep -f "experiments.sweep .*--out $RUNS/" > /dev/null; do sleep 60; done
 FCA="--protocol fca --recipe fca --preset default"
 GRIDS="--set recipe.step_grid=0.1:5 --set recipe.softmax_grid=0.2"
-TABLE5="$FCA --methods bc-so,bc-oh,bc-full,ours-step,ours-softmax,fca $GRIDS"
+TABLE5_METHODS=bc-so,bc-oh,bc-full,ours-step,ours-softmax,fca
+TABLE5="$FCA --methods $TABLE5_METHODS $GRIDS"
 AFTER=rap,palr,mine
 
 sweep() {  # sweep NAME ARGS...: one sweep into $RUNS/NAME, its results to results/NAME.json
@@ -42,7 +43,7 @@ sweep hopper-pos-fca-rows-default-fca-fcaexpert-clipped --env hopper $TABLE5 --s
 for env in hopper walker2d halfcheetah; do
   [ -f "envs/experts/$env-rough/card.json" ] || { echo "skip $env-rough (no shipped expert yet)"; continue; }
   alphas=$([ "$env" = hopper ] && echo 0.1,2 || echo 0.5,1)
-  sweep $env-pos-fca-rows-default-fca-rough-raw --env $env $TABLE5,$AFTER --seeds 5 \
+  sweep $env-pos-fca-rows-default-fca-rough-raw --env $env $FCA --methods $TABLE5_METHODS,$AFTER $GRIDS --seeds 5 \
     --set protocol.expert=rough --set protocol.labels=raw --set recipe.fca_alphas=$alphas
 done
 # RAP, PALR and MINE on FCA's expert's rows (the same demonstrations as the tables above; compared with them)
