@@ -38,6 +38,9 @@ sweep hopper-pos-fca-rows-default-fca-fcaexpert-raw --env hopper $TABLE5 --seeds
   --set protocol.expert=fca --set protocol.labels=raw --set recipe.fca_alphas=0.1,2
 sweep hopper-pos-fca-rows-default-fca-fcaexpert-clipped --env hopper $TABLE5 --seeds 8 \
   --set protocol.expert=fca --set recipe.fca_alphas=0.1,2
+# RAP, PALR and MINE on FCA's expert's rows (the same demonstrations as the tables above; compared with them)
+sweep hopper-pos-fca-rows-default-fca-fcaexpert-raw-after --env hopper $FCA --methods $AFTER --seeds 8 \
+  --set protocol.expert=fca --set protocol.labels=raw
 # The rough shipped experts (raw labels), 5 seeds, with RAP, PALR and MINE beside; FCA at the supplement's alpha
 # (Hopper 0.1, the others 0.5) and FCA's code's (Hopper 2.0, the others 1.0)
 for env in hopper walker2d halfcheetah; do
@@ -46,9 +49,6 @@ for env in hopper walker2d halfcheetah; do
   sweep $env-pos-fca-rows-default-fca-rough-raw --env $env $FCA --methods $TABLE5_METHODS,$AFTER $GRIDS --seeds 5 \
     --set protocol.expert=rough --set protocol.labels=raw --set recipe.fca_alphas=$alphas
 done
-# RAP, PALR and MINE on FCA's expert's rows (the same demonstrations as the tables above; compared with them)
-sweep hopper-pos-fca-rows-default-fca-fcaexpert-raw-after --env hopper $FCA --methods $AFTER --seeds 8 \
-  --set protocol.expert=fca --set protocol.labels=raw
 # The previous action in view (Hopper, the shipped SAC expert): one more row of the copycat map; 5 seeds
 sweep hopper-pos-fca-rows-default-fca-prevaction --env hopper $FCA --seeds 5 \
   --methods bc-so,bc-oh,bc-full,ours-step,$AFTER --set recipe.step_grid=0.1:5 --set protocol.prev_action=true
