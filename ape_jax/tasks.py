@@ -23,6 +23,7 @@ from collections.abc import Mapping
 
 SPLITS = ("rows", "episodes")
 LABELS = ("clipped", "raw")
+FRAMES = ("rollout", "states")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,6 +57,13 @@ class Protocol:
         Gaussian policy's mean: what the FCA code stored). The executed action is clipped either way.
       prev_action: the observation carries the previous action (de Haan et al. 2019; PALR's "POA"): the
         demonstration's a_{t-1} in training, the policy's own in rollouts; zeros at an episode's start.
+      frames: image observations: where the demonstrations' frames come from. `"rollout"`: rendered in the
+        collecting rollout, at each step. `"states"`: the same settings' state-observation dataset (the `pos`
+        one, the rows the state sweeps train on; collected first, or found in the cache, e.g. collected on a
+        CPU) with each row's simulator state rendered afterwards, in jitted batches
+        (`ape_jax.pipeline.collect.render_states`): a device renders what a CPU collected, and only the
+        states travel. Hopper's and Walker2d's frames then show the body poses after the step's last physics
+        substep, where the rollout's show them before it (`envs.brax_env.BraxEnv.observe_sim`).
 
     Rewards are scaled by `frame_skip / standard frame skip`, so returns stay on the scale of the
     standard control step (the FCA code's 1/4 and 1/5).
@@ -78,6 +86,7 @@ class Protocol:
     expert: str | None = None
     labels: str = "clipped"
     prev_action: bool = False
+    frames: str = "rollout"
 
     def __post_init__(self):
         if self.split not in SPLITS:
@@ -97,6 +106,8 @@ class Protocol:
             raise ValueError(f"protocol.image_size must be positive, got {self.image_size!r}")
         if self.labels not in LABELS:
             raise ValueError(f"protocol.labels {self.labels!r} is not one of {', '.join(LABELS)}")
+        if self.frames not in FRAMES:
+            raise ValueError(f"protocol.frames {self.frames!r} is not one of {', '.join(FRAMES)}")
         if not isinstance(self.prev_action, bool):
             raise ValueError(f"protocol.prev_action must be true or false, got {self.prev_action!r}")
         if self.expert is not None and not re.fullmatch(r"[a-z0-9_]+", str(self.expert)):
@@ -128,6 +139,8 @@ class Protocol:
             out["labels"] = self.labels
         if self.prev_action:
             out["prev_action"] = True
+        if self.frames != "rollout":
+            out["frames"] = self.frames
         if standard_frame_skip is not None and self.frame_skip is not None:
             out["reward_scale"] = self.frame_skip / standard_frame_skip
         if self.horizon is not None and standard_frame_skip is not None:

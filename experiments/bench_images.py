@@ -57,6 +57,28 @@ def sized(name: str, sizes: list[int]) -> list[int]:
     return [int(size)] if at else sizes
 
 
+def update_flops(encoder: str, size: int, dtype: str = "float32", batch: int = BATCH) -> float | None:
+    """FLOPs of one model update (forward, backward, Adam) of `encoder` at `size`×`size`, batch `batch`, history
+    `H`, as XLA counts them in the lowered program (`cost_analysis`; nothing compiles or runs); None where the
+    backend gives no count."""
+    from ape_jax.learner import Data, Hparams, LearnerConfig, make_train
+
+    encoder, norm = split_encoder(encoder)
+    cfg = LearnerConfig(obs_shape=(size, size, 3), action_dim=ACT, history=H, batch_size=batch, unroll=True,
+                        encoder=encoder, encoder_norm=norm, dtype=dtype)
+    n = 2 * batch
+    data = Data(obs=jnp.zeros((n, size, size, 3), jnp.uint8), action=jnp.zeros((n, ACT)),
+                t=jnp.arange(n, dtype=jnp.int32) % 100, ape=jnp.ones(n))
+    learner, hp = make_train(cfg), Hparams.make("step", thr=0.1, w=5.0, lr=2e-4)
+    state = jax.eval_shape(learner.init, jax.random.PRNGKey(0), hp, data)
+    lowered = jax.jit(lambda st, h, d: learner.run(st, h, d, 1)[0].params).lower(state, hp, data)
+    try:
+        flops = (lowered.cost_analysis() or {}).get("flops")
+    except Exception:  # noqa: BLE001 - a backend without a cost model
+        return None
+    return float(flops) if flops else None
+
+
 def train_rate(encoder: str, size: int, repeats: int, grid: int = 1, dtype: str = "float32", batch: int = BATCH,
                scan_chunk: int = SCAN_CHUNK) -> tuple[float, float, str]:
     """(compile_s, model-updates/s, chunk) of `grid` configurations at `size`×`size` (vmapped if `grid > 1`)
@@ -111,14 +133,24 @@ def table(args) -> str:
            f"--grid {args.grid} --policies {args.policies} --episodes {args.episodes} --repeats {args.repeats}"
            f"{' --no-eval' if args.no_eval else ''}")
     first = f"{split_encoder(args.encoders[0])[0]} {sized(args.encoders[0], args.sizes)[0]} {args.dtype[0]}"
+    from experiments.bench_train import matmul_peak
+
+    n = 8192 if jax.default_backend() == "gpu" else 2048
+    peaks = {d: matmul_peak(args.repeats, (n,), getattr(jnp, d))[n] for d in args.dtype}
+    print(f"matmul peak ({n}×{n}): " + ", ".join(f"{d} {p / 1e12:.2f} TFLOP/s" for d, p in peaks.items()),
+          file=sys.stderr)
     lines = ["## Image policies: training and evaluation speed, memory", "", f"Command: `{cmd}`  ",
              f"Machine: {machine()}  ",
              f"Medians of {args.repeats} runs after a compiling call, batch {args.batch}, history {H}; each encoder "
              "trained as the sweep trains it on this backend (one configuration at a time in unrolled chunks, "
              "or vmapped in scanned chunks); a vmapped grid counts every configuration's updates; bfloat16: "
              "mixed precision (float32 parameters, optimiser and loss).", "",
+             "GFLOP per update: XLA's count of one update's program (`update_flops`); TFLOP/s: that × "
+             f"model-updates/s; the last but one column: that against the dtype's matmul peak measured in this run "
+             f"({n}×{n} products: " + ", ".join(f"{d} {p / 1e12:.2f} TFLOP/s" for d, p in peaks.items()) + ").", "",
              f"| encoder | image | dtype | configurations | chunk | model-updates/s | ms per update | compile s | "
-             f"× {first} |", "|---|---|---|---|---|---:|---:|---:|---:|"]
+             f"GFLOP per update | TFLOP/s | of the peak | × {first} |",
+             "|---|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|"]
     base = None
     for encoder in args.encoders:
         for size in sized(encoder, args.sizes):
@@ -127,9 +159,14 @@ def table(args) -> str:
                     compile_s, rate, chunk = train_rate(encoder, size, args.repeats, grid, dtype, args.batch,
                                                         args.chunk)
                     base = base or rate
+                    flops = update_flops(encoder, size, dtype, args.batch)
+                    achieved = "—" if flops is None else f"{flops * rate / 1e12:.3f}"
+                    share = "—" if flops is None else f"{flops * rate / peaks[dtype]:.1%}"
                     lines.append(f"| {encoder.partition('@')[0]} | {size}×{size} | {dtype} | "
                                  f"{grid if grid == 1 else f'{grid}, vmapped'} | {chunk} | {rate:,.2f} | "
-                                 f"{1e3 / rate:,.1f} | {compile_s:.1f} | {rate / base:.3f} |")
+                                 f"{1e3 / rate:,.1f} | {compile_s:.1f} | "
+                                 f"{'—' if flops is None else f'{flops / 1e9:,.2f}'} | {achieved} | {share} | "
+                                 f"{rate / base:.3f} |")
                     print(lines[-1], file=sys.stderr)
     lines.append("")
     for encoder in ([] if args.no_eval else args.encoders):

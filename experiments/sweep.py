@@ -473,7 +473,8 @@ def _run(args: argparse.Namespace, spec, checkpoint) -> int:
     print()
     print(table(res))
     print(f"\ntime: {t['total_s']:.0f} s in all{' (resumed)' if t['resumed'] else ''} "
-          f"(compile ~{t['compile_s']:.0f} s, train {t['train_s']:.0f} s, evaluate {t['eval_s']:.0f} s)\n"
+          f"(compile ~{t['compile_s']:.0f} s, train {t['train_s']:.0f} s, evaluate {t['eval_s']:.0f} s"
+          + (f"; peak device memory {t['peak_device_mb'] / 1024:.1f} GB" if t.get("peak_device_mb") else "") + ")\n"
           f"wrote {out.results}, {out.csv}, {out.params}/, training curves in {out.curves}/ and {out.tensorboard}/")
     print("\n".join(next_steps(args.out, spec.settings.smoke)))
     return 0

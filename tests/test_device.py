@@ -82,3 +82,28 @@ def test_run_sh_paper_fca_plan_smoke_finishes_both_sweeps_and_packs_them(tmp_pat
         results = json.loads((tmp_path / "out" / stage / "results.json").read_text())
         assert {r["method"] for r in results["runs"]} == {"fca", "fca-ib"}
         assert len(results["runs"]) == 2 * seeds and all(r["status"] == "ok" for r in results["runs"])
+
+
+@pytest.mark.slow
+def test_run_sh_images_plan_smoke_finishes_the_three_tasks_and_packs_them(tmp_path):
+    """`--plan images --smoke`: the MuJoCo-Image grid (drq at 84×84, frames rendered from the state demonstrations'
+    simulator states) on Hopper, Walker2d and HalfCheetah side by side, packed."""
+    env = {**os.environ, "OUT": str(tmp_path / "out"), "WORK": str(tmp_path / "work"), "PYTHON": sys.executable,
+           "APE_JAX_CACHE": str(tmp_path / "data")}
+    out = subprocess.run(["bash", str(RUN), "--smoke", "--plan", "images"], capture_output=True, text=True,
+                         timeout=1800, env=env)
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    with tarfile.open(tmp_path / "out" / "device.tgz") as packed:
+        names = set(packed.getnames())
+    plan = json.loads((tmp_path / "out" / "images" / "plan.json").read_text())
+    assert plan["smoke"] and all(s["finished"] for s in plan["sweeps"].values())
+    for task in ("hopper", "walker2d", "halfcheetah"):
+        assert f"./images/{task}/results.json" in names
+        results = json.loads((tmp_path / "out" / "images" / task / "results.json").read_text())
+        assert {r["method"] for r in results["runs"]} == {"bc-so", "bc-oh", "ours-step", "ours-softmax", "fca"}
+        assert all(r["status"] == "ok" for r in results["runs"])
+        assert results["settings"]["recipe"]["encoder"] == "drq" and results["protocol"]["frames"] == "states"
+        assert results["config"]["data"]["settings"]["frames"] == "states"
+        data = results["config"]["data"]
+        assert data["path"].endswith(".npz") and f"/{task}-pos-" in data["path"]  # the state dataset's rows
+        assert "frames: " in (tmp_path / "out" / "images" / task / "log.txt").read_text()

@@ -242,3 +242,31 @@ def test_bench_images_refuses_bfloat16_where_the_backend_has_none(monkeypatch, c
         bench_images.main(["--dtype", "float32,bfloat16", "--no-eval"])
     err = capsys.readouterr().err
     assert code.value.code == 2 and "--dtype bfloat16: the METAL backend has no bfloat16 arithmetic" in err
+
+
+# -- returns: a whole sweep in each dtype ----------------------------------------------------------------------------
+
+@pytest.mark.integration
+def test_bfloat16_policies_score_as_float32_ones_within_seed_noise(tmp_path):
+    """Mixed precision end to end (training, then evaluation in the jitted rollout) on the driving sandbox's state
+    (the state MLP takes `recipe.dtype` as the image encoders do; an image policy that a CPU test can train, or a
+    MuJoCo policy at the quick budget, scores too little to tell anything apart): BC-SO, 4 seeds of the quick
+    preset per dtype, ~1 min each."""
+    from experiments.stats import welch_difference
+
+    scores, losses = {}, {}
+    for dtype in models.DTYPES:
+        out = tmp_path / dtype
+        assert sweep.main(["--env", "toycar", "--obs", "full", "--preset", "quick", "--methods", "bc-so", "--seeds",
+                           "4", "--set", "budget.probe_steps=0", "--set", f"recipe.dtype={dtype}", "--quiet",
+                           "--out", str(out)]) == 0
+        runs = json.loads((out / "results.json").read_text())["runs"]
+        scores[dtype] = np.array([r["eval"]["normalized"] for r in runs])  # success, % of episodes
+        losses[dtype] = np.array([r["train_loss_final"] for r in runs])
+    assert scores["float32"].mean() >= 30 and scores["bfloat16"].mean() >= 30, scores  # the comparison has power
+    # Welch's 95% intervals of the differences of the 4-seed means contain 0 (`experiments.stats`): the success
+    # rate, and the final training loss; bfloat16's loss is float32's within 5% for every seed
+    for values in (scores, losses):
+        diff = welch_difference(values["bfloat16"], values["float32"])
+        assert diff.low <= 0 <= diff.high, (values, diff)
+    np.testing.assert_allclose(losses["bfloat16"], losses["float32"], rtol=0.05)

@@ -194,6 +194,8 @@ def collect_cached(cfg: dict, data_dir, force: bool = False, progress=None, save
     Returns:
       (demos, meta, path, cached): `cached` is True when nothing was collected.
     """
+    if cfg.get("frames", "rollout") == "states":
+        return _rendered(cfg, data_dir, force, progress, save, references, expert)
     path = data_lib.cache_path(data_dir, cfg)
     if path.exists() and not force:
         try:
@@ -231,6 +233,43 @@ def collect_cached(cfg: dict, data_dir, force: bool = False, progress=None, save
     if save:
         meta = data_lib.save(path, demos, meta)
     return demos, meta, path, False
+
+
+RENDER_CHUNK = 1024  # frames per jitted call of `render_states` (one compile, bounded memory)
+
+
+def render_states(env: envs.Env, sim: dict, chunk: int = RENDER_CHUNK) -> tuple[np.ndarray, float, float]:
+    """`(frames [N, H, W, 3] uint8, compile_s, render_s)`: the frame `env` (an image environment) renders of each
+    row's simulator state `sim` (`{"qpos": [N, nq], "qvel": [N, nv]}`, `Demonstrations.sim`), `chunk` rows per
+    jitted, vmapped call; the seconds its compilation and its rendering took."""
+    n = len(next(iter(sim.values())))
+    chunk = min(chunk, n)
+    pick = lambda idx: {k: np.asarray(v)[idx] for k, v in sim.items()}  # noqa: E731
+    t0 = time.perf_counter()
+    observe = jax.jit(jax.vmap(env.observe_sim)).lower(pick(np.arange(chunk))).compile()
+    t1 = time.perf_counter()
+    out = np.empty((n, *env.observation_shape), np.uint8)
+    for start in range(0, n, chunk):  # the last chunk padded to the same size: one compiled program
+        idx = np.minimum(np.arange(start, start + chunk), n - 1)
+        out[start:start + chunk] = np.asarray(observe(pick(idx)))[: n - start]
+    return out, t1 - t0, time.perf_counter() - t1
+
+
+def _rendered(cfg: dict, data_dir, force: bool, progress, save: bool, references: dict | None,
+              expert: ExpertRef | None):
+    """`collect_cached` of a `frames: "states"` image dataset: its state dataset (`setup.state_source`: loaded, or
+    collected and saved) with each row's frame rendered from its simulator state (`render_states`). The frames
+    are not saved: they are made again, in seconds on a GPU, from the states; `path` is the state dataset's."""
+    source = setup_lib.state_source(cfg)
+    demos, meta, path, cached = collect_cached(source, data_dir, force, progress, save, references, expert)
+    env = envs.make(cfg["env"], obs="image", **{k: (tuple(v) if isinstance(v, list) else v)
+                                                 for k, v in cfg["env_overrides"].items()})
+    frames, compile_s, seconds = render_states(env, demos.sim)
+    meta = {**meta, "obs": "image", "settings": cfg,
+            "frames": {"from": "states", "state_dataset": path.name, "shape": list(frames.shape[1:]),
+                       "compile_s": round(compile_s, 2), "render_s": round(seconds, 2),
+                       "frames_per_s": round(len(frames) / max(seconds, 1e-9)), "backend": jax.default_backend()}}
+    return demos.replace(obs=frames), meta, path, cached
 
 
 @dataclasses.dataclass(frozen=True)

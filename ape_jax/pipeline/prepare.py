@@ -196,6 +196,11 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
                                                             expert=found)
             b.update(setup.episodes - b.n)
         source, digest = ("cached" if cached else "collected"), meta.get("sha256")
+        if (frames := meta.get("frames")) is not None:  # protocol.frames=states: rendered from the rows' states
+            h, w, _ = frames["shape"]
+            hooks.log(f"frames: {len(demos):,} rendered from the demonstrations' simulator states at {h}×{w} in "
+                      f"{frames['render_s']:.1f} s ({frames['frames_per_s']:,} frames/s on {frames['backend']}; "
+                      f"compiled in {frames['compile_s']:.1f} s)")
     else:
         where = str(spec.dataset)
         recorded = minari_io.dataset_metadata(spec.dataset)

@@ -10,12 +10,14 @@
 - `Recipe` (`--recipe`): how a policy is built and trained — the network and its initialisation, the
   optimiser, batch size, the learning rate's decay points, the loss, the APE normalisation, the weighting
   grids and FCA's knobs. `mlp` is the project's first recipe; `fca` is the FCA code's (BatchNorm network,
-  Adam β1 0.5, batch 64), the default under the fca protocols for state observations.
+  Adam β1 0.5, batch 64), the default under the fca protocols for state observations; `drq` is DrQ's pixel
+  encoder at 84×84 with random shifts, for images (`IMAGE_RECIPES`).
 
-`resolve` starts from the named records, applies the image observations' budget (`IMAGE_PRESETS`), the
-task's own overrides (`Task.presets`, e.g. ToyCar's), the smoke run's amounts (`smoke_overrides`, `--smoke`)
-and the `--set SECTION.FIELD=VALUE` overrides, in that order, and validates the result; nothing rewrites a
-record after it is built. A bad name, field or value is a one-line `SettingsError`.
+`resolve` starts from the named records, applies the image observations' budget (`IMAGE_PRESETS`) and an image
+recipe's own settings (`IMAGE_RECIPES`), the task's own overrides (`Task.presets`, e.g. ToyCar's), the smoke
+run's amounts (`smoke_overrides`, `--smoke`) and the `--set SECTION.FIELD=VALUE` overrides, in that order, and
+validates the result; nothing rewrites a record after it is built. A bad name, field or value is a one-line
+`SettingsError`.
 """
 
 from __future__ import annotations
@@ -219,6 +221,14 @@ RECIPES: Mapping[str, Recipe] = {
     "mlp": Recipe("mlp"),
     "fca": Recipe("fca", network="bn-mlp", init="xavier", beta1=0.5, batch_size=64),
     "palr": Recipe("palr", lr=3e-4, batch_size=1024, lr_decay_at=()),
+    "drq": Recipe("drq", encoder="drq", augment_shift=4),
+}
+# Image recipes: the settings an image recipe brings whatever the preset's (`IMAGE_PRESETS`), applied after it.
+# `drq`: the pixel encoder of continuous control from pixels (Yarats et al. 2021, DrQ and DrQ-v2: four 3×3
+# convolutions of 32 channels on 84×84 frames, the history's frames stacked on channels, random shifts of up to
+# ±4 pixels), with the project's optimiser (the `mlp` recipe's); `--set recipe.dtype=bfloat16` on a GPU.
+IMAGE_RECIPES: Mapping[str, Mapping[str, Any]] = {
+    "drq": {"encoder": "drq", "encoder_norm": "none", "augment_shift": 4, "image_size": (84, 84)},
 }
 BUDGETS: Mapping[str, Budget] = {
     "quick": Budget(iterations=3_000, seeds=1, eval_episodes=5, ape_steps=1_000, chunk=500, probe_steps=500),
@@ -342,9 +352,11 @@ def resolve(env: str, obs: str, protocol: str | None = None, preset: str = "quic
     recipe = recipe or default_recipe(proto, obs)
     if recipe not in RECIPES:
         raise SettingsError(f"unknown recipe {recipe!r}; valid: {', '.join(RECIPES)}")
+    _check(obs == "image" or recipe not in IMAGE_RECIPES, f"recipe {recipe!r} is for image observations (--obs image)")
     values = {"protocol": dataclasses.asdict(proto), "budget": dataclasses.asdict(BUDGETS[preset]),
               "recipe": dataclasses.asdict(RECIPES[recipe])}
-    for layer in ((IMAGE_PRESETS[preset] if obs == "image" else {}), task.preset_overrides(obs, preset)):
+    images = (IMAGE_PRESETS[preset], IMAGE_RECIPES.get(recipe, {})) if obs == "image" else ()
+    for layer in (*images, task.preset_overrides(obs, preset)):
         for key, value in layer.items():
             values[_section_of(key)][key] = value
     for key, value in (smoke_overrides(values) if smoke else {}).items():

@@ -167,18 +167,34 @@ def variant_of(env_name: str, description: dict) -> str | None:
 
 
 def data_key(env_name: str, obs: str, episodes: int, expert: ExpertRef, seed: int = 0, noise_frac: float = 0.0,
-             noise_std: float = 0.0, batch: int = 32, labels: str = "clipped", **env_overrides) -> dict:
+             noise_std: float = 0.0, batch: int = 32, labels: str = "clipped", frames: str = "rollout",
+             **env_overrides) -> dict:
     """The collection settings that name a cached dataset (`data.cache_path`) and enter a sweep's fingerprint:
     the task, observation mode, episodes, seed, noise, batch, environment settings, the expert's description
-    and the storage format; `labels` recorded only when not `"clipped"`, so the names of datasets collected
-    before the field stay valid."""
+    and the storage format; `labels` and `frames` (`tasks.Protocol.frames`) recorded only when not their
+    default, so the names of datasets collected before those fields stay valid."""
     if labels not in tasks.LABELS:
         raise ValueError(f"labels {labels!r} is not one of {', '.join(tasks.LABELS)}")
+    if frames not in tasks.FRAMES or (frames != "rollout" and obs != "image"):
+        raise ValueError(f"frames {frames!r} is not one of {', '.join(tasks.FRAMES)} (states: images only)")
     overrides = {k: (list(v) if isinstance(v, tuple) else v) for k, v in sorted(env_overrides.items())}
     return {"env": env_name, "obs": obs, "episodes": int(episodes), "seed": int(seed),
             "noise_frac": float(noise_frac), "noise_std": float(noise_std), "batch": int(batch),
             "env_overrides": overrides, "expert": expert.description, "format": data_lib.FORMAT,
-            **({"labels": labels} if labels != "clipped" else {})}
+            **({"labels": labels} if labels != "clipped" else {}),
+            **({"frames": frames} if frames != "rollout" else {})}
+
+
+def state_source(key: dict) -> dict:
+    """The data key of the state dataset whose simulator states a `frames: "states"` image dataset (`key`)
+    renders: the same settings observing positions (`obs="pos"`), without the image size. `key` itself where its
+    frames come from the rollout."""
+    if key.get("frames", "rollout") == "rollout":
+        return key
+    source = {k: v for k, v in key.items() if k != "frames"}
+    source["obs"] = "pos"
+    source["env_overrides"] = {k: v for k, v in key["env_overrides"].items() if k != "image_size"}
+    return source
 
 
 def reference_returns(env_name: str, protocol: tasks.Protocol) -> dict | None:
@@ -238,7 +254,7 @@ class Setup:
     def data_key(self) -> dict:
         """What names the demonstrations the protocol's expert gives (`data_key`, seed 0)."""
         return data_key(self.env, self.obs, self.episodes, self.expert, labels=self.protocol.labels,
-                        **self.collection)
+                        frames=self.protocol.frames if self.obs == "image" else "rollout", **self.collection)
 
     def references(self) -> dict | None:
         """The expert's returns under the protocol (`reference_returns`), read once."""

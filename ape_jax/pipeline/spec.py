@@ -21,6 +21,8 @@ from collections.abc import Sequence
 
 import jax
 
+import envs
+
 from ape_jax import methods as methods_lib
 from ape_jax import tasks
 from ape_jax.pipeline import results as results_lib
@@ -96,6 +98,15 @@ class SweepSpec:
         if self.protocol.prev_action and self.obs == "image":
             raise ValueError("protocol.prev_action needs vector observations (--obs pos or full): a frame has no "
                              "place for the previous action")
+        if self.protocol.frames == "states":
+            if self.obs != "image":
+                raise ValueError("protocol.frames=states: for image observations (--obs image) only")
+            if self.dataset is not None:
+                raise ValueError("protocol.frames=states renders the cached state dataset the protocol names; a "
+                                 "--dataset brings its own frames: leave protocol.frames at rollout")
+            if "pos" not in envs.obs_modes(self.env):
+                raise ValueError(f"protocol.frames=states: {self.env!r} has no positions-only dataset to render "
+                                 "(the MuJoCo tasks only)")
 
     @classmethod
     def make(cls, env: str, obs: str | None = None, methods: Sequence[str] | None = None, protocol: str | None = None,

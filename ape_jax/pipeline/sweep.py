@@ -261,6 +261,17 @@ def train_sweep(spec: SweepSpec, hooks: Hooks = Hooks(),
     return prepared, ape, train(programs, spec, prepared, data, hooks, checkpoint)
 
 
+def peak_device_mb() -> float | None:
+    """The most memory this process held on its first local device, in MB, where the backend counts it (GPUs and
+    TPUs: `peak_bytes_in_use`); None on a CPU."""
+    try:
+        stats = jax.local_devices()[0].memory_stats() or {}
+    except Exception:  # noqa: BLE001 - a backend without memory statistics
+        return None
+    peak = stats.get("peak_bytes_in_use")
+    return None if peak is None else peak / 2**20
+
+
 def run_sweep(spec: SweepSpec, hooks: Hooks = Hooks(),
               checkpoint: SweepCheckpoint | None = None) -> tuple[results_lib.Results, dict[str, dict]]:
     """Runs the whole sweep; returns its `Results` and its policies (`policies`).
@@ -278,7 +289,8 @@ def run_sweep(spec: SweepSpec, hooks: Hooks = Hooks(),
               "resumed": bool(checkpoint is not None and checkpoint.resumed),
               # included in the phases' times
               "checkpoint_s": checkpoint.save_s if checkpoint is not None else 0.0,
-              "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}  # this process's peak
+              "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,  # this process's peak
+              **({"peak_device_mb": peak} if (peak := peak_device_mb()) is not None else {})}
     res = assemble(spec, prepared, ape, trained, evaluated, timing)
     res.system = started
     return res, policies(evaluated, prepared)

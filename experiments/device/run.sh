@@ -6,6 +6,7 @@
 #   experiments/device/run.sh                        # there (the device tool, carry [".whl"]): H200, ~8 min
 #   experiments/device/run.sh --smoke                # here: tiny sizes on the CPU, to check the script
 #   experiments/device/run.sh --plan paper-fca       # there: FCA (TCA and TCA+IB) at the paper's budget (issue 25)
+#   experiments/device/run.sh --plan images          # there: the MuJoCo-Image grid at 84x84 (issue 48), ~9 min
 #
 # Plans: `default` (above); `paper-fca`: FCA and FCA-IB under `--preset paper --recipe fca` on Hopper (8 seeds)
 # and HalfCheetah (3 seeds) side by side on the one card, each program's configurations as one block
@@ -13,6 +14,13 @@
 # patch encoder) in what is left. Collect their demonstrations here first, so the device trains on the
 # same rows as this machine's runs (`.devdata/`, which the script makes `APE_JAX_CACHE` when it exists;
 # carry it too):  APE_JAX_CACHE=.devdata python -m experiments.collect --env hopper --obs pos  (and halfcheetah)
+# `images`: Hopper, Walker2d and HalfCheetah from 84x84 frames (the drq recipe, bfloat16), BC-SO, BC-OH, ours
+# and FCA, 3 seeds, as many iterations as fit (`python -m experiments.device.images`, which says how it sizes
+# them and refuses a plan that cannot fit), then the image encoders' speed (drq, patch, ResNet-18; float32 and
+# bfloat16) in the last BENCH_S seconds (default 90). Its state demonstrations are collected here first
+# (`--dry-run` prints the commands): APE_JAX_CACHE=.devdata python -m experiments.collect --env hopper --obs pos
+# --protocol brax --episodes 100 (and walker2d, halfcheetah); the frames are rendered there. To fit the device
+# tool's 64 MiB: experiments/device/fetch_wheels.sh --lean, then carry [".whl", ".devdata"] (55 MB).
 #
 # Everything it keeps goes under $OUT (default: runs/device, or runs/device-smoke): measure.json
 # (versions, devices, matmul peak, grid FLOP/s, MJX steps/s), nvidia-smi.txt, and per sweep its
@@ -20,7 +28,7 @@
 # under $WORK (default /tmp/ape_device), not $OUT: those are large and need not travel back.
 #
 # The budget: BUDGET_S seconds in all (default 420, inside the 8 minutes of device time an issue
-# sizes this run to, the machine's start apart; --smoke: 1500, for a busy 2-core CPU); the paper
+# sizes this run to, the machine's start apart; `images`: 540; --smoke: 1500, for a busy 2-core CPU); the paper
 # sweep may use PAPER_S of them (default 300); the image run gets what is left, less 20 s for
 # copying. A stage that runs out of time is stopped and says so.
 set -uo pipefail
@@ -31,17 +39,19 @@ while [ $# -gt 0 ]; do
   case "$1" in
     --smoke) SMOKE=1 ;;
     --plan) PLAN=${2:-}; shift ;;
-    -h|--help) sed -n '2,26p' "$0"; exit 0 ;;
-    *) echo "run.sh: error: unknown argument $1 (valid: --smoke, --plan default|paper-fca)" >&2; exit 2 ;;
+    -h|--help) sed -n '2,/^set -uo/{/^set -uo/!p;}' "$0"; exit 0 ;;
+    *) echo "run.sh: error: unknown argument $1 (valid: --smoke, --plan default|paper-fca|images)" >&2; exit 2 ;;
   esac
   shift
 done
 case "$PLAN" in
-  default|paper-fca) ;;
-  *) echo "run.sh: error: unknown plan '$PLAN' (valid: default, paper-fca)" >&2; exit 2 ;;
+  default|paper-fca|images) ;;
+  *) echo "run.sh: error: unknown plan '$PLAN' (valid: default, paper-fca, images)" >&2; exit 2 ;;
 esac
 START=$(date +%s)
-if [ "$SMOKE" = 1 ]; then BUDGET_S=${BUDGET_S:-1500}; else BUDGET_S=${BUDGET_S:-420}; fi
+if [ "$SMOKE" = 1 ]; then BUDGET_S=${BUDGET_S:-1500}
+elif [ "$PLAN" = images ]; then BUDGET_S=${BUDGET_S:-540}
+else BUDGET_S=${BUDGET_S:-420}; fi
 PAPER_S=${PAPER_S:-300}
 if [ "$SMOKE" = 1 ]; then OUT=${OUT:-runs/device-smoke}; else OUT=${OUT:-runs/device}; fi
 WORK=${WORK:-/tmp/ape_device}
@@ -106,6 +116,23 @@ if [ "$PLAN" = paper-fca ]; then
     mkdir -p "$OUT/bench-images"
     timeout --signal=INT --kill-after=15 "$bench" $PY -m experiments.bench_images --sizes 128 \
       --encoders resnet18,patch+group --repeats 3 > "$OUT/bench-images/log.txt" 2>&1
+    tail -n 30 "$OUT/bench-images/log.txt"
+  fi
+elif [ "$PLAN" = images ]; then
+  # The grid, sized by experiments.device.images to what is left (less BENCH_S and 20 s for copying); it refuses
+  # (exit 2, one line) a plan that cannot fit or whose demonstrations were not collected, before compiling.
+  bench_s=${BENCH_S:-90}; [ "$SMOKE" = 1 ] && bench_s=0
+  smoke=(); [ "$SMOKE" = 1 ] && smoke=(--smoke)
+  $PY -m experiments.device.images --limit-s "$(( $(left) - bench_s - 20 ))" --out "$OUT/images" \
+    --work "$WORK/images" "${smoke[@]}"
+  rc=$?; pack
+  [ "$rc" = 2 ] && exit 2
+  bench=$(( $(left) - 20 ))
+  if [ "$SMOKE" = 0 ] && [ "$bench" -gt 30 ]; then
+    echo "== bench_images: up to ${bench} s"
+    mkdir -p "$OUT/bench-images"
+    timeout --signal=INT --kill-after=15 "$bench" $PY -m experiments.bench_images --sizes 84 --no-eval \
+      --encoders drq@84,patch@64,resnet18@128 --dtype bfloat16,float32 --repeats 3 > "$OUT/bench-images/log.txt" 2>&1
     tail -n 30 "$OUT/bench-images/log.txt"
   fi
 elif [ "$SMOKE" = 1 ]; then

@@ -202,6 +202,8 @@ def provenance(r: results_lib.Results) -> str:
                                                     if t.get("resumed") else ""))
     if t.get("peak_rss_mb"):
         line += f", peak resident memory {t['peak_rss_mb'] / 1024:.1f} GB"
+    if t.get("peak_device_mb"):
+        line += f", peak device memory {t['peak_device_mb'] / 1024:.1f} GB"
     width = ((r.settings or {}).get("budget") or {}).get("width")
     line += (f"; {width} configuration(s) per device per call (`budget.width`)" if width else
              "; each program vmapped whole (width 0)")

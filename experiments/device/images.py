@@ -1,0 +1,282 @@
+"""The MuJoCo-Image grid on one device, sized to a time limit: `python -m experiments.device.images`.
+
+    python -m experiments.device.images --limit-s 480 --dry-run   # the plan and its estimate; nothing runs
+    python -m experiments.device.images --limit-s 480             # on the GPU (`run.sh --plan images` runs this)
+    python -m experiments.device.images --smoke                   # the same at a smoke run's sizes, on a CPU
+
+The grid: Hopper, Walker2d and HalfCheetah from 84×84 frames (`--obs image --recipe drq`: DrQ's encoder, the
+history's two frames stacked on channels, random shifts of ±4 pixels), the `brax` protocol and the `default`
+image preset's data (100 expert episodes, 80 training), BC-SO, BC-OH, ours (step 10% × 5; softmax at the
+supplement's τ: Hopper and Walker2d 0.2, HalfCheetah 0.1) and FCA (the supplement's α: Hopper 0.1, the others
+0.5), 3 seeds: 15 models a task, each program's models trained as one block (`budget.width`), the three tasks'
+sweeps side by side on the one device. bfloat16 on a GPU (`recipe.dtype`), float32 elsewhere.
+
+The demonstrations are collected beforehand on the CPU, as state datasets (small enough to carry), and their
+frames are rendered on the device from the rows' simulator states (`protocol.frames=states`), so the image runs
+train on the rows the CPU collected. On this machine, for each task:
+
+    APE_JAX_CACHE=.devdata python -m experiments.collect --env hopper --obs pos --protocol brax --episodes 100
+
+The budget: the paper's 300,000 iterations, or the most that fits the limit by the estimate, a multiple of the
+preset's 1,000-iteration chunk (the plan says which; each results file records `budget.iterations`). The
+estimate, made before anything compiles:
+- training: the grid's model updates ÷ the device's rate, `--rate` model-updates/s, or the prior: the FLOP/s
+  ResNet-18 reached on the H200 (176 model-updates/s at 128×128, `PRIOR_FLOPS`) over XLA's count of one drq
+  update (`experiments.bench_images.update_flops`), crediting bfloat16 with nothing;
+- evaluation and the demonstrations' frames: policy-steps and frames ÷ `PRIOR_STEPS` (rendering included);
+- `PRIOR_FIXED_S` for the processes' start and compilation, which overlap.
+
+Refused before anything compiles, exit 2 and one line: a plan whose estimate exceeds `--limit-s` (with
+`--iterations`, or when not even one chunk fits), a task whose state demonstrations are not in the cache
+(`APE_JAX_CACHE`), bfloat16 where the backend has none, an unwritable `--out`.
+
+Writes `OUT/plan.json` (the plan, the estimate, each sweep's wall time and exit status) and, per task,
+`OUT/<env>/results.json`, `results.csv` and `log.txt`; checkpoints go under `--work`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+import pathlib
+import subprocess
+import sys
+import time
+
+from experiments._cli import Parser, fail, unwritable
+
+TASKS = ("hopper", "walker2d", "halfcheetah")
+METHODS = ("bc-so", "bc-oh", "ours-step", "ours-softmax", "fca")
+# the supplement's softmax temperature and FCA's α per task (its Table 5 and §4)
+TAU = {"hopper": 0.2, "walker2d": 0.2, "halfcheetah": 0.1}
+ALPHA = {"hopper": 0.1, "walker2d": 0.5, "halfcheetah": 0.5}
+SEEDS = 3
+PAPER_ITERATIONS = 300_000
+# Priors of the estimate, per backend. FLOP/s: the H200's ResNet-18 at 128×128 (issue 18's run: 176 model-updates/s
+# × 409.7 GFLOP per update, `update_flops("resnet18", 128)`), float32; on a CPU, this 2-core machine's drq at 84×84
+# (1.66 model-updates/s × 34.0 GFLOP, `python -m experiments.bench_images --encoders drq@84 --no-eval`).
+# Policy-steps (or frames) per second with 84×84 rendering: on a GPU a guess, ~1/20 of MJX's Hopper steps/s at
+# batch 1,024; on a CPU measured (`experiments.bench_images --encoders drq@84`'s evaluation line).
+PRIOR_FLOPS = {"gpu": 176 * 409.7e9, "cpu": 1.66 * 34.0e9}
+PRIOR_STEPS = {"gpu": 5e4, "cpu": 150.0}
+PRIOR_FIXED_S = {"gpu": 150.0, "cpu": 600.0}
+MARGIN_S = 20.0  # copying the results, the processes' exit
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """The sweeps to run and what they cost by the estimate."""
+
+    iterations: int
+    chunk: int
+    models: int              # configurations × seeds, all tasks
+    seeds: int
+    rate: float              # model-updates/s of the device, all sweeps together
+    train_s: float
+    eval_s: float
+    frames_s: float
+    fixed_s: float
+    argv: dict[str, list[str]]  # per task, the sweep's arguments
+
+    @property
+    def total_s(self) -> float:
+        return self.fixed_s + self.train_s + self.eval_s + self.frames_s
+
+    def describe(self, limit_s: float) -> str:
+        paper = "the paper's budget" if self.iterations == PAPER_ITERATIONS else (
+            f"{self.iterations / PAPER_ITERATIONS:.1%} of the paper's 300,000")
+        return (f"plan: {len(self.argv)} tasks × {self.models // len(self.argv)} models ({', '.join(METHODS)}; "
+                f"{self.seeds} seed(s)), {self.iterations:,} iterations ({paper}); estimate {self.total_s:,.0f} s "
+                f"of the {limit_s:,.0f} s limit: training {self.train_s:,.0f} s at {self.rate:,.0f} model-updates/s, "
+                f"evaluation {self.eval_s:,.0f} s, demonstration frames {self.frames_s:,.0f} s, start and "
+                f"compilation {self.fixed_s:,.0f} s")
+
+
+def sweep_args(env: str, iterations: int | None, dtype: str, smoke: bool) -> list[str]:
+    """`experiments.sweep`'s arguments for `env`'s part of the grid (`--out` apart)."""
+    out = ["--env", env, "--obs", "image", "--recipe", "drq", "--preset", "default", "--methods", ",".join(METHODS),
+           "--set", f"budget.seeds={SEEDS}", "--set", "protocol.frames=states", "--set", "recipe.step_grid=0.1:5",
+           "--set", f"recipe.softmax_grid={TAU[env]}", "--set", f"recipe.fca_alphas={ALPHA[env]}",
+           "--set", f"recipe.dtype={dtype}", "--set", f"budget.width={len(METHODS) * SEEDS}"]
+    if smoke:
+        out.append("--smoke")
+    if iterations is not None:
+        out += ["--set", f"budget.iterations={iterations}"]
+    return out
+
+
+def plan(tasks: tuple[str, ...], limit_s: float, iterations: int | None, rate: float | None, dtype: str,
+         smoke: bool) -> Plan:
+    """The plan for `tasks` within `limit_s` (module docstring); `ValueError` (one line) if it cannot fit."""
+    import jax
+
+    from experiments.bench_images import update_flops
+    from experiments.sweep import cost
+    from ape_jax.pipeline.spec import SweepSpec
+
+    backend = "gpu" if jax.default_backend() == "gpu" else "cpu"
+    specs = {env: SweepSpec.make(env, "image", methods=METHODS, preset="default", recipe="drq",
+                                 sets=_sets(sweep_args(env, None, dtype, False))) for env in tasks}
+    if smoke:  # a smoke run's amounts: the same code paths, seconds of work
+        from ape_jax.pipeline.presets import resolve
+
+        specs = {env: dataclasses.replace(s, settings=resolve(env, "image", preset="default", recipe="drq",
+                                                              sets=_sets(sweep_args(env, None, dtype, False)),
+                                                              smoke=True)) for env, s in specs.items()}
+    first = next(iter(specs.values()))
+    side, batch, chunk = first.protocol.image_size[0], first.recipe.batch_size, first.budget.chunk
+    costs = {env: cost(env, s.settings, METHODS) for env, s in specs.items()}
+    models = sum(c.configurations * c.seeds for c in costs.values())
+    if rate is None:
+        flops = update_flops("drq", side, dtype, batch)
+        rate = PRIOR_FLOPS[backend] / flops if flops else PRIOR_FLOPS[backend] / 34.0e9
+    steps = PRIOR_STEPS[backend]
+    eval_steps = sum(c.episodes * (s.setup.applied.settings.get("episode_length") or 1000)
+                     for c, s in zip(costs.values(), specs.values()))
+    frames = sum(s.episodes * (s.setup.applied.settings.get("episode_length") or 1000) for s in specs.values())
+    eval_s, frames_s, fixed_s = eval_steps / steps, frames / steps, PRIOR_FIXED_S[backend]
+    room = limit_s - MARGIN_S - fixed_s - eval_s - frames_s
+    if smoke:
+        iterations = next(iter(costs.values())).iterations
+    elif iterations is None:
+        iterations = min(PAPER_ITERATIONS, int(max(room, 0) * rate / models) // chunk * chunk)
+        if iterations < chunk:
+            raise ValueError(f"the plan does not fit in {limit_s:,.0f} s: start, compilation, evaluation and "
+                             f"frames alone take ~{limit_s - room - MARGIN_S:,.0f} s by the estimate, leaving "
+                             f"less than one {chunk:,}-iteration chunk of training; give a longer --limit-s")
+    train_s = models * iterations / rate
+    out = Plan(iterations, chunk, models, first.budget.seeds, rate, train_s, eval_s, frames_s, fixed_s,
+               {env: sweep_args(env, None if smoke else iterations, dtype, smoke) for env in tasks})
+    if out.total_s + MARGIN_S > limit_s and not smoke:
+        raise ValueError(f"the plan's estimate, {out.total_s + MARGIN_S:,.0f} s ({iterations:,} iterations), "
+                         f"exceeds the limit of {limit_s:,.0f} s; give fewer --iterations or a longer --limit-s")
+    return out
+
+
+def _sets(argv: list[str]) -> list[str]:
+    return [argv[i + 1] for i, a in enumerate(argv) if a == "--set"]
+
+
+def missing_demonstrations(tasks: tuple[str, ...], dtype: str) -> list[str]:
+    """The collect commands of the tasks whose state demonstrations (`setup.state_source`) are not cached."""
+    from ape_jax.pipeline import data as data_lib
+    from ape_jax.pipeline.setup import state_source
+    from ape_jax.pipeline.spec import SweepSpec
+
+    out = []
+    for env in tasks:
+        spec = SweepSpec.make(env, "image", methods=METHODS, preset="default", recipe="drq",
+                              sets=_sets(sweep_args(env, None, dtype, False)))
+        key = state_source(spec.setup.data_key)
+        if not data_lib.cache_path(data_lib.cache_dir(), key).exists():
+            out.append(f"APE_JAX_CACHE={data_lib.cache_dir()} python -m experiments.collect --env {env} --obs pos "
+                       f"--protocol brax --episodes {key['episodes']}")
+    return out
+
+
+def _cache_dir():
+    from ape_jax.pipeline import data as data_lib
+
+    return data_lib.cache_dir()
+
+
+def run(p: Plan, out: pathlib.Path, work: pathlib.Path, limit_s: float) -> dict:
+    """Runs the plan's sweeps side by side; `{env: {"rc", "wall_s", "finished"}}`."""
+    env_vars = dict(os.environ, PYTHONUNBUFFERED="1")
+    env_vars.setdefault("XLA_PYTHON_CLIENT_MEM_FRACTION", f"{0.9 / len(p.argv):.2f}")  # the sweeps share the card
+    procs = {}
+    t0 = time.monotonic()
+    for env, argv in p.argv.items():
+        (out / env).mkdir(parents=True, exist_ok=True)
+        log = open(out / env / "log.txt", "w")  # noqa: SIM115 - closed below, after the process ends
+        cmd = [sys.executable, "-m", "experiments.sweep", *argv, "--quiet", "--out", str(work / env)]
+        procs[env] = (subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, env=env_vars), log, cmd)
+    status = {}
+    for env, (proc, log, cmd) in procs.items():
+        try:
+            rc = proc.wait(timeout=max(limit_s - (time.monotonic() - t0), 1.0))
+        except subprocess.TimeoutExpired:
+            proc.terminate()
+            rc = proc.wait()
+        log.close()
+        finished = (work / env / "results.json").exists()
+        for name in ("results.json", "results.csv"):
+            if (work / env / name).exists():
+                (out / env / name).write_bytes((work / env / name).read_bytes())
+        status[env] = {"rc": rc, "wall_s": round(time.monotonic() - t0, 1), "finished": finished,
+                       "command": " ".join(["python", "-m", "experiments.sweep", *cmd[3:]])}
+        print(f"== {env}: {'finished' if finished else f'stopped (exit {rc}) before it finished'} after "
+              f"{status[env]['wall_s']:,.0f} s; its log: {out / env / 'log.txt'}", flush=True)
+    return status
+
+
+def main(argv=None) -> int:
+    p = Parser(prog="python -m experiments.device.images", description=__doc__.splitlines()[0])
+    p.add_argument("--limit-s", type=float, default=None,
+                   help="seconds the whole plan may take (default: 480; --smoke: 1,500, for a busy 2-core CPU)")
+    p.add_argument("--iterations", type=int, default=None,
+                   help="training iterations per model (default: the paper's 300,000, or the most that fit)")
+    p.add_argument("--rate", type=float, default=None,
+                   help="the device's model-updates/s for the drq grid, all sweeps together (default: the prior)")
+    p.add_argument("--tasks", type=lambda s: tuple(s.split(",")), default=TASKS,
+                   help=f"comma list of {', '.join(TASKS)} (default: all three)")
+    p.add_argument("--dtype", default=None, help="float32 or bfloat16 (default: bfloat16 on a GPU, else float32)")
+    p.add_argument("--smoke", action="store_true", help="a smoke run's sizes (any backend): checks the plan runs")
+    p.add_argument("--dry-run", action="store_true", help="print the plan and its estimate; run nothing")
+    p.add_argument("--out", type=pathlib.Path, default=pathlib.Path("runs/device-images"),
+                   help="where the results, logs and plan.json go (default: runs/device-images)")
+    p.add_argument("--work", type=pathlib.Path, default=pathlib.Path("/tmp/ape_device/images"),
+                   help="the sweeps' run folders, checkpoints included (default: /tmp/ape_device/images)")
+    args = p.parse_args(argv)
+    if args.limit_s is None:
+        args.limit_s = 1500.0 if args.smoke else 480.0
+    import jax
+
+    from ape_jax import models
+
+    if bad := [t for t in args.tasks if t not in TASKS]:
+        fail(p, f"--tasks: unknown {bad}; valid: {', '.join(TASKS)}")
+    if args.limit_s <= 0 or (args.iterations is not None and args.iterations < 1) or (
+            args.rate is not None and not (args.rate > 0 and math.isfinite(args.rate))):
+        fail(p, "--limit-s, --iterations and --rate must be numbers > 0")
+    dtype = args.dtype or ("bfloat16" if jax.default_backend() == "gpu" else "float32")
+    if dtype not in models.DTYPES:
+        fail(p, f"--dtype {dtype!r} is not one of {', '.join(models.DTYPES)}")
+    if dtype == "bfloat16" and (problem := models.bf16_problem()):
+        fail(p, f"--dtype bfloat16: {problem}; use --dtype float32")
+    try:
+        the_plan = plan(args.tasks, args.limit_s, args.iterations, args.rate, dtype, args.smoke)
+    except ValueError as e:
+        fail(p, str(e))
+    print(the_plan.describe(args.limit_s), flush=True)
+    missing = [] if args.smoke else missing_demonstrations(args.tasks, dtype)
+    if args.dry_run:
+        for env, a in the_plan.argv.items():
+            print(f"  {env}: python -m experiments.sweep {' '.join(a)} --out {args.work / env}")
+        print("demonstrations: " + ("; ".join(["missing: collect them first, on the CPU", *missing]) if missing else
+                                    f"every task's state dataset is cached in {_cache_dir()}"))
+        return 0
+    if missing:
+        fail(p, f"no state demonstrations cached for {len(missing)} task(s): collect them first, on the CPU: "
+                + "; ".join(missing))
+    for where in (args.out, args.work):
+        if why := unwritable(where):
+            fail(p, f"cannot write to {where}: {why}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    record = {"plan": {**dataclasses.asdict(the_plan), "total_s": the_plan.total_s}, "limit_s": args.limit_s,
+              "dtype": dtype, "backend": jax.default_backend(), "smoke": args.smoke}
+    (args.out / "plan.json").write_text(json.dumps(record, indent=1) + "\n")
+    t0 = time.monotonic()
+    record["sweeps"] = run(the_plan, args.out, args.work, args.limit_s - MARGIN_S)
+    record["wall_s"] = round(time.monotonic() - t0, 1)
+    (args.out / "plan.json").write_text(json.dumps(record, indent=1) + "\n")
+    done = sum(s["finished"] for s in record["sweeps"].values())
+    print(f"== images: {done} of {len(record['sweeps'])} sweeps finished in {record['wall_s']:,.0f} s (estimate "
+          f"{the_plan.total_s:,.0f} s); report them with: python -m experiments.report {args.out}/*/results.json")
+    return 0 if done == len(record["sweeps"]) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
