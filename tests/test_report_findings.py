@@ -156,3 +156,23 @@ def test_with_fcas_expert_and_clipped_labels_the_answer_is_the_same():
     history = [r for r in rows.values() if r.method in ("bc-oh", "ours-step", "ours-softmax", "fca")]
     assert sum(r.diagnostics.copycats for r in history) == 22 and sum(r.diagnostics.read for r in history) == 40
     assert sum(r.diagnostics.controlled for r in history) == 0
+
+
+def test_with_fcas_expert_palr_beats_bc_oh_without_a_leaner_embedding():
+    """The reading's PALR paragraph: on FCA's expert's raw-label demonstrations (8 seeds, 30k), PALR, RAP and MINE
+    against BC-OH (the later methods' file merged with the paper's methods' on the same rows), and the diagnostics
+    beside PALR's and BC-OH's: the embedding's error on a_{t−1} ÷ BC-SO's, and the predictability ratio."""
+    from experiments.report.analysis import regime_groups, regime_table
+
+    groups = [m for m in regime_groups(_merged("hopper-pos-fca-rows-default-fca-fcaexpert-raw*.json"))
+              if m.protocol.get("labels") == "raw"]
+    assert len(groups) == 1
+    rows = {r.label: r for r in regime_table(groups[0]).rows}
+    palr, bcoh = rows["PALR"], rows["BC-OH"]
+    assert round(palr.normalized.mean, 1) == 70.6 and len(palr.normalized.seeds) == 8
+    assert _text(palr.versus) == "+31.0 [+2.7, +59.3]" and verdict(palr.versus, "PALR", "BC-OH") == "PALR better"
+    assert [f"{rows[m].versus.diff:+.1f}" for m in ("RAP", "MINE")] == ["-13.6", "-14.6"]
+    assert all(rows[m].versus.low < 0 < rows[m].versus.high for m in ("RAP", "MINE"))
+    assert (round(palr.diagnostics.control.median, 2), round(bcoh.diagnostics.control.median, 2)) == (0.55, 0.58)
+    assert (round(palr.diagnostics.predictability.median, 2),
+            round(bcoh.diagnostics.predictability.median, 2)) == (0.82, 0.59)
