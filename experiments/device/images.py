@@ -79,13 +79,14 @@ class Plan:
     frames_s: float
     fixed_s: float
     argv: dict[str, list[str]]  # per task, the sweep's arguments
+    smoke: bool = False
 
     @property
     def total_s(self) -> float:
         return self.fixed_s + self.train_s + self.eval_s + self.frames_s
 
     def describe(self, limit_s: float) -> str:
-        paper = "the paper's budget" if self.iterations == PAPER_ITERATIONS else (
+        paper = "the paper's budget" if self.iterations == PAPER_ITERATIONS else "a smoke run's" if self.smoke else (
             f"{self.iterations / PAPER_ITERATIONS:.1%} of the paper's 300,000")
         return (f"plan: {len(self.argv)} tasks × {self.models // len(self.argv)} models ({', '.join(METHODS)}; "
                 f"{self.seeds} seed(s)), {self.iterations:,} iterations ({paper}); estimate {self.total_s:,.0f} s "
@@ -114,17 +115,9 @@ def plan(tasks: tuple[str, ...], limit_s: float, iterations: int | None, rate: f
 
     from experiments.bench_images import update_flops
     from experiments.sweep import cost
-    from ape_jax.pipeline.spec import SweepSpec
 
     backend = "gpu" if jax.default_backend() == "gpu" else "cpu"
-    specs = {env: SweepSpec.make(env, "image", methods=METHODS, preset="default", recipe="drq",
-                                 sets=_sets(sweep_args(env, None, dtype, False))) for env in tasks}
-    if smoke:  # a smoke run's amounts: the same code paths, seconds of work
-        from ape_jax.pipeline.presets import resolve
-
-        specs = {env: dataclasses.replace(s, settings=resolve(env, "image", preset="default", recipe="drq",
-                                                              sets=_sets(sweep_args(env, None, dtype, False)),
-                                                              smoke=True)) for env, s in specs.items()}
+    specs = {env: _spec(env, dtype, smoke) for env in tasks}  # smoke: the same code paths, seconds of work
     first = next(iter(specs.values()))
     side, batch, chunk = first.protocol.image_size[0], first.recipe.batch_size, first.budget.chunk
     costs = {env: cost(env, s.settings, METHODS) for env, s in specs.items()}
@@ -148,28 +141,32 @@ def plan(tasks: tuple[str, ...], limit_s: float, iterations: int | None, rate: f
                              f"less than one {chunk:,}-iteration chunk of training; give a longer --limit-s")
     train_s = models * iterations / rate
     out = Plan(iterations, chunk, models, first.budget.seeds, rate, train_s, eval_s, frames_s, fixed_s,
-               {env: sweep_args(env, None if smoke else iterations, dtype, smoke) for env in tasks})
+               {env: sweep_args(env, None if smoke else iterations, dtype, smoke) for env in tasks}, smoke)
     if out.total_s + MARGIN_S > limit_s and not smoke:
         raise ValueError(f"the plan's estimate, {out.total_s + MARGIN_S:,.0f} s ({iterations:,} iterations), "
                          f"exceeds the limit of {limit_s:,.0f} s; give fewer --iterations or a longer --limit-s")
     return out
 
 
-def _sets(argv: list[str]) -> list[str]:
-    return [argv[i + 1] for i, a in enumerate(argv) if a == "--set"]
+def _spec(env: str, dtype: str, smoke: bool = False):
+    """The `SweepSpec` of `env`'s sweep in the plan (its `--set`s; the iterations aside)."""
+    from ape_jax.pipeline.presets import resolve
+    from ape_jax.pipeline.spec import SweepSpec
+
+    argv = sweep_args(env, None, dtype, False)
+    sets = [value for flag, value in zip(argv, argv[1:]) if flag == "--set"]
+    return SweepSpec(env, "image", resolve(env, "image", preset="default", recipe="drq", sets=sets, smoke=smoke),
+                     METHODS)
 
 
 def missing_demonstrations(tasks: tuple[str, ...], dtype: str) -> list[str]:
     """The collect commands of the tasks whose state demonstrations (`setup.state_source`) are not cached."""
     from ape_jax.pipeline import data as data_lib
     from ape_jax.pipeline.setup import state_source
-    from ape_jax.pipeline.spec import SweepSpec
 
     out = []
     for env in tasks:
-        spec = SweepSpec.make(env, "image", methods=METHODS, preset="default", recipe="drq",
-                              sets=_sets(sweep_args(env, None, dtype, False)))
-        key = state_source(spec.setup.data_key)
+        key = state_source(_spec(env, dtype).setup.data_key)
         if not data_lib.cache_path(data_lib.cache_dir(), key).exists():
             out.append(f"APE_JAX_CACHE={data_lib.cache_dir()} python -m experiments.collect --env {env} --obs pos "
                        f"--protocol brax --episodes {key['episodes']}")
