@@ -93,6 +93,9 @@ def parse(argv=None) -> argparse.Namespace:
             changes[field] = value
         args.protocol_record = dataclasses.replace(proto, **changes)
         args.setup = collect.protocol_setup(args.env, args.obs, args.protocol_record)
+        if args.protocol_record.frames != "rollout":
+            raise ValueError("protocol.frames=states renders a state dataset's rows when a sweep reads them: collect "
+                             "that state dataset with --obs pos (and the protocol's other settings)")
     except ValueError as e:
         fail(p, str(e))
     if args.episodes is None:

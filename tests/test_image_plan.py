@@ -130,3 +130,12 @@ def test_the_dry_run_prints_the_plan_and_the_sweeps_it_would_run(capsys):
     out = capsys.readouterr().out
     assert "300,000 iterations (the paper's budget)" in out
     assert "hopper: python -m experiments.sweep --env hopper --obs image --recipe drq" in out
+
+
+def test_collect_refuses_frames_from_states_and_names_the_state_dataset_to_collect(capsys):
+    from experiments import collect as collect_cli
+
+    with pytest.raises(SystemExit) as exc:
+        collect_cli.parse(["--env", "hopper", "--obs", "image", "--set", "protocol.frames=states"])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.count("\n") == 1 and "collect that state dataset with --obs pos" in err
