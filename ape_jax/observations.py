@@ -30,6 +30,7 @@ observation (training statistics). Vector observations only: a frame has no plac
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import jax
@@ -91,18 +92,30 @@ def full_observations(env: Env, demos: Any, where: str = "the demonstrations") -
         raise FullStateError(f"{where} hold no simulator state of {env.name!r} ({missing} missing or of another "
                              "shape): bc-full builds the full observation from it; collect the demonstrations "
                              "with this suite, or leave bc-full out")
-    n = len(demos)
-    observe = jax.jit(jax.vmap(full.observe_sim))
-    parts = []
-    for start in range(0, n, CHUNK):  # the last chunk padded to the same size: one compiled program
-        idx = np.minimum(np.arange(start, start + CHUNK), n - 1)
-        parts.append(np.asarray(observe({k: np.asarray(sim[k])[idx] for k in layout}))[: n - start])
-    obs = np.concatenate(parts).astype(np.float32)
+    obs = observe_rows(full, {k: sim[k] for k in layout})[0].astype(np.float32)
     if isinstance(env, envs.brax_env.BraxEnv) and env.obs_mode == "pos":
         # the positional dimensions exactly as the environment gave them (the torso height's substep, above)
         dims = envs.brax_env.positional_dims(env.name, env.config.backend, env.config.brax_kwargs)
         obs[:, list(dims)] = np.asarray(demos.obs, np.float32)
     return obs
+
+
+def observe_rows(env: Env, sim: dict, chunk: int = CHUNK) -> tuple[np.ndarray, float, float]:
+    """`(observations [N, ...], compile_s, run_s)`: `env.observe_sim` of each row of `sim` (`{field: [N, ...]}`,
+    `Demonstrations.sim`), `chunk` rows per jitted, vmapped call (the last chunk padded to the same size: one
+    compiled program, bounded memory), and the seconds its compilation and the calls took."""
+    n = len(next(iter(sim.values())))
+    rows = lambda idx: {k: np.asarray(v)[idx] for k, v in sim.items()}  # noqa: E731
+    t0 = time.perf_counter()
+    observe = jax.jit(jax.vmap(env.observe_sim)).lower(rows(np.arange(chunk) % n)).compile()
+    t1 = time.perf_counter()
+    out = None
+    for start in range(0, n, chunk):
+        part = np.asarray(observe(rows(np.minimum(np.arange(start, start + chunk), n - 1))))[: n - start]
+        if out is None:
+            out = np.empty((n, *part.shape[1:]), part.dtype)
+        out[start:start + len(part)] = part
+    return out, t1 - t0, time.perf_counter() - t1
 
 
 def full_state(env: Env, demos: Any, where: str = "the demonstrations") -> tuple[Env, Any]:

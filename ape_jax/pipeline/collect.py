@@ -36,7 +36,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
-from ape_jax import tasks
+from ape_jax import observations, tasks
 from ape_jax.pipeline import data as data_lib
 from ape_jax.pipeline import setup as setup_lib
 from ape_jax.pipeline.setup import ExpertRef, variant_of
@@ -240,19 +240,9 @@ RENDER_CHUNK = 1024  # frames per jitted call of `render_states` (one compile, b
 
 def render_states(env: envs.Env, sim: dict, chunk: int = RENDER_CHUNK) -> tuple[np.ndarray, float, float]:
     """`(frames [N, H, W, 3] uint8, compile_s, render_s)`: the frame `env` (an image environment) renders of each
-    row's simulator state `sim` (`{"qpos": [N, nq], "qvel": [N, nv]}`, `Demonstrations.sim`), `chunk` rows per
-    jitted, vmapped call; the seconds its compilation and its rendering took."""
-    n = len(next(iter(sim.values())))
-    chunk = min(chunk, n)
-    pick = lambda idx: {k: np.asarray(v)[idx] for k, v in sim.items()}  # noqa: E731
-    t0 = time.perf_counter()
-    observe = jax.jit(jax.vmap(env.observe_sim)).lower(pick(np.arange(chunk))).compile()
-    t1 = time.perf_counter()
-    out = np.empty((n, *env.observation_shape), np.uint8)
-    for start in range(0, n, chunk):  # the last chunk padded to the same size: one compiled program
-        idx = np.minimum(np.arange(start, start + chunk), n - 1)
-        out[start:start + chunk] = np.asarray(observe(pick(idx)))[: n - start]
-    return out, t1 - t0, time.perf_counter() - t1
+    row's simulator state `sim` (`{"qpos": [N, nq], "qvel": [N, nv]}`, `Demonstrations.sim`), at most `chunk` rows
+    per jitted, vmapped call (`observations.observe_rows`)."""
+    return observations.observe_rows(env, sim, min(chunk, len(next(iter(sim.values())))))
 
 
 def _rendered(cfg: dict, data_dir, force: bool, progress, save: bool, references: dict | None,

@@ -173,12 +173,6 @@ def missing_demonstrations(tasks: tuple[str, ...], dtype: str) -> list[str]:
     return out
 
 
-def _cache_dir():
-    from ape_jax.pipeline import data as data_lib
-
-    return data_lib.cache_dir()
-
-
 def run(p: Plan, out: pathlib.Path, work: pathlib.Path, limit_s: float) -> dict:
     """Runs the plan's sweeps side by side; `{env: {"rc", "wall_s", "finished"}}`."""
     env_vars = dict(os.environ, PYTHONUNBUFFERED="1")
@@ -232,6 +226,7 @@ def main(argv=None) -> int:
     import jax
 
     from ape_jax import models
+    from ape_jax.pipeline import data as data_lib
 
     if bad := [t for t in args.tasks if t not in TASKS]:
         fail(p, f"--tasks: unknown {bad}; valid: {', '.join(TASKS)}")
@@ -253,7 +248,7 @@ def main(argv=None) -> int:
         for env, a in the_plan.argv.items():
             print(f"  {env}: python -m experiments.sweep {' '.join(a)} --out {args.work / env}")
         print("demonstrations: " + ("; ".join(["missing: collect them first, on the CPU", *missing]) if missing else
-                                    f"every task's state dataset is cached in {_cache_dir()}"))
+                                    f"every task's state dataset is cached in {data_lib.cache_dir()}"))
         return 0
     if missing:
         fail(p, f"no state demonstrations cached for {len(missing)} task(s): collect them first, on the CPU: "
