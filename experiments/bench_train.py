@@ -227,8 +227,8 @@ def methods_table(args) -> str:
         "| batch | HSCIC value and gradient, ms | one BC-OH update, ms | ratio |", "|---:|---:|---:|---:|",
         *[f"| {n} | {c['hscic_s'] * 1e3:,.2f} | {c['bc_step_s'] * 1e3:,.2f} | {c['hscic_s'] / c['bc_step_s']:.2f} |"
           for n, c in cost.items()],
-        "", "PALR's estimator reads at most `recipe.palr_rows` (256) rows of a minibatch: every recipe's batch up to "
-        "256 is estimated whole, PALR's own 1,024 on its first 256.",
+        "", "PALR's estimator and MINE's bound read at most 256 rows of a minibatch (`recipe.palr_rows`, "
+        "`recipe.mine_rows`): every recipe's batch up to 256 is read whole, PALR's own 1,024 on its first 256.",
     ]
     for line in lines[4:]:
         print(line, file=sys.stderr)

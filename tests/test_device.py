@@ -53,6 +53,16 @@ def test_run_sh_refuses_an_unknown_argument():
     assert out.returncode == 2 and "unknown plan 'everything'" in out.stderr
 
 
+def test_the_fcaexpert_plan_refuses_a_cache_without_fcas_expert_before_anything_runs(tmp_path):
+    env = {**os.environ, "OUT": str(tmp_path / "out"), "WORK": str(tmp_path / "work"), "PYTHON": sys.executable,
+           "APE_JAX_CACHE": str(tmp_path / "data")}
+    env.pop("APE_JAX_EXPERTS", None)
+    out = subprocess.run(["bash", str(RUN), "--smoke", "--plan", "fcaexpert"], capture_output=True, text=True,
+                         timeout=60, env=env)
+    assert out.returncode == 2 and "FCA's expert is not imported" in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1 and not (tmp_path / "work" / "hopper-pos").exists()
+
+
 @pytest.mark.slow
 def test_run_sh_smoke_measures_and_finishes_both_sweeps(tmp_path):
     env = {**os.environ, "OUT": str(tmp_path / "out"), "WORK": str(tmp_path / "work"), "PYTHON": sys.executable}
@@ -107,3 +117,35 @@ def test_run_sh_images_plan_smoke_finishes_the_three_tasks_and_packs_them(tmp_pa
         data = results["config"]["data"]
         assert data["path"].endswith(".npz") and f"/{task}-pos-" in data["path"]  # the state dataset's rows
         assert "frames: " in (tmp_path / "out" / "images" / task / "log.txt").read_text()
+
+
+@pytest.mark.slow
+def test_run_sh_fcaexpert_plan_smoke_trains_every_program_on_the_imported_experts_raw_labels(tmp_path):
+    """`--plan fcaexpert --smoke`: an expert of the CS294 pickle's structure imported into the carried cache, then
+    Table 5's methods (one sweep per program, side by side) on its raw labels, packed."""
+    from test_import_expert import _cs294, _write_pickle
+
+    import numpy as np
+
+    data = tmp_path / "data"
+    env = {**os.environ, "OUT": str(tmp_path / "out"), "WORK": str(tmp_path / "work"), "PYTHON": sys.executable,
+           "APE_JAX_CACHE": str(data)}
+    env.pop("APE_JAX_EXPERTS", None)
+    pkl = _write_pickle(tmp_path / "Hopper-v1.pkl", _cs294(np.random.default_rng(0)))
+    imported = subprocess.run([sys.executable, "-m", "experiments.import_expert", str(pkl), "--env", "hopper",
+                               "--name", "fca", "--protocols", "fca"], capture_output=True, text=True,
+                              timeout=900, env=env, cwd=ROOT)
+    assert imported.returncode == 0, imported.stderr[-3000:]
+    out = subprocess.run(["bash", str(RUN), "--smoke", "--plan", "fcaexpert"], capture_output=True, text=True,
+                         timeout=1800, env=env)
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    with tarfile.open(tmp_path / "out" / "device.tgz") as packed:
+        names = set(packed.getnames())
+    name = "hopper-pos-fca-rows-paper-fca-fcaexpert-raw"
+    for stage, expected in (("bc-so", {"bc-so"}), ("bc-oh", {"bc-oh", "ours-step", "ours-softmax"}),
+                            ("bc-full", {"bc-full"}), ("fca", {"fca"})):
+        assert f"./{name}-{stage}/results.json" in names
+        results = json.loads((tmp_path / "out" / f"{name}-{stage}" / "results.json").read_text())
+        assert {r["method"] for r in results["runs"]} == expected
+        assert all(r["status"] == "ok" for r in results["runs"])
+        assert results["protocol"]["labels"] == "raw" and results["protocol"]["expert_sha256"]

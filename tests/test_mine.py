@@ -69,6 +69,20 @@ def test_at_weight_0_the_policy_trains_as_bc_oh_s():
     np.testing.assert_array_equal(metrics["loss"], metrics["unweighted_loss"])
 
 
+def test_the_bound_reads_a_batch_within_its_rows_whole_and_a_larger_one_on_its_first_rows():
+    """`rows` 0 (all), the batch and more than the batch train alike, bit for bit (the `fca` and `mlp` recipes'
+    trainings are as before the cap); fewer rows than the batch feed the bound a subsample: another training."""
+    cfg = dataclasses.replace(CFG, iterations=10)
+    data, key, hp = planted(), jax.random.PRNGKey(4), MineHparams.make(1.0, lr=1e-3)
+    trained = {rows: jax.jit(make_mine(cfg, rows=rows).train)(key, hp, data)
+               for rows in (0, cfg.batch_size, 256, cfg.batch_size // 4)}
+    whole = jax.tree.leaves(trained[0])
+    for rows in (cfg.batch_size, 256):
+        assert all(np.array_equal(a, b) for a, b in zip(whole, jax.tree.leaves(trained[rows])))
+    params, metrics = trained[cfg.batch_size // 4]
+    assert np.all(np.isfinite(metrics["mi"])) and not np.array_equal(metrics["mi"], trained[0][1]["mi"])
+
+
 def _trained(weights, seeds, iterations, inner_steps):
     cfg = dataclasses.replace(CFG, iterations=iterations)
     hp = stack_hparams([MineHparams.make(w, lr=1e-3, estimator_lr=1e-3) for w in weights for _ in seeds])
@@ -113,6 +127,8 @@ def test_the_knobs_refuse_bad_values():
             MineHparams.make(**kw)
     with pytest.raises(ValueError, match="inner_steps must be >= 1"):
         make_mine(CFG, inner_steps=0)
+    with pytest.raises(ValueError, match="rows must be >= 0"):
+        make_mine(CFG, rows=-1)
     ctx = methods.GridContext(task=tasks.get("hopper"), step_grid=(), softmax_grid=(), n_train=100)
     assert methods.get("mine").settings(ctx) == [{"weight": 0.1}]
     recipe = resolve("hopper", "pos", sets=["recipe.mine_weights=0,1"]).recipe

@@ -166,6 +166,7 @@ BASE = ["--env", "toycar", "--obs", "full", "--quiet"]
     (["--methods", "mine", "--set", "recipe.mine_weights=-0.5"], "recipe.mine_weights: every value must be"),
     (["--methods", "mine", "--set", "recipe.mine_steps=0"], "recipe.mine_steps must be an integer >= 1"),
     (["--methods", "palr", "--set", "recipe.palr_rows=-1"], "recipe.palr_rows must be an integer >= 0"),
+    (["--methods", "mine", "--set", "recipe.mine_rows=-1"], "recipe.mine_rows must be an integer >= 0"),
 ])
 def test_the_sweep_refuses_bad_knobs_and_rap_without_a_history_before_any_work(tmp_path, capsys, args, message):
     out, data = tmp_path / "out", tmp_path / "data"

@@ -44,6 +44,11 @@ Our readings:
 - **The loss** is the project's BC loss, not their tanh-Gaussian likelihood; the estimator's learning rate stays
   constant (theirs: no schedule at all) while the policy's follows the recipe's.
 - **The previous action** at an episode's first step repeats the first action (`ape_jax.baselines._batch`).
+- **Cost**: the bound reads at most `rows` rows of each minibatch (`recipe.mine_rows`, default `ESTIMATOR_ROWS`
+  = 256; 0: the whole batch), as PALR's estimator does (`recipe.palr_rows`): the rows are drawn uniformly with
+  replacement, so the first `rows` are a uniform subsample. Every recipe's batch up to 256 (`fca` 64, `mlp` 128)
+  is read whole, so those trainings are as they were before the cap; under PALR's batch of 1,024 (`recipe palr`)
+  `T` on all 2,048 joint and marginal rows made MINE 1.5× BC-OH's time per update (docs/speed.md).
 
 Metrics (`[n]` float32 per `run` of `n` iterations): `"loss"` (the policy's objective), `"unweighted_loss"` (the
 BC loss), `"mi"` (the bound in the policy's step) and `"estimator_mi"` (the bound in the estimator's last step).
@@ -69,6 +74,7 @@ from ape_jax.learner import (Data, Learner, LearnerConfig, adam_step, learning_r
 DEFAULT_WEIGHT = 0.1        # train.py: reg_coef = 0.1 for FCA and MINE
 ESTIMATOR_LR = 1e-4         # train.py: inner_lr = 1e-4 (MINE_BC's mine_lr)
 INNER_STEPS = 1             # the estimator's steps per iteration (theirs: 5 on fresh batches; module docstring)
+ESTIMATOR_ROWS = 256        # rows of a minibatch the bound reads (module docstring, "Cost"); 0: all
 STATISTICS_HIDDEN = (100, 100)  # mine/models.py StatisticsNet
 INPUT_NOISE, HIDDEN_NOISE = 0.3, 0.5
 
@@ -160,12 +166,13 @@ class MineState:
     key: jax.Array
 
 
-def make_mine(cfg: LearnerConfig, inner_steps: int = INNER_STEPS) -> Learner:
+def make_mine(cfg: LearnerConfig, inner_steps: int = INNER_STEPS, rows: int = ESTIMATOR_ROWS) -> Learner:
     """The pure functions of MINE-BC for one static setup (the module docstring).
 
     Args:
       cfg: shapes, counts and the recipe (`cfg.model()` the policy, its embedding `φ`).
       inner_steps: the estimator's steps per iteration.
+      rows: the bound reads the first `min(rows, batch)` rows of each minibatch; 0: all of them.
 
     Returns:
       A `Learner`. `init(key)` takes its policy and run key as `make_train(cfg).init(jax.random.split(key)[0])`
@@ -174,6 +181,9 @@ def make_mine(cfg: LearnerConfig, inner_steps: int = INNER_STEPS) -> Learner:
     """
     if inner_steps < 1:
         raise ValueError(f"MINE inner_steps must be >= 1, got {inner_steps}")
+    if rows < 0:
+        raise ValueError(f"MINE rows must be >= 0 (0: the whole batch), got {rows}")
+    m = cfg.batch_size if rows == 0 else min(rows, cfg.batch_size)
     base = make_train(cfg)
     model, adam = cfg.model(), cfg.optimizer()
     network, estimator_adam = StatisticsNetwork(), optax.scale_by_adam(b1=0.9, b2=0.999)
@@ -195,12 +205,12 @@ def make_mine(cfg: LearnerConfig, inner_steps: int = INNER_STEPS) -> Learner:
     def update(state: MineState, hp: MineHparams, data: Data):
         key_step = jax.random.fold_in(state.key, state.step)
         batch = sample_batch(cfg, base, data, key_step)
-        noise = draw_noise(jax.random.fold_in(key_step, OWN_KEYS), cfg.batch_size, width)
+        noise = draw_noise(jax.random.fold_in(key_step, OWN_KEYS), m, width)
         lr = learning_rate(cfg, hp.lr, state.step)
 
         def bound(statistics, joint, j):
-            return dv_bound(network, statistics, batch.previous, joint, jax.random.fold_in(key_step, OWN_KEYS + 1 + j),
-                            noise)
+            return dv_bound(network, statistics, batch.previous[:m], joint[:m],
+                            jax.random.fold_in(key_step, OWN_KEYS + 1 + j), noise)
 
         def objective(params, statistics):
             """One pass for both players: the bound's gradient reaches the policy ×weight (its descent) and T
@@ -246,4 +256,5 @@ def _grid(ctx) -> list[dict]:
 methods.register(methods.Method(
     "mine", "MINE", grid=_grid, hparams=lambda settings, lr, row: MineHparams.make(settings["weight"], lr=lr),
     program="mine", module=__name__,
-    learner=lambda ctx: make_mine(ctx.cfg, getattr(getattr(ctx, "recipe", None), "mine_steps", INNER_STEPS))))
+    learner=lambda ctx: make_mine(ctx.cfg, getattr(getattr(ctx, "recipe", None), "mine_steps", INNER_STEPS),
+                                  getattr(getattr(ctx, "recipe", None), "mine_rows", ESTIMATOR_ROWS))))

@@ -36,7 +36,7 @@ CONTROL_FIELDS = ("control_ratio", "controlled_verdict")   # what judging adds t
 # The recipe's fields for other methods than the control (their grids and knobs): they do not change how it trains
 _OTHER_METHODS = ("step_grid", "softmax_grid", "fca_alphas", "fca_adversary_lr", "ib_weights", "ape_normalization",
                   "rap_weights", "rap_widths", "palr_weights", "palr_bandwidths", "palr_rows", "mine_weights",
-                  "mine_steps")
+                  "mine_steps", "mine_rows")
 
 
 class JudgeError(ValueError):

@@ -137,6 +137,7 @@ class Recipe:
       mine_weights: MINE's penalty weights (>= 0) to run; empty: its default (`ape_jax.baselines.mine`: 0.1).
       mine_steps: MINE's estimator steps per iteration (the authors' code: 5, ~2× BC-OH's time per update; 1 keeps
         MINE within 1.5× of it).
+      mine_rows: the rows of each minibatch MINE's bound reads; 0: the whole batch.
     """
 
     name: str = "mlp"
@@ -169,6 +170,7 @@ class Recipe:
     palr_rows: int = 256
     mine_weights: tuple[float, ...] = ()
     mine_steps: int = 1
+    mine_rows: int = 256
 
     def __post_init__(self):
         # the knobs a LearnerConfig takes from the recipe: one rule each (`ape_jax.knobs`), the config's too
@@ -205,6 +207,8 @@ class Recipe:
                f"recipe.palr_bandwidths: every value must be a finite number > 0, got {self.palr_bandwidths!r}")
         _check(isinstance(self.palr_rows, int) and not isinstance(self.palr_rows, bool) and self.palr_rows >= 0,
                f"recipe.palr_rows must be an integer >= 0 (0: the whole batch), got {self.palr_rows!r}")
+        _check(isinstance(self.mine_rows, int) and not isinstance(self.mine_rows, bool) and self.mine_rows >= 0,
+               f"recipe.mine_rows must be an integer >= 0 (0: the whole batch), got {self.mine_rows!r}")
         _check(isinstance(self.mine_steps, int) and not isinstance(self.mine_steps, bool) and self.mine_steps >= 1,
                f"recipe.mine_steps must be an integer >= 1, got {self.mine_steps!r}")
         for name in ("step_grid", "softmax_grid", "fca_alphas", "ib_weights", *METHOD_GRIDS):

@@ -7,6 +7,7 @@
 #   experiments/device/run.sh --smoke                # here: tiny sizes on the CPU, to check the script
 #   experiments/device/run.sh --plan paper-fca       # there: FCA (TCA and TCA+IB) at the paper's budget (issue 25)
 #   experiments/device/run.sh --plan images          # there: the MuJoCo-Image grid at 84x84 (issue 48), ~9 min
+#   experiments/device/run.sh --plan fcaexpert       # there: Table 5 with FCA's expert at the paper's 300k (issue 44)
 #
 # Plans: `default` (above); `paper-fca`: FCA and FCA-IB under `--preset paper --recipe fca` on Hopper (8 seeds)
 # and HalfCheetah (3 seeds) side by side on the one card, each program's configurations as one block
@@ -21,6 +22,13 @@
 # (`--dry-run` prints the commands): APE_JAX_CACHE=.devdata python -m experiments.collect --env hopper --obs pos
 # --protocol brax --episodes 100 (and walker2d, halfcheetah); the frames are rendered there. To fit the device
 # tool's 64 MiB: experiments/device/fetch_wheels.sh --lean, then carry [".whl", ".devdata"] (55 MB).
+# `fcaexpert`: Table 5 with FCA's own expert (raw labels) under `--preset paper --protocol fca --recipe fca`, Hopper,
+# 8 seeds, one sweep per program side by side (BC-SO; BC-OH and ours; BC-full; FCA at alpha 0.1 and 2), each
+# program's configurations as one block. Import the expert and collect its rows here first, into .devdata (the expert lives
+# under .devdata/experts: git-ignored, it travels to the device and is never committed):
+#   APE_JAX_CACHE=.devdata python -m experiments.import_expert PATH/TO/Hopper-v1.pkl --env hopper --name fca
+#   APE_JAX_CACHE=.devdata python -m experiments.collect --env hopper --obs pos --protocol fca \
+#     --set protocol.expert=fca --set protocol.labels=raw
 #
 # Everything it keeps goes under $OUT (default: runs/device, or runs/device-smoke): measure.json
 # (versions, devices, matmul peak, grid FLOP/s, MJX steps/s), nvidia-smi.txt, and per sweep its
@@ -40,17 +48,17 @@ while [ $# -gt 0 ]; do
     --smoke) SMOKE=1 ;;
     --plan) PLAN=${2:-}; shift ;;
     -h|--help) sed -n '2,/^set -uo/{/^set -uo/!p;}' "$0"; exit 0 ;;
-    *) echo "run.sh: error: unknown argument $1 (valid: --smoke, --plan default|paper-fca|images)" >&2; exit 2 ;;
+    *) echo "run.sh: error: unknown argument $1 (valid: --smoke, --plan default|paper-fca|images|fcaexpert)" >&2; exit 2 ;;
   esac
   shift
 done
 case "$PLAN" in
-  default|paper-fca|images) ;;
-  *) echo "run.sh: error: unknown plan '$PLAN' (valid: default, paper-fca, images)" >&2; exit 2 ;;
+  default|paper-fca|images|fcaexpert) ;;
+  *) echo "run.sh: error: unknown plan '$PLAN' (valid: default, paper-fca, images, fcaexpert)" >&2; exit 2 ;;
 esac
 START=$(date +%s)
 if [ "$SMOKE" = 1 ]; then BUDGET_S=${BUDGET_S:-1500}
-elif [ "$PLAN" = images ]; then BUDGET_S=${BUDGET_S:-540}
+elif [ "$PLAN" = images ] || [ "$PLAN" = fcaexpert ]; then BUDGET_S=${BUDGET_S:-540}
 else BUDGET_S=${BUDGET_S:-420}; fi
 PAPER_S=${PAPER_S:-300}
 if [ "$SMOKE" = 1 ]; then OUT=${OUT:-runs/device-smoke}; else OUT=${OUT:-runs/device}; fi
@@ -118,6 +126,24 @@ if [ "$PLAN" = paper-fca ]; then
       --encoders resnet18,patch+group --repeats 3 > "$OUT/bench-images/log.txt" 2>&1
     tail -n 30 "$OUT/bench-images/log.txt"
   fi
+elif [ "$PLAN" = fcaexpert ]; then
+  # Refused before anything compiles where the expert was not imported into the carried cache.
+  [ -f "${APE_JAX_EXPERTS:-${APE_JAX_CACHE:-.devdata}/experts}/hopper-fca/card.json" ] || {
+    echo "run.sh: error: FCA's expert is not imported into ${APE_JAX_CACHE:-.devdata}/experts (see this script's header)" >&2
+    exit 2; }
+  # One process per program, side by side: on the GPU a small MLP's update is bound by launch latency, not by
+  # its width, so the programs should overlap (unmeasured for four; paper-fca's two took 383 s and 328 s together,
+  # 16 FCA models at 300k training in 219 s). A stage out of time stops and says so.
+  export XLA_PYTHON_CLIENT_MEM_FRACTION=${XLA_PYTHON_CLIENT_MEM_FRACTION:-0.2}
+  common=(--env hopper --obs pos --protocol fca --recipe fca --seeds 8 --set protocol.expert=fca
+          --set protocol.labels=raw --step-grid 0.1:5 --softmax-grid 0.2 --set recipe.fca_alphas=0.1,2
+          --set budget.width=24)
+  if [ "$SMOKE" = 1 ]; then common+=(--smoke); else common+=(--preset paper); fi
+  name=hopper-pos-fca-rows-paper-fca-fcaexpert-raw
+  for methods in bc-so bc-oh,ours-step,ours-softmax bc-full fca; do
+    stage "$name-${methods%%,*}" "$(( $(left) - 30 ))" "${common[@]}" --methods "$methods" &
+  done
+  wait
 elif [ "$PLAN" = images ]; then
   # The grid, sized by experiments.device.images to what is left (less BENCH_S and 20 s for copying); it refuses
   # (exit 2, one line) a plan that cannot fit or whose demonstrations were not collected, before compiling.
