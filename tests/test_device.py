@@ -1,5 +1,6 @@
 """The prepared accelerator run (`experiments/device/`): its refusals, its measurements at tiny sizes, the smoke run."""
 
+import hashlib
 import json
 import os
 import pathlib
@@ -132,6 +133,7 @@ def test_run_sh_fcaexpert_plan_smoke_trains_every_program_on_the_imported_expert
            "APE_JAX_CACHE": str(data)}
     env.pop("APE_JAX_EXPERTS", None)
     pkl = _write_pickle(tmp_path / "Hopper-v1.pkl", _cs294(np.random.default_rng(0)))
+    sha256 = hashlib.sha256(pkl.read_bytes()).hexdigest()
     imported = subprocess.run([sys.executable, "-m", "experiments.import_expert", str(pkl), "--env", "hopper",
                                "--name", "fca", "--protocols", "fca"], capture_output=True, text=True,
                               timeout=900, env=env, cwd=ROOT)
@@ -148,4 +150,7 @@ def test_run_sh_fcaexpert_plan_smoke_trains_every_program_on_the_imported_expert
         results = json.loads((tmp_path / "out" / f"{name}-{stage}" / "results.json").read_text())
         assert {r["method"] for r in results["runs"]} == expected
         assert all(r["status"] == "ok" for r in results["runs"])
-        assert results["protocol"]["labels"] == "raw" and results["protocol"]["expert_sha256"]
+        assert results["protocol"]["labels"] == "raw" and results["protocol"]["expert"] == "fca"
+        assert results["config"]["data"]["settings"]["expert"]["sha256"] == sha256
+    log = (tmp_path / "out" / f"{name}-fca" / "log.txt").read_text()
+    assert "(cached: " in log  # the first sweep collected the rows; the others found them

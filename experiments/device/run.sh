@@ -138,9 +138,16 @@ elif [ "$PLAN" = fcaexpert ]; then
   common=(--env hopper --obs pos --protocol fca --recipe fca --seeds 8 --set protocol.expert=fca
           --set protocol.labels=raw --step-grid 0.1:5 --softmax-grid 0.2 --set recipe.fca_alphas=0.1,2
           --set budget.width=24)
-  if [ "$SMOKE" = 1 ]; then common+=(--smoke); else common+=(--preset paper); fi
+  # --smoke: enough episodes for the smoke's split whatever the expert (one that falls early too)
+  if [ "$SMOKE" = 1 ]; then common+=(--smoke --set protocol.collect_transitions=2000); else common+=(--preset paper); fi
   name=hopper-pos-fca-rows-paper-fca-fcaexpert-raw
-  for methods in bc-so bc-oh,ours-step,ours-softmax bc-full fca; do
+  # The first sweep finds (or collects) the demonstrations before the others start, so no two collect them at once.
+  stage "$name-bc-so" "$(( $(left) - 30 ))" "${common[@]}" --methods bc-so &
+  first=$!
+  until grep -q "^demonstrations: " "$OUT/$name-bc-so/log.txt" 2>/dev/null || ! kill -0 "$first" 2>/dev/null; do
+    sleep 2
+  done
+  for methods in bc-oh,ours-step,ours-softmax bc-full fca; do
     stage "$name-${methods%%,*}" "$(( $(left) - 30 ))" "${common[@]}" --methods "$methods" &
   done
   wait
