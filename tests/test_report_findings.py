@@ -176,3 +176,32 @@ def test_with_fcas_expert_palr_beats_bc_oh_without_a_leaner_embedding():
     assert (round(palr.diagnostics.control.median, 2), round(bcoh.diagnostics.control.median, 2)) == (0.55, 0.58)
     assert (round(palr.diagnostics.predictability.median, 2),
             round(bcoh.diagnostics.predictability.median, 2)) == (0.82, 0.59)
+
+
+def test_with_the_rough_hopper_expert_the_history_helps_no_remedy_beats_bc_oh_and_none_copies():
+    """The reading's rough-expert paragraph: Hopper on the shipped rough expert's raw labels (5 seeds, 30k): BC-OH's
+    % of expert, BC-SO − BC-OH, the share of the gap to BC-full, each remedy against BC-OH (every interval across
+    0), both verdicts' counts over the 40 history policies, and the diagnostics' medians."""
+    from experiments.report.analysis import regime_groups, regime_table
+
+    groups = regime_groups(_merged("hopper-pos-fca-rows-default-fca-rough-*.json"))
+    assert len(groups) == 1 and groups[0].protocol.get("labels") == "raw"
+    t = regime_table(groups[0])
+    rows = {r.label: r for r in t.rows}
+    assert round(rows["BC-OH"].normalized.mean, 1) == 49.6 and len(rows["BC-OH"].normalized.seeds) == 5
+    assert _text(rows["BC-SO"].versus) == "-30.2 [-50.8, -9.7]" and round(100 * t.share.share) == 37
+    remedies = {"Ours (step), THR 10% W 5": "-6.4", "Ours (softmax), τ 0.2": "-7.6", "FCA (TCA), α 0.1": "-5.3",
+                "FCA (TCA), α 2": "-21.9", "RAP": "-18.9", "PALR": "-4.1", "MINE": "-15.2"}
+    assert {r: f"{rows[r].versus.diff:+.1f}" for r in remedies} == remedies
+    assert all(rows[r].versus.low < 0 < rows[r].versus.high for r in remedies)
+    assert _text(rows["PALR"].versus) == "-4.1 [-38.7, +30.4]"
+    history = [r for r in t.rows if r.method not in ("bc-so", "bc-full")]
+    assert sum(r.diagnostics.read for r in history) == 40
+    assert sum(r.diagnostics.copycats for r in history) == 0 and sum(r.diagnostics.controlled for r in history) == 0
+    others = [r.diagnostics for r in history if r.method != "rap"]
+    assert (round(min(d.control.median for d in others), 2), round(max(d.control.median for d in others), 2)) == (
+        0.24, 0.41)
+    assert (round(min(d.predictability.median for d in others), 2),
+            round(max(d.predictability.median for d in others), 2)) == (0.80, 0.88)
+    assert (round(rows["RAP"].diagnostics.control.median, 2), round(rows["RAP"].diagnostics.predictability.median, 2),
+            round(rows["BC-full (full state: the ceiling)"].diagnostics.control.median, 2)) == (0.70, 0.48, 0.10)
