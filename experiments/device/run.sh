@@ -24,8 +24,8 @@
 # tool's 64 MiB: experiments/device/fetch_wheels.sh --lean, then carry [".whl", ".devdata"] (55 MB).
 # `fcaexpert`: Table 5 with FCA's own expert (raw labels) under `--preset paper --protocol fca --recipe fca`, Hopper,
 # 8 seeds, one sweep per program side by side (BC-SO; BC-OH and ours; BC-full; FCA at alpha 0.1 and 2), each
-# program's configurations as one block. Import the expert and collect its rows here first, into .devdata (the expert lives
-# under .devdata/experts: git-ignored, it travels to the device and is never committed):
+# program's configurations as one block. Import the expert and collect its rows here first, into .devdata (the
+# expert lives under .devdata/experts: git-ignored, it travels to the device and is never committed):
 #   APE_JAX_CACHE=.devdata python -m experiments.import_expert PATH/TO/Hopper-v1.pkl --env hopper --name fca
 #   APE_JAX_CACHE=.devdata python -m experiments.collect --env hopper --obs pos --protocol fca \
 #     --set protocol.expert=fca --set protocol.labels=raw
