@@ -8,12 +8,31 @@ import subprocess
 import sys
 import tarfile
 
+import numpy as np
 import pytest
 
 from experiments.device import measure
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 RUN = ROOT / "experiments" / "device" / "run.sh"
+
+
+def _plan_env(tmp_path) -> dict:
+    """The environment of a smoke plan run into `tmp_path`: its output, work and cache folders there, this Python,
+    no user expert directory (imported experts come from the cache)."""
+    env = {**os.environ, "OUT": str(tmp_path / "out"), "WORK": str(tmp_path / "work"), "PYTHON": sys.executable,
+           "APE_JAX_CACHE": str(tmp_path / "data")}
+    env.pop("APE_JAX_EXPERTS", None)
+    return env
+
+
+def _smoke_plan(tmp_path, plan: str) -> set[str]:
+    """Runs `run.sh --smoke --plan PLAN` (it must exit 0) and returns the names packed in its `device.tgz`."""
+    out = subprocess.run(["bash", str(RUN), "--smoke", "--plan", plan], capture_output=True, text=True,
+                         timeout=1800, env=_plan_env(tmp_path))
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
+    with tarfile.open(tmp_path / "out" / "device.tgz") as packed:
+        return set(packed.getnames())
 
 
 def test_measure_refuses_a_cpu_without_smoke(tmp_path, capsys):
@@ -55,11 +74,8 @@ def test_run_sh_refuses_an_unknown_argument():
 
 
 def test_the_fcaexpert_plan_refuses_a_cache_without_fcas_expert_before_anything_runs(tmp_path):
-    env = {**os.environ, "OUT": str(tmp_path / "out"), "WORK": str(tmp_path / "work"), "PYTHON": sys.executable,
-           "APE_JAX_CACHE": str(tmp_path / "data")}
-    env.pop("APE_JAX_EXPERTS", None)
     out = subprocess.run(["bash", str(RUN), "--smoke", "--plan", "fcaexpert"], capture_output=True, text=True,
-                         timeout=60, env=env)
+                         timeout=60, env=_plan_env(tmp_path))
     assert out.returncode == 2 and "FCA's expert is not imported" in out.stderr
     assert len(out.stderr.strip().splitlines()) == 1 and not (tmp_path / "work" / "hopper-pos").exists()
 
@@ -81,13 +97,7 @@ def test_run_sh_smoke_measures_and_finishes_both_sweeps(tmp_path):
 @pytest.mark.slow
 def test_run_sh_paper_fca_plan_smoke_finishes_both_sweeps_and_packs_them(tmp_path):
     """`--plan paper-fca --smoke`: FCA and FCA-IB on Hopper (8 seeds) and HalfCheetah (3) side by side, packed."""
-    env = {**os.environ, "OUT": str(tmp_path / "out"), "WORK": str(tmp_path / "work"), "PYTHON": sys.executable,
-           "APE_JAX_CACHE": str(tmp_path / "data")}
-    out = subprocess.run(["bash", str(RUN), "--smoke", "--plan", "paper-fca"], capture_output=True, text=True,
-                         timeout=1800, env=env)
-    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
-    with tarfile.open(tmp_path / "out" / "device.tgz") as packed:
-        names = set(packed.getnames())
+    names = _smoke_plan(tmp_path, "paper-fca")
     for stage, seeds in (("hopper-pos-paper-fca", 8), ("halfcheetah-pos-paper-fca", 3)):
         assert f"./{stage}/results.json" in names
         results = json.loads((tmp_path / "out" / stage / "results.json").read_text())
@@ -99,13 +109,7 @@ def test_run_sh_paper_fca_plan_smoke_finishes_both_sweeps_and_packs_them(tmp_pat
 def test_run_sh_images_plan_smoke_finishes_the_three_tasks_and_packs_them(tmp_path):
     """`--plan images --smoke`: the MuJoCo-Image grid (drq at 84×84, frames rendered from the state demonstrations'
     simulator states) on Hopper, Walker2d and HalfCheetah side by side, packed."""
-    env = {**os.environ, "OUT": str(tmp_path / "out"), "WORK": str(tmp_path / "work"), "PYTHON": sys.executable,
-           "APE_JAX_CACHE": str(tmp_path / "data")}
-    out = subprocess.run(["bash", str(RUN), "--smoke", "--plan", "images"], capture_output=True, text=True,
-                         timeout=1800, env=env)
-    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
-    with tarfile.open(tmp_path / "out" / "device.tgz") as packed:
-        names = set(packed.getnames())
+    names = _smoke_plan(tmp_path, "images")
     plan = json.loads((tmp_path / "out" / "images" / "plan.json").read_text())
     assert plan["smoke"] and all(s["finished"] for s in plan["sweeps"].values())
     for task in ("hopper", "walker2d", "halfcheetah"):
@@ -126,23 +130,13 @@ def test_run_sh_fcaexpert_plan_smoke_trains_every_program_on_the_imported_expert
     Table 5's methods (one sweep per program, side by side) on its raw labels, packed."""
     from test_import_expert import _cs294, _write_pickle
 
-    import numpy as np
-
-    data = tmp_path / "data"
-    env = {**os.environ, "OUT": str(tmp_path / "out"), "WORK": str(tmp_path / "work"), "PYTHON": sys.executable,
-           "APE_JAX_CACHE": str(data)}
-    env.pop("APE_JAX_EXPERTS", None)
     pkl = _write_pickle(tmp_path / "Hopper-v1.pkl", _cs294(np.random.default_rng(0)))
     sha256 = hashlib.sha256(pkl.read_bytes()).hexdigest()
     imported = subprocess.run([sys.executable, "-m", "experiments.import_expert", str(pkl), "--env", "hopper",
                                "--name", "fca", "--protocols", "fca"], capture_output=True, text=True,
-                              timeout=900, env=env, cwd=ROOT)
+                              timeout=900, env=_plan_env(tmp_path), cwd=ROOT)
     assert imported.returncode == 0, imported.stderr[-3000:]
-    out = subprocess.run(["bash", str(RUN), "--smoke", "--plan", "fcaexpert"], capture_output=True, text=True,
-                         timeout=1800, env=env)
-    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-3000:]
-    with tarfile.open(tmp_path / "out" / "device.tgz") as packed:
-        names = set(packed.getnames())
+    names = _smoke_plan(tmp_path, "fcaexpert")
     name = "hopper-pos-fca-rows-paper-fca-fcaexpert-raw"
     for stage, expected in (("bc-so", {"bc-so"}), ("bc-oh", {"bc-oh", "ours-step", "ours-softmax"}),
                             ("bc-full", {"bc-full"}), ("fca", {"fca"})):
