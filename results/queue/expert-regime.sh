@@ -49,9 +49,10 @@ for env in hopper walker2d halfcheetah; do
   sweep $env-pos-fca-rows-default-fca-rough-raw --env $env $FCA --methods $TABLE5_METHODS,$AFTER $GRIDS --seeds 5 \
     --set protocol.expert=rough --set protocol.labels=raw --set recipe.fca_alphas=$alphas
 done
-# The previous action in view (Hopper, the shipped SAC expert): one more row of the copycat map; 5 seeds
-sweep hopper-pos-fca-rows-default-fca-prevaction --env hopper $FCA --seeds 5 \
-  --methods bc-so,bc-oh,bc-full,ours-step,$AFTER --set recipe.step_grid=0.1:5 --set protocol.prev_action=true
+# The previous action in view (Hopper, the shipped SAC expert): one more row of the copycat map and a cell of the
+# later methods' ranking, so every ranked method runs in it (FCA at Hopper's two alphas); 5 seeds
+sweep hopper-pos-fca-rows-default-fca-prevaction --env hopper $FCA --seeds 5 --methods $TABLE5_METHODS,$AFTER $GRIDS \
+  --set recipe.fca_alphas=0.1,2 --set protocol.prev_action=true
 # The default tasks (the shipped SAC experts): the ceiling and the later methods beside the committed *-fca-bc.json
 for env in hopper walker2d halfcheetah; do
   sweep $env-pos-fca-rows-default-fca-after --env $env $FCA --methods bc-full,$AFTER --seeds 5
