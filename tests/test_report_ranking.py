@@ -1,4 +1,4 @@
-"""The later methods (RAP, PALR, MINE) ranked in the report: cells by family (the copycat regime by its setting,
+"""The later methods (RAP, PALR, MINE) ranked in the report: cells by family (by setting: where copying is expected,
 the default tasks), each method's best configuration per cell against BC-OH, the IQM and probability of
 improvement across cells, a method missing from a cell left out of that family, and the section with its figure.
 

@@ -3,7 +3,7 @@
 A *cell* is a merged group (one task, protocol, expert and budget) in which at least one of `LATER` ran. Cells fall
 into two families, by their setting (never by their results):
 
-- the copycat regime (`is_copycat_cell`): an expert of FCA's kind (`regime.is_regime`: FCA's imported expert or
+- where copying is expected (`is_copycat_cell`): an expert of FCA's kind (`regime.is_regime`: FCA's imported expert or
   raw labels) or the previous action in view (`protocol.prev_action`), the settings where BC-OH is expected to copy;
 - the default tasks: every other cell (the shipped experts under the paper's protocol).
 
@@ -130,6 +130,6 @@ def family(name: str, cells: Sequence[Group], reps: int = RESAMPLES) -> Family:
 
 
 def ranking(merged: Merged, reps: int = RESAMPLES) -> list[Family]:
-    """Both families' rankings (`family`), the copycat regime first; empty where no file holds one of `LATER`."""
+    """Both families' rankings (`family`), where copying is expected first; empty where no file holds one of `LATER`."""
     cells = ranking_cells(merged)
     return [family(name, cells[name], reps) for name in ("copycat", "default") if name in cells]

@@ -290,7 +290,7 @@ def ranking_figure(families: Sequence[Family], names: dict[str, str]) -> Figure 
                 ax.axvline(r.iqm.value, color="0.4", ls="--", lw=1)
         ax.set_yticks(y, labels=[names[r.method] for r in f.ranked])
         ax.set_ylim(len(f.ranked) - 0.5, -0.5)
-        name = {"copycat": "the copycat regime", "default": "the default tasks"}.get(f.name, f.name)
+        name = {"copycat": "where copying is expected", "default": "the default tasks"}.get(f.name, f.name)
         ax.set_title(f"{name}: {len(f.cells)} cell" + ("s" if len(f.cells) > 1 else ""), fontsize=10)
         ax.set_xlabel("IQM, % of expert (95% CI)", fontsize=9)
         ax.grid(axis="x", color="0.9")

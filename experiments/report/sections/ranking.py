@@ -8,7 +8,8 @@ from experiments.report.analysis.ranking import LATER
 from experiments.report.figures.builders import ranking_figure
 from experiments.report.sections.common import Context, Section, copycat_count, diff_cell, table
 
-FAMILIES = {"copycat": "the copycat regime (FCA's expert, the rough experts, the previous action in view)",
+FAMILIES = {"copycat": "the settings where copying is expected (FCA's expert, the rough experts, the previous action "
+                       "in view)",
             "default": "the default tasks (the shipped experts)"}
 
 
