@@ -35,6 +35,24 @@ def test_every_committed_results_file_loads_and_round_trips(path):
     assert res.fingerprint()["methods"] == raw["config"]["methods"]
 
 
+FCA_FILES = [p for p in COMMITTED
+             if (json.loads(p.read_text()).get("protocol") or {}).get("name", "").startswith("fca")]
+
+
+@pytest.mark.parametrize("path", FCA_FILES, ids=lambda p: p.name)
+def test_every_committed_fca_file_carries_the_controlled_verdict(path):
+    """Every policy with readable diagnostics in a file of the paper's protocols has its control ratio and
+    controlled verdict, against its own BC-SO or a named sibling's (`experiments.evaluate --rejudge FILE --control
+    SIBLING`): a file committed without them (an after-file, the previous action in view) fails here."""
+    from ape_jax.pipeline import judge
+
+    res = results.load(path)
+    read = [r for r in res.runs if judge.readable(r) is not None]
+    assert read, "no policy with diagnostics"
+    assert all(judge.readable(r).get("controlled_verdict") in ("copycat", "not copycat") for r in read)
+    assert (res.config.get("diagnostics") or {}).get("control", {}).get("at")
+
+
 def test_labels_of_methods_the_registry_does_not_know_come_from_the_file():
     res = results.load(COMMITTED[0])
     obj = res.to_json()
