@@ -4,7 +4,8 @@
 # checkout (WT, default: this script's repository) with the FCA expert imported once:
 #   python -m experiments.import_expert PATH/TO/fighting-copycat-agents/data/experts/Hopper-v1.pkl --env hopper --name fca
 # Each sweep resumes where it stopped (--resume) and is skipped once its results file exists; RUNS holds the run
-# folders (checkpoints, policies). A finished sweep's results.json is copied to results/NAME.json, to be committed.
+# folders (checkpoints, policies). A finished sweep's results.json is copied to results/NAME.json, to be committed;
+# a file with no no-history control of its own is then judged against its sibling's (judge_by).
 set -uo pipefail
 WT=${WT:-$(cd "$(dirname "$0")/../.." && pwd)}
 RUNS=${RUNS:-/work/runs/t5}
@@ -32,6 +33,13 @@ sweep() {  # sweep NAME ARGS...: one sweep into $RUNS/NAME, its results to resul
   cp "$RUNS/$name/results.json" "results/$name.json" && echo "done $name $(date -u +%FT%TZ)"
 }
 
+judge_by() {  # judge_by NAME SIBLING: results/NAME.json's controlled verdict from SIBLING's BC-SO, for a file with
+  # none of its own (no BC-SO, or policies that see the previous action); idempotent, so rerun on every start
+  [ -f "results/$1.json" ] || return
+  "$PY" -m experiments.evaluate --rejudge "results/$1.json" --control "results/$2.json" > /dev/null \
+    && echo "judged $1 against $2" || echo "FAILED judging $1 against $2"
+}
+
 # Table 5 with FCA's expert (Hopper): raw labels as FCA stored them, and clipped; FCA at the supplement's alpha 0.1
 # and FCA's code's 2.0; 8 seeds
 sweep hopper-pos-fca-rows-default-fca-fcaexpert-raw --env hopper $TABLE5 --seeds 8 \
@@ -41,6 +49,7 @@ sweep hopper-pos-fca-rows-default-fca-fcaexpert-clipped --env hopper $TABLE5 --s
 # RAP, PALR and MINE on FCA's expert's rows (the same demonstrations as the tables above; compared with them)
 sweep hopper-pos-fca-rows-default-fca-fcaexpert-raw-after --env hopper $FCA --methods $AFTER --seeds 8 \
   --set protocol.expert=fca --set protocol.labels=raw
+judge_by hopper-pos-fca-rows-default-fca-fcaexpert-raw-after hopper-pos-fca-rows-default-fca-fcaexpert-raw
 # The rough shipped experts (raw labels), 5 seeds, with RAP, PALR and MINE beside; FCA at the supplement's alpha
 # (Hopper 0.1, the others 0.5) and FCA's code's (Hopper 2.0, the others 1.0)
 for env in hopper walker2d halfcheetah; do
@@ -53,12 +62,15 @@ done
 # later methods' ranking, so every ranked method runs in it (FCA at Hopper's two alphas); 5 seeds
 sweep hopper-pos-fca-rows-default-fca-prevaction --env hopper $FCA --seeds 5 --methods $TABLE5_METHODS,$AFTER $GRIDS \
   --set recipe.fca_alphas=0.1,2 --set protocol.prev_action=true
+judge_by hopper-pos-fca-rows-default-fca-prevaction hopper-pos-fca-rows-default-fca-bc
 # The default tasks (the shipped SAC experts): the ceiling and the later methods beside the committed *-fca-bc.json
 for env in hopper walker2d halfcheetah; do
   sweep $env-pos-fca-rows-default-fca-after --env $env $FCA --methods bc-full,$AFTER --seeds 5
+  judge_by $env-pos-fca-rows-default-fca-after $env-pos-fca-rows-default-fca-bc
 done
 sweep hopper-pos-fca-rows-default-fca-fcaexpert-clipped-after --env hopper $FCA --methods $AFTER --seeds 8 \
   --set protocol.expert=fca
+judge_by hopper-pos-fca-rows-default-fca-fcaexpert-clipped-after hopper-pos-fca-rows-default-fca-fcaexpert-clipped
 # The paper's budget (300k iterations, evaluated at 30k and 100k too) with FCA's expert, raw labels, 8 seeds: about
 # ten times a default sweep, days on 2 CPU cores (resumable; on a lent GPU, experiments/device/run.sh)
 sweep hopper-pos-fca-rows-paper-fca-fcaexpert-raw --env hopper --protocol fca --recipe fca --preset paper --seeds 8 \
