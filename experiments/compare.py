@@ -37,6 +37,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ape_jax.pipeline import presets
 from ape_jax.pipeline.rundir import RunDir
 from experiments._cli import Parser, fail, unwritable
 from experiments.report import analysis
@@ -47,9 +48,7 @@ REFERENCES = ("bc-so", "bc-oh", "ours-step", "fca")
 REFERENCE_LABELS = {"bc-so": "BC-SO", "bc-oh": "BC-OH", "ours-step": PAPER_STEP_LABEL, "fca": "FCA"}
 # the settings that may differ between comparable files: which configurations ran, how many seeds, and amounts
 # that do not change what a configuration computes (chunking, the diagnostics, the width: statistically alike)
-FREE = {"recipe": {"name", "step_grid", "softmax_grid", "fca_alphas", "fca_adversary_lr", "ib_weights", "rap_weights",
-                   "rap_widths", "palr_weights", "palr_bandwidths", "palr_rows", "mine_weights", "mine_steps",
-                   "mine_rows"},
+FREE = {"recipe": {"name", *presets.METHOD_KNOBS},
         "budget": {"seeds", "chunk", "probe_steps", "eval_at", "width"},
         "protocol": {"doc"}}
 PROFILE_TAUS = np.linspace(0.0, 1.25, 126)  # fractions of the expert's return (normalised scores)

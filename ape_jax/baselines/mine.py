@@ -253,8 +253,12 @@ def _grid(ctx) -> list[dict]:
     return [{"weight": w} for w in weights]
 
 
+def _learner(ctx):
+    """MINE's learner for a grid context: its estimator steps and rows from the recipe (the defaults without one)."""
+    recipe = getattr(ctx, "recipe", None)
+    return make_mine(ctx.cfg, getattr(recipe, "mine_steps", INNER_STEPS), getattr(recipe, "mine_rows", ESTIMATOR_ROWS))
+
+
 methods.register(methods.Method(
     "mine", "MINE", grid=_grid, hparams=lambda settings, lr, row: MineHparams.make(settings["weight"], lr=lr),
-    program="mine", module=__name__,
-    learner=lambda ctx: make_mine(ctx.cfg, getattr(getattr(ctx, "recipe", None), "mine_steps", INNER_STEPS),
-                                  getattr(getattr(ctx, "recipe", None), "mine_rows", ESTIMATOR_ROWS))))
+    program="mine", module=__name__, learner=_learner))

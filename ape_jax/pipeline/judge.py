@@ -30,13 +30,12 @@ import numpy as np
 
 from ape_jax import diagnostics as diagnostics_lib
 from ape_jax import methods as methods_lib
+from ape_jax.pipeline import presets
 from ape_jax.pipeline.results import Results
 
 CONTROL_FIELDS = ("control_ratio", "controlled_verdict")   # what judging adds to a run's `diagnostics`
-# The recipe's fields for other methods than the control (their grids and knobs): they do not change how it trains
-_OTHER_METHODS = ("step_grid", "softmax_grid", "fca_alphas", "fca_adversary_lr", "ib_weights", "ape_normalization",
-                  "rap_weights", "rap_widths", "palr_weights", "palr_bandwidths", "palr_rows", "mine_weights",
-                  "mine_steps", "mine_rows")
+# The recipe's fields that do not change how the control trains: the other methods' knobs, and how ours scales APE
+_OTHER_METHODS = (*presets.METHOD_KNOBS, "ape_normalization")
 
 
 class JudgeError(ValueError):

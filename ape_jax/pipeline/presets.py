@@ -41,6 +41,10 @@ SOFTMAX_GRID = (0.1, 0.2, 0.5, 1.0, 5.0, 10.0)
 # The grids of the methods after the paper (`ape_jax.baselines.rap`, `palr`, `mine`): recipe fields that change no
 # other method's training (a smoke run keeps one setting of each)
 METHOD_GRIDS = ("rap_weights", "rap_widths", "palr_weights", "palr_bandwidths", "mine_weights")
+# Every recipe field that only methods other than BC-SO and BC-OH read (their grids and knobs): changing one leaves
+# the control's training as it was (`pipeline.judge`) and a configuration's comparability (`experiments.compare`)
+METHOD_KNOBS = ("step_grid", "softmax_grid", "fca_alphas", "fca_adversary_lr", "ib_weights", *METHOD_GRIDS,
+                "palr_rows", "mine_steps", "mine_rows")
 RAP_UNITS = StatePolicy.hidden[0]  # RAP's branches split the state policy's encoder units
 
 
