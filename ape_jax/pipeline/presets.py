@@ -38,11 +38,10 @@ from ape_jax.pipeline.hints import format_value as _format, parse as _parse
 
 STEP_GRID = tuple((thr, w) for thr in (0.1, 0.2) for w in (3.0, 5.0, 10.0))
 SOFTMAX_GRID = (0.1, 0.2, 0.5, 1.0, 5.0, 10.0)
-# The grids of the methods after the paper (`ape_jax.baselines.rap`, `palr`, `mine`): recipe fields that change no
-# other method's training (a smoke run keeps one setting of each)
+# METHOD_GRIDS: the grids of the methods after the paper (`ape_jax.baselines.rap`, `palr`, `mine`; a smoke run keeps
+# one setting of each). METHOD_KNOBS: every recipe field only methods other than BC-SO and BC-OH read; changing one
+# leaves the control's training (`pipeline.judge`) and a configuration's comparability (`experiments.compare`) as is
 METHOD_GRIDS = ("rap_weights", "rap_widths", "palr_weights", "palr_bandwidths", "mine_weights")
-# Every recipe field that only methods other than BC-SO and BC-OH read (their grids and knobs): changing one leaves
-# the control's training as it was (`pipeline.judge`) and a configuration's comparability (`experiments.compare`)
 METHOD_KNOBS = ("step_grid", "softmax_grid", "fca_alphas", "fca_adversary_lr", "ib_weights", *METHOD_GRIDS,
                 "palr_rows", "mine_steps", "mine_rows")
 RAP_UNITS = StatePolicy.hidden[0]  # RAP's branches split the state policy's encoder units
@@ -487,10 +486,7 @@ def _record(section: str, values: Mapping[str, Any]):
     cls = _RECORDS[section]
     hints = typing.get_type_hints(cls)
     known = {f.name for f in dataclasses.fields(cls)}
-    out = {}
-    for k, v in values.items():
-        if k in known:
-            out[k] = _coerce(hints[k], v, f"{section}.{k}")
+    out = {k: _coerce(hints[k], v, f"{section}.{k}") for k, v in values.items() if k in known}
     if section == "protocol" and "name" not in out:
         out["name"] = "brax"
     if section == "budget" and values and "width" not in out:
