@@ -216,3 +216,41 @@ def test_with_the_rough_experts_the_history_helps_no_remedy_beats_bc_oh_and_none
     assert (round(min(controls), 2), round(max(controls), 2)) == (0.24, 0.95)
     assert not any(r.diagnostics.control.median <= THRESHOLDS.control_ratio
                    and r.diagnostics.predictability.median <= THRESHOLDS.predictability_ratio for r in history)
+
+
+def test_with_the_previous_action_in_view_policies_copy_and_no_remedy_beats_bc_oh():
+    """The reading's previous-action paragraph (and the brief's, the README's, claim 2's): Hopper with the shipped
+    expert (5 seeds, 30k) against the same rows without the previous action, BC-OH's and BC-SO's fall with its
+    interval, BC-full's level, the controlled verdict's count over the 50 policies (BC-OH 4 of 5) and the range of
+    their control ratios, no remedy above BC-OH and the nearest, and the two the verdict spares: erratic rollouts
+    (predictability above the verdict's) and the lowest returns."""
+    from ape_jax.diagnostics import THRESHOLDS
+    from experiments.report.analysis import mean_difference, regime_table
+    from experiments.report.analysis.selection import best_of, method_rows, seed_values
+
+    ((_, m),) = _merged("hopper-pos-fca-rows-default-fca-prevaction.json").items()
+    ((_, without),) = _merged("hopper-pos-fca-rows-default-fca-bc.json").items()
+    assert m.protocol.get("prev_action") and not without.protocol.get("prev_action")
+    rows = {r.label: r for r in regime_table(m).rows}
+
+    def fall(method):
+        seeds = [seed_values(g, best_of(method_rows(g, method)), "normalized") for g in (m, without)]
+        return round(sum(seeds[1]) / len(seeds[1]), 1), mean_difference(*seeds)
+
+    assert [(before, round(rows[label].normalized.mean, 1)) for label, (before, _) in
+            (("BC-OH", fall("bc-oh")), ("BC-SO", fall("bc-so")))] == [(80.4, 6.5), (51.9, 4.8)]
+    assert _text(fall("bc-oh")[1]) == "-73.9 [-89.6, -58.2]"
+    assert round(rows["BC-full (full state: the ceiling)"].normalized.mean, 1) == 66.6
+    assert sum(r.diagnostics.read for r in rows.values()) == 50 and all(r.diagnostics.read == 5 for r in rows.values())
+    assert sum(r.diagnostics.controlled for r in rows.values()) == 29 and rows["BC-OH"].diagnostics.controlled == 4
+    assert rows["BC-full (full state: the ceiling)"].diagnostics.controlled > 0
+    controls = [r.diagnostics.control.median for r in rows.values()]
+    assert (round(min(controls), 2), round(max(controls), 2)) == (0.06, 0.14)
+    remedies = {label: r for label, r in rows.items() if not label.startswith(("BC-SO", "BC-OH", "BC-full"))}
+    assert len(remedies) == 7 and not any(r.versus.low > 0 for r in remedies.values())
+    nearest = max(remedies, key=lambda label: remedies[label].versus.diff)
+    assert (nearest, _text(remedies[nearest].versus)) == ("FCA (TCA), α 0.1", "+3.5 [-1.4, +8.4]")
+    spared = {label: r for label, r in rows.items() if not r.diagnostics.controlled}
+    assert {label: round(r.normalized.mean, 1) for label, r in spared.items()} == {"FCA (TCA), α 2": 3.8, "MINE": 3.1}
+    assert all(r.diagnostics.predictability.median > THRESHOLDS.predictability_ratio for r in spared.values())
+    assert set(sorted(rows, key=lambda label: rows[label].normalized.mean)[:2]) == set(spared)   # the two lowest
