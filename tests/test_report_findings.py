@@ -256,7 +256,7 @@ def test_with_the_previous_action_in_view_policies_copy_and_no_remedy_beats_bc_o
     assert set(sorted(rows, key=lambda label: rows[label].normalized.mean)[:2]) == set(spared)   # the two lowest
 
 
-def test_on_the_default_tasks_no_later_method_beats_bc_oh_and_rap_and_mine_fall_below():
+def test_on_the_default_tasks_no_later_method_beats_bc_oh_and_the_ones_below_it():
     """The brief's and the README's default-task sentence: in every default cell of the later methods' ranking (the
     shipped experts, 5 seeds, 30k) none of RAP, PALR and MINE is above BC-OH, and the ones below it are named."""
     from experiments.report.analysis import ranking
@@ -264,9 +264,9 @@ def test_on_the_default_tasks_no_later_method_beats_bc_oh_and_rap_and_mine_fall_
 
     families = {f.name: f for f in ranking(_merged("*-pos-fca-rows-default-fca-*.json"), reps=100)}
     default = families["default"]
-    assert default.cells == ("Hopper",)
+    assert default.cells == ("Hopper", "Walker2d")
     later = [c for r in default.ranked if r.method in LATER for c in r.cells]
-    assert len(later) == 3 and all(len(c.seeds) == 5 for c in later)
+    assert len(later) == 6 and all(len(c.seeds) == 5 for c in later)
     assert not any(c.versus.low > 0 for c in later)
     below = {(c.cell, r.method) for r in default.ranked if r.method in LATER for c in r.cells if c.versus.high < 0}
-    assert below == {("Hopper", "rap"), ("Hopper", "mine")}
+    assert below == {("Hopper", "rap"), ("Hopper", "mine"), ("Walker2d", "mine")}
