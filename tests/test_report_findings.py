@@ -237,9 +237,10 @@ def test_with_the_previous_action_in_view_policies_copy_and_no_remedy_beats_bc_o
         seeds = [seed_values(g, best_of(method_rows(g, method)), "normalized") for g in (m, without)]
         return round(sum(seeds[1]) / len(seeds[1]), 1), mean_difference(*seeds)
 
-    assert [(before, round(rows[label].normalized.mean, 1)) for label, (before, _) in
-            (("BC-OH", fall("bc-oh")), ("BC-SO", fall("bc-so")))] == [(80.4, 6.5), (51.9, 4.8)]
-    assert _text(fall("bc-oh")[1]) == "-73.9 [-89.6, -58.2]"
+    (bcoh_before, bcoh_fall), (bcso_before, _) = fall("bc-oh"), fall("bc-so")
+    assert (bcoh_before, round(rows["BC-OH"].normalized.mean, 1)) == (80.4, 6.5)
+    assert (bcso_before, round(rows["BC-SO"].normalized.mean, 1)) == (51.9, 4.8)
+    assert _text(bcoh_fall) == "-73.9 [-89.6, -58.2]"
     assert round(rows["BC-full (full state: the ceiling)"].normalized.mean, 1) == 66.6
     assert sum(r.diagnostics.read for r in rows.values()) == 50 and all(r.diagnostics.read == 5 for r in rows.values())
     assert sum(r.diagnostics.controlled for r in rows.values()) == 29 and rows["BC-OH"].diagnostics.controlled == 4
@@ -265,8 +266,8 @@ def test_on_the_default_tasks_no_later_method_beats_bc_oh_and_the_ones_below_it(
     families = {f.name: f for f in ranking(_merged("*-pos-fca-rows-default-fca-*.json"), reps=100)}
     default = families["default"]
     assert default.cells == ("Hopper", "Walker2d")
-    later = [c for r in default.ranked if r.method in LATER for c in r.cells]
-    assert len(later) == 6 and all(len(c.seeds) == 5 for c in later)
-    assert not any(c.versus.low > 0 for c in later)
-    below = {(c.cell, r.method) for r in default.ranked if r.method in LATER for c in r.cells if c.versus.high < 0}
+    later = [(r.method, c) for r in default.ranked if r.method in LATER for c in r.cells]
+    assert len(later) == 6 and all(len(c.seeds) == 5 for _, c in later)
+    assert not any(c.versus.low > 0 for _, c in later)
+    below = {(c.cell, method) for method, c in later if c.versus.high < 0}
     assert below == {("Hopper", "rap"), ("Hopper", "mine"), ("Walker2d", "mine")}
