@@ -3,7 +3,8 @@
 
 The recipe checks what a user typed (`--recipe`, `--set recipe.FIELD=VALUE`), naming the field `recipe.FIELD`;
 the learner config checks what a program is built from, naming it `LearnerConfig.FIELD`, so a config made in
-code (a benchmark, a notebook) is refused by the same rule and in the same words.
+code (a benchmark, a notebook) is refused by the same rule and in the same words. `nonnegative` and `positive` are
+the range rules of the methods' own hyperparameters (their `Hparams.make`: weights, bandwidths, learning rates).
 """
 
 from __future__ import annotations
@@ -53,6 +54,18 @@ RULES: dict[str, Callable[[Any], str | None]] = {
     "augment_shift": _integer(0),
     "dtype": _one_of(DTYPES),
 }
+
+
+def nonnegative(name: str, value: float) -> None:
+    """Refuses (`ValueError`, one line) a method's hyperparameter `name` below 0, infinite or NaN."""
+    if not 0.0 <= value < math.inf:
+        raise ValueError(f"{name} must be >= 0 and finite, got {value}")
+
+
+def positive(name: str, value: float) -> None:
+    """Refuses (`ValueError`, one line) a method's hyperparameter `name` at or below 0, infinite or NaN."""
+    if not 0.0 < value < math.inf:
+        raise ValueError(f"{name} must be > 0 and finite, got {value}")
 
 
 def check(where: str, error: type[Exception] = ValueError, **knobs: Any) -> None:

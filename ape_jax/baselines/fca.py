@@ -150,6 +150,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from ape_jax.history import history_index
+from ape_jax.knobs import nonnegative, positive
 from ape_jax.learner import (Data, Learner, LearnerConfig, adam_step, augment, learning_rate, make_train, policy_apply,
                              scanned_learner, trainable)
 from ape_jax import methods
@@ -190,14 +191,10 @@ class FcaHparams:
              ib_weight: float = 0.0) -> FcaHparams:
         """Validated hyperparameters; `adversary_lr=None` takes `lr`."""
         adversary_lr = lr if adversary_lr is None else adversary_lr
-        if not 0.0 <= alpha < float("inf"):
-            raise ValueError(f"FCA alpha must be >= 0 and finite, got {alpha}")
-        if not 0.0 < lr < float("inf"):
-            raise ValueError(f"learning rate must be > 0, got {lr}")
-        if not 0.0 < adversary_lr < float("inf"):
-            raise ValueError(f"FCA adversary learning rate must be > 0, got {adversary_lr}")
-        if not 0.0 <= ib_weight < float("inf"):
-            raise ValueError(f"FCA ib_weight must be >= 0 and finite, got {ib_weight}")
+        nonnegative("FCA alpha", alpha)
+        positive("learning rate", lr)
+        positive("FCA adversary learning rate", adversary_lr)
+        nonnegative("FCA ib_weight", ib_weight)
         return cls(alpha=jnp.float32(alpha), lr=jnp.float32(lr), adversary_lr=jnp.float32(adversary_lr),
                    ib_weight=jnp.float32(ib_weight))
 

@@ -67,6 +67,7 @@ import optax
 from flax import struct
 
 from ape_jax import methods
+from ape_jax.knobs import nonnegative, positive
 from ape_jax.baselines._batch import OWN_KEYS, errors, sample_batch
 from ape_jax.learner import (Data, Learner, LearnerConfig, adam_step, learning_rate, make_train, policy_apply,
                              scanned_learner, trainable)
@@ -146,11 +147,9 @@ class MineHparams:
     def make(cls, weight: float = DEFAULT_WEIGHT, lr: float = 2e-4, estimator_lr: float = ESTIMATOR_LR
              ) -> MineHparams:
         """Validated hyperparameters (`ValueError`, one line, for a value out of range)."""
-        if not 0.0 <= weight < float("inf"):
-            raise ValueError(f"MINE weight must be >= 0 and finite, got {weight}")
-        for name, value in (("learning rate", lr), ("MINE estimator learning rate", estimator_lr)):
-            if not 0.0 < value < float("inf"):
-                raise ValueError(f"{name} must be > 0, got {value}")
+        nonnegative("MINE weight", weight)
+        positive("learning rate", lr)
+        positive("MINE estimator learning rate", estimator_lr)
         return cls(weight=jnp.float32(weight), lr=jnp.float32(lr), estimator_lr=jnp.float32(estimator_lr))
 
 

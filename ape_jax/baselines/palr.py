@@ -52,6 +52,7 @@ from flax import struct
 
 from ape_jax import methods
 from ape_jax.baselines._batch import action_statistics, errors, sample_batch
+from ape_jax.knobs import nonnegative, positive
 from ape_jax.learner import (Data, Learner, LearnerConfig, gradient_step, learning_rate, make_train, policy_apply,
                              scanned_learner, trainable)
 
@@ -112,12 +113,9 @@ class PalrHparams:
     def make(cls, weight: float = DEFAULT_WEIGHT, bandwidth: float = DEFAULT_BANDWIDTH,
              lr: float = 2e-4) -> PalrHparams:
         """Validated hyperparameters (`ValueError`, one line, for a value out of range)."""
-        if not 0.0 <= weight < float("inf"):
-            raise ValueError(f"PALR weight must be >= 0 and finite, got {weight}")
-        if not 0.0 < bandwidth < float("inf"):
-            raise ValueError(f"PALR kernel bandwidth must be > 0 and finite, got {bandwidth}")
-        if not 0.0 < lr < float("inf"):
-            raise ValueError(f"learning rate must be > 0, got {lr}")
+        nonnegative("PALR weight", weight)
+        positive("PALR kernel bandwidth", bandwidth)
+        positive("learning rate", lr)
         return cls(weight=jnp.float32(weight), bandwidth=jnp.float32(bandwidth), lr=jnp.float32(lr))
 
 

@@ -59,6 +59,7 @@ from flax import struct
 
 from ape_jax import methods
 from ape_jax.baselines._batch import Batch, errors, sample_batch
+from ape_jax.knobs import positive
 from ape_jax.learner import (Data, Learner, LearnerConfig, adam_step, learning_rate, make_train, scanned_learner,
                              trainable)
 from ape_jax.models import StatePolicy
@@ -100,8 +101,7 @@ class RapHparams:
         if not (float(memory_width).is_integer() and 1 <= memory_width <= UNITS - 1):
             raise ValueError(f"RAP memory_width must be an integer in [1, {UNITS - 1}] (units of the encoder's "
                              f"{UNITS}), got {memory_width}")
-        if not 0.0 < lr < float("inf"):
-            raise ValueError(f"learning rate must be > 0, got {lr}")
+        positive("learning rate", lr)
         return cls(weight=jnp.float32(weight), memory_width=jnp.float32(memory_width), lr=jnp.float32(lr))
 
 
