@@ -141,6 +141,8 @@ def test_the_hparams_refuse_bad_values():
         FcaHparams.make(float("nan"))
     with pytest.raises(ValueError, match="learning rate must be > 0"):
         FcaHparams.make(0.1, lr=0.0)
+    with pytest.raises(ValueError, match="^learning rate must be > 0 and finite, got inf$"):
+        FcaHparams.make(0.1, lr=float("inf"), adversary_lr=1e-4)
     with pytest.raises(ValueError, match="adversary learning rate must be > 0"):
         FcaHparams.make(0.1, adversary_lr=-1e-4)
     with pytest.raises(ValueError, match="ib_weight must be >= 0"):
