@@ -51,6 +51,15 @@ def test_cells_by_setting_and_each_methods_best_configuration_against_bc_oh(tmp_
     assert bcoh.iqm.low <= bcoh.iqm.value <= bcoh.iqm.high
 
 
+def test_a_cells_title_names_its_expert_and_labels_where_they_matter(tmp_path):
+    """FCA's expert with raw or clipped labels: two cells, titled apart; the shipped expert's clipped labels unnamed."""
+    files = (_pair(tmp_path, "raw") + _pair(tmp_path, "clipped", labels="clipped")
+             + _pair(tmp_path, "sac", labels="clipped", expert=None, found={"kind": "checkpoint"}))
+    copycat, default = ranking(merge(files), reps=50)
+    assert set(copycat.cells) == {"Hopper (FCA's expert, raw labels)", "Hopper (FCA's expert, clipped labels)"}
+    assert default.cells == ("Hopper",)
+
+
 def test_a_method_missing_from_a_cell_is_left_out_of_its_family(tmp_path):
     files = _pair(tmp_path, "fca") + _pair(tmp_path, "rough", later=LATER[:2], expert="rough", found=SHIPPED)
     (copycat,) = ranking(merge(files), reps=200)

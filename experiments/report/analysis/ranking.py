@@ -26,7 +26,7 @@ from ape_jax import tasks
 from experiments import stats
 from experiments.report.analysis.differences import Interval, mean_difference
 from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics
-from experiments.report.analysis.groups import Group, Merged, ordered
+from experiments.report.analysis.groups import Group, Merged, ordered, raw_labels
 from experiments.report.analysis.regime import is_regime
 from experiments.report.analysis.selection import best_of, is_finite, method_rows, ok_runs
 
@@ -73,11 +73,13 @@ def is_copycat_cell(m: Group) -> bool:
 
 def cell_title(m: Group) -> str:
     """A cell's short name in the tables: the task and what sets it apart (`"Hopper (FCA's expert, raw labels)"`,
-    `"Walker2d (rough expert, raw labels)"`, `"Hopper"`)."""
+    `"Hopper (FCA's expert, clipped labels)"`, `"Walker2d (rough expert, raw labels)"`, `"Hopper"`). Labels are named
+    where they matter: raw ones always, clipped ones beside an expert of FCA's kind (the shipped experts' actions
+    are in range either way)."""
     p = m.protocol
     why = ("FCA's expert" if p.get("expert_sha256") else f"{p['expert']} expert" if p.get("expert") else "")
-    why = ", ".join(w for w in (why, "raw labels" if p.get("labels") == "raw" else "",
-                                "previous action in view" if p.get("prev_action") else "") if w)
+    labels = "raw labels" if raw_labels(p) else "clipped labels" if why else ""
+    why = ", ".join(w for w in (why, labels, "previous action in view" if p.get("prev_action") else "") if w)
     title = tasks.get(m.env).title
     return f"{title} ({why})" if why else title
 
