@@ -16,7 +16,7 @@ from ape_jax.pipeline import sweep as S
 from ape_jax.pipeline.checkpoint import CheckpointError, SweepCheckpoint
 from ape_jax.pipeline.presets import RECIPES, SettingsError, arguments, format_set, parse_set, resolve
 from experiments import sweep
-from _compare import UPDATE_RTOL, update_mismatch
+from _compare import STATS_RTOL, UPDATE_RTOL, stats_mismatch, update_mismatch
 
 LOSS_RTOL = 1e-4
 
@@ -245,11 +245,10 @@ def test_a_batchnorm_configuration_in_a_six_wide_grid_equals_it_trained_alone():
         row = jax.tree.map(lambda x: x[i], params)
         np.testing.assert_allclose(metrics["loss"][i], m_i["loss"], rtol=LOSS_RTOL)
         assert update_mismatch(row["params"], p_i["params"], init(keys[i])["params"]) < UPDATE_RTOL, i
-        # its own running statistics, as trained alone; moved from their start (mean 0, variance 1)
-        for a, b in zip(jax.tree.leaves(stats[i]), jax.tree.leaves(p_i["batch_stats"])):
-            np.testing.assert_allclose(a, np.asarray(b), rtol=1e-4, atol=1e-6)
+        # its own running statistics, as trained alone, moved from their start (mean 0, variance 1)
+        assert stats_mismatch(stats[i], p_i["batch_stats"]) < STATS_RTOL, i
         assert np.abs(stats[i]["norm_0"]["mean"]).max() > 1e-2
-        assert not np.allclose(stats[i]["norm_0"]["mean"], stats[(i + 1) % 6]["norm_0"]["mean"])  # not shared
+        assert stats_mismatch(stats[(i + 1) % 6], p_i["batch_stats"]) > 100 * STATS_RTOL, i   # not shared
 
 
 def test_a_batchnorm_policy_is_evaluated_on_its_running_statistics():

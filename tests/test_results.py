@@ -154,3 +154,33 @@ def test_a_file_trained_again_keeps_the_first_trainings_rows_and_has_what_it_was
     assert configs(new.replaces["summary"]) == configs(new.summary)
     assert {r["seed"] for r in new.replaces["runs"]} == {r["seed"] for r in new.runs}
     assert all("diagnostics" in r for r in new.runs if r["status"] == "ok")
+
+
+def test_a_one_seed_row_stores_no_sd_and_a_file_holding_one_is_read_but_not_a_two_seed_row_without_one(tmp_path):
+    def run(seed, ret):
+        return {"method": "bc-oh", "hparams": {}, "seed": seed, "status": "ok", "error": None,
+                "eval": {"return_mean": ret, "normalized": ret / 10},
+                "losses": {s: {"unweighted": 0.1, "changepoint": 0.2, "copycat": 0.1} for s in ("train", "val")}}
+
+    (one,) = results.summarize([run(0, 500.0)])
+    assert (one["return_std"], one["normalized_std"]) == (None, None)   # not 0.0: one seed gives no spread
+    (two,) = results.summarize([run(0, 500.0), run(1, 520.0)])
+    assert (two["return_std"], two["normalized_std"]) == (10.0, 1.0)
+    (two_sample,) = results.summarize([run(0, 500.0), run(1, 520.0)], ddof=1)
+    assert two_sample["return_std"] == pytest.approx(200 ** 0.5)   # the sample sd of 500 and 520
+
+    def file(runs):
+        return {"schema": 2, "env": "hopper", "obs": "pos", "preset": "quick", "command": None,
+                "protocol": {"name": "fca"}, "methods": {},
+                "config": {"iterations": 10, "seeds": len(runs), "eval_episodes": 1, "methods": ["bc-oh"]},
+                "expert": {"return_mean": 1.0, "return_std": None, "random_return_mean": 0.0},
+                "runs": runs, "summary": results.summarize(runs), "system": {}}
+
+    path = tmp_path / "one.json"
+    path.write_text(json.dumps(file([run(0, 500.0)])))
+    assert results.load(path).summary[0]["return_std"] is None
+    broken = file([run(0, 500.0), run(1, 520.0)])
+    broken["summary"][0]["return_std"] = None
+    path.write_text(json.dumps(broken))
+    with pytest.raises(results.ResultsError, match="has 2 seeds but return 510.0 ± None"):
+        results.load(path)

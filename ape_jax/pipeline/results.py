@@ -347,7 +347,8 @@ def summarize(runs: Sequence[dict], metrics: Sequence[str] = (), ddof: int = 0) 
 
     `metrics` (the task's own per-episode metrics) are summarised the same way under each row's `metrics`. The std
     is the population one (`ddof` 0) in `results.json`, as every file has written it; the report asks for the
-    sample sd (`ddof` 1), None where fewer than 2 seeds leave no spread to estimate.
+    sample sd (`ddof` 1). Either is None where fewer than 2 seeds leave no spread to estimate (a 1-seed row
+    stores null, not 0.0).
     """
     groups: dict[tuple, list[dict]] = {}
     for r in runs:
@@ -360,7 +361,7 @@ def summarize(runs: Sequence[dict], metrics: Sequence[str] = (), ddof: int = 0) 
             values = np.array([np.nan if r["eval"].get(key) is None else r["eval"][key] for r in ok], np.float64)
             if not ok:
                 return None, None
-            return float(values.mean()), float(values.std(ddof=ddof)) if len(ok) > ddof else None
+            return float(values.mean()), float(values.std(ddof=ddof)) if len(ok) > max(ddof, 1) else None
 
         row = {"method": method, "hparams": dict(hp), "n_seeds": len(ok)}
         row["return_mean"], row["return_std"] = stats("return_mean")
@@ -453,7 +454,8 @@ def validate(obj: dict, where: str = "results") -> None:
             _row(f"{where}: replaces.summary[{i}]", row, _SUMMARY)
     for i, row in enumerate(obj["summary"]):
         _row(f"{where}: summary[{i}]", row, _SUMMARY)
-        if row["n_seeds"] and not all(_number(row[k]) and math.isfinite(row[k]) for k in ("return_mean", "return_std")):
+        spread = ("return_mean", "return_std") if row["n_seeds"] > 1 else ("return_mean",)   # 1 seed: no sd
+        if row["n_seeds"] and not all(_number(row[k]) and math.isfinite(row[k]) for k in spread):
             raise ResultsError(f"{where}: summary[{i}] has {row['n_seeds']} seeds but return "
                                f"{row['return_mean']!r} ± {row['return_std']!r}; expected finite numbers")
     for i, run in enumerate(obj["runs"]):
