@@ -36,7 +36,7 @@ import shlex
 import shutil
 import sys
 
-from experiments import _distributed
+from experiments import _distributed, _reference
 from experiments._table import table
 from experiments._cli import Parser, add_compile_cache_flag, fail, unwritable, use_compile_cache
 
@@ -382,7 +382,7 @@ def _open_out(args: argparse.Namespace, fp: dict):
                        f"{'; '.join(diff[:4])}; use another --out, or pass --fresh to replace it")
         print(f"{results_path} already holds this sweep; not rerunning (--fresh to train it again).\n")
         print(table(old))
-        print("\n".join(next_steps(args.out, bool(old.config.get("smoke")))))
+        print("\n".join(_reference.reference_lines(results_path) + next_steps(args.out, bool(old.config.get("smoke")))))
         return 0
     checkpoint = SweepCheckpoint(out.checkpoints, fp, args.checkpoint_every)
     try:
@@ -476,7 +476,7 @@ def _run(args: argparse.Namespace, spec, checkpoint) -> int:
           f"(compile ~{t['compile_s']:.0f} s, train {t['train_s']:.0f} s, evaluate {t['eval_s']:.0f} s"
           + (f"; peak device memory {t['peak_device_mb'] / 1024:.1f} GB" if t.get("peak_device_mb") else "") + ")\n"
           f"wrote {out.results}, {out.csv}, {out.params}/, training curves in {out.curves}/ and {out.tensorboard}/")
-    print("\n".join(next_steps(args.out, spec.settings.smoke)))
+    print("\n".join(_reference.reference_lines(out.results) + next_steps(args.out, spec.settings.smoke)))
     return 0
 
 

@@ -1,0 +1,116 @@
+"""The shipped reference beside a short sweep's table: what `results/` holds for the same task and setting at
+longer budgets, so a first table at the `quick` budget is read against the answer, not as one.
+
+A quick sweep trains 1% of the paper's iterations with one seed. Its ordering can be the opposite of the
+published one (Hopper: BC-OH below BC-SO at 3k, far above it at 30k and 300k), and a 1-seed row has no interval.
+`reference_lines` finds the committed files of the same task, observation, protocol, expert, labels and recipe
+(any budget, seeds or weighting grid: `experiments.compare`'s comparable fields with the budget left free),
+and prints their BC-SO, BC-OH and Ours (step, THR 10% W 5) per budget, in % of expert with 95% t-intervals,
+beside this run's, with one line on what this budget can and cannot show.
+"""
+
+from __future__ import annotations
+
+import pathlib
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+SHIPPED = ROOT / "results"
+ARMS = (("bc-so", "BC-SO"), ("bc-oh", "BC-OH"), ("ours-step", "Ours (step, THR 10% W 5)"))
+
+
+def reference_lines(results_path: str | pathlib.Path, shipped: pathlib.Path = SHIPPED) -> list[str]:
+    """The printed block: the shipped files' rows per budget above this run's, and the reading; [] where no
+    shipped file shares this run's setting at another budget, or this run is a smoke run.
+
+    Args:
+      results_path: the sweep's `results.json`.
+      shipped: the folder of committed results files (the repository's `results/`).
+    """
+    from experiments.compare import comparable_fields
+    from experiments.report import analysis
+
+    mine = analysis.load(results_path)
+    if mine.config.get("smoke") or not shipped.is_dir():
+        return []
+    want = _setting(comparable_fields(mine))
+    iterations = mine.config["iterations"]
+    by_budget: dict[int, list] = {}
+    for path in sorted(shipped.glob("*.json")):
+        try:
+            other = analysis.load(path)
+        except (analysis.ReportError, ValueError, OSError):   # an unreadable file is the report's to refuse
+            continue
+        if (other.config["iterations"] != iterations and _setting(comparable_fields(other)) == want
+                and {"bc-so", "bc-oh"} & {r["method"] for r in other.summary}):
+            by_budget.setdefault(other.config["iterations"], []).append(other)
+    if not by_budget:
+        return []
+    rows = [(n, _arms(analysis, files)) for n, files in sorted(by_budget.items())]
+    here = _arms(analysis, [mine])
+    width = 22
+    lines = [f"shipped reference: {_describe(mine)} in results/ (% of expert, mean [95% t-interval] over seeds)",
+             f"  {'iterations':>10} {'seeds':>5}  " + "  ".join(f"{label:<{width}}" for _, label in ARMS)]
+    for n, arms in rows:
+        lines.append(f"  {n:>10,} {_seeds(arms):>5}  " + "  ".join(f"{_cell(arms.get(m)):<{width}}" for m, _ in ARMS))
+    lines.append(f"  {iterations:>10,} {_seeds(here):>5}  " + "  ".join(f"{_cell(here.get(m)):<{width}}"
+                                                                       for m, _ in ARMS) + "  <- this run")
+    files = sorted({pathlib.Path(f.path).name for f in by_budget[rows[-1][0]]})
+    lines.append(_reading(iterations, here, rows) + f" ({', '.join('results/' + f for f in files)})")
+    return [line.rstrip() for line in lines]
+
+
+def _setting(fields: dict) -> dict:
+    """The comparable fields without the budget's: the same experiment at any length, seeds or evaluation size."""
+    return {k: v for k, v in fields.items() if not k.startswith("budget.")}
+
+
+def _arms(analysis, files) -> dict[str, list[float]]:
+    """Per-seed % of expert of BC-SO, BC-OH and Ours at the paper's step setting in `files` (one setting)."""
+    out = {}
+    for m in analysis.merge(files).values():
+        for method, _ in ARMS:
+            row = (analysis.paper_step_row(m) if method == "ours-step"
+                   else analysis.best_of(analysis.method_rows(m, method)))
+            values = analysis.seed_values(m, row, "normalized")
+            if values:
+                out[method] = [float(v) for v in values]
+    return out
+
+
+def _cell(values: list[float] | None) -> str:
+    from experiments.report.analysis import mean_estimate
+
+    if not values:
+        return "-"
+    mean, low, high = mean_estimate(values)
+    return f"{mean:.1f}" + (f" [{low:.1f}, {high:.1f}]" if len(values) > 1 else " (1 seed)")
+
+
+def _seeds(arms: dict[str, list[float]]) -> str:
+    counts = sorted({len(v) for v in arms.values()})
+    return "-" if not counts else "/".join(map(str, counts))
+
+
+def _describe(res) -> str:
+    p = res.protocol or {}
+    expert = p.get("expert") or "the shipped expert"
+    return (f"{res.env} ({res.obs}), protocol {p.get('name', 'brax')}, recipe {res.records().recipe.name}, "
+            f"{expert}, {p.get('labels', 'clipped')} labels")
+
+
+def _reading(iterations: int, here: dict, rows: list[tuple[int, dict]]) -> str:
+    """One line: what this budget can show, and whether its BC-OH-vs-BC-SO order is the longest budget's."""
+    longest, arms = rows[-1]
+    seeds = _seeds(here)
+    words = (f"  reading: {iterations:,} iterations and {seeds} {'seed' if seeds == '1' else 'seeds'} check that the "
+             "pipeline runs end to end; they cannot rank methods")
+    if "bc-so" in here and "bc-oh" in here and "bc-so" in arms and "bc-oh" in arms:
+        mean = {k: sum(v) / len(v) for k, v in (("so", here["bc-so"]), ("oh", here["bc-oh"]),
+                                                   ("so_ref", arms["bc-so"]), ("oh_ref", arms["bc-oh"]))}
+        if (mean["oh"] > mean["so"]) != (mean["oh_ref"] > mean["so_ref"]):
+            return (words + f": here BC-OH is {'above' if mean['oh'] > mean['so'] else 'below'} BC-SO, at "
+                    f"{longest:,} iterations it is {'above' if mean['oh_ref'] > mean['so_ref'] else 'below'}, "
+                    "and the answer is read there")
+        return words + (f"; BC-OH against BC-SO goes the same way as at {longest:,} iterations, where the answer "
+                        "is read")
+    return words + f"; the answer is read at {longest:,} iterations"

@@ -1,0 +1,51 @@
+"""The shipped reference printed under a short sweep's table (`experiments._reference`): the committed rows of the
+same setting at longer budgets, this run's beside them, and a reading that says when the order disagrees."""
+
+import json
+import pathlib
+
+from ape_jax.pipeline import results
+from experiments._reference import reference_lines
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+SHIPPED = ROOT / "results"
+THIRTY_K = SHIPPED / "hopper-pos-fca-rows-default-fca-bc.json"   # BC-SO, BC-OH, ours-step at 30k, 5 seeds
+
+
+def _short_run(tmp_path, so: float, oh: float, iterations=3_000, **changes) -> pathlib.Path:
+    """A 1-seed file of the 30k file's setting at `iterations`, BC-SO and BC-OH at `so` and `oh` % of expert."""
+    obj = json.loads(THIRTY_K.read_text())
+    obj["settings"]["budget"].update(iterations=iterations, seeds=1)
+    obj["config"].update(iterations=iterations, seeds=1)
+    for section, values in changes.items():
+        obj["settings"][section].update(values)
+    runs = [r for r in obj["runs"] if r["seed"] == 0]
+    for r in runs:
+        r["eval"]["normalized"] = {"bc-so": so, "bc-oh": oh}.get(r["method"], 10.0)
+    obj["runs"], obj["summary"] = runs, results.summarize(runs)
+    path = tmp_path / "results.json"
+    path.write_text(json.dumps(obj))
+    return path
+
+
+def test_a_short_run_is_shown_under_the_shipped_rows_of_its_setting_and_its_reversed_order_is_named(tmp_path):
+    lines = reference_lines(_short_run(tmp_path, so=23.5, oh=4.7))
+    text = "\n".join(lines)
+    assert lines[0].startswith("shipped reference: hopper (pos), protocol fca, recipe fca")
+    budgets = [line.split()[0] for line in lines[2:-1]]
+    assert budgets == ["30,000", "300,000", "3,000"]            # the shipped budgets in order, then this run
+    assert "51.9 [37.2, 66.6]" in lines[2] and "80.4 [64.4, 96.3]" in lines[2]   # the 30k file's own numbers
+    assert "91.3 [85.6, 97.0]" in lines[3]                      # the 300k file's BC-OH, found by its setting
+    assert "23.5 (1 seed)" in lines[4] and lines[4].endswith("<- this run")
+    assert "here BC-OH is below BC-SO, at 300,000 iterations it is above" in text
+    assert "results/hopper-pos-fca-rows-paper-fca-bc.json" in lines[-1]
+
+
+def test_a_short_run_in_the_published_order_is_not_called_reversed(tmp_path):
+    text = "\n".join(reference_lines(_short_run(tmp_path, so=20.0, oh=60.0)))
+    assert "goes the same way as at 300,000 iterations" in text and "is below" not in text
+
+
+def test_no_reference_is_printed_for_a_setting_nothing_shipped_shares(tmp_path):
+    assert reference_lines(_short_run(tmp_path, 20.0, 60.0, recipe={"batch_size": 32})) == []
+    assert reference_lines(_short_run(tmp_path, 20.0, 60.0), shipped=tmp_path / "none") == []
