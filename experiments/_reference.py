@@ -11,6 +11,7 @@ beside this run's, with one line on what this budget can and cannot show.
 
 from __future__ import annotations
 
+import functools
 import pathlib
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
@@ -29,17 +30,13 @@ def reference_lines(results_path: str | pathlib.Path, shipped: pathlib.Path = SH
     from experiments.compare import comparable_fields
     from experiments.report import analysis
 
-    mine = analysis.load(results_path)
-    if mine.config.get("smoke") or not shipped.is_dir():
+    if _smoke(results_path):
         return []
+    mine = analysis.load(results_path)
     want = _setting(comparable_fields(mine))
     iterations = mine.config["iterations"]
     by_budget: dict[int, list] = {}
-    for path in sorted(shipped.glob("*.json")):
-        try:
-            other = analysis.load(path)
-        except (analysis.ReportError, ValueError, OSError):   # an unreadable file is the report's to refuse
-            continue
+    for other in _shipped(shipped):
         if (other.config["iterations"] != iterations and _setting(comparable_fields(other)) == want
                 and {"bc-so", "bc-oh"} & {r["method"] for r in other.summary}):
             by_budget.setdefault(other.config["iterations"], []).append(other)
@@ -57,6 +54,46 @@ def reference_lines(results_path: str | pathlib.Path, shipped: pathlib.Path = SH
     files = sorted({pathlib.Path(f.path).name for f in by_budget[rows[-1][0]]})
     lines.append(_reading(iterations, here, rows) + f" ({', '.join('results/' + f for f in files)})")
     return [line.rstrip() for line in lines]
+
+
+def comparable(results_path: str | pathlib.Path, shipped: pathlib.Path = SHIPPED) -> bool:
+    """Whether `python -m experiments.compare` can rank the sweep of `results_path` against `shipped`: a file there
+    shares its task, setting and budget, and it holds a method that is not a reference (`compare.match`)."""
+    from experiments.compare import REFERENCES, CompareError, match
+    from experiments.report import analysis
+
+    if _smoke(results_path):
+        return False
+    mine = analysis.load(results_path)
+    if not [r for r in mine.summary if r["method"] not in REFERENCES]:
+        return False
+    try:
+        match(mine, _shipped(shipped))
+    except CompareError:
+        return False
+    return True
+
+
+def _smoke(results_path: str | pathlib.Path) -> bool:
+    """Whether the file is a `--smoke` run's (which the report's loader refuses: nothing to set beside it)."""
+    from ape_jax.pipeline import results
+
+    return bool(results.load(results_path).config.get("smoke"))
+
+
+@functools.lru_cache(maxsize=2)
+def _shipped(folder: pathlib.Path) -> tuple:
+    """The readable results files of `folder`, loaded once per process (an unreadable one is the report's to
+    refuse, not a sweep's end)."""
+    from experiments.report import analysis
+
+    out = []
+    for path in sorted(folder.glob("*.json")) if folder.is_dir() else ():
+        try:
+            out.append(analysis.load(path))
+        except (analysis.ReportError, ValueError, OSError):
+            continue
+    return tuple(out)
 
 
 def _setting(fields: dict) -> dict:

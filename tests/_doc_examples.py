@@ -124,3 +124,12 @@ def small_sweep(args: list[str]) -> list[str]:
         section = next(s for s in presets.SECTIONS if key in presets.fields(s))
         out += ["--set", presets.format_set(section, key, getattr(getattr(small, section), key))]
     return out
+
+
+def next_commands(stdout: str) -> list[str]:
+    """The commands a sweep prints under `next:` at its end (their `# comments` dropped)."""
+    lines = stdout.splitlines()
+    if "next:" not in lines:
+        return []
+    after = lines[lines.index("next:") + 1:]
+    return [re.sub(r"\s+#.*$", "", line).strip() for line in after if entry_point(line.strip())]

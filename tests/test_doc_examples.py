@@ -57,16 +57,23 @@ def _run_page(page, tmp_path, cache):
         for command in ex.commands(block):
             if ex.skip_reason(command):
                 continue
-            proc = subprocess.run(["bash", "-c", ex.runnable(command, sys.executable)], cwd=tmp_path, env=env,
-                                  capture_output=True, text=True, timeout=TIMEOUT)
-            module = ex.entry_point(command)
-            code, words = ex.REFUSED.get(module, (0, None))
-            assert proc.returncode == code, (f"{page}:{block.line}: {command!r} exits {proc.returncode}, not "
-                                             f"{code}:\n{proc.stderr[-3000:]}")
-            if words is not None:   # a refusal at the shrunk amounts: one line saying why
-                assert words in proc.stderr and proc.stderr.strip().count("\n") == 0, proc.stderr[-2000:]
+            out = _run(command, f"{page}:{block.line}", tmp_path, env)
             ran.append(command)
+            for suggested in ex.next_commands(out):   # what a sweep suggests next runs as suggested
+                _run(suggested, f"{page}:{block.line}: {command!r} suggests", tmp_path, env)
+                ran.append(suggested)
     return ran
+
+
+def _run(command, where, cwd, env) -> str:
+    """Runs `command` shrunk (`ex.runnable`) in `cwd`; asserts its documented exit status; returns its stdout."""
+    proc = subprocess.run(["bash", "-c", ex.runnable(command, sys.executable)], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=TIMEOUT)
+    code, words = ex.REFUSED.get(ex.entry_point(command), (0, None))
+    assert proc.returncode == code, f"{where}: {command!r} exits {proc.returncode}, not {code}:\n{proc.stderr[-3000:]}"
+    if words is not None:   # a refusal at the shrunk amounts: one line saying why
+        assert words in proc.stderr and proc.stderr.strip().count("\n") == 0, proc.stderr[-2000:]
+    return proc.stdout
 
 
 @pytest.mark.integration

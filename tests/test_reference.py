@@ -5,7 +5,7 @@ import json
 import pathlib
 
 from ape_jax.pipeline import results
-from experiments._reference import reference_lines
+from experiments._reference import comparable, reference_lines
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 SHIPPED = ROOT / "results"
@@ -49,3 +49,17 @@ def test_a_short_run_in_the_published_order_is_not_called_reversed(tmp_path):
 def test_no_reference_is_printed_for_a_setting_nothing_shipped_shares(tmp_path):
     assert reference_lines(_short_run(tmp_path, 20.0, 60.0, recipe={"batch_size": 32})) == []
     assert reference_lines(_short_run(tmp_path, 20.0, 60.0), shipped=tmp_path / "none") == []
+
+
+def test_a_smoke_run_gets_no_reference_and_nothing_to_compare(tmp_path):
+    path = _short_run(tmp_path, 20.0, 60.0, iterations=4)
+    obj = json.loads(path.read_text())
+    obj["config"]["smoke"] = True
+    path.write_text(json.dumps(obj))
+    assert reference_lines(path) == [] and not comparable(path)
+
+
+def test_only_a_run_a_shipped_file_matches_is_called_comparable(tmp_path):
+    assert comparable(SHIPPED / "hopper-pos-fca-rows-default-fca-after.json")   # RAP, PALR, MINE: not references
+    assert not comparable(THIRTY_K)                        # references only: nothing of its own to rank
+    assert not comparable(_short_run(tmp_path, 20.0, 60.0))   # neither: references only, and at 3,000 iterations

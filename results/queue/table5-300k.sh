@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# Table 5 with FCA's expert at the paper's budget (300k iterations, evaluated at 30k, 100k and 300k; 100 evaluation
+# episodes): Hopper, the fca protocol and recipe, FCA's Hopper-v1.pkl with raw labels, BC-SO, BC-OH, ours (step
+# THR 10% W 5), FCA (alpha 0.1) and PALR (its default setting), 8 seeds. Split by seeds into pieces of SEEDS_PER
+# seeds (budget.first_seed; a seed's numbers are the same in any piece: tests/test_width.py), each short enough to
+# finish inside one session, each committed as results/NAME-seedsK.json when it lands; the report merges them.
+# Two processes, each pinned to one core with XLA single-threaded (1.5x one process of two threads on this
+# 2-core CPU: docs/speed.md), at the lowest priority. Import FCA's expert once first (never committed):
+#   python -m experiments.import_expert PATH/TO/fighting-copycat-agents/data/experts/Hopper-v1.pkl --env hopper --name fca
+# Rerun to go on: a finished piece is skipped, a started one resumes from its checkpoints (in RUNS, this machine's).
+set -uo pipefail
+WT=${WT:-$(cd "$(dirname "$0")/../.." && pwd)}
+RUNS=${RUNS:-/work/runs/t5-300k}
+PY=${PY:-$WT/.venv/bin/python}
+SEEDS_PER=${SEEDS_PER:-2}
+PORT=${PORT:-12391}
+NAME=hopper-pos-fca-rows-paper-fca-fcaexpert-raw
+cd "$WT" || exit 2
+mkdir -p "$RUNS"
+ARGS=(--env hopper --protocol fca --recipe fca --preset paper --methods bc-so,bc-oh,ours-step,fca,palr
+      --set recipe.step_grid=0.1:5 --set recipe.fca_alphas=0.1 --set protocol.expert=fca --set protocol.labels=raw
+      --seeds "$SEEDS_PER" --quiet)
+for first in $(seq 0 "$SEEDS_PER" 7); do
+  piece=$NAME-seeds$first
+  if [ -f "results/$piece.json" ]; then echo "skip $piece (results/$piece.json exists)"; continue; fi
+  out=$RUNS/$piece
+  if [ ! -f "$out/results.json" ]; then
+    echo "start $piece $(date -u +%FT%TZ)"
+    resume=(); [ -f "$out/checkpoints/sweep.json" ] && resume=(--resume)
+    for i in 1 0; do   # process 1 first, in the background; process 0 (which writes) in the foreground
+      cmd=(taskset -c "$i" nice -n 19 env XLA_FLAGS="--xla_cpu_multi_thread_eigen=false" "$PY" -m experiments.sweep
+           "${ARGS[@]}" --set budget.first_seed="$first" --out "$out" "${resume[@]}"
+           --coordinator "localhost:$PORT" --num-processes 2 --process-id "$i")
+      if [ "$i" = 1 ]; then "${cmd[@]}" > "$RUNS/$piece.p1.log" 2>&1 & else "${cmd[@]}" > "$RUNS/$piece.log" 2>&1; fi
+    done
+    rc=$?; wait
+    [ "$rc" -eq 0 ] || { echo "FAILED $piece (exit $rc; $RUNS/$piece.log)"; exit 1; }
+  fi
+  cp "$out/results.json" "results/$piece.json" && echo "done $piece $(date -u +%FT%TZ)"
+done
