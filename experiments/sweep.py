@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import math
 import pathlib
 import shlex
 import shutil
@@ -38,7 +37,9 @@ import sys
 
 from experiments import _distributed, _reference
 from experiments._table import table
-from experiments._cli import Parser, add_compile_cache_flag, fail, unwritable, use_compile_cache
+from experiments._cli import (EPISODES_LIMIT, UPDATES_LIMIT, Parser, add_compile_cache_flag, checked_bar,
+                             data_directory, fail, interrupts, raise_if_interrupted, unwritable, use_compile_cache)
+from experiments._sweep_checks import demonstrations_writable, grid, step_setting, temperature
 
 PROG = "python -m experiments.sweep"
 
@@ -125,6 +126,9 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
     except ValueError as e:
         fail(p, str(e))
     args.plugins = tuple(m.strip() for m in args.plugins.split(",") if m.strip())
+    if paths := [m for m in args.plugins if "/" in m or m.endswith(".py")]:   # import_module's words would mislead
+        fail(p, f"--plugins {paths[0]}: a file path; give the module's name (my_plugin for my_plugin.py, with its "
+                "folder on PYTHONPATH)")
     try:
         methods.load_plugins(args.plugins)
         args.methods = methods.resolve(args.methods)
@@ -141,11 +145,11 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
     sets = [f"budget.{k}={v}" for k, v in (("seeds", args.seeds), ("iterations", args.iterations),
                                            ("eval_episodes", args.eval_episodes)) if v is not None]
     if args.step_grid is not None:
-        grid = _grid(p, "--step-grid", args.step_grid, _step_setting)
-        sets.append("recipe.step_grid=" + ",".join(f"{thr!r}:{w!r}" for thr, w in grid))
+        steps = grid(p, "--step-grid", args.step_grid, step_setting)
+        sets.append("recipe.step_grid=" + ",".join(f"{thr!r}:{w!r}" for thr, w in steps))
     if args.softmax_grid is not None:
-        sets.append("recipe.softmax_grid=" + ",".join(map(repr, _grid(p, "--softmax-grid", args.softmax_grid,
-                                                                       _temperature))))
+        sets.append("recipe.softmax_grid=" + ",".join(map(repr, grid(p, "--softmax-grid", args.softmax_grid,
+                                                                      temperature))))
     try:
         args.settings = presets.resolve(args.env, args.obs, args.protocol, args.preset, args.recipe, sets + args.sets,
                                         smoke=args.smoke)
@@ -175,14 +179,8 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
         if args.resume and not holds_sweep(args.out):   # a mistyped --out would silently start afresh
             fail(p, f"--resume: {args.out} holds no sweep to resume (no results.json, no checkpoints/sweep.json); "
                     "check --out, or start a new sweep there with --fresh instead of --resume")
-    args.data_dir = args.data_dir or data.cache_dir()
+    args.data_dir = data_directory(p, args.data_dir)   # a file given is refused here, before --out is touched
     return args
-
-
-# A sweep past either is refused unless --yes: a typo (--seeds 1000000) would otherwise hold the machine for
-# months. The paper preset with every method is ~1e8 updates; the README's and the default sweeps ~1e4 to 1e6.
-UPDATES_LIMIT = 1_000_000_000   # model updates: one policy, one batch, one optimiser step
-EPISODES_LIMIT = 1_000_000      # evaluation episodes, at the end and at each budget.eval_at
 
 
 @dataclasses.dataclass(frozen=True)
@@ -235,45 +233,13 @@ def holds_sweep(out: pathlib.Path) -> bool:
     return run.results.is_file() or (run.checkpoints / FINGERPRINT).is_file()
 
 
-def _grid(p, flag: str, text: str, parse_one) -> tuple:
-    """A comma list of settings, each parsed by `parse_one` (ValueError -> a one-line refusal)."""
-    items = [t.strip() for t in text.split(",") if t.strip()]
-    if not items:
-        fail(p, f"{flag} is empty")
-    try:
-        values = tuple(parse_one(t) for t in items)
-    except ValueError as e:
-        fail(p, f"{flag}: {e}")
-    if len(set(values)) != len(values):
-        fail(p, f"{flag} lists a setting twice")
-    return values
-
-
-def _step_setting(text: str) -> tuple[float, float]:
-    thr, sep, w = text.partition(":")
-    if not sep:
-        raise ValueError(f"{text!r} is not THR:W (e.g. 0.1:5)")
-    thr, w = float(thr), float(w)
-    if not 0.0 < thr < 1.0:
-        raise ValueError(f"THR must be in (0, 1), got {thr:g}")
-    if not 1.0 <= w < math.inf:
-        raise ValueError(f"W must be a finite number >= 1, got {w:g}")
-    return thr, w
-
-
-def _temperature(text: str) -> float:
-    tau = float(text)
-    if not 0.0 < tau < math.inf:
-        raise ValueError(f"tau must be a finite number > 0, got {tau:g}")
-    return tau
-
-
 def main(argv=None) -> int:
     """The sweep from the command line; returns the exit status (0 done or reported, 2 refused, 130 Ctrl-C)."""
     state: dict = {}   # what was made, for the cleanup whatever ends the sweep
     code = None
     try:
-        code = _main(argv, state)
+        with interrupts():   # a Ctrl-C that lands in a gc callback still stops the sweep (`_cli.interrupts`)
+            code = _main(argv, state)
         return code
     except SystemExit as e:
         code = e.code
@@ -296,6 +262,7 @@ def _main(argv, state: dict) -> int:
         args = state["args"] = parse(argv, writes=procs.writes)
         spec, fp = _spec(args, argv)
         if procs.writes:  # the others never look at --out
+            demonstrations_writable(spec)
             state["created"] = not args.out.exists()
             state["lock"] = _hold(args.out)
             opened = _open_out(args, fp)
@@ -457,7 +424,8 @@ def _run(args: argparse.Namespace, spec, checkpoint) -> int:
     if spec.settings.smoke:
         print(f"smoke run: preset {args.preset}'s settings with its amounts shrunk to seconds; it checks that the "
               f"preset runs end to end, its numbers mean nothing (the report refuses them)")
-    bar = (lambda **kw: tqdm(disable=True, **kw)) if args.quiet else (lambda **kw: tqdm(dynamic_ncols=True, **kw))
+    bar = checked_bar((lambda **kw: tqdm(disable=True, **kw)) if args.quiet else
+                      (lambda **kw: tqdm(dynamic_ncols=True, **kw)))   # each update: a Ctrl-C ignored stops here
     hooks = Hooks(bar=bar, log=tqdm.write, curves=lambda *a: logs.CurveLog(args.out, *a))
     try:
         res, policies = run_sweep(spec, hooks, checkpoint)
@@ -465,6 +433,7 @@ def _run(args: argparse.Namespace, spec, checkpoint) -> int:
         checkpoint.discard_if_empty()  # a refusal leaves --out as it found it (`main` removes a folder made for it)
         return fail(None, str(e))
     res.system = started
+    raise_if_interrupted()   # a Ctrl-C whose exception was ignored: no results written
     ckpt_lib.save_policies(out.params, policies)
     results_lib.write_csv(out.csv, res)
     results_lib.save(out.results, res)  # last: its presence means the sweep finished
