@@ -13,10 +13,11 @@ Use it like a shipped variant: `python -m experiments.sweep --set protocol.exper
 (and `--set protocol.labels=raw` to train on its unbounded labels as FCA did).
 
 Refused with one line and exit status 2, nothing written: a missing or unreadable
-file, a pickle that holds anything but numpy arrays and plain containers, an
-`.npz` with missing layers, layers that do not chain, an input size other than
-the task's full observation, a name that is a shipped expert's, or an imported
-expert of that name from another file (unless `--force`).
+file (a folder, a truncated or corrupt pickle or .npz), a pickle that holds
+anything but numpy arrays and plain containers, an `.npz` with missing layers,
+layers that do not chain, an input size other than the task's full observation,
+a name that is a shipped expert's, or an imported expert of that name from
+another file (unless `--force`).
 """
 
 from __future__ import annotations
@@ -25,7 +26,8 @@ import pathlib
 import sys
 import time
 
-from experiments._cli import Parser, add_compile_cache_flag, fail, unwritable, use_compile_cache
+from experiments._cli import (Parser, add_compile_cache_flag, fail, interruptible, raise_if_interrupted, unreadable,
+                             unwritable, use_compile_cache)
 
 # Episodes of the expert and of a random policy per protocol: the whole import of a Hopper expert within two
 # minutes on a 2-core CPU (fca's episodes are 2,000 steps at frame skip 1, brax's 1,000 at frame skip 4)
@@ -33,6 +35,7 @@ EPISODES = {"fca": 20, "brax": 10}
 DEFAULT_EPISODES = 10
 
 
+@interruptible("an expert is written only once measured, whole")
 def main(argv=None) -> int:
     t0 = time.perf_counter()
     import envs
@@ -63,6 +66,8 @@ def main(argv=None) -> int:
                 f"{', '.join(n for n in envs.names() if tasks.get(n).has_card)}")
     if not imported.NAME.fullmatch(args.name):
         fail(p, f"--name {args.name!r} must be lowercase letters, digits and _ (e.g. fca)")
+    if why := unreadable(args.path, "an expert file (a CS294 pickle or an .npz MLP)"):
+        fail(p, why)
     full = f"{args.env}-{args.name}"
     if full in experts.available():
         fail(p, f"--name {args.name!r}: {full} is a shipped expert (envs/experts/{full}); pick another name")
@@ -114,6 +119,7 @@ def main(argv=None) -> int:
         print(f"{name}: expert {r['return_mean']:,.1f} ± {r['return_std']:,.1f}, random policy "
               f"{r['random_return_mean']:,.1f} over {episodes} episodes each ({r['seconds']:.0f} s)")
     card = imported.card_for(args.env, args.name, converted, source, command)
+    raise_if_interrupted()   # a Ctrl-C whose exception was ignored (a gc callback): nothing written
     target = imported.install(args.env, args.name, converted, card, references)
     print(f"imported {full} ({fmt}, SHA-256 {source['sha256']}): {converted.obs_size} inputs, hidden "
           f"{converted.hidden} {converted.activation}, {converted.action_size} actions ({converted.head} head) in "

@@ -59,6 +59,8 @@ import os
 import pathlib
 import pickle
 import re
+import zipfile
+import zlib
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -99,27 +101,32 @@ except ImportError:  # numpy 1
     from numpy.core.multiarray import _reconstruct as _numpy_reconstruct
 
 
+class _Refused(pickle.UnpicklingError):
+    """What the pickle asks for is refused (a global not admitted, an object array, a persistent reference), as
+    opposed to bytes that are not a pickle at all (truncated or corrupt)."""
+
+
 class _NdarrayClass:
     """Stands for `numpy.ndarray` in a pickle: only `_reconstruct` may use it (it cannot be called itself)."""
 
 
 def _reconstruct(cls, shape, dtype):
     if cls is not _NdarrayClass:
-        raise pickle.UnpicklingError("numpy's _reconstruct builds numpy arrays only")
+        raise _Refused("numpy's _reconstruct builds numpy arrays only")
     return _numpy_reconstruct(np.ndarray, shape, _dtype(dtype))
 
 
 def _dtype(spec, *args):
     dtype = np.dtype(spec, *args[:2])
     if dtype.hasobject:
-        raise pickle.UnpicklingError(f"numpy dtype {dtype} holds Python objects")
+        raise _Refused(f"numpy dtype {dtype} holds Python objects")
     return dtype
 
 
 def _latin1(text, encoding="latin1"):
     # Python 3's protocol-2 pickles write bytes as _codecs.encode(str, "latin1"); nothing else is admitted
     if not isinstance(text, str) or encoding not in ("latin1", "latin-1"):
-        raise pickle.UnpicklingError("_codecs.encode is admitted for latin-1 byte strings only")
+        raise _Refused("_codecs.encode is admitted for latin-1 byte strings only")
     return text.encode("latin1")
 
 
@@ -138,24 +145,24 @@ class _Restricted(pickle.Unpickler):
         try:
             return _ADMITTED[(module, name)]
         except KeyError:
-            raise pickle.UnpicklingError(f"it names {module}.{name}") from None
+            raise _Refused(f"it names {module}.{name}") from None
 
     def persistent_load(self, pid):
-        raise pickle.UnpicklingError("it holds a persistent reference")
+        raise _Refused("it holds a persistent reference")
 
 
 def _check_plain(x: Any, where: str = "") -> None:
     if isinstance(x, np.ndarray):
         if x.dtype.hasobject or not (np.issubdtype(x.dtype, np.number) or x.dtype == np.bool_
                                      or x.dtype.kind in "SU"):
-            raise pickle.UnpicklingError(f"{where or 'it'} is a {x.dtype} array")
+            raise _Refused(f"{where or 'it'} is a {x.dtype} array")
         return
     if not isinstance(x, _PLAIN):
-        raise pickle.UnpicklingError(f"{where or 'it'} is a {type(x).__name__}")
+        raise _Refused(f"{where or 'it'} is a {type(x).__name__}")
     children = x.items() if isinstance(x, dict) else enumerate(x) if isinstance(x, (list, tuple)) else ()
     for k, v in children:
         if isinstance(x, dict) and not isinstance(k, (str, int)):
-            raise pickle.UnpicklingError(f"{where or 'it'} has a {type(k).__name__} key")
+            raise _Refused(f"{where or 'it'} has a {type(k).__name__} key")
         _check_plain(v, f"{where}[{k!r}]")
 
 
@@ -164,15 +171,20 @@ def safe_unpickle(data: bytes, where: str = "<bytes>") -> Any:
     numbers); anything else it would build is refused, never executed.
 
     Raises:
-      ImportError_: one line naming `where` and what the pickle asked for.
+      ImportError_: one line naming `where` and what the pickle asked for, or that its bytes are no pickle
+        (truncated or corrupt).
     """
     try:
         obj = _Restricted(io.BytesIO(data), encoding="latin1").load()
         _check_plain(obj)
-    except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError, IndexError, KeyError,
-            MemoryError, OverflowError) as e:
+    except _Refused as e:
         raise ImportError_(f"{where}: refused: only numpy arrays and plain containers are admitted, and "
-                           f"{' '.join(str(e).split()) or type(e).__name__} (nothing in it was executed)") from None
+                           f"{' '.join(str(e).split())} (nothing in it was executed)") from None
+    except (pickle.UnpicklingError, EOFError, ValueError, TypeError, AttributeError, IndexError, KeyError,
+            MemoryError, OverflowError) as e:  # the bytes themselves: cut short, damaged, or no pickle at all
+        raise ImportError_(f"{where}: not a readable pickle, truncated or corrupt "
+                           f"({' '.join(str(e).split()) or type(e).__name__}); an expert file is a CS294 pickle "
+                           "or an .npz MLP") from None
     return obj
 
 
@@ -266,8 +278,9 @@ def read_npz(path: pathlib.Path, action_size_hint: int | None = None) -> Convert
     try:
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
-    except (OSError, ValueError, EOFError) as e:
-        raise ImportError_(f"{where}: not a readable .npz file ({' '.join(str(e).split())})") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:
+        raise ImportError_(f"{where}: not a readable .npz file, truncated or corrupt "
+                           f"({type(e).__name__}: {' '.join(str(e).split())})") from None
     missing = [k for k in ("obs_mean", "obs_std", "activation", "head", "kernel_0", "bias_0") if k not in arrays]
     numbered = sorted({int(m.group(2)) for k in arrays if (m := re.fullmatch(r"(kernel|bias)_(\d+)", k))})
     layers = len(numbered)
@@ -322,8 +335,10 @@ def read(path: pathlib.Path, fmt: str = "auto", action_size: int | None = None) 
       ImportError_: an unreadable file, a refused pickle, missing layers or layers that do not chain (one line).
     """
     path = pathlib.Path(path)
+    if path.is_dir():
+        raise ImportError_(f"{path} is a folder, not an expert file (a CS294 pickle or an .npz MLP)")
     if not path.is_file():
-        raise ImportError_(f"{path}: no such file")
+        raise ImportError_(f"{path} does not exist" if not path.exists() else f"{path} is not a regular file")
     fmt = detect_format(path) if fmt == "auto" else fmt
     if fmt not in READERS:
         raise ImportError_(f"unknown expert format {fmt!r}; valid: {', '.join(FORMATS)}")
