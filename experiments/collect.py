@@ -35,15 +35,15 @@ import math
 import pathlib
 import sys
 
-from experiments._cli import (Parser, add_compile_cache_flag, data_directory, fail, unwritable, unwritable_file,
-                             use_compile_cache)
+from experiments._cli import (EPISODES_LIMIT, Parser, add_compile_cache_flag, data_directory, fail, interruptible,
+                             raise_if_interrupted, unwritable, unwritable_file, use_compile_cache)
 
 
 def parse(argv=None) -> argparse.Namespace:
     import envs
     from ape_jax import tasks
     from ape_jax.pipeline import collect, data
-    from ape_jax.pipeline.presets import parse_set
+    from ape_jax.pipeline.presets import BUDGET_MAX, parse_set
 
     p = Parser(prog="python -m experiments.collect", description=__doc__.splitlines()[0])
     p.add_argument("--env", default="hopper", help=f"{', '.join(tasks.sweepable())}, or any Brax env with an expert "
@@ -73,6 +73,9 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--preview", type=pathlib.Path, default=None, metavar="FILE.gif",
                    help="also write the first episode's first 300 steps as a GIF, rendered from the recorded "
                         "simulator states")
+    p.add_argument("--yes", action="store_true",
+                   help=f"collect more than {EPISODES_LIMIT:,} episodes (the sweep's limit on episodes), which is "
+                        "refused without it")
     add_compile_cache_flag(p)
     args = p.parse_args(argv)
     use_compile_cache(args)
@@ -103,6 +106,12 @@ def parse(argv=None) -> argparse.Namespace:
     for flag, value in (("--episodes", args.episodes), ("--batch", args.batch)):
         if value < 1:
             fail(p, f"{flag} must be >= 1, got {value}")
+    if args.episodes > BUDGET_MAX:   # episode ids are 32-bit integers
+        fail(p, f"--episodes must be at most {BUDGET_MAX:,} (episodes are numbered in 32-bit integers), got "
+                f"{args.episodes:,}")
+    if args.episodes > EPISODES_LIMIT and not args.yes:
+        fail(p, f"--episodes {args.episodes:,} is over the limit of {EPISODES_LIMIT:,} episodes (every step is kept "
+                "in memory and on disk); pass --yes to collect them anyway, or ask for fewer")
     if not 0.0 <= args.noise_frac <= 1.0:
         fail(p, f"--noise-frac must be in [0, 1], got {args.noise_frac}")
     if not 0.0 <= args.noise_std < math.inf:
@@ -151,6 +160,7 @@ def action_summary(demos) -> str:
     return "\n".join(lines)
 
 
+@interruptible("a dataset is cached only once collected whole")
 def main(argv=None) -> int:
     args = parse(argv)
     from tqdm import tqdm
@@ -172,7 +182,7 @@ def main(argv=None) -> int:
     try:
         with tqdm(total=args.episodes, unit="episode", desc=f"collect {args.env}/{args.obs}", delay=0.5) as bar:
             demos, meta, path, cached = collect.collect_cached(
-                cfg, args.data_dir, force=args.force, progress=lambda n: bar.update(n - bar.n),
+                cfg, args.data_dir, force=args.force, progress=lambda n: _progress(bar, n),
                 references=references)
     except data.DataError as e:
         return fail(None, f"{e}; the cached dataset is left as it is: run again with --force to collect it anew")
@@ -206,6 +216,11 @@ def main(argv=None) -> int:
     if args.preview is not None:
         write_preview(args, demos)
     return 0
+
+
+def _progress(bar, n: int) -> None:
+    raise_if_interrupted()   # between batches: a Ctrl-C whose exception was ignored stops collecting here
+    bar.update(n - bar.n)
 
 
 def _references(args) -> tuple[dict | None, str | None]:

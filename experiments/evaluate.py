@@ -42,9 +42,11 @@ import pathlib
 import sys
 
 from ape_jax.pipeline.rundir import RunDir
-from experiments._cli import Parser, add_compile_cache_flag, fail, unwritable_file, use_compile_cache
+from experiments._cli import (Parser, add_compile_cache_flag, fail, interruptible, not_a_folder,
+                             raise_if_interrupted, unreadable, unwritable_file, use_compile_cache)
 
 
+@interruptible("a results file is only ever replaced whole")
 def main(argv=None) -> int:
     from ape_jax.pipeline import data
 
@@ -87,6 +89,8 @@ def main(argv=None) -> int:
 
     run = RunDir(args.run)
     source = run.results
+    if why := not_a_folder(args.run, "a sweep's --out folder"):
+        fail(p, f"{why}: RUN must be a finished sweep's --out directory")
     if not source.exists():
         fail(p, f"{source} does not exist: RUN must be a finished sweep's --out directory")
     try:
@@ -101,6 +105,8 @@ def main(argv=None) -> int:
     if args.replaces is not None:
         if args.replaces.resolve() == source.resolve():
             fail(p, f"--replaces names RUN's own results ({source}): give the file RUN was trained again to replace")
+        if why := unreadable(args.replaces, "a results file"):
+            fail(p, f"--replaces {why}")
         try:
             old = results_lib.load(args.replaces)
         except results_lib.ResultsError as e:
@@ -124,6 +130,7 @@ def main(argv=None) -> int:
     from ape_jax.pipeline import judge
 
     new = judge.judge_own(new)   # diagnostics just added: their controlled verdict, where the sweep had BC-SO
+    raise_if_interrupted()   # a Ctrl-C whose exception was ignored (a gc callback): nothing written
     results_lib.save(target, new)
     if old is not None:
         print(_before_and_after(new))
@@ -159,6 +166,8 @@ def _rejudge(p, files: list[pathlib.Path], controls: list[pathlib.Path]) -> int:
     from ape_jax.pipeline import results as results_lib
 
     def loaded(path):
+        if why := unreadable(path, "a results file"):
+            fail(p, why)
         try:
             return results_lib.load(path)
         except results_lib.ResultsError as e:
