@@ -408,7 +408,11 @@ def main(argv=None) -> int:
 def _check_results(args) -> str | None:
     """Why a `--results` file cannot be reported (they are read at the end, so checked first), or None."""
     timing, config = ("total_s", "compile_s", "train_s", "eval_s"), ("iterations", "seeds", "eval_episodes")
+    from experiments._cli import unreadable
+
     for path in args.results:
+        if why := unreadable(path, "a results file"):
+            return f"--results {why}"
         try:
             r = json.loads(pathlib.Path(path).read_text())
         except (OSError, UnicodeDecodeError, ValueError) as e:

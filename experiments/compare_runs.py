@@ -21,7 +21,7 @@ import sys
 import numpy as np
 
 from ape_jax.pipeline.rundir import RunDir
-from experiments._cli import Parser, fail
+from experiments._cli import Parser, fail, not_a_folder
 
 
 def _ident(run: dict) -> tuple:
@@ -72,6 +72,8 @@ def main(argv=None) -> int:
     from ape_jax.pipeline.results import ResultsError
 
     for folder in (args.run_a, args.run_b):
+        if why := not_a_folder(folder, "a sweep's --out folder"):
+            fail(parser, why)
         if not RunDir(folder).finished():
             fail(parser, f"{folder} is not a finished sweep's --out folder (results.json and params/)")
     try:

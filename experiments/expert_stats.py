@@ -20,7 +20,7 @@ import pathlib
 import sys
 import time
 
-from experiments._cli import Parser, fail, unwritable_file
+from experiments._cli import Parser, fail, not_a_folder, unwritable_file
 
 
 def measure(env_name: str, policy, protocol: str = "fca", psi_steps: int = 5_000, seed: int = 0) -> dict:
@@ -121,6 +121,8 @@ def main(argv=None) -> int:
                     f"{', '.join(a.partition('-')[2] for a in known if a.startswith(args.env + '-'))}")
         chosen[name] = (name, None)
     for d in args.dir:
+        if why := not_a_folder(d, "an expert's folder"):
+            fail(p, f"--dir {why}")
         if not (d / experts.CARD).is_file():
             fail(p, f"--dir {d}: no {experts.CARD} there")
         chosen[d.name] = (args.env, d)

@@ -37,7 +37,7 @@ import sys
 import time
 from typing import TYPE_CHECKING
 
-from experiments._cli import Parser, fail, unwritable_file
+from experiments._cli import Parser, data_directory, fail, unwritable_file
 
 if TYPE_CHECKING:
     import numpy as np
@@ -96,6 +96,7 @@ def parse(argv=None) -> argparse.Namespace:
     problem = unwritable_file(args.out)
     if problem:
         fail(p, f"--out {args.out}: {problem}")
+    args.data_dir = data_directory(p, args.data_dir)
     return args
 
 
@@ -132,6 +133,7 @@ def run(args: argparse.Namespace, log=print) -> dict:
     from ape_jax.learner import Data, Hparams, make_train, policy_apply
     from ape_jax.pipeline.sweep import CPU_IMAGE_CHUNK, Hooks, SweepSpec, prepare
     from experiments._provenance import system
+    from experiments._sweep_checks import demonstrations_writable
 
     started = system()  # the code that runs, taken at the start
 
@@ -140,6 +142,7 @@ def run(args: argparse.Namespace, log=print) -> dict:
             f"budget.iterations={args.iterations}", *args.sets]
     spec = SweepSpec.make(args.env, args.obs, protocol="brax", recipe="mlp", methods=["bc-oh"], preset="default",
                           sets=sets, data_dir=args.data_dir)
+    demonstrations_writable(spec)   # before minutes of collecting into a --data-dir that cannot take them
     prepared = prepare(spec, Hooks(log=log))
     if not {"qpos", "qvel"} <= set(prepared.train.demos.sim):
         raise ValueError(f"{prepared.data_path}: the demonstrations hold no simulator state (sim/qpos, sim/qvel)")

@@ -24,7 +24,7 @@ import pathlib
 import sys
 import time
 
-from experiments._cli import Parser, fail, unwritable_file
+from experiments._cli import Parser, fail, unreadable, unwritable_file
 
 # the kernel's answer before the first cell: the interpreter and the environment it belongs to
 PROBE = "import sys; print(sys.executable); print(sys.prefix)"
@@ -50,8 +50,10 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     if args.timeout < 1:
         fail(p, f"--timeout must be >= 1 second, got {args.timeout}")
-    if not args.notebook.is_file():
+    if not args.notebook.exists():
         fail(p, f"{args.notebook}: no such notebook file")
+    if why := unreadable(args.notebook, "a notebook file"):
+        fail(p, why)
     if args.out is not None and (why := unwritable_file(args.out)):
         fail(p, f"--out {args.out}: cannot write there: {why}")
 

@@ -61,7 +61,8 @@ def test_the_table_prints_every_column():
     (["--env", "nope"], "unknown env 'nope'"),
     (["--env", "toycar"], "unknown env 'toycar'"),
     (["--env", "hopper", "--expert", "nosuch"], "no shipped or imported expert 'hopper-nosuch'"),
-    (["--env", "hopper", "--dir", "/nonexistent"], "no card.json"),
+    (["--env", "hopper", "--dir", "/nonexistent"], "--dir /nonexistent does not exist"),
+    (["--env", "hopper", "--dir", "/"], "--dir /: no card.json there"),
     (["--env", "hopper", "--protocol", "nope"], "unknown protocol"),
     (["--env", "hopper", "--psi-steps", "0"], "must be >= 1"),
 ])

@@ -322,7 +322,7 @@ def test_report_refusals_leave_an_existing_out_untouched(tmp_path, capsys):
 # -- experiments.bench_* ------------------------------------------------------------------------
 
 @pytest.mark.parametrize("module, args, message", [
-    ("bench_train", lambda root: ["--results", root / "missing.json"], "--results {root}/missing.json: cannot read"),
+    ("bench_train", lambda root: ["--results", root / "missing.json"], "--results {root}/missing.json does not exist"),
     ("bench_train", lambda root: ["--results", root / "other.json"], "--results {root}/other.json: not a sweep "
                                                                      "results file"),
     ("bench_train", lambda root: ["--write", root / "file" / "B.md"], "--write {root}/file/B.md: cannot write there"),

@@ -279,6 +279,8 @@ def load(path: str | os.PathLike) -> tuple[Demonstrations, dict]:
     """
     path = pathlib.Path(path)
     mpath = meta_path(path)
+    if path.is_dir():
+        raise DataError(f"{path} is a folder, not a dataset file")
     if not path.is_file():
         raise DataError(f"{path}: no such dataset file")
     if not mpath.is_file():

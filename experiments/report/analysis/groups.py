@@ -46,10 +46,17 @@ class Source(results_lib.Results):
 
 def load(path: str | pathlib.Path) -> Source:
     """Reads and validates one results file (`ReportError`, one line naming it, if it cannot be used)."""
+    from experiments._cli import unreadable
+
+    if pathlib.Path(path).exists() and (why := unreadable(path, "a results file")):   # a folder: said as such
+        raise ReportError(why)
     try:
         res = results_lib.load(path)
     except results_lib.ResultsError as e:
         raise ReportError(str(e)) from None
+    if not res.runs:   # its summary alone would give numbers no run backs
+        raise ReportError(f"{path}: the file has no runs (its \"runs\" list is empty), so it has no numbers to "
+                          "report; give a results.json that experiments.sweep finished")
     if res.config.get("smoke"):
         raise ReportError(f"{path}: a --smoke run (its amounts shrunk to seconds, its numbers mean nothing); "
                           f"the report takes real runs only")
