@@ -143,7 +143,25 @@ def parse_image_size(value) -> tuple[int, int]:
 
 @functools.cache
 def _build_brax(name: str, backend: str, brax_kwargs: tuple):
-    return brax_envs.get_environment(name, backend=backend, **dict(brax_kwargs))
+    env = brax_envs.get_environment(name, backend=backend, **dict(brax_kwargs))
+    if jax.process_count() > 1:
+        env.sys = _on_this_process(env.sys)
+    return env
+
+
+def _on_this_process(sys):
+    """`sys` with MJX's part of the model on this process's device.
+
+    MJX places a model on `jax.devices()[0]`, the *global* first device: in every process
+    but the first of a multi-process run (`jax.distributed`) another process's device, which
+    this one can neither read nor close over in `jit`. Brax keeps the host model
+    (`sys.mj_model`), so its MJX fields are put again, here.
+    """
+    from mujoco import mjx
+
+    local = mjx.put_model(sys.mj_model, device=jax.local_devices()[0])
+    return sys.replace(**{f.name: getattr(local, f.name) for f in dataclasses.fields(local)
+                          if f.name in {g.name for g in dataclasses.fields(sys)}})
 
 
 @functools.cache

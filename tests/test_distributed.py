@@ -214,3 +214,32 @@ def test_one_process_given_as_flags_is_the_plain_sweep():
                                                   "--process-id", "0"])
     assert procs == sweep._distributed.Processes() and procs.writes
     assert procs.agree(None, {"any": 1}) is None and procs.agree(0, None) == 0
+
+
+# Makes and steps Hopper (MJX) in each process: MJX puts its model on the global first device, which is process 0's
+MJX_WORKER = """
+import sys
+import jax
+pid, port = int(sys.argv[1]), sys.argv[2]
+if pid >= 0:
+    jax.distributed.initialize(f"127.0.0.1:{port}", num_processes=2, process_id=pid)
+import numpy as np
+import envs
+env = envs.make("hopper", obs="pos")
+state = jax.jit(env.reset)(jax.random.PRNGKey(0))
+step = jax.jit(env.step)
+for _ in range(5):
+    state = step(state, jax.numpy.full(3, 0.3))
+print(np.asarray(state.obs).tobytes().hex())
+"""
+
+
+def test_an_mjx_task_steps_in_every_process_of_a_multi_process_run_as_in_one_process():
+    port = free_port()
+    done = run_processes([[sys.executable, "-c", MJX_WORKER, str(i), str(port)] for i in range(2)], env_with(1))
+    for i, d in enumerate(done):
+        assert d.returncode == 0, (i, d.stderr[-3000:])   # process 1 could not close over process 0's model
+    alone = subprocess.run([sys.executable, "-c", MJX_WORKER, "-1", "0"], cwd=ROOT, env=env_with(1),
+                           capture_output=True, text=True, timeout=300)
+    assert alone.returncode == 0, alone.stderr[-3000:]
+    assert done[0].stdout.split()[-1] == done[1].stdout.split()[-1] == alone.stdout.split()[-1]
