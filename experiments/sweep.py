@@ -450,19 +450,21 @@ def _run(args: argparse.Namespace, spec, checkpoint) -> int:
 
 
 def next_steps(out: pathlib.Path, smoke: bool = False) -> list[str]:
-    """The lines that end a sweep: the commands that report and compare what it wrote in `out`."""
+    """The lines that end a sweep: the commands that report what it wrote in `out`, and compare it where a shipped
+    file of the same setting and budget lets `experiments.compare` rank it (else why not, as a comment)."""
     if smoke:
         return ["next: the same command without --smoke (a smoke run's numbers mean nothing, and the report and "
                 "compare refuse them)"]
     from ape_jax.pipeline.rundir import RunDir
 
     q = shlex.quote
-    return ["next:",
-            f"  python -m experiments.report {q(str(RunDir(out).results))} --out {q(str(out / 'report.md'))}"
-            f"   # tables and figures ({out / 'figures'}/)",
-            f"  python -m experiments.compare {q(str(out))}"
-            "   # against the shipped results/ of the same task, protocol, recipe and budget (--preset default or "
-            "paper); it names the nearest file where none matches"]
+    report = (f"  python -m experiments.report {q(str(RunDir(out).results))} --out {q(str(out / 'report.md'))}"
+              f"   # tables and figures ({out / 'figures'}/)")
+    if _reference.comparable(RunDir(out).results):
+        return ["next:", report, f"  python -m experiments.compare {q(str(out))}   # against the shipped results/ "
+                                 "of the same task, protocol, recipe and budget"]
+    return ["next:", report, "  # experiments.compare ranks a sweep against a shipped file of its setting and budget "
+                             "(e.g. --preset default) with a method of its own beside the references; none here"]
 
 
 if __name__ == "__main__":

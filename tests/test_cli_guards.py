@@ -74,13 +74,21 @@ def test_one_seed_says_no_interval_and_never_plus_minus_zero():
     assert "± 0.0" not in text and "(1 seed)" in text
 
 
-def test_the_sweep_ends_with_the_commands_that_report_and_compare_its_folder(tmp_path):
+def test_the_sweep_ends_with_the_commands_that_report_its_folder_and_compare_it_where_compare_can(tmp_path):
+    import shutil
+
+    shipped = pathlib.Path(__file__).resolve().parent.parent / "results"
     out = tmp_path / "my run"
+    out.mkdir()
+    shutil.copy(shipped / "hopper-pos-fca-rows-default-fca-after.json", out / "results.json")   # RAP, PALR, MINE
     lines = sweep.next_steps(out)
     assert lines[0] == "next:"
     assert shlex.split(lines[1].split("#")[0]) == ["python", "-m", "experiments.report", f"{out}/results.json",
                                                    "--out", f"{out}/report.md"]
     assert shlex.split(lines[2].split("#")[0]) == ["python", "-m", "experiments.compare", str(out)]
+    shutil.copy(shipped / "hopper-pos-fca-rows-default-fca-bc.json", out / "results.json")   # references only
+    lines = sweep.next_steps(out)
+    assert len(lines) == 3 and lines[2].lstrip().startswith("# experiments.compare") and "none here" in lines[2]
     assert "without --smoke" in sweep.next_steps(out, smoke=True)[0]
 
 
