@@ -343,15 +343,16 @@ def test_the_cli_draws_figures_next_to_out_and_links_them_relatively(tmp_path, c
     out.parent.mkdir()
     assert report.main([str(main), str(base), str(walker), "--out", str(out)]) == 0
     figures = out.parent / "figures"
-    assert sorted(p.name for p in figures.iterdir()) == ["grid-hopper.png", "grid-walker2d.png", "returns.png"]
+    assert sorted(p.name for p in figures.iterdir()) == ["grid-hopper.png", "grid-walker2d.png", "returns-other.png"]
     for png in figures.iterdir():
         _check_png(png)
     pages = out.parent / "docs" / "results"
     text = (pages / "index.md").read_text()
-    assert "![Return per method and environment](../../figures/returns.png)" in text
+    assert "![Other protocols: Brax's own frame skip and episodes: every method per group](../../figures/" \
+        "returns-other.png)" in text
     assert "![Hopper grid search](../../figures/grid-hopper.png)" in (pages / "hopper-pos.md").read_text()
     assert "](../../figures/grid-walker2d.png)" in (pages / "walker2d-pos.md").read_text()
-    assert "wrote " + str(figures / "returns.png") in capsys.readouterr().out
+    assert "wrote " + str(figures / "returns-other.png") in capsys.readouterr().out
     # deterministic: a second run gives the same markdown and the same PNG bytes
     first, png = text, (figures / "grid-hopper.png").read_bytes()
     assert report.main([str(main), str(base), str(walker), "--out", str(out)]) == 0
@@ -359,7 +360,7 @@ def test_the_cli_draws_figures_next_to_out_and_links_them_relatively(tmp_path, c
     # --figures elsewhere: links relative to each page's folder
     assert report.main([str(main), "--out", str(out), "--figures", str(tmp_path / "figs")]) == 0
     assert "![Hopper grid search](../../../figs/grid-hopper.png)" in (pages / "hopper-pos.md").read_text()
-    _check_png(tmp_path / "figs" / "returns.png")
+    _check_png(tmp_path / "figs" / "returns-other.png")
 
 
 def test_printing_draws_figures_only_with_figures_dir(tmp_path, capsys, monkeypatch):
@@ -372,7 +373,7 @@ def test_printing_draws_figures_only_with_figures_dir(tmp_path, capsys, monkeypa
     assert report.main([str(main), "--figures", "plots"]) == 0
     printed = capsys.readouterr()
     assert "](plots/grid-hopper.png)" in printed.out and "Figures not drawn" not in printed.out
-    assert "wrote plots/returns.png" in printed.err                   # stdout carries only the markdown
+    assert "wrote plots/returns-other.png" in printed.err             # stdout carries only the markdown
     _check_png(tmp_path / "plots" / "grid-hopper.png")
 
 
@@ -439,8 +440,10 @@ def test_training_curves_and_weight_histograms_are_drawn_from_files_that_record_
     out = tmp_path / "B.md"
     assert report.main([str(_write(tmp_path, "r.json", r)), "--out", str(out)]) == 0
     text = (tmp_path / "docs" / "results" / "index.md").read_text()
-    assert "![Training curves](../../figures/curves.png)" in text
-    assert "![Weight concentration within a batch](../../figures/weights.png)" in text
+    assert "![Training curves: Other protocols: Brax's own frame skip and episodes](../../figures/" \
+        "curves-other.png)" in text
+    assert "![Weight concentration within a batch, groups trained on the APE ÷ its mean](../../figures/" \
+        "weights-by-mean.png)" in text
     # uniform weights: the heaviest of 128 carries 1/128, the heaviest 13 carry 13/128; the step setting's 10%
     # of samples at W 5 carry about 5·0.1 / (5·0.1 + 0.9) = 36%; a small τ gives one sample nearly everything
     assert "| Hopper | uniform (BC-OH) | 1% | 10% | 1% | 10% |" in text       # raw APE and ÷ its mean alike
@@ -452,7 +455,7 @@ def test_training_curves_and_weight_histograms_are_drawn_from_files_that_record_
         assert np.all(np.diff(y) >= -1e-12) and abs(y[-1] - 1) < 1e-9    # cumulative shares, ending at all of it
     assert panel.trained == "mean"
     assert shares["softmax τ 5"][0] > shares["uniform (BC-OH)"][0]
-    for name in ("curves.png", "weights.png"):
+    for name in ("curves-other.png", "weights-by-mean.png"):
         with Image.open(tmp_path / "figures" / name) as im:
             assert im.size[0] > 300 and im.size[1] > 200
     assert "Training curves" not in report.report([_loaded(tmp_path, _results(), "p.json")])  # older files: none
@@ -585,7 +588,9 @@ def test_a_plugin_and_the_baselines_are_listed_by_their_recorded_labels(tmp_path
     assert "| My online plugin (online) | 1,300 ± 14 (65%) | — |" in state
     assert "| My plugin | thr 0.1, w 5 | 2 | 1,700.0 ± 14.1 | 85.0 |" in text        # the grid table
     assert "`python -m experiments.sweep --env hopper --plugins my_plugin` — " in text   # its recorded command
-    fig = figures.returns_figure(report.merge(files))
+    merged = report.merge(files)
+    (family,) = figures.families(figures.returns_groups(merged))
+    fig = figures.returns_figure(family, merged)
     labels = [t.get_text() for t in fig.axes[0].get_yticklabels()]
     assert labels == ["BC-SO", "BC-OH", "Ours, step THR 10% W 5", "Ours, best softmax", "DAgger", "FCA (TCA)",
                       "My plugin", "My online plugin"]
@@ -684,7 +689,7 @@ def test_figure_names_are_unique_per_protocol(tmp_path):
     assert report.main([src.path for src in files] + ["--out", str(out)]) == 0
     names = sorted(p.name for p in (tmp_path / "figures").iterdir())
     assert names == ["copycat-map.png", "grid-hopper-fca-fs2.png", "grid-hopper-fca-fs4.png", "grid-hopper-fca.png",
-                     "grid-hopper.png", "returns.png"]
+                     "grid-hopper.png", "returns-first.png", "returns-other.png"]
     _check_png(tmp_path / "figures" / "copycat-map.png")
     assert "![The copycat map: % of expert per frame skip](figures/copycat-map.png)" in out.read_text()
     text = (tmp_path / "docs" / "results" / "hopper-pos.md").read_text()

@@ -84,7 +84,7 @@ def test_the_report_shows_the_paper_budget_table_beside_table5_with_differences_
     assert "| Hopper | BC-OH | 1.5 → 1.5 → 0.2 | 1.2 → 1.2 → 0.3 | 0/5 (first verdict only) → 0/5 (first verdict " \
         "only) → 5/5 (first verdict only) |" in section
     assert "### Table 5 at the paper's budget" in built.summary and row in built.summary   # the findings' block too
-    assert {p.name for p in drawn} >= {"paper-budget.png", "copycat-map-extended.png"}
+    assert {p.name for p in drawn} >= {"paper-budget.png", "copycat-map-training.png"}   # the map along training
 
 
 def test_the_extended_map_has_the_budget_axis_and_names_where_copycat_was_judged(tmp_path):

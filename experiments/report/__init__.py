@@ -8,9 +8,9 @@ hand-written text around them stays:
 
 - FILE (BENCHMARKS.md): the headline tables (the paper's budget beside the supplement's Table 5, Table 5 with FCA's
   expert, the later methods ranked, the copycat map);
-- `--pages DIR` (default `docs/results/` next to FILE), `index.md`: every table across tasks (MuJoCo-State per
-  protocol beside Table 5, the recipes, the paper's budget, the copycat maps, MuJoCo-Image, the differences over
-  seeds, training longer, the sensitivity study, curves and weights);
+- `--pages DIR` (default `docs/results/` next to FILE), `index.md`: the paper's budget beside Table 5 first, then
+  every table across tasks (MuJoCo-State per protocol beside Table 5, the recipes, the copycat maps, MuJoCo-Image,
+  the differences over seeds, training longer, the sensitivity study, curves and weights);
 - DIR/`ENV-OBS.md`, one page per task and observation mode (`hopper-pos.md`): per group every configuration, its
   files and the commands that wrote them (machine paths stripped), the paper's settings against the grid, the
   loss analysis and the copycat diagnostics;

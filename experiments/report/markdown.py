@@ -2,7 +2,8 @@
 
 - the findings' block (`SUMMARY`), which `--out` (BENCHMARKS.md) holds between `<!-- report:start -->` and
   `<!-- report:end -->`: the headline tables;
-- `index.md` in the pages folder: the task pages listed, then every table across tasks (`ACROSS`);
+- `index.md` in the pages folder: the headline (`LEAD`: the paper's budget beside Table 5), the task pages listed,
+  then every table across tasks (`ACROSS`);
 - one page per task and observation mode, `ENV-OBS.md` (`page_name`): per group, every configuration, its files'
   provenance, the loss analysis and the diagnostics (`detail.group_sections`), and the task's own metrics.
 
@@ -32,11 +33,16 @@ SUMMARY: tuple[Callable[[Context], list[Section]], ...] = (
     copycat.copycat_map_section,          # the copycat map per frame skip
 )
 
-# `index.md`: the tables across tasks, in order.
+# `index.md` opens with the headline: the paper's protocol, recipe and budget beside Table 5 (what BENCHMARKS.md's
+# first table and the README's answer read), before the list of task pages.
+LEAD: tuple[Callable[[Context], list[Section]], ...] = (
+    recipe.paper_budget_section,          # the paper's budget over training, beside Table 5
+)
+
+# `index.md` after the list of task pages: the tables across tasks, in order.
 ACROSS: tuple[Callable[[Context], list[Section]], ...] = (
     state.state_sections,                 # MuJoCo-State per protocol, with Table 5
     recipe.recipe_section,                # the paper's recipe: mlp against fca
-    recipe.paper_budget_section,          # the paper's budget over training, beside Table 5
     regime.regime_section,                # Table 5 with FCA's expert (an expert of FCA's kind, labels raw or clipped)
     ranking.ranking_section,              # the later methods ranked with the paper's
     copycat.copycat_map_section,          # the copycat map per frame skip
@@ -115,9 +121,10 @@ def build(files: Sequence[results_lib.Results], figure_dir: pathlib.Path | None 
                    [[f"[{p.title}]({name})", str(len(group)), str(len({s.path for k in group
                                                                        for s in ctx.merged[k].sources}))]
                      for (name, p), group in zip(out.items(), keys.values())])
-    index = [Section("", "The tables across tasks; per task, every configuration and where it came from:\n\n"
-                         + listed.rstrip("\n"))]
-    index += [s for fn in (figures_note, *ACROSS) for s in fn(here)]
+    index = [s for fn in (figures_note, *LEAD) for s in fn(here)]
+    index += [Section("Every task's page", "Per task, every configuration and where it came from; the tables across "
+                      "tasks follow.", [listed])]
+    index += [s for fn in ACROSS for s in fn(here)]
     summary = _join([s for fn in SUMMARY for s in fn(ctx)], level=3)
     summary += f"Every table: [the results]({ctx.link(here.base / INDEX)}).\n"
     return Built(summary, {INDEX: Page("Results", _join(index)), **out},

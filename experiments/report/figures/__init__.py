@@ -1,19 +1,28 @@
 """Figures of the reproduction report, as PNG files: drawing primitives and the report's figures.
 
-- `primitives`: `heatmap`, `bars`, `lines`, `keyframes` (plain numbers in, a `matplotlib.figure.Figure` out, no
-  pyplot state) and `save_png` (atomic);
-- `builders`: the report's figures from merged results (`grid_figure`, `returns_figure`, `curves_figure`,
-  `weights_figure`, `copycat_map_figure`, `budget_figure`, `extended_map_figure`).
+- `primitives`: `heatmap`, `bars`, `lines` (plain numbers in, a `matplotlib.figure.Figure` out, no pyplot state, at
+  most `MAX_HEIGHT` pixels tall) and `save_png` (atomic);
+- `episode`: `keyframes`, the keyframe picture of one episode (`experiments.keyframes`);
+- `families`: which groups one figure draws together (`families`, `panel_title`): one figure per question;
+- `builders`: the report's figures of returns, grids, curves, weights and the ranking (`grid_figure`,
+  `returns_figure`, `curves_figure`, `weights_figure`, `ranking_figure`);
+- `copycat`: the copycat figures (`copycat_map_figure`, `budget_figure`, `extended_map_figure`), with the copycat
+  verdicts' thresholds drawn (`verdict_thresholds`).
 
-Both are re-exported here: `experiments.report.figures.save_png`, `experiments.report.figures.keyframes`, ...
+All are re-exported here: `experiments.report.figures.save_png`, `experiments.report.figures.keyframes`, ...
 """
 
-from experiments.report.figures.builders import (budget_figure, copycat_map_figure, curves_figure,
-                                                 extended_map_figure, grid_figure, min_run, returns_figure,
-                                                 weights_figure)
-from experiments.report.figures.primitives import (COLUMNS, DPI, KEY_COLOR, ORDINARY_COLOR, Bars, Grid, Lines, bars,
-                                                   grid_axes, heatmap, keyframes, lines, save_png)
+from experiments.report.figures.builders import (TRAINED_ON, curves_figure, grid_figure, ranking_figure,
+                                                 returns_figure, returns_groups, weights_figure)
+from experiments.report.figures.copycat import (MAP_AXES, budget_figure, copycat_map_figure, extended_map_figure,
+                                                min_run, verdict_thresholds)
+from experiments.report.figures.episode import KEY_COLOR, ORDINARY_COLOR, keyframes
+from experiments.report.figures.families import FAMILIES, Family, families, family_of, panel_title
+from experiments.report.figures.primitives import (COLUMNS, DPI, MAX_HEIGHT, Bars, Grid, Lines, bars, fit_rows,
+                                                   grid_axes, heatmap, lines, save_png, wrap)
 
-__all__ = ["COLUMNS", "DPI", "KEY_COLOR", "ORDINARY_COLOR", "Bars", "Grid", "Lines", "bars", "budget_figure",
-           "copycat_map_figure", "curves_figure", "extended_map_figure", "grid_axes", "grid_figure", "heatmap",
-           "keyframes", "lines", "min_run", "returns_figure", "save_png", "weights_figure"]
+__all__ = ["COLUMNS", "DPI", "FAMILIES", "KEY_COLOR", "MAP_AXES", "MAX_HEIGHT", "ORDINARY_COLOR", "TRAINED_ON", "Bars",
+           "Family", "Grid", "Lines", "bars", "budget_figure", "copycat_map_figure", "curves_figure",
+           "extended_map_figure", "families", "family_of", "fit_rows", "grid_axes", "grid_figure", "heatmap",
+           "keyframes", "lines", "min_run", "panel_title", "ranking_figure", "returns_figure", "returns_groups",
+           "save_png", "verdict_thresholds", "weights_figure", "wrap"]

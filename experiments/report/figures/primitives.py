@@ -1,4 +1,4 @@
-"""Drawing primitives: annotated heatmaps, per-method bars, line panels and the keyframe picture, and `save_png`.
+"""Drawing primitives: annotated heatmaps, per-method bars, line panels, and `save_png`.
 
 Host-side plotting helpers for `experiments.report` and `experiments.keyframes`. They take plain numbers
 (means, stds, per-seed values), not results files, and build
@@ -13,9 +13,10 @@ writes atomically: a temporary file in the same folder, then `os.replace`.
   method (mean), error bar (std over seeds) and every seed as a dot.
 - `lines(panels)` — one panel per environment, a line per series (with a
   shaded ± band if given): training curves, weight distributions.
-- `bars` and `lines` wrap their panels into rows of at most `columns`.
-- `keyframes(ape, actions, threshold, frames, frame_t, ...)` — one episode's
-  APE along time with its keyframes, the expert's actions, and rendered frames.
+- `bars` and `lines` wrap their panels into rows of at most `columns` and stay
+  within `MAX_HEIGHT` pixels (`fit_rows`); long panel titles are wrapped (`wrap`).
+
+The keyframe picture of one episode is `episode.keyframes`.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from __future__ import annotations
 import math
 import os
 import pathlib
+import textwrap
 from typing import NamedTuple
 from collections.abc import Sequence
 
@@ -30,7 +32,7 @@ import numpy as np
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
-from matplotlib.ticker import FuncFormatter, NullLocator
+from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter, NullLocator
 
 from experiments.report.analysis.selection import thousands
 
@@ -38,8 +40,10 @@ DPI = 120
 # Saved without the matplotlib version, so a regenerated figure is byte-identical across matplotlib upgrades
 # that do not change the drawing.
 _METADATA = {"Software": None}
-KEY_COLOR, ORDINARY_COLOR = "#d62728", "#1f77b4"
 COLUMNS = 4  # panels per row of the report's multi-panel figures
+# The tallest figure, in pixels at `DPI`: a figure taller than a screen at the page's width cannot be read whole, so
+# the report draws one figure per question and `fit_rows` lays panels out wider rather than taller.
+MAX_HEIGHT = 1600
 
 
 class Grid(NamedTuple):
@@ -98,19 +102,29 @@ def heatmap(title: str, panels: Sequence[Grid], center: float | None, unit: str 
         norm, cmap = Normalize(lo, hi if hi > lo else lo + 1.0), "viridis"
     widths = [len(p.cols) for p in panels]
     height = max(len(p.rows) for p in panels)
-    fig = Figure(figsize=(0.8 * sum(widths) + 1.3 * len(panels) + 1.0, 0.8 * height + 1.9), dpi=DPI,
-                 layout="constrained")
-    grid = fig.add_gridspec(1, len(panels) + 1, width_ratios=[*widths, 0.2])
+    natural = 0.8 * sum(widths) + 1.3 * len(panels) + 1.0
+    width = max(5.0, natural)   # a grid of one cell still fits its title; empty margins either side take the rest
+    margin = (width - natural) / 2
+    title = wrap(title, width)
+    note = wrap("solid box: best cell of the panel; dashed box: the paper's choice; cells: mean ± sd over seeds",
+                width, 8)
+    # a grid of one row is still as tall as its row label (wrapped to three lines): shorter, the label reaches past
+    # the panel and constrained layout has no room left to keep the title off it
+    fig = Figure(figsize=(width, 0.8 * max(height, 1.6) + 1.9 + 0.2 * title.count("\n") + 0.15 * note.count("\n")),
+                 dpi=DPI, layout="constrained")
+    sides = [margin] if margin > 0 else []
+    grid = fig.add_gridspec(1, len(panels) + 1 + 2 * len(sides),
+                            width_ratios=[*sides, *(0.8 * w + 1.3 for w in widths), 0.25, *sides])
     image = None
     for i, p in enumerate(panels):
-        ax = fig.add_subplot(grid[0, i])
+        ax = fig.add_subplot(grid[0, i + len(sides)])
         mean, std = np.asarray(p.mean, float), np.asarray(p.std, float)
         image = ax.imshow(np.ma.masked_invalid(mean), cmap=cmap, norm=norm, aspect="equal")
         ax.set_facecolor("0.85")
         ax.set_xticks(range(len(p.cols)), labels=list(p.cols))
         ax.set_yticks(range(len(p.rows)) if any(p.rows) else [], labels=list(p.rows) if any(p.rows) else [])
         ax.set_xlabel(p.col_label)
-        ax.set_ylabel(p.row_label)
+        ax.set_ylabel(textwrap.fill(p.row_label, 14))
         ax.set_title(p.title, fontsize=10)
         for (r, c), m in np.ndenumerate(mean):
             if not math.isfinite(m):
@@ -125,19 +139,19 @@ def heatmap(title: str, panels: Sequence[Grid], center: float | None, unit: str 
                 r, c = cell
                 ax.add_patch(Rectangle((c - 0.47, r - 0.47), 0.94, 0.94, fill=False, lw=2.2, ls=style,
                                        edgecolor="black"))
-    cbar = fig.colorbar(image, cax=fig.add_subplot(grid[0, -1]))
+    cbar = fig.colorbar(image, cax=fig.add_subplot(grid[0, len(panels) + len(sides)]))
     cbar.set_label(unit + ("\n(white = BC-OH)" if cmap == "RdBu" else ""), fontsize=8)
     cbar.ax.tick_params(labelsize=7)
     fig.suptitle(title, fontsize=10)
-    fig.supxlabel("solid box: best cell of the panel; dashed box: the paper's choice; "
-                  "cells: mean ± sd over seeds", fontsize=8, color="0.25")
+    fig.supxlabel(note, fontsize=8, color="0.25")
     return fig
 
 
 class Lines(NamedTuple):
     """One line panel: `series` of `(label, x, y, band)` or `(label, x, y, band, style)`, `band` the ± half-width
     around y, a tuple `(lower, upper)` of the band's edges, or None, `style` matplotlib line keywords (e.g.
-    `{"ls": "--", "color": "C0"}`); a series whose label is "" stays out of the legend."""
+    `{"ls": "--", "color": "C0"}`); a series whose label is "" stays out of the legend. `refs` are horizontal
+    reference lines `(y, text)`, dashed and labelled at the panel's right edge (a verdict's threshold)."""
 
     title: str
     xlabel: str
@@ -147,6 +161,27 @@ class Lines(NamedTuple):
     log_y: bool = False
     xticks: Sequence[float] | None = None  # ticks at these x, labelled `30k`-style, instead of matplotlib's
     empty: str = "no data"                   # what a panel without series says
+    refs: Sequence[tuple[float, str]] = ()
+
+
+def fit_rows(n: int, columns: int | None, row_in: float, extra_in: float, min_row_in: float) -> tuple[int, int, float]:
+    """How `n` panels fit within `MAX_HEIGHT`: `(columns, rows, row height in inches)`.
+
+    Rows of at most `columns` panels (None: one row; as few rows as that allows, as evenly filled as can be) of
+    `row_in` inches; where they would make the figure (plus
+    `extra_in` inches of titles and legends) taller than `MAX_HEIGHT` pixels at `DPI`, the rows are shrunk, down to
+    `min_row_in`, and past that the figure gets more columns: a figure taller than a screen cannot be read whole.
+    """
+    # the fewest rows, then the fewest empty cells in the last: 6 panels as 3 + 3, not 4 + 2
+    cols = n if columns is None else min(range(1, max(1, min(columns, n)) + 1),
+                                         key=lambda c: (math.ceil(n / c), math.ceil(n / c) * c - n))
+    room = MAX_HEIGHT / DPI - extra_in
+    while True:
+        rows = math.ceil(n / cols)
+        height = min(row_in, room / rows)
+        if height >= min_row_in or cols >= n:
+            return cols, rows, height
+        cols += 1
 
 
 def grid_axes(fig: Figure, n: int, columns: int | None, **kw) -> list:
@@ -159,98 +194,160 @@ def grid_axes(fig: Figure, n: int, columns: int | None, **kw) -> list:
     return axes[:n]
 
 
-def lines(panels: Sequence[Lines], title: str = "", columns: int | None = None) -> Figure:
-    """Line plots, one panel per environment (a legend in each panel), in rows of at most `columns` panels."""
+def wrap(title: str, width_in: float, fontsize: float = 10) -> str:
+    """`title` broken into lines that fit a panel `width_in` inches wide at `fontsize` points (a long group title
+    would run into its neighbour's)."""
+    return "\n".join(textwrap.fill(line, max(12, int(width_in * 120 / fontsize)), break_on_hyphens=False)
+                     for line in title.split("\n"))
+
+
+def _suptitle(title: str, width_in: float) -> tuple[str, float]:
+    """`title` wrapped to a figure `width_in` inches wide, and the inches its lines take (none for "")."""
+    text = wrap(title, width_in) if title else ""
+    return text, 0.2 * (text.count("\n") + 1) + 0.15 if text else 0.0
+
+
+def _label_reference(ax, y: float, text: str) -> None:
+    """Labels the reference line at `y` at the panel's right edge: above the line, or below it where the line runs
+    along the panel's top (the text would cross the frame into the title)."""
+    near_top = (ax.transScale + ax.transLimits).transform((1.0, y))[1] > 0.9
+    ax.annotate(text, (1.0, y), xycoords=("axes fraction", "data"), xytext=(-3, -2 if near_top else 2),
+                textcoords="offset points", ha="right", va="top" if near_top else "bottom", fontsize=7, color="0.25")
+
+
+def _mantissa(v: float) -> float:
+    return round(v / 10 ** math.floor(math.log10(v)), 6) if v > 0 else 0.0
+
+
+def _plain_log_ticks(ax) -> None:
+    """A log y axis labelled in plain numbers (`0.3`, `2`, not `3×10⁻¹`): every minor tick within a decade, else
+    ticks at 1, 2 and 5 times the powers of ten."""
+    low, high = ax.get_ylim()
+    plain = FuncFormatter(lambda v, _: f"{v:g}")
+    if 0 < low and high / low < 10:   # past a factor of 3 every minor label crowds: 1, 2, 3 and 5 times 10^k only
+        few = FuncFormatter(lambda v, _: f"{v:g}" if high / low < 3 or _mantissa(v) in (1, 2, 3, 5) else "")
+        ax.yaxis.set_minor_formatter(few)
+    else:
+        ax.yaxis.set_major_locator(LogLocator(10, subs=(1.0, 2.0, 5.0)))
+        ax.yaxis.set_minor_formatter(NullFormatter())
+    ax.yaxis.set_major_formatter(plain)
+
+
+def lines(panels: Sequence[Lines], title: str = "", columns: int | None = None, shared_legend: bool = False,
+          size: tuple[float, float] = (4.2, 3.6)) -> Figure:
+    """Line plots, in rows of at most `columns` panels (`fit_rows`), each `size` inches (width, height).
+
+    With `shared_legend` the series are named once, below the panels (every panel then draws the same methods in
+    the same colours); otherwise each panel has its own legend.
+    """
     if not panels:
         raise ValueError("lines needs at least one panel")
-    cols = len(panels) if columns is None else max(1, min(columns, len(panels)))
-    fig = Figure(figsize=(4.2 * cols, 3.6 * math.ceil(len(panels) / cols)), dpi=DPI, layout="constrained")
+    labels = list(dict.fromkeys(s[0] for p in panels for s in p.series if s[0])) if shared_legend else []
+    legend_in = 0.25 * math.ceil(len(labels) / 4) + 0.2 if labels else 0.0
+    title, title_in = _suptitle(title, size[0] * fit_rows(len(panels), columns, 0, 0, 0)[0])   # the narrowest
+    extra = title_in + legend_in
+    cols, rows, row_in = fit_rows(len(panels), columns, size[1], extra, 2.4)
+    fig = Figure(figsize=(size[0] * cols, row_in * rows + extra), dpi=DPI, layout="constrained")
+    handles: dict[str, object] = {}
     for ax, p in zip(grid_axes(fig, len(panels), cols), panels):
         for label, x, y, band, *style in p.series:
             x, y = np.asarray(x, float), np.asarray(y, float)
             (line,) = ax.plot(x, y, lw=1.3, label=label or "_nolegend_", **(style[0] if style else {}))
+            if label:
+                handles.setdefault(label, line)
             if isinstance(band, tuple):  # (lower, upper): an interval that need not be symmetric
                 ax.fill_between(x, np.asarray(band[0], float), np.asarray(band[1], float), color=line.get_color(),
                                 alpha=0.2, lw=0)
             elif band is not None:
                 b = np.asarray(band, float)
                 ax.fill_between(x, y - b, y + b, color=line.get_color(), alpha=0.2, lw=0)
+        for y, _ in p.refs if p.series else ():
+            ax.axhline(y, color="0.25", ls="--", lw=1, zorder=1)
         ax.set_xscale("log" if p.log_x else "linear")
         ax.set_yscale("log" if p.log_y else "linear")
-        low, high = ax.get_ylim()
-        if p.log_y and p.series and 0 < low and high / low < 10:  # within a decade: `0.3`, `1.5`, not `3×10⁻¹`
-            ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-            ax.yaxis.set_minor_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        if p.log_y and p.series:
+            _plain_log_ticks(ax)
+        for y, text in p.refs if p.series else ():
+            _label_reference(ax, y, text)
         if not p.series:
             ax.set_xticks([])
             ax.set_yticks([])
             ax.xaxis.set_minor_locator(NullLocator())
             ax.yaxis.set_minor_locator(NullLocator())
+            ax.text(0.5, 0.5, p.empty, ha="center", va="center", transform=ax.transAxes, fontsize=8, color="0.4")
         elif p.xticks is not None:
             ax.set_xticks(list(p.xticks), labels=[thousands(x) for x in p.xticks])
             ax.xaxis.set_minor_locator(NullLocator())
-        if not p.series:
-            ax.text(0.5, 0.5, p.empty, ha="center", va="center", transform=ax.transAxes, fontsize=8, color="0.4")
-        ax.set_title(p.title, fontsize=10)
+        ax.set_title(wrap(p.title, size[0]), fontsize=10)
         ax.set_xlabel(p.xlabel, fontsize=9)
         ax.set_ylabel(p.ylabel, fontsize=9)
         ax.grid(color="0.9")
         ax.tick_params(labelsize=8)
-        if p.series:
+        if not shared_legend and any(s[0] for s in p.series):
             ax.legend(fontsize=7, frameon=False)
+    if labels:
+        fig.legend([handles[k] for k in labels], labels, loc="outside lower center", ncol=min(4, len(labels)),
+                   fontsize=8, frameon=False)
     if title:
         fig.suptitle(title, fontsize=10)
     return fig
 
 
+def _finite(v) -> bool:
+    return v is not None and math.isfinite(v)
+
+
 def bars(labels: Sequence[str], panels: Sequence[Bars], title: str = "", columns: int | None = None) -> Figure:
-    """Horizontal bars, one panel per environment, methods on a shared vertical axis.
+    """Horizontal bars, one panel per group, methods on a shared vertical axis.
+
+    A mean that is None or not finite is "not run"; an sd that is None or not finite (one seed) draws no error bar.
 
     Args:
       labels: the method names, top to bottom.
-      panels: one per environment; each aligned with `labels`.
+      panels: one per group; each aligned with `labels`.
       title: the figure's title.
-      columns: panels per row (None: all in one row); the method names label each row's first panel.
+      columns: panels per row (None: all in one row; more where `fit_rows` needs them); the method names label
+        each row's first panel.
 
     Returns:
-      The figure (Agg canvas), about 120 dpi.
+      The figure (Agg canvas), `DPI` dots per inch, at most `MAX_HEIGHT` pixels tall.
     """
     if not panels:
         raise ValueError("bars needs at least one panel")
     n = len(labels)
-    cols = len(panels) if columns is None else max(1, min(columns, len(panels)))
-    rows = math.ceil(len(panels) / cols)
-    fig = Figure(figsize=(3.3 * cols + 1.9, (0.34 * n + 1.2) * rows + 0.4), dpi=DPI)
+    title, extra = _suptitle(title, 3.3 * fit_rows(len(panels), columns, 0, 0, 0)[0] + 1.9)   # the narrowest
+    cols, rows, row_in = fit_rows(len(panels), columns, 0.3 * n + 1.3, extra, 0.2 * n + 1.0)
+    fig = Figure(figsize=(3.3 * cols + 1.9, row_in * rows + extra), dpi=DPI, layout="constrained")
     axes = grid_axes(fig, len(panels), cols, sharey=True)
     y = np.arange(n)
     for ax, p in zip(axes, panels):
-        present = [i for i in range(n) if p.mean[i] is not None]
+        present = [i for i in range(n) if _finite(p.mean[i])]
+        sd = [p.std[i] if _finite(p.std[i]) else 0.0 for i in range(n)]
+        seeds = [[s for s in p.seeds[i] if _finite(s)] for i in range(n)]
         ax.barh([y[i] for i in present], [p.mean[i] for i in present], height=0.65, color="#9ecae1",
                 edgecolor="#3182bd", zorder=2)
-        ax.errorbar([p.mean[i] for i in present], [y[i] for i in present],
-                    xerr=[p.std[i] or 0.0 for i in present], fmt="none", ecolor="black", capsize=2.5, lw=1,
-                    zorder=3)
+        ax.errorbar([p.mean[i] for i in present], [y[i] for i in present], xerr=[sd[i] for i in present],
+                    fmt="none", ecolor="black", capsize=2.5, lw=1, zorder=3)
         for i in range(n):
-            seeds = list(p.seeds[i])
-            if seeds:
-                offsets = np.linspace(-0.18, 0.18, len(seeds)) if len(seeds) > 1 else np.zeros(1)
-                ax.scatter(seeds, y[i] + offsets, s=9, color="#08306b", zorder=4, linewidths=0)
-        values = [v for i in present for v in (p.mean[i] + (p.std[i] or 0.0), *p.seeds[i])]
+            if seeds[i]:
+                offsets = np.linspace(-0.18, 0.18, len(seeds[i])) if len(seeds[i]) > 1 else np.zeros(1)
+                ax.scatter(seeds[i], y[i] + offsets, s=9, color="#08306b", zorder=4, linewidths=0)
+        values = [v for i in present for v in (p.mean[i] - sd[i], p.mean[i] + sd[i], *seeds[i])]
         top = max([*values, p.reference or 0.0, 1.0])
         low = min([*values, 0.0])
         ax.set_xlim(low - 0.02 * (top - low), top + 0.3 * (top - low))
         for i in range(n):
-            if p.mean[i] is None:
+            if i not in present:
                 ax.text(0.02 * (top - low), y[i], "not run", va="center", fontsize=7, color="0.45")
             else:
-                right = max([p.mean[i] + (p.std[i] or 0.0), *p.seeds[i]])
+                right = max([p.mean[i] + sd[i], *seeds[i]])
                 text = f"{p.mean[i]:.0f}" + (f" ({p.notes[i]})" if p.notes[i] else "")
                 ax.text(right + 0.02 * (top - low), y[i], text, va="center", fontsize=7)
         if p.reference is not None:
             ax.axvline(p.reference, color="0.4", ls="--", lw=1, zorder=1)
             ax.text(p.reference, -0.6, p.reference_label, ha="center", va="bottom", fontsize=7, color="0.3")
-        ax.set_title(p.title, fontsize=10)
-        ax.set_xlabel(p.xlabel)
+        ax.set_title(wrap(p.title, 3.3), fontsize=10)
+        ax.set_xlabel(p.xlabel, fontsize=9)
         ax.grid(axis="x", color="0.9", zorder=0)
         ax.tick_params(labelsize=8)
     axes[0].set_yticks(y, labels=list(labels))
@@ -259,144 +356,7 @@ def bars(labels: Sequence[str], panels: Sequence[Bars], title: str = "", columns
         ax.tick_params(labelleft=True)
     if title:
         fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
     return fig
-
-
-def keyframes(ape: np.ndarray, actions: np.ndarray, threshold: float, frames: np.ndarray, frame_t: np.ndarray, *,
-              keyframe: np.ndarray | None = None, title: str = "", note: str = "",
-              action_names: list[str] | None = None, frame_is_key: np.ndarray | None = None,
-              window: tuple[int, int] | None = None) -> Figure:
-    """The keyframe picture of one episode: where the expert's actions change, APE is high.
-
-    Rows, top to bottom:
-    - the APE along the whole episode, keyframes marked in red and the
-      keyframe threshold dashed;
-    - the expert's actions over `window`, keyframes shaded, so one sees that
-      keyframes are where the actions change. When `window` is a close-up
-      (not None and not the whole episode), the APE over it comes first, and
-      the window is shaded grey on the top row;
-    - the frames, each labelled with its step and APE and lettered as on the
-      time axes (red: keyframe; blue: ordinary step).
-
-    Args:
-      ape: `[T]` APE of the episode's steps, normalised (1 = the dataset mean).
-      actions: `[T, A]` the expert's actions.
-      threshold: the keyframe threshold on `ape` (a dashed line).
-      frames: `[k, H, W, 3] uint8` rendered frames, `k >= 0`.
-      frame_t: `[k] int` the steps they show.
-      keyframe: `[T] bool` which steps are keyframes (default: `ape >= threshold`).
-      title: the figure's title; `note` a smaller line below it.
-      action_names: `A` legend labels (default: `a0, a1, ...`).
-      frame_is_key: `[k] bool` whether each frame is a keyframe (default: from `keyframe`).
-      window: `(start, stop)` steps to show the actions over.
-
-    Returns:
-      The figure; save it with `save_png`.
-    """
-    ape = np.asarray(ape, float)
-    actions = np.asarray(actions, float)
-    frames, frame_t = np.asarray(frames), np.asarray(frame_t, int)
-    steps = ape.shape[0]
-    if ape.ndim != 1 or actions.ndim != 2 or actions.shape[0] != steps:
-        raise ValueError(f"keyframes: ape must be [T] and actions [T, A], got {ape.shape} and {actions.shape}")
-    if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8 or frame_t.shape != frames.shape[:1]:
-        raise ValueError(f"keyframes: frames must be [k, H, W, 3] uint8 with frame_t [k], got {frames.shape} "
-                         f"{frames.dtype} and {frame_t.shape}")
-    keyframe = ape >= threshold if keyframe is None else np.asarray(keyframe, bool)
-    frame_is_key = keyframe[frame_t] if frame_is_key is None else np.asarray(frame_is_key, bool)
-    names = action_names or [f"a{i}" for i in range(actions.shape[1])]
-    start, stop = (0, steps) if window is None else (max(0, window[0]), min(steps, window[1]))
-    zoomed = (start, stop) != (0, steps)
-    letters = [chr(ord("A") + i) if i < 26 else str(i) for i in range(len(frame_t))]
-    log_ape = _spans_decades(ape)
-
-    heights = [2.4, 1.1, 1.6, 2.7] if zoomed else [2.4, 1.6, 2.7]
-    fig = Figure(figsize=(12, 9.6 if zoomed else 8.4), layout="constrained")
-    rows = fig.add_gridspec(len(heights), 1, height_ratios=heights if len(frames) else [*heights[:-1], 0.01])
-    ax_ape = fig.add_subplot(rows[0])
-    _plot_ape(ax_ape, ape, keyframe, threshold, 0, steps, log_ape, legend=True)
-    if zoomed:
-        ax_ape.axvspan(start - 0.5, stop - 0.5, color="0.5", alpha=0.15, lw=0)
-        ax_ape.set_xlabel(f"step t in the episode (grey band: steps {start}-{stop - 1}, shown close up below)",
-                          labelpad=1)
-        ax_zoom = fig.add_subplot(rows[1])
-        _plot_ape(ax_zoom, ape, keyframe, threshold, start, stop, log_ape, legend=False)
-        ax_zoom.tick_params(labelbottom=False)
-    ax_act = fig.add_subplot(rows[2 if zoomed else 1], sharex=ax_zoom if zoomed else ax_ape)
-    if not zoomed:
-        ax_ape.tick_params(labelbottom=False)
-    t = np.arange(start, stop)
-    for run_start, run_stop in _runs(keyframe[start:stop]):
-        ax_act.axvspan(start + run_start - 0.5, start + run_stop - 0.5, color=KEY_COLOR, alpha=0.18, lw=0)
-    for i in range(actions.shape[1]):
-        ax_act.plot(t, actions[start:stop, i], lw=1.0, label=names[i], marker="." if stop - start <= 300 else None,
-                    ms=2.5)
-    ax_act.set_ylabel("expert action")
-    ax_act.set_xlabel("step t in the episode")
-    ax_act.set_xlim(start - 0.5, stop - 0.5)
-    ax_act.legend(loc="upper left", fontsize=8, ncol=len(names), framealpha=0.9)
-
-    time_axes = [ax_ape, ax_zoom, ax_act] if zoomed else [ax_ape, ax_act]
-    for letter, ft, key in zip(letters, frame_t, frame_is_key):
-        color = KEY_COLOR if key else ORDINARY_COLOR
-        for ax in time_axes:
-            if ax is ax_ape or start <= ft < stop:
-                ax.axvline(ft, color=color, lw=1, ls=":", alpha=0.9)
-        for ax in time_axes[:-1]:
-            if ax is ax_ape or start <= ft < stop:
-                ax.annotate(letter, (ft, 1.0), xycoords=("data", "axes fraction"), xytext=(0, 2),
-                            textcoords="offset points", ha="center", va="bottom", fontsize=10,
-                            fontweight="bold", color=color)
-
-    if len(frames):
-        cells = rows[-1].subgridspec(1, max(len(frames), 4))
-        for i, (frame, letter, ft, key) in enumerate(zip(frames, letters, frame_t, frame_is_key)):
-            ax = fig.add_subplot(cells[i])
-            ax.imshow(frame, interpolation="nearest")
-            ax.set_xticks([])
-            ax.set_yticks([])
-            color = KEY_COLOR if key else ORDINARY_COLOR
-            for spine in ax.spines.values():
-                spine.set_color(color)
-                spine.set_linewidth(2.5)
-            kind = "keyframe" if key else "ordinary step"
-            ax.set_title(f"{letter}: t = {ft}, APE {_number(ape[ft])} × mean\n{kind}", fontsize=9, color=color)
-    if title:
-        fig.suptitle(title + (f"\n{note}" if note else ""), fontsize=11)
-    return fig
-
-
-def _number(value: float) -> str:
-    return f"{value:,.0f}" if abs(value) >= 100 else f"{value:.2g}"
-
-
-def _spans_decades(ape: np.ndarray) -> bool:
-    positive = ape[ape > 0]
-    return bool(positive.size) and positive.max() / max(np.percentile(positive, 5), 1e-12) > 100
-
-
-def _plot_ape(ax, ape, keyframe, threshold, start, stop, log, legend):
-    t = np.arange(start, stop)
-    part, key = ape[start:stop], keyframe[start:stop]
-    ax.plot(t, part, color="0.35", lw=0.7 if stop - start > 300 else 1.0, label="APE / dataset mean")
-    ax.scatter(t[key], part[key], s=9 if stop - start > 300 else 16, color=KEY_COLOR, zorder=3,
-               label=f"keyframes ({int(key.sum())} of {stop - start} steps)")
-    if np.isfinite(threshold):
-        ax.axhline(threshold, color=KEY_COLOR, ls="--", lw=1, label=f"keyframe threshold ({threshold:.2g})")
-    if log:  # spikes span decades: a log axis keeps the calm stretches readable
-        ax.set_yscale("log")
-        ax.set_ylim(bottom=max(np.percentile(ape[ape > 0], 1) / 2, 1e-4))
-    ax.set_ylabel("APE (÷ mean)")
-    ax.set_xlim(start - 0.5, stop - 0.5)
-    if legend:
-        ax.legend(loc="upper left", fontsize=8, ncol=3, framealpha=0.9)
-
-
-def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
-    """`[start, stop)` of each run of True in `mask`."""
-    edges = np.diff(np.r_[0, mask.astype(np.int8), 0])
-    return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
 
 
 def save_png(fig: Figure, path: str | os.PathLike) -> int:

@@ -58,8 +58,14 @@ def extended_map_section(ctx: Context) -> list[Section]:
     diagnosed = [q for q in points if q.diagnostics is not None and (q.diagnostics.read or q.diagnostics.absent)]
     if len({q.setting for q in points}) < 2 and len({q.run for q in points}) < 2 and not diagnosed:
         return []
+    thresholds = figures.verdict_thresholds(diagnostics_thresholds([src for _, m in ordered(ctx.merged)
+                                                                    for src in m.sources]))
     out = ctx.figure("copycat-map-extended.png", "Where copycat appears: the history's benefit and BC-OH's "
-                     "diagnostics along each axis", lambda: figures.extended_map_figure(points))
+                     "diagnostics along frame skip and training-set size",
+                     lambda: figures.extended_map_figure(points, figures.MAP_AXES["map"], thresholds))
+    out += ctx.figure("copycat-map-training.png", "Where copycat appears: the history's benefit and BC-OH's "
+                      "diagnostics over training",
+                      lambda: figures.extended_map_figure(points, figures.MAP_AXES["training"], thresholds))
     out.append(table([*LEAD, *NAMES, "BC-OH − BC-SO [95% CI]"],
                      [[*_cells(q), *map(_map_cell, q.cells), diff_cell(q.history)] for q in points], 2))
     if ceiling := [q for q in points if q.ceiling is not None]:

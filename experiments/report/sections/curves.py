@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from experiments.report import figures
-from experiments.report.analysis import APE_SCALES, BRAX, Key, Merged, WeightShares, percent, sensitivity, weight_shares
+from experiments.report.analysis import (APE_SCALES, BRAX, Key, Merged, WeightShares, ordered, percent, sensitivity,
+                                         weight_shares)
 from experiments.report.paper import PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP
 from experiments.report.sections.common import Context, Section, norm_cell, return_cell, table
 
@@ -72,8 +73,14 @@ def curves_and_weights_section(ctx: Context) -> list[Section]:
     """"Training curves and weights": the curves figure, the weights figure, the weights table and which APE scale
     each group trained on; nothing where no file records curves or APE quantiles."""
     shares = weight_shares(ctx.merged)
-    body = ctx.figure("curves.png", "Training curves", lambda: figures.curves_figure(ctx.merged))
-    body += ctx.figure("weights.png", "Weight concentration within a batch", lambda: figures.weights_figure(shares))
+    body = []
+    for f in figures.families(m for _, m in ordered(ctx.merged)):
+        body += ctx.figure(f"curves-{f.name}.png", f"Training curves: {f.heading}",
+                           lambda f=f: figures.curves_figure(f))
+    for trained, (suffix, words) in figures.TRAINED_ON.items():
+        body += ctx.figure(f"weights-{suffix}.png",
+                           f"Weight concentration within a batch, groups trained on {words}",
+                           lambda trained=trained: figures.weights_figure(shares, trained))
     if shares:
         body += [weights_table(shares), trained_table(shares)]
     if not body:

@@ -26,13 +26,23 @@ def longer_table(rows, base: Group, longer: Group) -> str:
                    str(r.longer["n_seeds"])] for r in rows])
 
 
+def returns_figures(ctx: Context) -> list[str]:
+    """The returns figures, one per family of groups (`figures.families`), each after a line naming its family."""
+    body = []
+    for f in figures.families(figures.returns_groups(ctx.merged)):
+        drawn = ctx.figure(f"returns-{f.name}.png", f"{f.heading}: every method per group",
+                           lambda f=f: figures.returns_figure(f, ctx.merged))
+        body += [f"**{f.heading}.**", "", *drawn] if drawn else []
+    return body
+
+
 # -- the sections ------------------------------------------------------------------------------------------------
 
 def differences_section(ctx: Context) -> list[Section]:
-    """"Differences over seeds": the returns figure, then per group BC-OH − BC-SO and Ours − BC-OH with their
-    Welch t-intervals and verdicts (`analysis.difference_rows`)."""
+    """"Differences over seeds": the returns figures (`returns_figures`), then per group BC-OH − BC-SO and Ours −
+    BC-OH with their Welch t-intervals and verdicts (`analysis.difference_rows`)."""
     boot = difference_rows(ctx.merged)
-    body = ctx.figure("returns.png", "Return per method and environment", lambda: figures.returns_figure(ctx.merged))
+    body = returns_figures(ctx)
     if not boot and not body:
         return []
     if boot:

@@ -97,8 +97,9 @@ def budget_differences_table(rows: list[list[BudgetRow]]) -> str:
 
 
 def paper_budget_section(ctx: Context) -> list[Section]:
-    """"The paper's budget with the paper's recipe": per task (`analysis.paper_budget_groups`), `budget_table`,
-    `budget_differences_table` and the copycat diagnostics at each point, with the section's figure."""
+    """"The paper's budget with the paper's recipe": per task (`analysis.paper_budget_groups`), `budget_table`, the
+    section's figure (% of expert and both halves of the copycat verdicts, with their thresholds),
+    `budget_differences_table` and the copycat diagnostics at each point."""
     groups = paper_budget_groups(ctx.merged)
     if not groups:
         return []
@@ -110,9 +111,11 @@ def paper_budget_section(ctx: Context) -> list[Section]:
                     *([_ratios(r, its, "control")] if control else []), _ratios(r, its, "predictability"),
                     " → ".join("—" if (q := r.at(i)) is None else copycat_count(q.diagnostics) for i in its),
                     *([_ratios(r, its, "state")] if state else [])] for task in rows for r in task]
-    body = [*ctx.figure("paper-budget.png", "The paper's budget: % of expert and the embedding ratio against "
-                        "iterations", lambda: figures.budget_figure(rows)),
-            budget_table(rows), "Differences in points of % of expert, 95% Welch t-interval (bold: above 0).", "",
+    thresholds = figures.verdict_thresholds(diagnostics_thresholds([src for m in groups for src in m.sources]))
+    body = [budget_table(rows),   # the headline table first: the results page opens with this section
+            *ctx.figure("paper-budget.png", "The paper's budget: % of expert and both halves of the copycat "
+                        "verdicts against iterations", lambda: figures.budget_figure(rows, thresholds)),
+            "Differences in points of % of expert, 95% Welch t-interval (bold: above 0).", "",
             budget_differences_table(rows),
             f"Copycat diagnostics, medians over seeds at {' → '.join(thousands(i) for i in its)}.", "",
             table(["task", "method", "embedding ratio", *(["control ratio"] if control else []), "predictability ratio",
