@@ -40,6 +40,7 @@ import numpy as np
 from ape_jax.pipeline import presets
 from ape_jax.pipeline.rundir import RunDir
 from experiments._cli import Parser, fail, unwritable
+from experiments._reference import SHIPPED
 from experiments.report import analysis
 from experiments import stats
 from experiments.report.paper import PAPER_STEP_LABEL
@@ -250,7 +251,8 @@ def profile_figure(result: dict[str, list[Arm]], reps: int = 2000):
 def main(argv: Sequence[str] | None = None) -> int:
     p = Parser(prog="python -m experiments.compare", description=__doc__.splitlines()[0])
     p.add_argument("yours", nargs="+", help="your sweep folders (their results.json) or results files")
-    p.add_argument("--against", default="results", help="folder or files of reference results (default: results/)")
+    p.add_argument("--against", default=str(SHIPPED),
+                   help="folder or files of reference results (default: the shipped results/, from any folder)")
     p.add_argument("--out", default=None, help="folder for compare.md and compare-profile.png (default: the first "
                                                "of YOURS that is a folder, else the current folder)")
     p.add_argument("--resamples", type=int, default=2000, help="bootstrap resamples (default 2000)")
