@@ -35,6 +35,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from envs import registry
 from envs.base import Env, State
 
 METRICS = ("success", "red_light_violations", "progress", "avg_speed", "stuck")  # `episode_metrics`, in order
@@ -228,6 +229,9 @@ class ToyCar(Env):
         # the states after each step are the states before the next one, then the final one
         after = jax.tree.map(lambda p, f: jnp.concatenate([p[1:], f[None]]), sims, final.pipeline_state)
         return episode_metrics(jax.tree.map(lambda p: p[0], sims), after, valid, self.config)
+
+
+registry.register("toycar", ToyCar, ToyCarConfig, obs_modes=("full", "image"), default_obs="image")
 
 
 def full_observation(sim: ToyCarSim) -> jax.Array:
