@@ -1,8 +1,9 @@
-"""Environments of ape_jax: Brax/MJX locomotion and the registered tasks (ToyCar), behind one `make`.
+"""Environments of ape_jax: Brax/MJX locomotion and the registered tasks (ToyCar, ToyTown), behind one `make`.
 
     env = envs.make("hopper", obs="pos")          # velocities removed: 5 dims
     env = envs.make("walker2d", obs="image", image_size=32)
     env = envs.make("toycar")                      # images by default
+    env = envs.make("toytown", traffic="dense", speed_input=False)
     traj = jax.jit(lambda k: envs.rollout(env, policy, params, k, num_episodes=8))(key)
 
 Every environment has pure `reset(key) -> State` and `step(state, action) ->
@@ -14,11 +15,12 @@ from __future__ import annotations
 
 from envs import _quiet  # noqa: F401  (silences MJX/Brax import noise first)
 from envs import brax_env, registry
-from envs import toycar  # noqa: F401  (task modules: each registers itself on import)
+from envs import toycar, toytown  # noqa: F401  (task modules: each registers itself on import)
 from envs.base import OBS_MODES, Env, State
 from envs.render import Camera
 from envs.rollout import Policy, Trajectory, from_observation, rollout, stateless
 from envs.toycar import ToyCar, ToyCarConfig
+from envs.toytown import ToyTown, ToyTownConfig
 
 MUJOCO_TASKS = ("hopper", "halfcheetah", "walker2d")  # the paper's three tasks
 
@@ -62,16 +64,16 @@ def make(name: str, obs: str | None = None, **overrides) -> Env:
     """Builds environment `name` with observation mode `obs`.
 
     Args:
-      name: one of `names()`: a registered task (`toycar`, or one of yours: `envs.registry`),
+      name: one of `names()`: a registered task (`toycar`, `toytown`, or one of yours: `envs.registry`),
         `hopper`, `halfcheetah`, `walker2d` or any other Brax environment.
       obs: `full`, `pos` or `image` (see `obs_modes(name)`); default `full`
-        for Brax environments, the task's own for a registered task (`image` for ToyCar).
+        for Brax environments, the task's own for a registered task (`image` for ToyCar and ToyTown).
       **overrides: settings replacing the environment's defaults. Brax
         environments take the fields of `brax_env.BraxConfig` (e.g.
         `image_size=32`, `episode_length=500`, `camera=Camera(...)`) and any
         keyword of the Brax environment's constructor (e.g.
         `terminate_when_unhealthy=False`); a registered task takes the fields of its config
-        (`ToyCarConfig`).
+        (`ToyCarConfig`, `ToyTownConfig`).
 
     Returns:
       A fresh `Env`; each call builds its own config.
@@ -100,6 +102,8 @@ __all__ = [
     "State",
     "ToyCar",
     "ToyCarConfig",
+    "ToyTown",
+    "ToyTownConfig",
     "Trajectory",
     "default_episode_length",
     "default_obs",
@@ -111,4 +115,5 @@ __all__ = [
     "rollout",
     "stateless",
     "toycar",
+    "toytown",
 ]

@@ -104,7 +104,7 @@ def test_a_registration_is_undone_even_when_the_block_fails():
 
 
 def test_the_suite_tasks_are_registered_and_envs_names_none_of_them():
-    assert {"toycar"} <= set(registry.names())
+    assert {"toycar", "toytown"} <= set(registry.names())
     assert envs.default_episode_length("toycar") == envs.ToyCarConfig().episode_length
     source = inspect.getsource(envs)
     for task in registry.names():
