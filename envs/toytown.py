@@ -164,7 +164,8 @@ class ToyTownConfig:
             "cross_wait": 0 <= self.cross_wait[0] <= self.cross_wait[1],
             "ped_wait": 0 <= self.ped_wait[0] <= self.ped_wait[1], "ped_clear_distance": self.ped_clear_distance >= 0,
             "stuck_seconds": self.stuck_seconds > 0,
-            "view_ahead": self.view_ahead > traffic.CAR_LENGTH, "view_behind": self.view_behind > traffic.CAR_LENGTH / 2,
+            "view_ahead": self.view_ahead > traffic.CAR_LENGTH,
+            "view_behind": self.view_behind > traffic.CAR_LENGTH / 2,
         }
         bad = [k for k, ok in checks.items() if not ok]
         if bad:
@@ -337,7 +338,8 @@ def _crashed(sim: ToyTownSim) -> jax.Array:
 
 def _step_metrics(before: ToyTownSim, after: ToyTownSim) -> dict[str, jax.Array]:
     """Per-step flags: what this step added (0 at reset)."""
-    return {"collision": _crashed(after) - _crashed(before), "red_light_violation": after.red_lights - before.red_lights}
+    return {"collision": _crashed(after) - _crashed(before),
+            "red_light_violation": after.red_lights - before.red_lights}
 
 
 def initial_sim(key: jax.Array, cfg: ToyTownConfig) -> ToyTownSim:
@@ -445,7 +447,8 @@ def collisions(s, d, cars, cross, peds, inter_s, w) -> dict[str, jax.Array]:
     route_hit = ((cars["car_active"] > 0) & (jnp.abs(cars["car_s"] - s) < L - 0.3)
                  & (jnp.abs(traffic.lane_d(cars["car_lane"], w) - d) < W - 0.2))
     xs, xd = traffic.cross_position(cross["cross_u"], inter_s, w)
-    cross_hit = (cross["cross_wait"] <= 0) & (jnp.abs(xs - s) < (L + W) / 2 - 0.2) & (jnp.abs(xd - d) < (L + W) / 2 - 0.2)
+    reach = (L + W) / 2 - 0.2
+    cross_hit = (cross["cross_wait"] <= 0) & (jnp.abs(xs - s) < reach) & (jnp.abs(xd - d) < reach)
     ped_hit = ((peds["ped_active"] > 0) & (jnp.abs(peds["ped_s"] - s) < L / 2 + traffic.PED_HALF)
                & (jnp.abs(peds["ped_d"] - d) < W / 2 + traffic.PED_HALF))
     return {"car": (jnp.any(route_hit) | jnp.any(cross_hit)).astype(jnp.float32),

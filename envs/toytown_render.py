@@ -9,10 +9,12 @@ junction), cars, pedestrians and the ego car, each class its own colour (`PALETT
 swaps the palette for a held-out one, NoCrash's "new weather").
 
 Why route coordinates: projecting every pixel onto the route is the expensive part, and the mapping
-from the image to (s, d) is smooth near the road, so it is computed exactly on a grid 4 times coarser
-(cells of `COARSE_METRES`; each coarse point's nearest centreline sample, refined along its tangent) and
-interpolated bilinearly to the pixels. Cars and pedestrians are then boxes aligned with (s, d), a few comparisons per pixel,
-and the ego car is a constant mask. Thin features are at least a pixel wide, so they survive 16×16.
+from the image to (s, d) is smooth near the road, so it is computed exactly on a coarse grid (cells of
+`COARSE_METRES`, 8 pixels at 64×64; each coarse point's nearest centreline sample, refined along its
+tangent) and interpolated bilinearly to the pixels (within ~0.2 m on the tightest bend). Cars and
+pedestrians are then boxes aligned with (s, d), a few comparisons per pixel, and the ego car is a
+constant mask. Thin features are at least a pixel wide, so they survive 16×16. A frame costs about a
+third of ToyCar's 128×128 one (`docs/speed.md`); the comments say which XLA:CPU habits that needed.
 
 The measurement strip (`speed_input`): the top `strip_rows(h)` rows show the car's speed as a grey
 level (`255 · v / SPEED_SCALE`, clipped); without the speed input they are black, so the frames of the

@@ -143,8 +143,8 @@ def crossing_place(s, inter_s, w):
 
 def step_cross(cross: dict, cross_state, occupied, key, cfg) -> dict:
     """One step of the cross-street cars, `[n, 2]` per field (`u`: progress along the cross street, `v`,
-    `wait`: seconds left out of sight before it comes again, ~forever where there is no cross traffic; slot 0 drives to the route's left, slot 1 to its
-    right). `occupied` `[n]`: a route car is in the junction."""
+    `wait`: seconds left out of sight before it comes again, ~forever where there is no cross traffic; slot 0
+    drives to the route's left, slot 1 to its right). `occupied` `[n]`: a route car is in the junction."""
     u, v, wait = cross["cross_u"], cross["cross_v"], cross["cross_wait"]
     w = cfg.lane_width
     gap = -(w + 1.0) - (u + CAR_LENGTH / 2)  # to the stop line, 1 m before the route's road

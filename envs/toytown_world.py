@@ -187,5 +187,6 @@ def cross_phase(lights: Lights, seconds: jax.Array, amber: float, clearance: flo
     cycle = lights.green + amber + lights.red
     tau = jnp.mod(seconds + lights.offset, cycle)
     start, stop = lights.green + amber + clearance, cycle - clearance
-    state = jnp.where((tau >= start) & (tau < stop - amber), GREEN, jnp.where((tau >= start) & (tau < stop), AMBER, RED))
+    on = tau >= start
+    state = jnp.where(on & (tau < stop - amber), GREEN, jnp.where(on & (tau < stop), AMBER, RED))
     return state.astype(jnp.int32)

@@ -76,7 +76,8 @@ def test_a_task_registered_in_one_place_is_made_and_stepped_through_envs_make(li
 
 
 def test_the_registry_refuses_mistakes_naming_the_valid_choices(line):
-    with pytest.raises(ValueError, match=r"unknown setting\(s\) \['gaol'\] for env 'line'; valid: \['episode_length', 'goal'\]"):
+    with pytest.raises(ValueError, match=r"unknown setting\(s\) \['gaol'\] for env 'line'; "
+                                         r"valid: \['episode_length', 'goal'\]"):
         envs.make("line", gaol=2.0)
     with pytest.raises(ValueError, match=r"unknown obs mode 'image' for env 'line'; valid: \['full'\]"):
         envs.make("line", obs="image")

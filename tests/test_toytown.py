@@ -61,7 +61,8 @@ def test_reset_and_step_under_jit_give_finite_observations_of_the_declared_shape
     again = reset(jax.random.split(jax.random.PRNGKey(0), 4))
     np.testing.assert_array_equal(again.obs, reset(jax.random.split(jax.random.PRNGKey(0), 4)).obs)
     other = reset(jax.random.split(jax.random.PRNGKey(1), 4))
-    assert not np.array_equal(np.asarray(other.pipeline_state.light_offset), np.asarray(again.pipeline_state.light_offset))
+    offsets = [np.asarray(s.pipeline_state.light_offset) for s in (other, again)]
+    assert not np.array_equal(*offsets)
 
 
 def test_the_registry_knows_toytown_and_its_defaults():
