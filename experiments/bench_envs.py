@@ -1,10 +1,14 @@
-"""Environment throughput: MJX vs native MuJoCo, renderer frames/s, ToyCar with images.
+"""Environment throughput: MJX vs native MuJoCo, renderer frames/s, the driving tasks with images.
 
-    python -m experiments.bench_envs                      # print the table
-    python -m experiments.bench_envs --write docs/speed.md  # also replace its section
+    python -m experiments.bench_envs                      # print the tables
+    python -m experiments.bench_envs --write docs/speed.md  # also replace their sections
+    python -m experiments.bench_envs --only driving       # the driving tasks' table alone (a minute)
 
 Every figure is a median over `--repeats` timed runs after a separate first
-(compiling) call; compile time is reported on its own. Native MuJoCo runs
+(compiling) call; compile time is reported on its own. The driving tasks (the
+pure-JAX tasks with a record, `ape_jax.tasks`) are timed in one process, their
+runs interleaved, so each ratio to the first task's rate at its default image size
+compares programs that met the same load; that table is its own section. Native MuJoCo runs
 `mujoco.mj_step` on the same compiled model with the same number of physics
 substeps per control step, single-threaded; native ray casting uses
 `mujoco.mj_multiRay` with the same camera rays as our renderer (no shading).
@@ -12,6 +16,7 @@ substeps per control step, single-threaded; native ray casting uses
 
 from __future__ import annotations
 
+import os
 import statistics
 import sys
 import time
@@ -23,9 +28,10 @@ import envs
 from ape_jax import tasks
 from envs._quiet import mujoco
 from experiments._cli import Parser
-from experiments._timing import machine, rollout_throughput, run_benchmark, time_jitted
+from experiments._timing import machine, rollout_throughput, run_benchmark, time_jitted, write_section
 
 SECTION = "bench_envs"
+DRIVING_SECTION = "bench_envs_driving"
 
 
 def mjx_steps(name: str, obs: str, batch: int, steps: int, repeats: int, **overrides) -> dict:
@@ -113,14 +119,71 @@ def table(args) -> str:
         r = render_fps("hopper", size, args.render_batch, args.repeats)
         lines.append(f"| {size}×{size} | {r['fps']:,.0f} | {r['compile_s']:.1f} | {r['native_fps']:,.0f} |")
         print(lines[-1], file=sys.stderr)
-    lines += ["", "| env (obs) | batch | env steps/s | compile s |", "|---|---:|---:|---:|"]
-    pure_jax = [n for n in tasks.sweepable() if n not in envs.brax_env.brax_names()]  # the driving sandbox
-    for name, obs, size in ((n, obs, size) for n in pure_jax for obs, size in (("image", 128), ("image", 64),
-                                                                                ("full", None))):
-        kw = {"image_size": size} if size else {}
-        m = mjx_steps(name, obs, args.batch, args.steps, args.repeats, **kw)
-        label = f"{name} ({obs}{f' {size}×{size}' if size else ''})"
-        lines.append(f"| {label} | {args.batch} | {m['steps_per_s']:,.0f} | {m['compile_s']:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
+def _random_rollout(env, batch: int, steps: int):
+    """A jitted `key -> returns` of `envs.rollout` with a uniform-random policy that reads the observation (as
+    `rollout_throughput`'s: otherwise XLA drops the rendering nothing consumes)."""
+    import jax.numpy as jnp
+
+    low, high = env.action_bounds
+    low, high = jnp.maximum(low, -1.0), jnp.minimum(high, 1.0)
+
+    def act(params, state, key):
+        seen = 1e-12 * jnp.mean(state.obs.astype(jnp.float32))
+        return jax.random.uniform(key, low.shape, minval=low, maxval=high) + seen
+
+    return jax.jit(lambda k: envs.rollout(env, envs.stateless(act), None, k, batch, steps).returns)
+
+
+def driving_table(args) -> str:
+    """Each driving task at its default image size, at the other of 128 and 64 pixels, and on its full state,
+    timed interleaved (one run of each in turn, `--repeats` rounds), with the ratio to the first task's default
+    image rate."""
+    names = [n for n in tasks.sweepable() if n not in envs.brax_env.brax_names()]
+    rows = []  # (label, env, default image?)
+    for name in names:
+        own = envs.make(name, obs="image").config.image_size
+        sizes = [own] + [(s, s) for s in (128, 64) if (s, s) != tuple(own)]
+        rows += [(f"{name} (image {h}×{w})", envs.make(name, obs="image", image_size=(h, w)), (h, w) == tuple(own))
+                 for h, w in sizes]
+        rows.append((f"{name} (full)", envs.make(name, obs="full"), False))
+    load_before = os.getloadavg()
+    runs, compile_s = [], []
+    for _, env, _ in rows:
+        run = _random_rollout(env, args.batch, args.steps)
+        t0 = time.perf_counter()
+        jax.block_until_ready(run(jax.random.PRNGKey(0)))
+        first = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        jax.block_until_ready(run(jax.random.PRNGKey(1)))
+        compile_s.append(max(first - (time.perf_counter() - t0), 0.0))
+        runs.append(run)
+    times = [[] for _ in rows]
+    for r in range(args.repeats):
+        for i, run in enumerate(runs):
+            t0 = time.perf_counter()
+            jax.block_until_ready(run(jax.random.PRNGKey(2 + r)))
+            times[i].append(time.perf_counter() - t0)
+    load_after = os.getloadavg()
+    rates = [args.batch * args.steps / statistics.median(t) for t in times]
+    ref = next(i for i, row in enumerate(rows) if row[2])
+    lines = [
+        "## Driving tasks' throughput",
+        "",
+        f"Command: `python -m experiments.bench_envs --only driving --batch {args.batch} --steps {args.steps} "
+        f"--repeats {args.repeats}`  ",
+        f"Machine: {machine()}; load average {load_before[0]:.1f} before, {load_after[0]:.1f} after (1 min)  ",
+        f"`envs.rollout` of a uniform-random policy that reads the observation, vmapped over the batch, scanned over "
+        f"steps; every configuration compiled first, then one run of each in turn, {args.repeats} rounds (medians), so "
+        f"the ratios compare runs that met the same load. Ratio: to {rows[ref][0]}.",
+        "",
+        "| env (obs) | batch | env steps/s | compile s | ratio |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for (label, _, _), rate, c in zip(rows, rates, compile_s):
+        lines.append(f"| {label} | {args.batch} | {rate:,.0f} | {c:.1f} | {rate / rates[ref]:.2f}× |")
         print(lines[-1], file=sys.stderr)
     return "\n".join(lines) + "\n"
 
@@ -131,7 +194,24 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=int, default=100, help="control steps per timed rollout")
     p.add_argument("--render-batch", type=int, default=32, help="states rendered per timed call")
     p.add_argument("--repeats", type=int, default=5, help="timed runs; the median is reported")
-    return run_benchmark(p, argv, ("--batch", "--steps", "--render-batch", "--repeats"), table, SECTION)
+    p.add_argument("--only", choices=("all", "driving"), default="all",
+                   help="driving: the driving tasks' table alone (its own section of --write's file)")
+    only = p.parse_known_args(argv)[0].only
+    driving = {}
+
+    def tables(args):  # the driving table is timed first and written to its own section below
+        driving["args"], driving["text"] = args, driving_table(args)
+        return driving["text"] if only == "driving" else table(args)
+
+    counts = ("--batch", "--steps", "--render-batch", "--repeats")
+    status = run_benchmark(p, argv, counts, tables, DRIVING_SECTION if only == "driving" else SECTION)
+    args = driving.get("args")
+    if status == 0 and only == "all" and args is not None:
+        print(driving["text"])
+        if args.write:
+            write_section(args.write, driving["text"], DRIVING_SECTION)
+            print(f"wrote the driving section to {args.write}")
+    return status
 
 
 if __name__ == "__main__":
