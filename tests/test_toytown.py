@@ -73,6 +73,15 @@ def test_the_registry_knows_toytown_and_its_defaults():
     assert env.observation_shape == (64, 64, 3) and env.config.traffic == "dense" and env.config.speed_input
 
 
+def test_the_task_record_reads_the_environment_s_metrics_and_the_supplement_s_carla_settings():
+    from ape_jax import tasks
+
+    task = tasks.get("toytown")
+    assert task.metrics == envs.make("toytown", obs="full").episode_metric_names and task.metric == "success"
+    assert (task.loss, task.fca_alpha, task.expert, task.default_obs) == ("l1", 0.2, "rule-based", "image")
+    assert "toytown" in tasks.sweepable()
+
+
 def test_routes_bend_keep_straight_road_round_each_intersection_and_end_at_the_goal():
     for layout in (0, 7, 1003):
         route, inter_s = world.make_route(jnp.int32(layout), 400.0, 4)
