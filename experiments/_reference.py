@@ -14,20 +14,18 @@ from __future__ import annotations
 import functools
 import pathlib
 
-ROOT = pathlib.Path(__file__).resolve().parent.parent
-SHIPPED = ROOT / "results"
 ARMS = (("bc-so", "BC-SO"), ("bc-oh", "BC-OH"), ("ours-step", "Ours (step, THR 10% W 5)"))
 
 
-def reference_lines(results_path: str | pathlib.Path, shipped: pathlib.Path = SHIPPED) -> list[str]:
+def reference_lines(results_path: str | pathlib.Path, shipped: pathlib.Path | None = None) -> list[str]:
     """The printed block: the shipped files' rows per budget above this run's, and the reading; [] where no
     shipped file shares this run's setting at another budget, or this run is a smoke run.
 
     Args:
       results_path: the sweep's `results.json`.
-      shipped: the folder of committed results files (the repository's `results/`).
+      shipped: the folder of committed results files; None: the repository's `results/` (`compare.SHIPPED`).
     """
-    from experiments.compare import comparable_fields
+    from experiments.compare import SHIPPED, comparable_fields
     from experiments.report import analysis
 
     if _smoke(results_path):
@@ -36,7 +34,7 @@ def reference_lines(results_path: str | pathlib.Path, shipped: pathlib.Path = SH
     want = _setting(comparable_fields(mine))
     iterations = mine.config["iterations"]
     by_budget: dict[int, list] = {}
-    for other in _shipped(shipped):
+    for other in _shipped(shipped or SHIPPED):
         if (other.config["iterations"] != iterations and _setting(comparable_fields(other)) == want
                 and {"bc-so", "bc-oh"} & {r["method"] for r in other.summary}):
             by_budget.setdefault(other.config["iterations"], []).append(other)
@@ -56,10 +54,10 @@ def reference_lines(results_path: str | pathlib.Path, shipped: pathlib.Path = SH
     return [line.rstrip() for line in lines]
 
 
-def comparable(results_path: str | pathlib.Path, shipped: pathlib.Path = SHIPPED) -> bool:
+def comparable(results_path: str | pathlib.Path, shipped: pathlib.Path | None = None) -> bool:
     """Whether `python -m experiments.compare` can rank the sweep of `results_path` against `shipped`: a file there
     shares its task, setting and budget, and it holds a method that is not a reference (`compare.match`)."""
-    from experiments.compare import REFERENCES, CompareError, match
+    from experiments.compare import REFERENCES, SHIPPED, CompareError, match
     from experiments.report import analysis
 
     if _smoke(results_path):
@@ -68,7 +66,7 @@ def comparable(results_path: str | pathlib.Path, shipped: pathlib.Path = SHIPPED
     if not [r for r in mine.summary if r["method"] not in REFERENCES]:
         return False
     try:
-        match(mine, _shipped(shipped))
+        match(mine, _shipped(shipped or SHIPPED))
     except CompareError:
         return False
     return True

@@ -40,11 +40,11 @@ import numpy as np
 from ape_jax.pipeline import presets
 from ape_jax.pipeline.rundir import RunDir
 from experiments._cli import Parser, fail, unwritable
-from experiments._reference import SHIPPED
 from experiments.report import analysis
 from experiments import stats
 from experiments.report.paper import PAPER_STEP_LABEL
 
+SHIPPED = pathlib.Path(__file__).resolve().parent.parent / "results"   # the committed results files
 REFERENCES = ("bc-so", "bc-oh", "ours-step", "fca")
 REFERENCE_LABELS = {"bc-so": "BC-SO", "bc-oh": "BC-OH", "ours-step": PAPER_STEP_LABEL, "fca": "FCA"}
 # the settings that may differ between comparable files: which configurations ran, how many seeds, and amounts
