@@ -59,9 +59,10 @@ def full_env(env: Env) -> Env:
         return env
     if isinstance(env, envs.brax_env.BraxEnv):
         return envs.brax_env.BraxEnv(env.name, FULL, env.config)
-    if isinstance(env, envs.ToyCar):
-        return envs.ToyCar(FULL, env.config)
-    raise FullStateError(f"{env.name!r} has no full observation to build (bc-full reads the full state)")
+    try:   # a registered task (ToyCar, ToyTown, ...) rebuilds itself in another mode
+        return envs.registry.same_task(env, FULL)
+    except ValueError:
+        raise FullStateError(f"{env.name!r} has no full observation to build (bc-full reads the full state)") from None
 
 
 def _sim_layout(env: Env) -> dict[str, tuple[int, ...]]:

@@ -125,6 +125,10 @@ def parse(argv=None) -> argparse.Namespace:
             args.overrides["image_size"] = envs.brax_env.parse_image_size(size[0] if len(size) == 1 else size)
         except ValueError as e:
             fail(p, f"--image-size: {e}")
+    try:   # the task's own checks (e.g. ToyTown's smallest image), before anything is collected or written
+        envs.make(args.env, obs=args.obs, **args.overrides)
+    except ValueError as e:
+        fail(p, f"--env {args.env}: {e}")
     if args.preview is not None:
         if args.preview.suffix != ".gif":
             fail(p, f"--preview must name a .gif file, got {args.preview}")

@@ -254,3 +254,11 @@ def test_prev_action_with_frames_is_refused_in_one_line_before_anything_runs(tmp
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and "prev_action needs vector observations" in err
     assert not (tmp_path / "run").exists()
+
+
+def test_a_registered_driving_task_observes_the_full_state_with_its_own_settings():
+    for name, settings in (("toycar", {"image_size": 32}), ("toytown", {"image_size": 32, "traffic": "regular"})):
+        env = envs.make(name, obs="image", **settings)
+        full = observations.full_env(env)
+        assert full.obs_mode == "full" and full.config == env.config and type(full) is type(env)
+        assert observations.full_env(full) is full

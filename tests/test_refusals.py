@@ -336,3 +336,11 @@ def test_an_interruptible_entry_point_ends_a_ctrl_c_with_one_line_and_130(capsys
     assert main([]) == 130
     assert capsys.readouterr().err == "\npython -m experiments.example: interrupted; nothing was written\n"
     assert signal.getsignal(signal.SIGINT) is handler
+
+
+def test_collect_refuses_a_frame_the_task_cannot_render_before_collecting(tmp_path, capsys):
+    data_dir = tmp_path / "data"
+    err = refused(capsys, lambda: collect.main(["--env", "toytown", "--image-size", "15", "--episodes", "1",
+                                                "--data-dir", str(data_dir)]))
+    assert err == "python -m experiments.collect: error: --env toytown: image_size must be at least 16x16, got 15x15\n"
+    assert not data_dir.exists()
