@@ -39,8 +39,8 @@ def stats_mismatch(stats, reference) -> float:
     to the sum itself, so an element near zero can differ by 1.5e-4 of itself
     (measured: −0.027384464 against −0.027388610) while the leaf agrees to ~1e-5 of
     its own scale. So each leaf is compared against how far it moved from its start
-    (mean 0, variance 1). Measured on the six-wide grid of `tests/test_recipe.py` (2-core
-    AMD EPYC, one thread and two): rounding moved a leaf by at most 4.3e-5 of that
+    (mean 0, variance 1). Measured by `tools/stats_rounding.py` on the six-wide grid of
+    `tests/test_recipe.py` (2-core AMD EPYC, one thread and two): rounding moved a leaf by at most 4.3e-5 of that
     (elementwise, up to 4.9e-4 of an element), another configuration's statistics by
     1.5-1.8 times it. `STATS_RTOL` = 1e-3 sits between, 20x above the rounding.
     """
