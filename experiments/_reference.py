@@ -19,7 +19,7 @@ ARMS = (("bc-so", "BC-SO"), ("bc-oh", "BC-OH"), ("ours-step", "Ours (step, THR 1
 
 def reference_lines(results_path: str | pathlib.Path, shipped: pathlib.Path | None = None) -> list[str]:
     """The printed block: the shipped files' rows per budget above this run's, and the reading; [] where no
-    shipped file shares this run's setting at another budget, or this run is a smoke run.
+    shipped file shares this run's setting at a longer budget, or this run is a smoke run.
 
     Args:
       results_path: the sweep's `results.json`.
@@ -35,7 +35,7 @@ def reference_lines(results_path: str | pathlib.Path, shipped: pathlib.Path | No
     iterations = mine.config["iterations"]
     by_budget: dict[int, list] = {}
     for other in _shipped(shipped or SHIPPED):
-        if (other.config["iterations"] != iterations and _setting(comparable_fields(other)) == want
+        if (other.config["iterations"] > iterations and _setting(comparable_fields(other)) == want
                 and {"bc-so", "bc-oh"} & {r["method"] for r in other.summary}):
             by_budget.setdefault(other.config["iterations"], []).append(other)
     if not by_budget:
@@ -136,16 +136,14 @@ def _describe(res) -> str:
 def _reading(iterations: int, here: dict, rows: list[tuple[int, dict]]) -> str:
     """One line: what this budget can show, and whether its BC-OH-vs-BC-SO order is the longest budget's."""
     longest, arms = rows[-1]
-    seeds = _seeds(here)
-    words = (f"  reading: {iterations:,} iterations and {seeds} {'seed' if seeds == '1' else 'seeds'} check that the "
-             "pipeline runs end to end; they cannot rank methods")
+    words = f"  reading: {iterations:,} of the {longest:,} iterations the answer is read at"
+    if _seeds(here) == "1":
+        words += ", one seed: it checks that the pipeline runs end to end and cannot rank methods"
     if "bc-so" in here and "bc-oh" in here and "bc-so" in arms and "bc-oh" in arms:
         mean = {k: sum(v) / len(v) for k, v in (("so", here["bc-so"]), ("oh", here["bc-oh"]),
                                                    ("so_ref", arms["bc-so"]), ("oh_ref", arms["bc-oh"]))}
         if (mean["oh"] > mean["so"]) != (mean["oh_ref"] > mean["so_ref"]):
-            return (words + f": here BC-OH is {'above' if mean['oh'] > mean['so'] else 'below'} BC-SO, at "
-                    f"{longest:,} iterations it is {'above' if mean['oh_ref'] > mean['so_ref'] else 'below'}, "
-                    "and the answer is read there")
-        return words + (f"; BC-OH against BC-SO goes the same way as at {longest:,} iterations, where the answer "
-                        "is read")
-    return words + f"; the answer is read at {longest:,} iterations"
+            return (words + f"; here BC-OH is {'above' if mean['oh'] > mean['so'] else 'below'} BC-SO, at "
+                    f"{longest:,} iterations it is {'above' if mean['oh_ref'] > mean['so_ref'] else 'below'}")
+        return words + f"; BC-OH against BC-SO goes the same way as at {longest:,} iterations"
+    return words

@@ -37,6 +37,7 @@ def test_a_short_run_is_shown_under_the_shipped_rows_of_its_setting_and_its_reve
     assert "51.9 [37.2, 66.6]" in lines[2] and "80.4 [64.4, 96.3]" in lines[2]   # the 30k file's own numbers
     assert "91.3 [85.6, 97.0]" in lines[3]                      # the 300k file's BC-OH, found by its setting
     assert "23.5 (1 seed)" in lines[4] and lines[4].endswith("<- this run")
+    assert "3,000 of the 300,000 iterations the answer is read at, one seed: it checks" in text
     assert "here BC-OH is below BC-SO, at 300,000 iterations it is above" in text
     assert "results/hopper-pos-fca-rows-paper-fca-bc.json" in lines[-1]
 
@@ -63,3 +64,10 @@ def test_only_a_run_a_shipped_file_matches_is_called_comparable(tmp_path):
     assert comparable(SHIPPED / "hopper-pos-fca-rows-default-fca-after.json")   # RAP, PALR, MINE: not references
     assert not comparable(THIRTY_K)                        # references only: nothing of its own to rank
     assert not comparable(_short_run(tmp_path, 20.0, 60.0))   # neither: references only, and at 3,000 iterations
+
+
+def test_a_run_at_the_longest_shipped_budget_gets_no_reference_and_a_middle_one_only_the_longer(tmp_path):
+    assert reference_lines(_short_run(tmp_path, 20.0, 60.0, iterations=300_000)) == []
+    lines = reference_lines(_short_run(tmp_path, 20.0, 60.0, iterations=30_000))
+    assert [line.split()[0] for line in lines[2:-1]] == ["300,000", "30,000"]
+    assert "30,000 of the 300,000 iterations the answer is read at" in lines[-1]
