@@ -194,6 +194,32 @@ class Env(abc.ABC):
         return f"<{type(self).__name__} {self.name!r} obs={self.obs_mode!r}>"
 
 
+class ConfiguredEnv(Env):
+    """A pure-JAX task whose settings are one frozen config dataclass: the observation mode is checked against
+    `obs_modes`, and the control step and episode length are the config's `dt` and `episode_length` fields.
+
+    A subclass sets `name`, `config_class` (and `obs_modes` if not full and image) and implements the rest of
+    `Env`; `cls(obs_mode, config)` is how the task registry builds it in another mode with the same settings.
+    """
+
+    obs_modes: tuple[str, ...] = ("full", "image")
+    config_class: type
+
+    def __init__(self, obs_mode: str = "image", config: Any = None):
+        if obs_mode not in self.obs_modes:
+            raise ValueError(f"unknown obs mode {obs_mode!r} for env {self.name!r}; valid: {list(self.obs_modes)}")
+        self.obs_mode = obs_mode
+        self.config = self.config_class() if config is None else config
+
+    @property
+    def dt(self) -> float:
+        return self.config.dt
+
+    @property
+    def episode_length(self) -> int:
+        return self.config.episode_length
+
+
 def _flags(invalid_action: jax.Array, nonfinite_state: jax.Array) -> dict[str, jax.Array]:
     return {"invalid_action": jnp.asarray(invalid_action, jnp.float32),
             "nonfinite_state": jnp.asarray(nonfinite_state, jnp.float32)}

@@ -36,7 +36,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from envs import registry
-from envs.base import Env, State
+from envs.base import ConfiguredEnv, State
 
 METRICS = ("success", "red_light_violations", "progress", "avg_speed", "stuck")  # `episode_metrics`, in order
 
@@ -138,16 +138,11 @@ def crossed_on_red(x_prev: jax.Array, x_next: jax.Array, light_x: jax.Array, gre
     return ((x_prev < light_x) & (x_next >= light_x) & (green_prev <= 0)).astype(jnp.float32)
 
 
-class ToyCar(Env):
+class ToyCar(ConfiguredEnv):
     """The ToyCar environment (see the module docstring)."""
 
     name = "toycar"
-
-    def __init__(self, obs_mode: str = "image", config: ToyCarConfig | None = None):
-        if obs_mode not in ("full", "image"):
-            raise ValueError(f"unknown obs mode {obs_mode!r} for env 'toycar'; valid: ['full', 'image']")
-        self.obs_mode = obs_mode
-        self.config = config or ToyCarConfig()
+    config_class = ToyCarConfig
 
     @property
     def observation_shape(self) -> tuple[int, ...]:
@@ -160,14 +155,6 @@ class ToyCar(Env):
     @property
     def action_bounds(self) -> tuple[jax.Array, jax.Array]:
         return jnp.zeros(2, jnp.float32), jnp.ones(2, jnp.float32)
-
-    @property
-    def dt(self) -> float:
-        return self.config.dt
-
-    @property
-    def episode_length(self) -> int:
-        return self.config.episode_length
 
     def _observe(self, sim: ToyCarSim) -> jax.Array:
         return render(sim, self.config) if self.obs_mode == "image" else full_observation(sim)

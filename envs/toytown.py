@@ -45,7 +45,7 @@ from envs import registry
 from envs import toytown_render as render_lib
 from envs import toytown_traffic as traffic
 from envs import toytown_world as world
-from envs.base import Env, State
+from envs.base import ConfiguredEnv, State
 from envs.toytown_expert import FEATURES, METRICS, episode_metrics, expert_action, features, free_to_go  # noqa: F401
 
 # NoCrash's traffic conditions: (route cars per 100 m per lane, pedestrians per 100 m of route)
@@ -259,18 +259,13 @@ class ToyTownSim:
         return {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name.startswith(prefix)}
 
 
-class ToyTown(Env):
+class ToyTown(ConfiguredEnv):
     """The ToyTown environment (see the module docstring)."""
 
     name = "toytown"
+    config_class = ToyTownConfig
     episode_metric_names = METRICS
     action_names = ("steer", "throttle", "brake")
-
-    def __init__(self, obs_mode: str = "image", config: ToyTownConfig | None = None):
-        if obs_mode not in ("full", "image"):
-            raise ValueError(f"unknown obs mode {obs_mode!r} for env 'toytown'; valid: ['full', 'image']")
-        self.obs_mode = obs_mode
-        self.config = config or ToyTownConfig()
 
     @property
     def observation_shape(self) -> tuple[int, ...]:
@@ -283,14 +278,6 @@ class ToyTown(Env):
     @property
     def action_bounds(self) -> tuple[jax.Array, jax.Array]:
         return jnp.array([-1.0, 0.0, 0.0], jnp.float32), jnp.ones(3, jnp.float32)
-
-    @property
-    def dt(self) -> float:
-        return self.config.dt
-
-    @property
-    def episode_length(self) -> int:
-        return self.config.episode_length
 
     def _observe(self, sim: ToyTownSim) -> jax.Array:
         if self.obs_mode == "image":
