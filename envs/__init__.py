@@ -16,7 +16,7 @@ from __future__ import annotations
 from envs import _quiet  # noqa: F401  (silences MJX/Brax import noise first)
 from envs import brax_env, registry
 from envs import toycar, toytown  # noqa: F401  (task modules: each registers itself on import)
-from envs.base import OBS_MODES, Env, State
+from envs.base import OBS_MODES, ConfiguredEnv, Env, State
 from envs.render import Camera
 from envs.rollout import Policy, Trajectory, from_observation, rollout, stateless
 from envs.toycar import ToyCar, ToyCarConfig
@@ -97,6 +97,7 @@ __all__ = [
     "MUJOCO_TASKS",
     "OBS_MODES",
     "Camera",
+    "ConfiguredEnv",
     "Env",
     "Policy",
     "State",
