@@ -218,7 +218,7 @@ class ToyCar(ConfiguredEnv):
         return episode_metrics(jax.tree.map(lambda p: p[0], sims), after, valid, self.config)
 
 
-registry.register("toycar", ToyCar, ToyCarConfig, obs_modes=("full", "image"), default_obs="image")
+registry.register("toycar", ToyCar, ToyCarConfig, obs_modes=ToyCar.obs_modes, default_obs="image")
 
 
 def full_observation(sim: ToyCarSim) -> jax.Array:

@@ -316,7 +316,7 @@ class ToyTown(ConfiguredEnv):
         return episode_metrics(jax.tree.map(lambda a: a[0], sims), final.pipeline_state, valid, self.config)
 
 
-registry.register("toytown", ToyTown, ToyTownConfig, obs_modes=("full", "image"), default_obs="image")
+registry.register("toytown", ToyTown, ToyTownConfig, obs_modes=ToyTown.obs_modes, default_obs="image")
 
 
 def _crashed(sim: ToyTownSim) -> jax.Array:
