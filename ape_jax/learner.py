@@ -81,6 +81,8 @@ class LearnerConfig:
     init: str = "lecun"          # Dense kernels: "lecun" (Flax's default) or "xavier" (the FCA code's)
     bn_momentum: float = 0.1     # BatchNorm's running statistics: new = (1 − m) · old + m · batch (PyTorch's m)
     loss: str = "l2"
+    # each action dimension's share of the loss (CILRS: steer 0.5, throttle 0.45, brake 0.05); (): each counts 1
+    loss_weights: tuple[float, ...] = ()
     unroll: bool = False         # unroll `run`'s scan: XLA:CPU runs convolutions in loop bodies ~50x slower
     # Image encoder: "small" (`ImagePolicy`, 3 convs, CPU-sized), "patch" (`PatchPolicy`, one 8×8 patch
     # embedding: ~5× faster on a CPU), "drq" (`DrQPolicy`, DrQ's four 3×3 convs, 84×84) or "resnet18"
@@ -110,6 +112,9 @@ class LearnerConfig:
         for name in ("action_dim", "history", "iterations"):
             if getattr(self, name) < 1:
                 raise ValueError(f"LearnerConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if self.loss_weights and (len(self.loss_weights) != self.action_dim or min(self.loss_weights) < 0):
+            raise ValueError(f"LearnerConfig.loss_weights must be {self.action_dim} numbers >= 0 (one per action "
+                             f"dimension) or empty, got {self.loss_weights}")
         least = IMAGE_ENCODERS[self.encoder].min_side if self.images else 1
         if self.images and min(self.obs_shape[:2]) < least:
             raise ValueError(f"encoder {self.encoder!r} takes images of at least {least}×{least} pixels, got "
@@ -144,6 +149,17 @@ class LearnerConfig:
     def optimizer(self) -> optax.GradientTransformation:
         """Adam's moment estimates; the learning rate is applied by hand (`adam_step`), so it can be traced."""
         return optax.scale_by_adam(b1=self.beta1, b2=self.beta2)
+
+
+def action_errors(cfg: LearnerConfig, predicted: jax.Array, target: jax.Array) -> jax.Array:
+    """`[...]` the BC loss of each sample, over the last axis: the squared (`cfg.loss` `"l2"`) or absolute (`"l1"`)
+    error of each action dimension, weighted by `cfg.loss_weights` (none: 1 each) and summed. Every learner's BC
+    term is its mean over the batch (weighted by the sample weights where a method has them)."""
+    err = predicted - target
+    err = err**2 if cfg.loss == "l2" else jnp.abs(err)
+    if cfg.loss_weights:
+        err = err * jnp.asarray(cfg.loss_weights, err.dtype)
+    return jnp.sum(err, axis=-1)
 
 
 @struct.dataclass
@@ -403,8 +419,7 @@ def make_train(cfg: LearnerConfig) -> Learner:
         return policy_input(obs)
 
     def errors(predicted: jax.Array, target: jax.Array) -> jax.Array:
-        err = predicted - target
-        return jnp.sum(err**2 if cfg.loss == "l2" else jnp.abs(err), axis=-1)
+        return action_errors(cfg, predicted, target)
 
     def per_sample_loss(params, data: Data, idx: jax.Array, dropout_key=None, dropout=0.0) -> jax.Array:
         """`[B]` loss of rows `idx` (indices into `data.obs`, not split positions), running statistics."""

@@ -64,6 +64,15 @@ class Protocol:
         (`ape_jax.pipeline.collect.render_states`): a device renders what a CPU collected, and only the
         states travel. Hopper's and Walker2d's frames then show the body poses after the step's last physics
         substep, where the rollout's show them before it (`envs.brax_env.BraxEnv.observe_sim`).
+      traffic, speed_input: the task's own settings of that name for collection and evaluation (a driving
+        task's: ToyTown's NoCrash condition and its speed measurement); None: the task's default. A task without
+        the setting refuses it.
+      eval_town, eval_weather: the task's `town` and `weather` in evaluation only (ToyTown's held-out layouts and
+        palette, NoCrash's "new town" and "new weather"); None: as collected.
+      noise_frac, noise_steps, noise_std: noise injected into the executed actions while demonstrating, the
+        labels staying the expert's own (`ape_jax.pipeline.collect`): a share `noise_frac` of the steps perturbed,
+        in bursts of `noise_steps` steps (1: each step on its own, DART's), each burst a triangular pulse peaking
+        at a Gaussian offset of std `noise_std` (CARLA100's); 0: none.
 
     Rewards are scaled by `frame_skip / standard frame skip`, so returns stay on the scale of the
     standard control step (the FCA code's 1/4 and 1/5).
@@ -87,6 +96,13 @@ class Protocol:
     labels: str = "clipped"
     prev_action: bool = False
     frames: str = "rollout"
+    traffic: str | None = None
+    speed_input: bool | None = None
+    eval_town: str | None = None
+    eval_weather: str | None = None
+    noise_frac: float = 0.0
+    noise_steps: int = 1
+    noise_std: float = 0.0
 
     def __post_init__(self):
         if self.split not in SPLITS:
@@ -110,6 +126,11 @@ class Protocol:
             raise ValueError(f"protocol.frames {self.frames!r} is not one of {', '.join(FRAMES)}")
         if not isinstance(self.prev_action, bool):
             raise ValueError(f"protocol.prev_action must be true or false, got {self.prev_action!r}")
+        if not 0.0 <= self.noise_frac < 1.0 or self.noise_std < 0 or self.noise_steps < 1:
+            raise ValueError(f"protocol noise: noise_frac must be in [0, 1), noise_std >= 0 and noise_steps >= 1, got "
+                             f"{self.noise_frac!r}, {self.noise_std!r} and {self.noise_steps!r}")
+        if self.speed_input is not None and not isinstance(self.speed_input, bool):
+            raise ValueError(f"protocol.speed_input must be true, false or none, got {self.speed_input!r}")
         if self.expert is not None and not re.fullmatch(r"[a-z0-9_]+", str(self.expert)):
             raise ValueError(f"protocol.expert must be a variant name of lowercase letters, digits and _ "
                              f"(e.g. ppo), got {self.expert!r}")
@@ -141,6 +162,10 @@ class Protocol:
             out["prev_action"] = True
         if self.frames != "rollout":
             out["frames"] = self.frames
+        out.update({k: v for k, v in self.task_settings().items()})
+        out.update({f"eval_{k}": v for k, v in self.eval_settings().items()})
+        if self.noise_frac > 0:
+            out.update(noise_frac=self.noise_frac, noise_steps=self.noise_steps, noise_std=self.noise_std)
         if standard_frame_skip is not None and self.frame_skip is not None:
             out["reward_scale"] = self.frame_skip / standard_frame_skip
         if self.horizon is not None and standard_frame_skip is not None:
@@ -155,7 +180,15 @@ class Protocol:
             out.update(n_frames=self.frame_skip, reward_scale=s["reward_scale"])
         if s["episode_length"] is not None:
             out["episode_length"] = s["episode_length"]
-        return out
+        return {**out, **self.task_settings()}
+
+    def task_settings(self) -> dict[str, Any]:
+        """The task's own settings this protocol fixes for collection and evaluation (`traffic`, `speed_input`)."""
+        return {k: getattr(self, k) for k in ("traffic", "speed_input") if getattr(self, k) is not None}
+
+    def eval_settings(self) -> dict[str, Any]:
+        """The task's settings evaluation changes (`town`, `weather`: held-out layouts and palette)."""
+        return {k: getattr(self, f"eval_{k}") for k in ("town", "weather") if getattr(self, f"eval_{k}") is not None}
 
 
 def _fca(frame_skip: int = 1, train: int = 20_000) -> Protocol:
@@ -199,6 +232,19 @@ def _palr(history: int) -> Protocol:
                         f"only (HalfCheetah's 8, not PALR's mask with 5 velocities); the palr recipe")
 
 
+def _nocrash(speed_input: bool) -> Protocol:
+    """NoCrash-Dense on ToyTown (the supplement's Table 1 with the speed in view, Table 2 without): dense traffic,
+    demonstrations in the training layouts with CARLA100's noise (10% of the executed actions perturbed, in
+    1-second bursts, labels kept), policies evaluated in the held-out layouts (NoCrash's new town) under the
+    training palette (`--set protocol.eval_weather=test` for new weather too)."""
+    name, doc = ("nocrash", "NoCrash-Dense with the speed in view (CARLA, supplement Table 1)") if speed_input else (
+        "nocrash-nospeed", "NoCrash-Dense without the speed (CARLA-w/o-speed, supplement Table 2)")
+    return Protocol(name, traffic="dense", speed_input=speed_input, eval_town="test", noise_frac=0.1, noise_steps=10,
+                    noise_std=0.3, doc=f"{doc}: dense traffic, demonstrations in the training layouts with 10% of "
+                                       f"the executed actions perturbed in 1 s bursts (labels kept), evaluation in "
+                                       f"the held-out layouts")
+
+
 # The copycat map (BENCHMARKS.md) compares fca at frame skips 1, 2 and 4 (where does the history stop helping?),
 # and at frame skip 1 with a quarter and four times the training transitions (80,000 at frame skip 1 cover the
 # simulated time 20,000 cover at frame skip 4: is it the frame rate, or how much of the task the data shows?).
@@ -214,9 +260,11 @@ FAMILIES: Mapping[str, tuple[Protocol, ...]] = MappingProxyType({
     "brax": (Protocol("brax", doc="the environment's own settings: Brax's frame skip and 1,000-step episodes for "
                                   "MuJoCo"),),
     "palr": tuple(_palr(h) for h in PALR_HISTORIES),
+    "nocrash": (_nocrash(True), _nocrash(False)),
 })
 PROTOCOLS: Mapping[str, Protocol] = MappingProxyType({p.name: p for ps in FAMILIES.values() for p in ps})
 _FAMILY_OF = {p.name: family for family, ps in FAMILIES.items() for p in ps}
+DRIVING_FAMILIES = ("nocrash",)  # the protocols that set a driving task's own settings (ToyTown's)
 
 
 def protocol_family(name: str) -> str:
@@ -233,6 +281,7 @@ class Task:
       name: the environment's name in `envs.make`.
       title: how tables and figures name it.
       loss: the BC loss, `"l2"` or `"l1"`.
+      loss_weights: each action dimension's share of the loss (`recipe.loss_weights` overrides); empty: 1 each.
       episodes: expert episodes collected for a sweep (80% train, 20% validation).
       fca_alpha: FCA's adversarial weight α for this task, as the FCA code runs it (its README: Hopper 2.0; its
         default, 1.0, where it gives none).
@@ -255,6 +304,7 @@ class Task:
     name: str
     title: str
     loss: str = "l2"
+    loss_weights: tuple[float, ...] = ()
     episodes: int = 25
     fca_alpha: float = 1.0
     fca_adversary_lr: float = 2e-4
@@ -265,7 +315,7 @@ class Task:
     presets: Mapping[str, Mapping[str, Mapping[str, Any]]] = dataclasses.field(
         default_factory=lambda: MappingProxyType({}))
     paper: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=lambda: MappingProxyType({}))
-    protocols: tuple[str, ...] = tuple(PROTOCOLS)
+    protocols: tuple[str, ...] = tuple(p for p in PROTOCOLS if _FAMILY_OF[p] not in DRIVING_FAMILIES)
     default_protocols: Mapping[str, str] = dataclasses.field(
         default_factory=lambda: MappingProxyType({"pos": "fca", "full": "fca"}))
 
@@ -297,8 +347,9 @@ class Task:
 # ToyCar: the supplement's Table 4 protocol (1k expert samples, 5 trials, BC-SO, BC-OH and Ours at THR 10%,
 # W 5); its reward is 0, so it is judged by its driving metrics. FCA's α as for the MuJoCo tasks' range.
 _TOYCAR_METRICS = ("success", "red_light_violations", "progress", "avg_speed", "stuck")
-# ToyTown: the CARLA analog (NoCrash's metrics, `envs.toytown`); judged by success, loss L1 as CILRS's (unweighted
-# here: CILRS weighs steer, throttle and brake 0.5 / 0.45 / 0.05), FCA's α 0.2 as the supplement runs it on CARLA.
+# ToyTown: the CARLA analog (NoCrash's metrics, `envs.toytown`); judged by success, loss L1 weighted as CILRS's
+# (steer, throttle and brake 0.5 / 0.45 / 0.05), FCA's α 0.2 as the supplement runs it on CARLA.
+CILRS_LOSS_WEIGHTS = (0.5, 0.45, 0.05)
 # 40 expert episodes: ~44k transitions in dense traffic (~1,100 steps an episode), ~35k training after the 20%
 # split, against FCA's 20k on MuJoCo. Fixed before any imitator was trained on it (docs/design.md, "ToyTown").
 _TOYTOWN_METRICS = ("success", "route_completion", "collisions", "collisions_vehicle", "collisions_pedestrian",
@@ -326,8 +377,10 @@ TASKS: Mapping[str, Task] = MappingProxyType({t.name: t for t in (
              "paper": {"seeds": 5, "softmax_grid": ()}}},
          # the supplement's Table 4: success %, mean ± std over 5 trials (ours-step: THR 10%, W 5)
          paper=MappingProxyType({"bc-so": (97.2, 0.7), "bc-oh": (95.1, 4.5), "ours-step": (97.8, 0.5)})),
-    Task("toytown", "ToyTown", loss="l1", episodes=40, fca_alpha=0.2, metric="success", metrics=_TOYTOWN_METRICS,
-         default_obs="image", expert="rule-based", protocols=("brax",), default_protocols={}),
+    Task("toytown", "ToyTown", loss="l1", loss_weights=CILRS_LOSS_WEIGHTS, episodes=40, fca_alpha=0.2,
+         metric="success", metrics=_TOYTOWN_METRICS,
+         default_obs="image", expert="rule-based", protocols=("nocrash", "nocrash-nospeed", "brax"),
+         default_protocols={"image": "nocrash", "full": "nocrash"}),
 )})
 
 

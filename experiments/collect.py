@@ -59,9 +59,13 @@ def parse(argv=None) -> argparse.Namespace:
                    help="episodes to collect (default: the protocol's: fca's 50,000 expert steps, 25 episodes of "
                         "2,000 steps for Hopper; under brax the task's: 25 for MuJoCo, 10 for the driving sandbox)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--noise-frac", type=float, default=0.0,
-                   help="probability that a step's executed action is perturbed (DART-style; label stays clean)")
-    p.add_argument("--noise-std", type=float, default=0.0, help="std of the Gaussian action noise")
+    p.add_argument("--noise-frac", type=float, default=None,
+                   help="share of the steps whose executed action is perturbed (the label stays the expert's; "
+                        "default: the protocol's, 0.1 for nocrash, else 0)")
+    p.add_argument("--noise-std", type=float, default=None,
+                   help="std of the Gaussian action noise (default: the protocol's)")
+    p.add_argument("--noise-steps", type=int, default=None,
+                   help="steps per burst of noise, 1: each step on its own (default: the protocol's, 10 for nocrash)")
     p.add_argument("--image-size", default=None, help="image side or HxW for --obs image (default: the env's)")
     p.add_argument("--batch", type=int, default=32, help="episodes per jitted call")
     p.add_argument("--data-dir", type=pathlib.Path, default=None, help=f"cache directory (default: {data.cache_dir()})")
@@ -112,6 +116,11 @@ def parse(argv=None) -> argparse.Namespace:
     if args.episodes > EPISODES_LIMIT and not args.yes:
         fail(p, f"--episodes {args.episodes:,} is over the limit of {EPISODES_LIMIT:,} episodes (every step is kept "
                 "in memory and on disk); pass --yes to collect them anyway, or ask for fewer")
+    for name in ("noise_frac", "noise_std", "noise_steps"):
+        if getattr(args, name) is None:
+            setattr(args, name, args.setup.settings.get(name, 1 if name == "noise_steps" else 0.0))
+    if args.noise_steps < 1:
+        fail(p, f"--noise-steps must be >= 1, got {args.noise_steps}")
     if not 0.0 <= args.noise_frac <= 1.0:
         fail(p, f"--noise-frac must be in [0, 1], got {args.noise_frac}")
     if not 0.0 <= args.noise_std < math.inf:
@@ -174,7 +183,8 @@ def main(argv=None) -> int:
 
     try:
         cfg = collect.data_key(args.env, args.obs, args.episodes, args.seed, args.noise_frac, args.noise_std,
-                               args.batch, expert=args.setup.expert, labels=args.setup.labels, **args.overrides)
+                               args.batch, expert=args.setup.expert, labels=args.setup.labels,
+                               noise_steps=args.noise_steps if args.noise_frac > 0 else 1, **args.overrides)
         references, why = _references(args)
     except ExpertError as e:
         return fail(None, str(e))

@@ -87,7 +87,7 @@ def test_a_protocol_joins_a_family_by_being_listed_there_never_by_its_name():
 
     assert {name: p.family for name, p in tasks.PROTOCOLS.items()} == {
         "fca": "fca", "fca-fs2": "fca", "fca-fs4": "fca", "fca-train5k": "fca", "fca-train80k": "fca",
-        "brax": "brax", "palr-h2": "palr", "palr-h4": "palr"}
+        "brax": "brax", "palr-h2": "palr", "palr-h4": "palr", "nocrash": "nocrash", "nocrash-nospeed": "nocrash"}
     stranger = tasks.Protocol("fca-mine")          # named like the family, listed nowhere: a family of its own
     assert stranger.family == "fca-mine" and not in_fca_family("fca-mine") and in_fca_family("fca-train5k")
     assert default_recipe(stranger, "pos") == "mlp" and default_recipe(tasks.PROTOCOLS["fca-fs2"], "pos") == "fca"

@@ -325,6 +325,29 @@ def test_noisy_collection_executes_perturbed_actions_and_labels_the_expert_s_own
     np.testing.assert_allclose(demos.action, np.clip(clean, *[np.asarray(b) for b in env.action_bounds]), atol=1e-5)
 
 
+def test_burst_noise_perturbs_the_asked_share_in_whole_triangular_bursts():
+    from ape_jax.pipeline import collect
+
+    env = envs.make("toytown", obs="full", traffic="regular", **{**SHORT, "episode_length": 300})
+    demos = collect.collect(env, env.expert, jax.random.PRNGKey(1), num_episodes=8, noise_frac=0.1, noise_std=0.3,
+                            noise_steps=10)
+    offset = demos.executed - np.clip(demos.action, *[np.asarray(b) for b in env.action_bounds])
+    perturbed = np.any(np.abs(offset) > 1e-6, axis=1)
+    assert 0.05 < perturbed.mean() < 0.17, perturbed.mean()
+    # runs of perturbed steps within an episode: bursts of 10 (a clipped entry or an episode's end may cut one)
+    runs, run = [], 0
+    for i, p in enumerate(perturbed):
+        new_episode = i > 0 and demos.episode[i] != demos.episode[i - 1]
+        if (not p or new_episode) and run:
+            runs.append(run)
+            run = 0
+        run += int(p)
+    runs.append(run) if run else None
+    assert np.median(runs) >= 8 and max(runs) <= 20, runs   # two bursts may touch
+    assert collect.burst_start_probability(0.1, 1) == pytest.approx(0.1)
+    assert collect.burst_start_probability(0.1, 10) == pytest.approx(0.1 / (0.1 + 9.0))
+
+
 # -- soundness (the defaults, measured) ------------------------------------------------------------------------
 
 def soundness(episodes: int = 100, seed: int = 0, ape_steps: int = 2_000) -> dict:

@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 
 from ape_jax.history import history_index
-from ape_jax.learner import Data, Learner, LearnerConfig, augment
+from ape_jax.learner import Data, Learner, LearnerConfig, action_errors, augment
 
 OWN_KEYS = 3  # `fold_in(key_step, k)` for k < OWN_KEYS are BC-OH's (rows; dropout 1, augmentation 2)
 
@@ -45,8 +45,7 @@ def sample_batch(cfg: LearnerConfig, base: Learner, data: Data, key_step: jax.Ar
 def errors(cfg: LearnerConfig, predicted: jax.Array, target: jax.Array) -> jax.Array:
     """`[B]` the project's per-sample loss: squared error (`"l2"`) or absolute error (`"l1"`) summed over action
     dimensions, as `make_train` computes it."""
-    err = predicted - target
-    return jnp.sum(err**2 if cfg.loss == "l2" else jnp.abs(err), axis=-1)
+    return action_errors(cfg, predicted, target)
 
 
 def action_statistics(data: Data) -> tuple[jax.Array, jax.Array]:

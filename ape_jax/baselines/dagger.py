@@ -93,8 +93,8 @@ from flax import struct
 import envs
 from ape_jax.evaluate import history_policy
 from ape_jax.history import history_index
-from ape_jax.learner import (Data, Hparams, Learner, LearnerConfig, augment, gradient_step, learning_rate, make_train,
-                             policy_apply, train_in_rounds, trainable)
+from ape_jax.learner import (Data, Hparams, Learner, LearnerConfig, action_errors, augment, gradient_step,
+                             learning_rate, make_train, policy_apply, train_in_rounds, trainable)
 from ape_jax import methods
 
 ROUNDS = 4
@@ -274,8 +274,7 @@ def make_dagger(cfg: LearnerConfig, env: envs.Env, expert: Callable[[jax.Array],
 
         def loss_fn(variables):
             predicted, variables = policy_apply(model, variables, x, train=True)
-            err = predicted - buf.action[idx]
-            loss = jnp.mean(jnp.sum(err**2 if cfg.loss == "l2" else jnp.abs(err), axis=-1))
+            loss = jnp.mean(action_errors(cfg, predicted, buf.action[idx]))
             return loss, (loss, variables)
 
         params, opt_state, loss, _ = gradient_step(adam, state.params, state.opt_state,

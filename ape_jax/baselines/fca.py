@@ -151,8 +151,8 @@ from flax import struct
 
 from ape_jax.history import history_index
 from ape_jax.knobs import nonnegative, positive
-from ape_jax.learner import (Data, Learner, LearnerConfig, adam_step, augment, learning_rate, make_train, policy_apply,
-                             scanned_learner, trainable)
+from ape_jax.learner import (Data, Learner, LearnerConfig, action_errors, adam_step, augment, learning_rate, make_train,
+                             policy_apply, scanned_learner, trainable)
 from ape_jax import methods
 
 ADVERSARY_HIDDEN = (300, 300)
@@ -281,8 +281,7 @@ def make_fca(cfg: LearnerConfig) -> Learner:
         # E, F and σ's step against the updated D, held fixed.
         def objective(params, log_var):
             predicted, z, kl, variables = forward({**state.policy, **params}, log_var)
-            err = predicted - action
-            bc = jnp.mean(jnp.sum(err**2 if cfg.loss == "l2" else jnp.abs(err), axis=-1))
+            bc = jnp.mean(action_errors(cfg, predicted, action))
             return bc - hp.alpha * previous_loss(adv_params, z) + hp.ib_weight * kl, (bc, kl, variables)
 
         (loss, (bc, kl, after)), (grads, log_var_grads) = jax.value_and_grad(objective, (0, 1), has_aux=True)(

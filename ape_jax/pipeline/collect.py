@@ -1,4 +1,4 @@
-"""Collecting expert demonstrations under jit, with optional DART-style noise.
+"""Collecting expert demonstrations under jit, with optional noise in the executed actions (DART's, CARLA100's).
 
     demos = collect(env, expert, key, num_episodes=25)              # Demonstrations
     demos, meta, path, hit = collect_cached(settings, data_dir)     # the same, cached on disk
@@ -13,7 +13,14 @@ or the expert's output as it gave it (`labels="raw"`, what FCA stored;
 executed action is, with probability `noise_frac`, the expert's action plus
 Gaussian noise of std `noise_std` (clipped to the action bounds), while the
 **clean** expert action is stored as the label (Laskey et al., 2017, as in the
-paper's driving data). The metadata records the labels' mode and how many of the
+paper's driving data). With `noise_steps > 1` the perturbation comes in bursts
+(CARLA100's, Codevilla et al. 2019): a burst starts at an unperturbed step with
+the chance that makes `noise_frac` of all steps perturbed
+(`burst_start_probability`), lasts `noise_steps` steps, and adds to the clean
+action an offset that rises and falls as a triangle to a Gaussian peak of std
+`noise_std`; the expert sees the drift it caused and corrects it. The metadata
+records the noise and the share of steps whose executed action differs from
+the label (`noise.perturbed_share`). The metadata records the labels' mode and how many of the
 expert's raw output's entries lay outside the action range (`label_statistics`).
 
 A dataset names its expert (`setup.ExpertRef`'s description, in its data key); `dataset_expert`
@@ -80,25 +87,58 @@ def label_statistics(raw: np.ndarray, bounds: tuple) -> dict:
             "action_low": finite(low), "action_high": finite(high)}
 
 
-def _noisy_expert(env: envs.Env, expert, noise_frac: float, noise_std: float) -> envs.Policy:
+def burst_start_probability(noise_frac: float, noise_steps: int) -> float:
+    """The chance that a burst of `noise_steps` steps starts at an unperturbed step, so that in the long run a
+    share `noise_frac` of the steps is perturbed: bursts of L steps apart by geometric gaps of mean (1 - p) / p
+    steps perturb L / (L + (1 - p) / p) of them."""
+    return noise_frac / (noise_frac + noise_steps * (1.0 - noise_frac)) if noise_frac > 0 else 0.0
+
+
+def _noisy_expert(env: envs.Env, expert, noise_frac: float, noise_std: float, noise_steps: int = 1) -> envs.Policy:
+    """The expert executing its clipped action, perturbed as the module docstring says: each step on its own
+    (`noise_steps` 1), or in bursts whose offset rises and falls as a triangle over `noise_steps` steps."""
     low, high = env.action_bounds
 
-    def act(params, state, key):
-        clean = jnp.clip(expert(env.expert_observation(state)), low, high)  # what the environment executes
-        if noise_frac <= 0 or noise_std <= 0:
-            return clean
-        key_flip, key_noise = jax.random.split(key)
-        noisy = jnp.clip(clean + noise_std * jax.random.normal(key_noise, clean.shape), low, high)
-        return jnp.where(jax.random.uniform(key_flip) < noise_frac, noisy, clean)
+    def clean_action(state):
+        return jnp.clip(expert(env.expert_observation(state)), low, high)  # what the environment executes
 
-    return envs.stateless(act)
+    if noise_frac <= 0 or noise_std <= 0:
+        return envs.stateless(lambda params, state, key: clean_action(state))
+    if noise_steps == 1:
+        def act(params, state, key):
+            clean = clean_action(state)
+            key_flip, key_noise = jax.random.split(key)
+            noisy = jnp.clip(clean + noise_std * jax.random.normal(key_noise, clean.shape), low, high)
+            return jnp.where(jax.random.uniform(key_flip) < noise_frac, noisy, clean)
+
+        return envs.stateless(act)
+
+    start_p = burst_start_probability(noise_frac, noise_steps)
+    action_size = env.action_size
+
+    def init(params, state):  # (steps of the burst left, its peak offset)
+        return jnp.zeros((), jnp.int32), jnp.zeros((action_size,), jnp.float32)
+
+    def act_burst(params, carry, state, key):
+        left, peak = carry
+        clean = clean_action(state)
+        key_start, key_peak = jax.random.split(key)
+        start = (left == 0) & (jax.random.uniform(key_start) < start_p)
+        peak = jnp.where(start, noise_std * jax.random.normal(key_peak, clean.shape), peak)
+        left = jnp.where(start, noise_steps, left)
+        position = (noise_steps - left + 0.5) / noise_steps            # (0, 1) through the burst
+        shape = jnp.where(left > 0, 1.0 - jnp.abs(2.0 * position - 1.0), 0.0)
+        return jnp.clip(clean + shape * peak, low, high), (jnp.maximum(left - 1, 0), peak)
+
+    return envs.Policy(init=init, act=act_burst)
 
 
 def make_batch_collector(env: envs.Env, expert: Callable[[jax.Array], jax.Array], batch: int,
-                         noise_frac: float = 0.0, noise_std: float = 0.0) -> Callable[[jax.Array], envs.Trajectory]:
+                         noise_frac: float = 0.0, noise_std: float = 0.0,
+                         noise_steps: int = 1) -> Callable[[jax.Array], envs.Trajectory]:
     """A jitted `key -> Trajectory` of `batch` expert episodes; `extra` holds the expert's raw (clean) output as
     `label`, and the sim state; the executed action is clipped to the action bounds."""
-    policy = _noisy_expert(env, expert, noise_frac, noise_std)
+    policy = _noisy_expert(env, expert, noise_frac, noise_std, noise_steps)
 
     def record(state):
         return {"label": expert(env.expert_observation(state)), "sim": _as_dict(env.sim_state(state))}
@@ -108,7 +148,8 @@ def make_batch_collector(env: envs.Env, expert: Callable[[jax.Array], jax.Array]
 
 def collect(env: envs.Env, expert: Callable[[jax.Array], jax.Array], key: jax.Array, num_episodes: int,
             noise_frac: float = 0.0, noise_std: float = 0.0, batch: int = 32,
-            progress: Callable[[int], None] | None = None, labels: str = "clipped") -> data_lib.Demonstrations:
+            progress: Callable[[int], None] | None = None, labels: str = "clipped",
+            noise_steps: int = 1) -> data_lib.Demonstrations:
     """Rolls out `expert` for `num_episodes` episodes and returns their transitions.
 
     Episodes run `batch` at a time in one jitted program (vmapped over
@@ -120,7 +161,8 @@ def collect(env: envs.Env, expert: Callable[[jax.Array], jax.Array], key: jax.Ar
       expert: `full_obs [D] -> action [A]`, deterministic.
       key: PRNG key; batch i uses `fold_in(key, i)`.
       num_episodes: episodes to collect.
-      noise_frac, noise_std: DART-style noise (module docstring).
+      noise_frac, noise_std, noise_steps: noise in the executed actions, each step on its own or in bursts
+        (module docstring).
       batch: episodes per jitted call.
       progress: called with the number of episodes finished after each batch.
       labels: `"clipped"` (the label is the executed action, without noise) or `"raw"` (the expert's output).
@@ -133,10 +175,11 @@ def collect(env: envs.Env, expert: Callable[[jax.Array], jax.Array], key: jax.Ar
         raise ValueError(f"labels {labels!r} is not one of {', '.join(tasks.LABELS)}")
     if num_episodes < 1 or batch < 1:
         raise ValueError(f"num_episodes and batch must be >= 1, got {num_episodes} and {batch}")
-    if not 0.0 <= noise_frac <= 1.0 or noise_std < 0:
-        raise ValueError(f"noise_frac must be in [0, 1] and noise_std >= 0, got {noise_frac} and {noise_std}")
+    if not 0.0 <= noise_frac <= 1.0 or noise_std < 0 or noise_steps < 1:
+        raise ValueError(f"noise_frac must be in [0, 1], noise_std >= 0 and noise_steps >= 1, got {noise_frac}, "
+                         f"{noise_std} and {noise_steps}")
     batch = min(batch, num_episodes)
-    run = make_batch_collector(env, expert, batch, noise_frac, noise_std)
+    run = make_batch_collector(env, expert, batch, noise_frac, noise_std, noise_steps)
     parts = []
     for i in range(-(-num_episodes // batch)):
         traj = jax.device_get(run(jax.random.fold_in(key, i)))
@@ -149,6 +192,11 @@ def collect(env: envs.Env, expert: Callable[[jax.Array], jax.Array], key: jax.Ar
         low, high = (np.asarray(b, np.float32) for b in env.action_bounds)
         demos = demos.replace(action=np.clip(demos.action, low, high))
     return demos
+
+
+def _clipped(action: np.ndarray, env: envs.Env) -> np.ndarray:
+    low, high = (np.asarray(b, np.float32) for b in env.action_bounds)
+    return np.clip(action, low, high)
 
 
 def _as_dict(sim: Any) -> dict:
@@ -172,13 +220,13 @@ def _flatten(traj: envs.Trajectory, keep: int, first_episode: int) -> data_lib.D
 
 def data_key(env_name: str, obs: str, episodes: int, seed: int = 0, noise_frac: float = 0.0,
              noise_std: float = 0.0, batch: int = 32, expert: str | None = None, labels: str = "clipped",
-             **env_overrides) -> dict:
+             noise_steps: int = 1, **env_overrides) -> dict:
     """The collection settings that name a cached dataset (`setup.data_key`) for expert variant `expert` (None:
     the task's own), from names: the environment's settings are checked by making it and the expert is resolved
     (a sweep's `Setup` does both once and calls `setup.data_key` itself)."""
     env = envs.make(env_name, obs=obs, **env_overrides)
     return setup_lib.data_key(env_name, obs, episodes, ExpertRef.resolve(env_name, expert, env=env), seed,
-                              noise_frac, noise_std, batch, labels, **env_overrides)
+                              noise_frac, noise_std, batch, labels, noise_steps=noise_steps, **env_overrides)
 
 
 def collect_cached(cfg: dict, data_dir, force: bool = False, progress=None, save: bool = True,
@@ -212,7 +260,7 @@ def collect_cached(cfg: dict, data_dir, force: bool = False, progress=None, save
     labels = cfg.get("labels", "clipped")
     t0 = time.perf_counter()
     demos = collect(env, policy, jax.random.PRNGKey(cfg["seed"]), cfg["episodes"], cfg["noise_frac"],
-                    cfg["noise_std"], cfg["batch"], progress, labels="raw")
+                    cfg["noise_std"], cfg["batch"], progress, labels="raw", noise_steps=cfg.get("noise_steps", 1))
     seconds = time.perf_counter() - t0
     label_stats = {"mode": labels, **label_statistics(demos.action, env.action_bounds)}
     if labels == "clipped":
@@ -222,7 +270,8 @@ def collect_cached(cfg: dict, data_dir, force: bool = False, progress=None, save
     lengths = np.bincount(demos.episode)
     meta = {
         "env": cfg["env"], "obs": cfg["obs"], "seed": cfg["seed"],
-        "noise": {"frac": cfg["noise_frac"], "std": cfg["noise_std"]},
+        "noise": {"frac": cfg["noise_frac"], "std": cfg["noise_std"], "steps": cfg.get("noise_steps", 1),
+                  "perturbed_share": float(np.any(demos.executed != _clipped(demos.action, env), axis=-1).mean())},
         "expert": cfg["expert"], "settings": cfg, "labels": label_stats,
         **({"references": dict(references)} if references is not None else {}),
         "episode_return_mean": float(returns.mean()), "episode_return_std": float(returns.std()),

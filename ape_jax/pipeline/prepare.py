@@ -123,7 +123,8 @@ class Prepared:
 
     def learner_config(self, settings: Settings, history: int) -> LearnerConfig:
         return settings.learner_config(self.env.observation_shape, self.env.action_size, history, self.task.loss,
-                                       unroll=self.sequential(settings.recipe.encoder))
+                                       unroll=self.sequential(settings.recipe.encoder),
+                                       task_loss_weights=self.task.loss_weights)
 
 
 PROTOCOL_KEYS = ("n_frames", "episode_length", "reward_scale")  # the collection settings a protocol fixes

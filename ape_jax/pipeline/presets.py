@@ -125,7 +125,9 @@ class Recipe:
       lr_decay: piecewise: the factor at each of `lr_decay_at`, in (0, 1].
       warmup: cosine: the fraction of the run its learning rate climbs from 0, in [0, 1).
       bn_momentum: BatchNorm's running statistics' update, PyTorch's convention (0.1).
-      loss: `"l2"` or `"l1"`; None: the task's (L2 for MuJoCo, L1 for the driving sandbox).
+      loss: `"l2"` or `"l1"`; None: the task's (L2 for MuJoCo, L1 for the driving tasks).
+      loss_weights: each action dimension's share of the loss; empty: the task's (`Task.loss_weights`: CILRS's
+        0.5 / 0.45 / 0.05 for ToyTown's steer, throttle and brake; else 1 each).
       ape_normalization: `"none"` (the raw APE, as the official code) or `"mean"`.
       step_grid, softmax_grid: the weightings' (THR, W) and τ settings.
       fca_alphas: FCA's adversarial weights to run; empty: the task's (`Task.fca_alpha`).
@@ -160,6 +162,7 @@ class Recipe:
     warmup: float = 0.0
     bn_momentum: float = 0.1
     loss: str | None = None
+    loss_weights: tuple[float, ...] = ()
     ape_normalization: str = "none"
     step_grid: tuple[tuple[float, float], ...] = STEP_GRID
     softmax_grid: tuple[float, ...] = SOFTMAX_GRID
@@ -182,6 +185,9 @@ class Recipe:
                     beta1=self.beta1, beta2=self.beta2, bn_momentum=self.bn_momentum, batch_size=self.batch_size,
                     lr_schedule=self.lr_schedule, lr_decay=self.lr_decay, dtype=self.dtype)
         _one_of("recipe.ape_normalization", self.ape_normalization, NORMALIZATIONS)
+        _check(all(0.0 <= v < math.inf for v in self.loss_weights)
+               and (not self.loss_weights or max(self.loss_weights) > 0),
+               f"recipe.loss_weights: finite numbers >= 0, not all 0 (empty: the task's), got {self.loss_weights!r}")
         _check(self.lr > 0 and math.isfinite(self.lr), f"recipe.lr must be a finite number > 0, got {self.lr!r}")
         _check(self.fca_adversary_lr is None or (self.fca_adversary_lr > 0 and math.isfinite(self.fca_adversary_lr)),
                f"recipe.fca_adversary_lr must be a finite number > 0, got {self.fca_adversary_lr!r}")
@@ -277,8 +283,9 @@ class Settings:
     preset_iterations: int | None = None
 
     def learner_config(self, obs_shape, action_dim: int, history: int, task_loss: str,
-                       unroll: bool = False) -> LearnerConfig:
-        """The static learner settings of a program whose policies see `history` observations."""
+                       unroll: bool = False, task_loss_weights: tuple[float, ...] = ()) -> LearnerConfig:
+        """The static learner settings of a program whose policies see `history` observations (the task's loss and
+        its action weights where the recipe names none)."""
         r, iterations = self.recipe, self.budget.iterations
         images = len(obs_shape) == 3
         return LearnerConfig(obs_shape=tuple(obs_shape), action_dim=action_dim, history=history,
@@ -287,7 +294,8 @@ class Settings:
                              lr_boundaries=(lr_boundaries(iterations, r.lr_decay_at) if r.lr_schedule == "piecewise"
                                             else ()), beta1=r.beta1, beta2=r.beta2,
                              network="mlp" if images else r.network, init=r.init, bn_momentum=r.bn_momentum,
-                             loss=r.loss or task_loss, unroll=unroll, encoder=r.encoder if images else "small",
+                             loss=r.loss or task_loss, loss_weights=r.loss_weights or tuple(task_loss_weights),
+                             unroll=unroll, encoder=r.encoder if images else "small",
                              encoder_norm=r.encoder_norm if images else "none",
                              augment_shift=r.augment_shift if images else 0, dtype=r.dtype)
 

@@ -57,6 +57,7 @@ def protocol_setup(env_name: str, obs: str, protocol: str | tasks.Protocol | Non
         proto = protocol
     else:
         proto = tasks.get(env_name).protocol(protocol, obs)
+    _check_task_settings(env_name, proto)
     brax = env_name in envs.brax_env.brax_names()
     standard = envs.brax_env.default_frame_skip(env_name) if brax else None
     settings = proto.settings(standard)
@@ -65,6 +66,20 @@ def protocol_setup(env_name: str, obs: str, protocol: str | tasks.Protocol | Non
     episodes = (-(-proto.collect_transitions // settings["episode_length"]) if proto.collect_transitions is not None
                 else proto.episodes or tasks.get(env_name).episodes)
     return ProtocolSetup(proto.name, settings, proto.env_overrides(standard), episodes, proto.expert, proto.labels)
+
+
+def _check_task_settings(env_name: str, proto: tasks.Protocol) -> None:
+    """`ValueError` where `proto` sets a task setting (`Protocol.task_settings`, `eval_settings`) that `env_name`
+    does not have (a speed input asked of Hopper)."""
+    asked = {**proto.task_settings(), **proto.eval_settings()}
+    if not asked:
+        return
+    spec = envs.registry.get(env_name)
+    has = set(spec.settings()) if spec is not None else set()
+    missing = [k for k in asked if k not in has]
+    if missing:
+        names = ", ".join(f"protocol.{k if k in proto.task_settings() else 'eval_' + k}" for k in missing)
+        raise ValueError(f"{names}: {env_name} has no such setting (a driving task's, e.g. toytown's)")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -168,11 +183,11 @@ def variant_of(env_name: str, description: dict) -> str | None:
 
 def data_key(env_name: str, obs: str, episodes: int, expert: ExpertRef, seed: int = 0, noise_frac: float = 0.0,
              noise_std: float = 0.0, batch: int = 32, labels: str = "clipped", frames: str = "rollout",
-             **env_overrides) -> dict:
+             noise_steps: int = 1, **env_overrides) -> dict:
     """The collection settings that name a cached dataset (`data.cache_path`) and enter a sweep's fingerprint:
     the task, observation mode, episodes, seed, noise, batch, environment settings, the expert's description
-    and the storage format; `labels` and `frames` (`tasks.Protocol.frames`) recorded only when not their
-    default, so the names of datasets collected before those fields stay valid."""
+    and the storage format; `labels`, `frames` (`tasks.Protocol.frames`) and `noise_steps` (bursts) recorded only
+    when not their default, so the names of datasets collected before those fields stay valid."""
     if labels not in tasks.LABELS:
         raise ValueError(f"labels {labels!r} is not one of {', '.join(tasks.LABELS)}")
     if frames not in tasks.FRAMES or (frames != "rollout" and obs != "image"):
@@ -182,7 +197,8 @@ def data_key(env_name: str, obs: str, episodes: int, expert: ExpertRef, seed: in
             "noise_frac": float(noise_frac), "noise_std": float(noise_std), "batch": int(batch),
             "env_overrides": overrides, "expert": expert.description, "format": data_lib.FORMAT,
             **({"labels": labels} if labels != "clipped" else {}),
-            **({"frames": frames} if frames != "rollout" else {})}
+            **({"frames": frames} if frames != "rollout" else {}),
+            **({"noise_steps": int(noise_steps)} if noise_steps != 1 else {})}
 
 
 def state_source(key: dict) -> dict:
@@ -242,7 +258,8 @@ class Setup:
         size = protocol.image_size
         collection = {**applied.env_overrides, **({"image_size": size} if obs == "image" and size else {})}
         steps = protocol.eval_steps
-        evaluation = {**collection, **({"episode_length": steps} if steps is not None else {})}
+        evaluation = {**collection, **({"episode_length": steps} if steps is not None else {}),
+                      **protocol.eval_settings()}
         return cls(env, obs, protocol, applied, collection, evaluation, applied.episodes)
 
     @functools.cached_property
@@ -253,8 +270,11 @@ class Setup:
     @functools.cached_property
     def data_key(self) -> dict:
         """What names the demonstrations the protocol's expert gives (`data_key`, seed 0)."""
-        return data_key(self.env, self.obs, self.episodes, self.expert, labels=self.protocol.labels,
-                        frames=self.protocol.frames if self.obs == "image" else "rollout", **self.collection)
+        p = self.protocol
+        return data_key(self.env, self.obs, self.episodes, self.expert, labels=p.labels,
+                        frames=p.frames if self.obs == "image" else "rollout", noise_frac=p.noise_frac,
+                        noise_std=p.noise_std, noise_steps=p.noise_steps if p.noise_frac > 0 else 1,
+                        **self.collection)
 
     def references(self) -> dict | None:
         """The expert's returns under the protocol (`reference_returns`), read once."""
