@@ -1,4 +1,5 @@
-"""RAP: the two branches stay apart inside a plain StatePolicy; at weight 0 its gradient is BC-OH's on that network,
+"""RAP: the two branches stay apart inside a plain StatePolicy, and on images inside a plain PatchPolicy (GroupNorm's
+groups on one side each); at weight 0 its gradient is BC-OH's on that network,
 at weight 1 the memory learns from the residual alone; the memory predicts the action's change far better than
 no change; its knobs and the sweep refuse what it cannot run (also PALR's and MINE's knobs), before anything
 compiles; a sweep of the three methods killed mid-training resumes bit for bit."""
@@ -18,11 +19,11 @@ import pytest
 
 from ape_jax import methods, tasks
 from ape_jax.baselines._batch import sample_batch
-from ape_jax.baselines.rap import (ENCODERS, RapHparams, apply_masks, branch_masks, make_rap, memory_units,
-                                   predict_residual, rap_loss)
+from ape_jax.baselines.rap import (ENCODERS, PATCH, RapHparams, apply_masks, branch_masks, make_rap, memory_units,
+                                   predict_residual, rap_loss, refusal)
 from ape_jax.history import history_index
-from ape_jax.learner import LearnerConfig, make_train, stack_hparams, trainable
-from ape_jax.models import StatePolicy
+from ape_jax.learner import Data, LearnerConfig, make_train, stack_hparams, trainable
+from ape_jax.models import PatchPolicy, StatePolicy
 from ape_jax.pipeline.presets import resolve
 from experiments import sweep
 from _planted import planted
@@ -134,6 +135,79 @@ def test_the_memory_predicts_the_action_s_change_far_better_than_no_change():
     assert all(np.array_equal(a, b) for a, b in zip(*map(jax.tree.leaves, idle)))  # weight 0: R never moves
 
 
+# images: 16×16 frames (a 2×2 grid of 8×8 patches), the default image recipe's patch encoder with GroupNorm
+IMAGE_CFG = dataclasses.replace(CFG, obs_shape=(16, 16, 3), encoder="patch", encoder_norm="group", iterations=300,
+                                batch_size=32)
+
+
+def _frames(data: Data) -> Data:
+    """`planted`'s observations drawn as 16×16 frames: each 8×8 patch shows one entry of `[s_t, a_{t−1}]` as a
+    grey level (`128 + 40 v`, uint8), so the current frame holds what the action and its change depend on."""
+    level = np.clip(np.round(128 + 40 * np.asarray(data.obs)), 0, 255).astype(np.uint8)   # [N, 4]
+    frames = np.repeat(np.repeat(level.reshape(-1, 2, 2), 8, axis=1), 8, axis=2)           # [N, 16, 16]
+    return data.replace(obs=jnp.asarray(np.repeat(frames[..., None], 3, axis=-1)))
+
+
+@pytest.fixture(scope="module")
+def trained_image():
+    """A RAP image learner trained `IMAGE_CFG.iterations` on the planted frames (width 100): `(params, metrics,
+    data)`."""
+    data = _frames(planted(rho=0.7))
+    params, metrics = jax.jit(make_rap(IMAGE_CFG).train)(jax.random.PRNGKey(0), RapHparams.make(1.0, 100, lr=1e-3),
+                                                         data)
+    return params, metrics, data
+
+
+def test_the_memory_s_channels_are_whole_groups_of_group_norm():
+    channels = lambda width, groups=None: int(memory_units(width, 64, groups).sum())  # noqa: E731
+    assert [channels(w, 8) for w in (1, 60, 100, 150, 299)] == [8, 16, 24, 32, 56]   # one group each side at least
+    assert [channels(w) for w in (1, 60, 100, 150, 299)] == [1, 13, 21, 32, 63]       # no GroupNorm: the share
+    masks = branch_masks(PatchPolicy(2, norm="group").init(jax.random.PRNGKey(0), jnp.zeros((1, 16, 16, 6)))["params"],
+                         2, 100)
+    memory = np.asarray(masks[PATCH]).min(axis=0) == 1   # the channels that read every entry
+    assert memory.sum() == 24 and memory[:24].all()
+    assert masks["embedding"].shape == (4 * 64, 100) and np.asarray(masks["embedding"])[64:64 + 24, :33].all()
+
+
+def test_the_image_branches_stay_apart_and_the_held_kernel_entries_stay_zero(trained_image):
+    params, _, data = trained_image
+    masks = branch_masks(params["params"], IMAGE_CFG.history, 100)
+    for name, kernel in ((PATCH, params["params"][PATCH]["kernel"]),
+                         ("embedding", params["params"]["Head_0"]["embedding"]["kernel"])):
+        held = np.asarray(masks[name]) == 0
+        assert held.any() and not np.any(np.asarray(kernel)[held]) and np.any(kernel)   # zero where held
+    x = make_train(IMAGE_CFG).policy_input(data.obs[history_index(data.t, jnp.arange(20, 28), IMAGE_CFG.history)])
+    model, memory = IMAGE_CFG.model(), np.asarray(memory_units(100, 100))
+
+    def embedding_grad(units):   # d(sum of these embedding units) / d(frames): [B, 16, 16, 6]
+        return np.asarray(jax.grad(lambda x: model.apply(params, x, return_embedding=True)[1][:, units].sum())(x))
+
+    policy, past = embedding_grad(~memory), slice(0, 3)   # the oldest frame: the first 3 of each pixel's channels
+    assert not np.any(policy[..., past]) and np.any(policy[..., 3:])
+    assert np.any(embedding_grad(memory)[..., past])
+    # the probe: another past frame moves the memory's units, not the policy branch's
+    _, a = model.apply(params, x, return_embedding=True)
+    _, b = model.apply(params, x.at[..., past].set(1.0 - x[..., past]), return_embedding=True)
+    assert np.array_equal(np.asarray(a)[:, ~memory], np.asarray(b)[:, ~memory])
+    assert not np.allclose(np.asarray(a)[:, memory], np.asarray(b)[:, memory])
+
+
+def test_a_rap_image_learner_trains_and_loads_as_a_plain_patch_policy(trained_image):
+    params, metrics, data = trained_image
+    bc, res, zero = (np.asarray(metrics[k])[-50:].mean() for k in ("unweighted_loss", "residual_loss",
+                                                                    "zero_residual_loss"))
+    spread = float(jnp.mean(jnp.sum((data.action - data.action.mean(0)) ** 2, -1)))   # the mean action's loss
+    assert bc < 0.25 * spread and bc < 0.25 * float(metrics["unweighted_loss"][0]), (bc, spread)
+    assert res < 0.2 * zero, (res, zero)   # the memory predicts the change far better than no change
+    model = IMAGE_CFG.model()
+    x = make_train(IMAGE_CFG).policy_input(data.obs[history_index(data.t, jnp.arange(8), IMAGE_CFG.history)])
+    fresh = model.init(jax.random.PRNGKey(1), x)
+    assert isinstance(model, PatchPolicy)
+    assert jax.tree.map(jnp.shape, params) == jax.tree.map(jnp.shape, fresh)
+    action = model.apply(params, x)
+    assert action.shape == (8, 2) and np.all(np.isfinite(action))
+
+
 def test_the_knobs_and_the_learner_refuse_what_rap_cannot_run():
     for kw, message in (({"weight": 1.5}, r"weight must be in \[0, 1\]"), ({"weight": -0.1}, "weight must be"),
                         ({"memory_width": 0}, "memory_width must be an integer"),
@@ -143,8 +217,12 @@ def test_the_knobs_and_the_learner_refuse_what_rap_cannot_run():
             RapHparams.make(**kw)
     with pytest.raises(ValueError, match="history of at least 2"):
         make_rap(dataclasses.replace(CFG, history=1))
-    with pytest.raises(ValueError, match="image observations are not supported"):
+    with pytest.raises(ValueError, match="image encoder 'small' is not supported"):
         make_rap(LearnerConfig(obs_shape=(8, 8, 3), action_dim=2))
+    with pytest.raises(ValueError, match="history of at least 2"):
+        make_rap(dataclasses.replace(IMAGE_CFG, history=1))
+    image = resolve("hopper", "image", sets=["recipe.encoder=patch", "recipe.encoder_norm=group"])
+    assert refusal(image, "image") is None
     ctx = methods.GridContext(task=tasks.get("hopper"), step_grid=(), softmax_grid=(), n_train=100)
     assert methods.get("rap").settings(ctx) == [{"weight": 1.0, "memory_width": 150.0}]
     recipe = resolve("hopper", "pos", sets=["recipe.rap_weights=0.5,1", "recipe.rap_widths=60"]).recipe
@@ -157,7 +235,10 @@ BASE = ["--env", "toycar", "--obs", "full", "--quiet"]
 
 @pytest.mark.parametrize("args, message", [
     (["--methods", "rap", "--set", "protocol.history=1"], "rap needs a history"),
-    (["--methods", "bc-oh,rap", "--obs", "image"], "rap trains state policies"),
+    (["--methods", "bc-oh,rap", "--obs", "image"], "rap on images needs the patch encoder"),
+    (["--methods", "rap", "--obs", "image", "--set", "recipe.encoder=drq"], "use --set recipe.encoder=patch"),
+    (["--methods", "rap", "--obs", "image", "--set", "recipe.encoder=patch", "--set", "protocol.history=1"],
+     "rap needs a history"),
     (["--methods", "rap", "--set", "recipe.rap_weights=1.5"], "recipe.rap_weights: every value must be in [0, 1]"),
     (["--methods", "rap", "--set", "recipe.rap_widths=0"], "recipe.rap_widths: every value must be an integer"),
     (["--methods", "palr", "--set", "recipe.palr_bandwidths=0"], "recipe.palr_bandwidths: every value must be"),

@@ -1,5 +1,6 @@
 """RAP, residual action prediction (Chuang, Yang, Wen and Gao, ECCV 2022, "Resolving Copycat Problems in Visual
-Imitation Learning via Residual Action Prediction"), as a pure-functional `Learner` on state observations.
+Imitation Learning via Residual Action Prediction"), as a pure-functional `Learner` on state observations and on
+images through the patch encoder.
 
 Two branches. A *memory* branch `M` reads the whole observation history and a residual head `R` on its features
 `m` predicts the action's change `a_t − a_{t−1}`; a *policy* branch reads the current observation alone, and the
@@ -41,8 +42,19 @@ features); the residual head one hidden layer of 300 with LeakyReLU(0.2) (PALR's
   reads only the current frame (RAP's code zeroes the past frames of its input).
 - **The previous action** at an episode's first step repeats the first action (`ape_jax.baselines._batch`), so
   the residual there is 0.
-- **State observations only**: the masks split `StatePolicy`'s dense layers; an image encoder's channels would need
-  their own. A history of at least 2 is needed (a memory of the current frame alone is the policy branch).
+- **Images: the patch encoder** (`PatchPolicy`, `recipe.encoder=patch`), split the same way, so the trained policy
+  is a plain `PatchPolicy`. Its one patch layer (`patch_0`, `[p·p·3H, 64]`) plays the first encoder layer: the
+  memory's channels (the first of the 64) read every entry of a patch, the policy branch's only the current
+  frame's (the last 3 of each pixel's `3H` channels, at every pixel of the patch). The embedding's memory units
+  read the memory's channels at every cell of the `[h/8, w/8, 64]` grid (flattened cell-major, channel-minor),
+  its policy units the policy's; the head reads the whole embedding. `memory_width` keeps its units of
+  `StatePolicy`'s 300: each layer gets the same share (`memory_units`), so a recipe's `rap_widths` mean the same
+  fraction for both kinds of policy. With GroupNorm (`encoder_norm="group"`: `GROUPS` = 8 groups of 8
+  consecutive channels, each normalised by its own statistics) the memory's channels are rounded to whole groups,
+  at least one on each side (width 150: 4 groups, 32 channels; 60: 2 groups, 16), so no group mixes the
+  branches and the policy branch's channels stay functions of the current frame. Other image encoders are
+  refused: their stacked convolutions would need masks of their own.
+- **A history of at least 2** is needed (a memory of the current frame alone is the policy branch).
 
 Metrics (`[n]` float32 per `run` of `n` iterations): `"loss"` (`L_BC + λ L_res`), `"unweighted_loss"` (`L_BC`),
 `"residual_loss"` (`L_res`) and `"zero_residual_loss"` (`L_res` of predicting no change, the bar `R` must pass).
@@ -62,13 +74,15 @@ from ape_jax.baselines._batch import Batch, errors, sample_batch
 from ape_jax.knobs import positive
 from ape_jax.learner import (Data, Learner, LearnerConfig, adam_step, learning_rate, make_train, scanned_learner,
                              trainable)
-from ape_jax.models import StatePolicy
+from ape_jax.models import GROUPS, StatePolicy
 
 DEFAULT_WEIGHT = 1.0   # both implementations: the memory learns from the residual loss alone
 DEFAULT_WIDTH = 150    # half of StatePolicy's 300 units: the branches equally wide, as in both implementations
 RESIDUAL_HIDDEN = 300
 UNITS = StatePolicy.hidden[0]   # the encoder's units per layer, split between the branches
 ENCODERS = tuple(f"encoder_{i}" for i in range(len(StatePolicy.hidden)))
+PATCH = "patch_0"      # PatchPolicy's patch layer, RAP's first layer on images
+RGB = 3                # channels of one frame (image observations are `[height, width, 3]`)
 
 
 class ResidualHead(nn.Module):
@@ -88,7 +102,9 @@ class RapHparams:
     """Traced knobs of one RAP run (stack them along a leading axis for seeds × weights × widths)."""
 
     weight: jax.Array        # [] float32, λ in [0, 1]: the residual loss's share of the memory's gradient
-    memory_width: jax.Array  # [] float32, an integer in [1, UNITS - 1]: the memory's units per encoder layer
+    # [] float32, an integer in [1, UNITS - 1]: the memory's units of StatePolicy's UNITS per encoder layer (each
+    # other layer, and a PatchPolicy's channels, the same share: `memory_units`)
+    memory_width: jax.Array
     lr: jax.Array            # [] float32
 
     @classmethod
@@ -117,25 +133,47 @@ class RapState:
     key: jax.Array
 
 
-def memory_units(width: jax.Array | float, units: int) -> jax.Array:
-    """`[units] bool`: the memory branch's units of a layer of `units` when `width` of `UNITS` are the memory's
-    (the embedding's share rounded, at least one unit on each side)."""
-    share = jnp.clip(jnp.round(jnp.asarray(width, jnp.float32) * units / UNITS), 1, units - 1)
-    return jnp.arange(units) < share
+def memory_units(width: jax.Array | float, units: int, groups: int | None = None) -> jax.Array:
+    """`[units] bool`: the memory branch's units of a layer of `units` when `width` of `UNITS` are the memory's:
+    the first ones, the same share rounded, at least one unit on each side.
+
+    With `groups` (GroupNorm's, which normalises each run of `units // groups` consecutive units together) the
+    share is rounded to whole groups instead, at least one group on each side, so no group mixes the branches.
+    """
+    groups = units if groups is None else groups
+    share = jnp.clip(jnp.round(jnp.asarray(width, jnp.float32) * groups / UNITS), 1, groups - 1)
+    return jnp.arange(units) < share * (units // groups)
 
 
 def branch_masks(params: dict, history: int, width: jax.Array | float) -> dict:
-    """Which kernel entries each branch may use: `{layer: [in, out] float32}` for the encoder layers and the
+    """Which kernel entries each branch may use: `{layer: [in, out] float32}` for the encoder's layers and the
     Head's `embedding` (1: kept, 0: held at zero); every other weight is unmasked.
 
     Args:
-      params: a `StatePolicy`'s `{"params": ...}` entry (its kernels' shapes are read, not their values).
-      history: frames in the flattened input (`[H * D]`, oldest first: the last `D` rows are the current frame).
-      width: the memory's units per encoder layer (traced).
+      params: a `StatePolicy`'s or a `PatchPolicy`'s `{"params": ...}` entry (its kernels' shapes are read, not
+        their values).
+      history: frames in the input, oldest first: a `StatePolicy`'s `[H * D]` (the last `D` entries are the
+        current frame); a `PatchPolicy`'s patch entries in (row, column, channel) order with `3H` channels per
+        pixel (the last 3 of each pixel are the current frame's).
+      width: the memory's units of `UNITS` (traced; `memory_units` gives each layer's share).
+
+    Returns:
+      The masks, keyed by layer name: `encoder_0`..`encoder_2` (states) or `patch_0` (images), and `embedding`.
     """
-    if any(name not in params for name in ENCODERS) or "Head_0" not in params:
-        raise ValueError(f"RAP splits a StatePolicy (layers {', '.join(ENCODERS)}, Head_0); got layers "
-                         f"{sorted(params)}")
+    if "Head_0" in params and PATCH in params:
+        masks, features = _patch_masks(params, history, width)
+    elif "Head_0" in params and all(name in params for name in ENCODERS):
+        masks, features = _state_masks(params, history, width)
+    else:
+        raise ValueError(f"RAP splits a StatePolicy (layers {', '.join(ENCODERS)}, Head_0) or a PatchPolicy "
+                         f"({PATCH}, Head_0); got layers {sorted(params)}")
+    n_out = params["Head_0"]["embedding"]["kernel"].shape[1]
+    masks["embedding"] = (features[:, None] == memory_units(width, n_out)[None, :]).astype(jnp.float32)
+    return masks
+
+
+def _state_masks(params: dict, history: int, width: jax.Array | float) -> tuple[dict, jax.Array]:
+    """The encoder layers' masks, and `[300] bool`: which of the embedding's inputs are the memory's."""
     masks = {}
     for i, name in enumerate(ENCODERS):
         n_in, n_out = params[name]["kernel"].shape
@@ -146,19 +184,43 @@ def branch_masks(params: dict, history: int, width: jax.Array | float) -> dict:
         else:
             keep = memory_units(width, n_in)[:, None] == out_memory[None, :]
         masks[name] = keep.astype(jnp.float32)
-    n_in, n_out = params["Head_0"]["embedding"]["kernel"].shape
-    masks["embedding"] = (memory_units(width, n_in)[:, None] == memory_units(width, n_out)[None, :]).astype(
-        jnp.float32)
-    return masks
+    return masks, out_memory
+
+
+def _patch_masks(params: dict, history: int, width: jax.Array | float) -> tuple[dict, jax.Array]:
+    """`patch_0`'s mask, and `[cells * C] bool`: which of the embedding's inputs (the flattened `[h/8, w/8, C]`
+    grid, cell-major) are the memory's channels."""
+    if "patch_1" in params:
+        raise ValueError("RAP splits a PatchPolicy of one patch layer (the default); got layers "
+                         f"{sorted(params)}")
+    n_in, channels = params[PATCH]["kernel"].shape
+    pixel = RGB * history
+    if n_in % pixel:
+        raise ValueError(f"RAP: {PATCH}'s {n_in} inputs are not whole pixels of {history} frames × {RGB} channels")
+    groups = GROUPS if "norm_0" in params else None   # GroupNorm after the patch layer (`models.encoder_norm`)
+    if groups is not None and channels % groups:
+        raise ValueError(f"RAP: GroupNorm's {groups} groups do not divide {PATCH}'s {channels} channels")
+    out_memory = memory_units(width, channels, groups)
+    current = jnp.arange(n_in) % pixel >= pixel - RGB   # the last frame's channels of every pixel of the patch
+    embed_in = params["Head_0"]["embedding"]["kernel"].shape[0]
+    masks = {PATCH: (out_memory[None, :] | current[:, None]).astype(jnp.float32)}
+    return masks, jnp.tile(out_memory, embed_in // channels)
+
+
+def _map_kernels(params: dict, masks: dict, fn) -> dict:
+    """`params` with each masked kernel replaced by `fn(kernel, mask)` (the Head's `embedding` under `Head_0`)."""
+    out = {**params, **{name: {**params[name], "kernel": fn(params[name]["kernel"], mask)}
+                        for name, mask in masks.items() if name != "embedding"}}
+    head = params["Head_0"]
+    out["Head_0"] = {**head, "embedding": {**head["embedding"],
+                                           "kernel": fn(head["embedding"]["kernel"], masks["embedding"])}}
+    return out
 
 
 def apply_masks(params: dict, masks: dict) -> dict:
-    """`params` (a `StatePolicy`'s `{"params": ...}` entry) with its masked kernels multiplied by their masks."""
-    out = {**params, **{name: {**params[name], "kernel": params[name]["kernel"] * masks[name]} for name in ENCODERS}}
-    head = params["Head_0"]
-    out["Head_0"] = {**head, "embedding": {**head["embedding"],
-                                           "kernel": head["embedding"]["kernel"] * masks["embedding"]}}
-    return out
+    """`params` (a `StatePolicy`'s or `PatchPolicy`'s `{"params": ...}` entry) with its masked kernels multiplied
+    by their masks (`branch_masks`)."""
+    return _map_kernels(params, masks, lambda kernel, mask: kernel * mask)
 
 
 def _rescaled(params: dict, masks: dict) -> dict:
@@ -167,12 +229,7 @@ def _rescaled(params: dict, masks: dict) -> dict:
         kept = jnp.maximum(mask.sum(axis=0, keepdims=True), 1.0)
         return kernel * mask * jnp.sqrt(kernel.shape[0] / kept)
 
-    out = {**params, **{name: {**params[name], "kernel": scale(params[name]["kernel"], masks[name])}
-                        for name in ENCODERS}}
-    head = params["Head_0"]
-    out["Head_0"] = {**head, "embedding": {**head["embedding"],
-                                           "kernel": scale(head["embedding"]["kernel"], masks["embedding"])}}
-    return out
+    return _map_kernels(params, masks, scale)
 
 
 def rap_loss(cfg: LearnerConfig, variables: Any, residual: Any, batch: Batch, weight: jax.Array,
@@ -180,12 +237,12 @@ def rap_loss(cfg: LearnerConfig, variables: Any, residual: Any, batch: Batch, we
     """RAP's objective on one batch: `L_BC + λ L_res`, its gradient split at the head's input (module docstring).
 
     Args:
-      cfg: the program's config (`cfg.model()` a `StatePolicy`).
+      cfg: the program's config (`cfg.model()` a `StatePolicy` or a `PatchPolicy`).
       variables: the policy's variables (`{"params": ...}`, plus `{"batch_stats": ...}` for BatchNorm).
       residual: the `ResidualHead`'s variables.
       batch: the minibatch (`_batch.sample_batch`).
       weight: λ in [0, 1] (traced).
-      width: the memory's units per encoder layer (traced).
+      width: the memory's units of `UNITS` (traced).
 
     Returns:
       `(loss, ((L_BC, L_res, L_res of predicting zero), variables after the forward pass))`: `[] float32` each;
@@ -220,8 +277,8 @@ def rap_loss(cfg: LearnerConfig, variables: Any, residual: Any, batch: Batch, we
 
 
 def predict_residual(cfg: LearnerConfig, state: RapState, width: jax.Array | float, x: jax.Array) -> jax.Array:
-    """`[B, A]`: the memory's predicted change `a_t − a_{t−1}` for policy inputs `x [B, H * D]` (running
-    statistics, as evaluation applies the policy)."""
+    """`[B, A]`: the memory's predicted change `a_t − a_{t−1}` for policy inputs `x` (`[B, H * D]` states or
+    `[B, h, w, 3H]` frames; running statistics, as evaluation applies the policy)."""
     _, embedding = cfg.model().apply(state.params, x, return_embedding=True)
     memory = memory_units(width, embedding.shape[-1]).astype(jnp.float32)
     return ResidualHead(cfg.action_dim).apply(state.residual, embedding * memory)
@@ -231,17 +288,17 @@ def make_rap(cfg: LearnerConfig) -> Learner:
     """The pure functions of RAP for one static setup (the module docstring).
 
     Args:
-      cfg: shapes, counts and the recipe; state observations (`cfg.model()` a `StatePolicy`) and `cfg.history`
-        >= 2.
+      cfg: shapes, counts and the recipe; state observations (`cfg.model()` a `StatePolicy`) or images through
+        the patch encoder (`cfg.encoder == "patch"`, a `PatchPolicy`), and `cfg.history` >= 2.
 
     Returns:
-      A `Learner` whose policy parameters are a `StatePolicy`'s; `init(key)` draws the policy and run key as
-      `make_train(cfg).init(jax.random.split(key)[0])` does (then masks them) and the residual head from the
-      other half.
+      A `Learner` whose policy parameters are a `StatePolicy`'s or a `PatchPolicy`'s; `init(key)` draws the
+      policy and run key as `make_train(cfg).init(jax.random.split(key)[0])` does (then masks them) and the
+      residual head from the other half.
     """
-    if cfg.images:
-        raise ValueError("RAP splits the state policy's layers into its two branches; image observations are not "
-                         "supported (use --obs pos or full)")
+    if cfg.images and cfg.encoder != "patch":
+        raise ValueError(f"RAP splits the state policy's layers or the patch encoder's channels into its two "
+                         f"branches; image encoder {cfg.encoder!r} is not supported (use encoder='patch')")
     if cfg.history < 2:
         raise ValueError(f"RAP needs a history of at least 2 observations (its memory reads the past), got "
                          f"{cfg.history}")
@@ -280,8 +337,9 @@ def make_rap(cfg: LearnerConfig) -> Learner:
 
 def refusal(settings, obs: str) -> str | None:
     """Why RAP cannot run under a sweep's settings (`Method.refuses`), or None."""
-    if obs == "image":
-        return "rap trains state policies (its branches split StatePolicy's layers); use --obs pos or full"
+    if obs == "image" and settings.recipe.encoder != "patch":
+        return (f"rap on images needs the patch encoder (its branches split PatchPolicy's channels), got "
+                f"recipe.encoder={settings.recipe.encoder!r}; use --set recipe.encoder=patch")
     if settings.protocol.history < 2:
         return (f"rap needs a history (protocol.history >= 2: its memory reads the past), got "
                 f"protocol.history={settings.protocol.history}")
