@@ -31,8 +31,8 @@ def table(res) -> str:
 
     diagnosed = bool(read(res.runs))
     controlled = any("controlled_verdict" in b for b in read(res.runs))   # judged against its BC-SO
-    heads = [f"{m} (mean ± sd over seeds)" for m in shown] if shown else ["return (mean ± sd over seeds)"]
-    width = [max(len(h), 18) for h in heads]
+    heads = list(shown) if shown else ["return"]   # each cell: mean ± sd over seeds (the footnote says so)
+    width = [max(len(h), 15) for h in heads]
     lines = [f"{'':2}{'method':<17}{'hparams':<30}{'seeds':>5}  " + "  ".join(f"{h:>{w}}" for h, w in zip(heads, width))
              + ("" if metric != "return" else f"  {'normalized':>11}")
              + (f"  {'emb ratio':>9}  {'pred ratio':>10}  {'copycat':>7}" if diagnosed else "")
@@ -73,7 +73,7 @@ def table(res) -> str:
                        + f", {why.count(w)} of {len(runs)} seeds: {w}" for w in dict.fromkeys(why)]
         lines.append(line)
     e = res.expert
-    sd = "sd: the sample sd (ddof 1) over seeds"
+    sd = "mean ± sd over seeds; sd: the sample sd (ddof 1)"
     if e.get("return_mean") is not None:   # the expert's mean alone: its card's sd is over episodes, not seeds
         lines.append(f"expert {e['return_mean']:,.1f}, random policy {e['random_return_mean']:,.1f}; normalized = "
                      f"100 (R - R_random) / (R_expert - R_random); {sd}; {rule}")

@@ -140,7 +140,7 @@ class Method:
       role: `"reference"` (BC-SO, BC-OH), `"ours"`, `"baseline"` or `"plugin"`.
       module: the module that registered it.
       refuses: `refuses(settings, obs) -> why | None`: why the method cannot run under a sweep's
-        `ape_jax.pipeline.presets.Settings` and observation mode (RAP: without a history, or on images), checked
+        `ape_jax.pipeline.presets.Settings` and observation mode (RAP: without a history, or on images with an encoder other than `patch`), checked
         when the sweep's spec is made, before anything is collected or compiled; None: it runs anywhere.
     """
 

@@ -44,7 +44,7 @@ SOFTMAX_GRID = (0.1, 0.2, 0.5, 1.0, 5.0, 10.0)
 METHOD_GRIDS = ("rap_weights", "rap_widths", "palr_weights", "palr_bandwidths", "mine_weights")
 METHOD_KNOBS = ("step_grid", "softmax_grid", "fca_alphas", "fca_adversary_lr", "ib_weights", *METHOD_GRIDS,
                 "palr_rows", "mine_steps", "mine_rows")
-RAP_UNITS = StatePolicy.hidden[0]  # RAP's branches split the state policy's encoder units
+RAP_UNITS = StatePolicy.hidden[0]  # RAP's memory width is counted in the state policy's units (images: shares)
 
 
 # the most any budget count may be: the device counts steps, seeds and episodes in 32-bit integers (a larger
