@@ -13,7 +13,9 @@ hand-written text around them stays:
   the differences over seeds, training longer, the sensitivity study, curves and weights);
 - DIR/`ENV-OBS.md`, one page per task and observation mode (`hopper-pos.md`): per group every configuration, its
   files and the commands that wrote them (machine paths stripped), the paper's settings against the grid, the
-  loss analysis and the copycat diagnostics;
+  loss analysis and the copycat diagnostics; a task's own metrics first (a ToyTown group under `nocrash` or
+  `nocrash-nospeed` as the supplement's Table 1 or 2, every method with its copycat verdicts and the paper's
+  comparisons, its figure of success and stuck, and Table 3 for every method);
 - the figures (PNG) in `--figures DIR` (default `figures/` next to FILE), linked relative to each page, written
   atomically before the pages.
 

@@ -10,7 +10,9 @@ driving success rate) live in its record instead (`ape_jax.tasks.Task.paper`), b
   tables name Ours at it;
 - `PAPER_TAU`: the paper's softmax temperature per task;
 - `PAPER_SENSITIVITY_TAU`, `PAPER_SENSITIVITY_W`: the supplement's §4 sensitivity study (its W at the
-  step setting's THR).
+  step setting's THR);
+- `PAPER_DRIVING_TABLES`: which of the supplement's driving tables (CARLA, NoCrash-Dense) each of the suite's
+  driving protocols stands for: Table 1 with the car's speed in view, Table 2 without it.
 """
 
 from __future__ import annotations
@@ -30,3 +32,7 @@ PAPER_TAU = {"hopper": 0.2, "walker2d": 0.2, "halfcheetah": 0.1}  # the paper's 
 # per step W (at THR 10%).
 PAPER_SENSITIVITY_TAU = {0.1: (765, 103), 0.2: (769, 97), 0.5: (724, 61)}
 PAPER_SENSITIVITY_W = {4.0: 41.9, 5.0: 43.4, 6.0: 41.3}
+# The supplement's driving tables (CARLA's NoCrash-Dense; its Table 3 is the loss analysis): per protocol of the
+# suite's driving family (`ape_jax.tasks.FAMILIES["nocrash"]`), the table's number and what sets it apart.
+PAPER_DRIVING_TABLES = {"nocrash": (1, "NoCrash-Dense, speed in view"),
+                        "nocrash-nospeed": (2, "NoCrash-Dense without the speed")}

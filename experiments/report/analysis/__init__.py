@@ -8,9 +8,9 @@ what these functions return. One module per concern, each re-exported here:
   titles;
 - `selection`: method labels, the rows each table picks (`method_rows`, `best_of`, `paper_step_row`,
   `headline`, ...), per-seed values (`seed_values`), the paper's settings against the grid (`choices`), longer
-  runs;
+  runs, a driving group's table and rows (`driving_table`, `driving_rows`);
 - `differences`: `mean_difference`, `mean_estimate`, `verdict`, and per group BC-OH − BC-SO and Ours − BC-OH
-  (`difference_rows`);
+  (`difference_rows`); the paper's comparisons in a driving group (`driving_comparisons`);
 - `diagnostics`: copycat diagnostics per configuration, at the end and over training;
 - `copycat`: the copycat map (`copycat_map`) and the extended map (`extended_map`);
 - `recipe`: the recipe comparison (mlp against fca) and the paper's budget beside Table 5;
@@ -24,10 +24,11 @@ what these functions return. One module per concern, each re-exported here:
 The paper's own numbers are in `experiments.report.paper`.
 """
 
-from experiments.report.analysis.differences import (Difference, Interval, RecipeCell, Share, difference_rows,
-                                                     difference_unit, gap_share, history_difference, history_share,
-                                                     mean_cell, mean_difference, mean_estimate, ours_differences,
-                                                     verdict, versus_bcoh)
+from experiments.report.analysis.differences import (DRIVING_COMPARISONS, Comparison, Difference, Interval,
+                                                     RecipeCell, Share, difference_rows, difference_unit,
+                                                     driving_comparisons, gap_share, history_difference,
+                                                     history_share, mean_cell, mean_difference, mean_estimate,
+                                                     ours_differences, verdict, versus_bcoh)
 from experiments.report.analysis.copycat import (MAP_METHODS, CopycatMap, MapCell, MapPoint, MapRow, copycat_map,
                                                  extended_map)
 from experiments.report.analysis.diagnostics import (DiagnosticsRow, PolicyDiagnostics, Spread, TrainingPoint,
@@ -49,14 +50,16 @@ from experiments.report.analysis.ranking import (LATER, RANKED, CellResult, Fami
                                                  ranking, ranking_cells)
 from experiments.report.analysis.regime import (REGIME_METHODS, RegimeRow, RegimeTable, is_regime, regime_groups,
                                                 regime_table)
-from experiments.report.analysis.selection import (CEILING, CEILING_LABEL, Choice, Gap, LongerRow, Shift, best_of,
-                                                   choices, comparisons, copycat_groups, display_metric, expert_ape,
+from experiments.report.analysis.selection import (CEILING, CEILING_LABEL, DRIVING_ORDER, Choice, DrivingRow,
+                                                   DrivingTable, Gap, LongerRow, Shift, best_of, choices, comparisons,
+                                                   copycat_groups, display_metric, driving_rows, driving_table,
+                                                   expert_ape,
                                                    extra_methods, first_training, gap, has_ceiling, headline,
                                                    hparams_suffix, retrained_shift,
                                                    is_finite, is_number, known_methods,
                                                    label, longer_runs, loss_rows, method_rows, metric_value,
                                                    ok_runs, paper_step_row, percent, seed_values, sensitivity,
-                                                   task_metric_rows, thousands)
+                                                   setting_words, task_metric_rows, thousands)
 from experiments.report.analysis.weights import (APE_SCALES, WeightShares, ape_mean, quantile_mean, raw_quantiles,
                                                  weight_shares)
 
@@ -65,6 +68,8 @@ __all__ = [
     "REGIME_METHODS", "RegimeRow", "RegimeTable", "is_regime", "regime_groups", "regime_table",
     "check_references", "demonstrator", "expert_part", "expert_words", "raw_labels",
     "CEILING", "CEILING_LABEL", "Share", "gap_share", "has_ceiling", "history_share",
+    "DRIVING_COMPARISONS", "DRIVING_ORDER", "Comparison", "DrivingRow", "DrivingTable", "driving_comparisons",
+    "driving_rows", "driving_table", "setting_words",
     "APE_SCALES", "LEARNED", "Estimate", "RateReading", "per_seed", "rate_reading",
     "BRAX", "BUDGET_METHODS", "FCA", "FCA_TRAIN", "FIRST_IMAGE_PRESET", "former_preset",
     "MAP_METHODS", "MUJOCO", "RECIPE_METHODS", "AlphaRow", "BudgetPoint", "BudgetRow", "Choice", "CopycatMap",

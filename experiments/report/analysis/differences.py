@@ -7,6 +7,8 @@
   help?) and Ours − BC-OH over seeds, per group;
 - `history_share`: the share of the gap between BC-SO and BC-full (the full state's ceiling) that the history
   recovers, (BC-OH − BC-SO) / (BC-full − BC-SO), with `stats.gap_share`'s bootstrap interval.
+- `driving_comparisons`: the comparisons the paper reads off its driving tables (BC-OH − BC-SO, Ours − BC-SO,
+  Ours − BC-OH, Ours − DAgger in success; Ours − BC-OH in collisions per episode), per driving group.
 """
 
 from __future__ import annotations
@@ -16,7 +18,8 @@ from collections.abc import Mapping, Sequence
 
 from experiments import stats
 from experiments.report.analysis.groups import Group, Key, Merged, is_rate, ordered
-from experiments.report.analysis.selection import CEILING, best_of, comparisons, headline, method_rows, seed_values
+from experiments.report.analysis.selection import (CEILING, best_of, comparisons, headline, label, method_rows,
+                                                   paper_step_row, seed_values)
 
 
 class Interval(NamedTuple):
@@ -177,4 +180,43 @@ def difference_rows(merged: Merged) -> list[Difference]:
                                   "BC-SO", history, unit))
         out += [Difference(key, m.title, "ours", f"{lab} − BC-OH", "Ours", "BC-OH", ci, unit)
                 for lab, _, ci in ours_differences(m)]
+    return out
+
+
+# -- the paper's comparisons in a driving group (the supplement's Tables 1 and 2) ------------------------------------
+
+# What the paper reads off its driving tables: `(a, b, metric)`, `a − b` over seeds, the metric None for the task's
+# main one (ToyTown's success); `ours-step` is Ours at the paper's step setting, every other method its best row.
+DRIVING_COMPARISONS = (("bc-oh", "bc-so", None), ("ours-step", "bc-so", None), ("ours-step", "bc-oh", None),
+                       ("ours-step", "dagger", None), ("ours-step", "bc-oh", "collisions"))
+
+
+class Comparison(NamedTuple):
+    """One of the paper's comparisons in one group (`driving_comparisons`): `a − b` in `eval[metric]` over seeds with
+    its Welch t-interval, in `unit` (`"points"`: a rate's % points; `"per episode"`: a per-episode mean as it is)."""
+
+    a: str
+    b: str
+    metric: str
+    unit: str
+    ci: Interval
+
+
+def _driving_arm(m: Group, method: str) -> dict | None:
+    return paper_step_row(m) if method == "ours-step" else best_of(method_rows(m, method))
+
+
+def driving_comparisons(m: Group) -> list[Comparison]:
+    """The comparisons of `DRIVING_COMPARISONS` that group `m` ran both arms of, in that order: each difference of
+    means over seeds with its 95% Welch t-interval (`mean_difference`); a rate (the main metric) in % points. Arms are
+    named `"Ours"` (the paper's step setting) or by their label (`label`, without "(online)")."""
+    out = []
+    for a, b, metric in DRIVING_COMPARISONS:
+        metric = metric or m.metric
+        scale = 100.0 if metric == m.metric and is_rate(m) else 1.0
+        arms = [[scale * v for v in seed_values(m, _driving_arm(m, x), metric)] for x in (a, b)]
+        if all(arms):
+            names = ["Ours" if x == "ours-step" else label(m.methods, x, online=False) for x in (a, b)]
+            out.append(Comparison(*names, metric, "points" if scale == 100.0 else "per episode",
+                                  mean_difference(*arms)))
     return out

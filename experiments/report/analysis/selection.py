@@ -3,6 +3,8 @@
 - `method_rows`, `best_of`, `paper_step_row`, `headline`, `comparisons`, `extra_methods` pick the configurations
   the tables show; method labels come from what each file records of its methods (`label`), then the registry,
   then the name;
+- `driving_table`, `driving_rows`: a group of the suite's driving protocols (`ape_jax.tasks.DRIVING_FAMILIES`) as
+  the supplement's Table 1 or 2, with every configuration that ran, in a fixed order;
 - `seed_values`, `ok_runs`: a configuration's per-seed numbers and runs;
 - `choices`: the paper's settings against the best of the grid;
 - `first_training`, `retrained_shift`: a file trained again, against the first training it replaced;
@@ -16,12 +18,15 @@ from __future__ import annotations
 
 import math
 import statistics
+from collections import Counter
 from typing import NamedTuple
 from collections.abc import Mapping, Sequence
 
 from ape_jax import methods as methods_lib
+from ape_jax import tasks
 from experiments.report.analysis.groups import Group, Key, Merged, config_key, is_rate, ordered
-from experiments.report.paper import PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP, PAPER_STEP_LABEL, PAPER_TAU
+from experiments.report.paper import (PAPER_DRIVING_TABLES, PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP,
+                                      PAPER_STEP_LABEL, PAPER_TAU)
 
 
 # -- methods: labels and which ones the tables list ----------------------------------------------------------------
@@ -171,7 +176,10 @@ def task_metric_rows(m: Group) -> list[tuple[str, str, list[dict]]]:
 
 def loss_rows(m: Group) -> list[tuple[str, list[dict]]]:
     """The loss analysis' policies: BC-SO, BC-OH, Ours at the paper's step setting and the best step
-    (where it differs), each with its ok runs; those without runs left out."""
+    (where it differs), each with its ok runs; those without runs left out. A driving group (`driving_table`):
+    every configuration of its table (`driving_rows`), as the supplement's Table 3 lists them."""
+    if driving_table(m) is not None:
+        return [(r.label, r.runs) for r in driving_rows(m)]
     wanted = [("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), (PAPER_STEP_LABEL, "ours-step", PAPER_STEP)]
     best = best_of(method_rows(m, "ours-step"))
     if best is not None and best["hparams"] != PAPER_STEP:
@@ -206,6 +214,88 @@ def expert_ape(m: Group) -> float | None:
         if ape.get("normalization", "mean") == "mean":
             return ape["val_mean"]
     return None
+
+
+# -- the driving tables: the supplement's Tables 1 and 2 ---------------------------------------------------------
+
+# The driving tables' methods, in order: the references and ours, the paper's baselines (FCA, HistoryDropout, DAgger,
+# Boosting, then the other baselines of its issue), the methods published after it (RAP, PALR, MINE); any other
+# baseline after them in registry order, then plugins in order of appearance, and BC-full (`CEILING`) last.
+DRIVING_ORDER = ("bc-so", "bc-oh", "ours-step", "ours-softmax", "fca", "fca-ib", "history-dropout", "dagger",
+                 "boosting", "bcpd", "actfreq", "kmeans", "rap", "palr", "mine")
+
+
+class DrivingTable(NamedTuple):
+    """Which of the supplement's driving tables a group stands for (`driving_table`).
+
+    `number` is the table's (1: the speed in view, 2: without it; `PAPER_DRIVING_TABLES`), None for a driving
+    protocol the supplement has no table for or one whose recorded traffic or speed input differs from its named
+    protocol's; `words` say what sets the table apart (`"NoCrash-Dense, speed in view"`)."""
+
+    number: int | None
+    words: str
+
+
+def driving_table(m: Group) -> DrivingTable | None:
+    """The supplement's driving table group `m` stands for: a group whose protocol (a variant's: the protocol it
+    varies) is of a driving family (`ape_jax.tasks.DRIVING_FAMILIES`, `nocrash`); None for every other group."""
+    name = m.protocol.get("variant_of") or m.protocol["name"]
+    if tasks.protocol_family(name) not in tasks.DRIVING_FAMILIES:
+        return None
+    found, named = PAPER_DRIVING_TABLES.get(name), tasks.PROTOCOLS.get(name)
+    same = named is not None and all(m.protocol.get(k) is None or m.protocol[k] == getattr(named, k)
+                                     for k in ("traffic", "speed_input"))
+    if found is None or not same:
+        return DrivingTable(None, f"protocol {name}" + ("" if same else ", its traffic or speed input changed"))
+    return DrivingTable(*found)
+
+
+class DrivingRow(NamedTuple):
+    """One configuration of a driving table (`driving_rows`): how the table names it, its method and hparams, its ok
+    runs (seeds), and whether it is the full state's ceiling (`CEILING`)."""
+
+    label: str
+    method: str
+    hparams: dict
+    runs: list[dict]
+    ceiling: bool
+
+
+def _is_paper_step(row: dict) -> bool:
+    return row["method"] == "ours-step" and row["hparams"] == PAPER_STEP
+
+
+def driving_rows(m: Group) -> list[DrivingRow]:
+    """Every configuration of group `m` with finished runs, one row each, in `DRIVING_ORDER` (a method's
+    configurations in summary order), BC-full last; of Ours (step) only the paper's setting where it ran (the grid's
+    other settings are the group's grid table's), as the paper's tables list it.
+
+    Labels: the paper's step setting as `PAPER_STEP_LABEL`, BC-full as `CEILING_LABEL`, every other method by `label`
+    (online ones say so), with its setting (`setting_words`) where the method has more than one configuration.
+    """
+    rows = [r for r in m.summary if r["n_seeds"]]
+    if any(_is_paper_step(r) for r in rows):
+        rows = [r for r in rows if r["method"] != "ours-step" or _is_paper_step(r)]
+    appear = list(dict.fromkeys(r["method"] for r in rows))
+    registry = {name: i for i, name in enumerate(methods_lib.names())}
+    others = sorted((n for n in appear if n not in DRIVING_ORDER and n != CEILING),
+                    key=lambda n: (n not in registry, registry.get(n, 0), appear.index(n)))
+    order = [*(n for n in DRIVING_ORDER if n in appear), *others, *([CEILING] if CEILING in appear else [])]
+    rows.sort(key=lambda r: order.index(r["method"]))
+    count = Counter(r["method"] for r in rows)
+    out = []
+    for r in rows:
+        method, hp = r["method"], r["hparams"]
+        if _is_paper_step(r):
+            name = PAPER_STEP_LABEL
+        elif method == CEILING:
+            name = CEILING_LABEL
+        else:
+            name = label(m.methods, method)
+        if count[method] > 1 and (words := setting_words(hp)):
+            name += f", {words}"
+        out.append(DrivingRow(name, method, hp, ok_runs(m, method, hp), method == CEILING))
+    return out
 
 
 def sensitivity(m: Group) -> tuple[list[tuple[float, dict | None]], list[tuple[float, dict | None]]]:
@@ -386,7 +476,14 @@ def longer_runs(merged: Merged) -> list[tuple[Group, Group, list[LongerRow]]]:
 
 def _row_label(m: Group, row: dict) -> str:
     """`"BC-OH"`, `"Ours (step), THR 10% W 5"`, `"Ours (softmax), τ 0.2"`, `"FCA, alpha 0.1"`."""
-    hp = dict(row["hparams"])
+    words = setting_words(row["hparams"])
+    return ", ".join([label(m.methods, row["method"]), *([words] if words else [])])
+
+
+def setting_words(hparams: Mapping[str, float]) -> str:
+    """A configuration's hyperparameters in words: `"THR 10% W 5"`, `"τ 0.2"`, `"alpha 0.1, adversary_lr 0.0004"`;
+    "" for none."""
+    hp = dict(hparams)
     words = ([f"THR {percent(hp.pop('thr'))} W {hp.pop('w'):g}"] if {"thr", "w"} <= hp.keys() else []) + \
         ([f"τ {hp.pop('tau'):g}"] if "tau" in hp else []) + [f"{k} {v:g}" for k, v in hp.items()]
-    return ", ".join([label(m.methods, row["method"]), *words])
+    return ", ".join(words)

@@ -11,6 +11,9 @@ writes atomically: a temporary file in the same folder, then `os.replace`.
   `center` (BC-OH's value) the diverging colours show better / worse than it.
 - `bars(labels, panels)` — one panel per environment, a horizontal bar per
   method (mean), error bar (std over seeds) and every seed as a dot.
+- `interval_bars(labels, panels)` — panels side by side (one per measure), a
+  horizontal bar per method (mean) with its interval and every seed as a dot;
+  trailing rows (a ceiling) can be set apart below a dashed line.
 - `lines(panels)` — one panel per environment, a line per series (with a
   shaded ± band if given): training curves, weight distributions.
 - `bars` and `lines` wrap their panels into rows of at most `columns` and stay
@@ -354,6 +357,77 @@ def bars(labels: Sequence[str], panels: Sequence[Bars], title: str = "", columns
     axes[0].set_ylim(n - 0.5, -1.0)
     for ax in axes[cols::cols]:  # sharey hides the names on every panel but the first: show them on each row's
         ax.tick_params(labelleft=True)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    return fig
+
+
+class Intervals(NamedTuple):
+    """One panel of `interval_bars`: per row (aligned with the figure's labels) the mean, its interval's ends and the
+    seeds; a mean that is None or not finite is "not run"."""
+
+    title: str
+    xlabel: str
+    mean: Sequence[float | None]
+    low: Sequence[float | None]
+    high: Sequence[float | None]
+    seeds: Sequence[Sequence[float]]
+    limits: tuple[float, float] | None = None  # the x axis' range (a rate in %: (0, 100)); None: the data's
+
+
+def interval_bars(labels: Sequence[str], panels: Sequence[Intervals], title: str = "",
+                  apart: int | None = None) -> Figure:
+    """Horizontal bars with their intervals, the panels side by side on one shared vertical axis of rows.
+
+    Args:
+      labels: the rows' names (methods), top to bottom.
+      panels: one per measure, each aligned with `labels`.
+      title: the figure's title.
+      apart: the rows from this index on are set apart: below a dashed line, after a gap, drawn grey and hatched (a
+        reference such as the full state's ceiling); None: none.
+
+    Returns:
+      The figure (Agg canvas), `DPI` dots per inch, at most `MAX_HEIGHT` pixels tall.
+    """
+    if not panels or not labels:
+        raise ValueError(f"interval_bars needs at least one panel and one row, got {len(panels)} and {len(labels)}")
+    n = len(labels)
+    width = 3.6 * len(panels) + 2.4
+    title, extra = _suptitle(title, width)
+    y = np.array([i + (0.7 if apart is not None and i >= apart else 0.0) for i in range(n)])
+    fig = Figure(figsize=(width, min(0.3 * (y[-1] + 1) + 1.3 + extra, MAX_HEIGHT / DPI)), dpi=DPI,
+                 layout="constrained")
+    axes = grid_axes(fig, len(panels), None, sharey=True)
+    for ax, p in zip(axes, panels):
+        present = [i for i in range(n) if _finite(p.mean[i])]
+        seeds = [[s for s in p.seeds[i] if _finite(s)] for i in range(n)]
+        ends = [(p.low[i] if _finite(p.low[i]) else p.mean[i], p.high[i] if _finite(p.high[i]) else p.mean[i])
+                if i in present else (0.0, 0.0) for i in range(n)]
+        values = [v for i in present for v in (*ends[i], *seeds[i])]
+        low, top = p.limits if p.limits is not None else (min([*values, 0.0]), max([*values, 1.0]))
+        for i in present:
+            aside = apart is not None and i >= apart
+            ax.barh(y[i], p.mean[i], height=0.65, color="0.85" if aside else "#9ecae1",
+                    edgecolor="0.35" if aside else "#3182bd", hatch="//" if aside else None, zorder=2)
+            ax.errorbar(p.mean[i], y[i], xerr=[[p.mean[i] - ends[i][0]], [ends[i][1] - p.mean[i]]], fmt="none",
+                        ecolor="black", capsize=2.5, lw=1, zorder=3)
+            if seeds[i]:
+                offsets = np.linspace(-0.18, 0.18, len(seeds[i])) if len(seeds[i]) > 1 else np.zeros(1)
+                ax.scatter(seeds[i], y[i] + offsets, s=9, color="#08306b", zorder=4, linewidths=0)
+            ax.text(max([ends[i][1], *seeds[i]]) + 0.02 * (top - low), y[i], f"{p.mean[i]:.1f}", va="center",
+                    fontsize=7)
+        for i in set(range(n)) - set(present):
+            ax.text(low + 0.02 * (top - low), y[i], "not run", va="center", fontsize=7, color="0.45")
+        if apart is not None and 0 < apart < n:
+            ax.axhline((y[apart - 1] + y[apart]) / 2, color="0.4", ls="--", lw=1, zorder=1)
+        ax.set_xlim(low - 0.02 * (top - low), top + 0.15 * (top - low))
+        ax.set_xticks([t for t in ax.get_xticks() if low <= t <= top])   # the room for the values stays unticked
+        ax.set_title(wrap(p.title, 3.6), fontsize=10)
+        ax.set_xlabel(p.xlabel, fontsize=9)
+        ax.grid(axis="x", color="0.9", zorder=0)
+        ax.tick_params(labelsize=8)
+    axes[0].set_yticks(y, labels=list(labels))
+    axes[0].set_ylim(y[-1] + 0.5, -0.5)
     if title:
         fig.suptitle(title, fontsize=10)
     return fig
