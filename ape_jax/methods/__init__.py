@@ -75,6 +75,8 @@ class GridContext:
       ib_weights: the information bottleneck's KL weights of FCA-IB (the recipe's).
       recipe: the sweep's whole `ape_jax.pipeline.presets.Recipe` (RAP's, PALR's and MINE's grids read their
         fields); None: a context made by hand, and the methods' defaults.
+      knobs: the method-owned settings the sweep was given (`--set METHOD.KNOB=...`), `{method: its Knobs
+        record}`; a method not listed runs at its record's defaults (`knobs_of`).
     """
 
     task: Any
@@ -85,6 +87,11 @@ class GridContext:
     ib_weights: tuple[float, ...] = ()
     fca_adversary_lr: float | None = None
     recipe: Any = None
+    knobs: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+    def knobs_of(self, method: str) -> Any:
+        """Method `method`'s own settings (`Method.knobs`): those the sweep was given, else its defaults."""
+        return knobs_of(method, self.knobs)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,6 +106,7 @@ class LearnerContext:
       n_train: transitions in the training split.
       recipe: the sweep's `ape_jax.pipeline.presets.Recipe` (a learner's static settings that are not the
         `LearnerConfig`'s, e.g. PALR's `palr_rows`); None: the learner's defaults.
+      knobs: the method-owned settings the sweep was given, as `GridContext.knobs` (`knobs_of`).
     """
 
     cfg: Any
@@ -108,6 +116,20 @@ class LearnerContext:
     obs_std: Any
     n_train: int
     recipe: Any = None
+    knobs: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+    def knobs_of(self, method: str) -> Any:
+        """Method `method`'s own settings (`Method.knobs`): those the sweep was given, else its defaults."""
+        return knobs_of(method, self.knobs)
+
+
+def knobs_of(method: str, given: Mapping[str, Any]) -> Any:
+    """The `Method.knobs` record of `method`: `given[method]` where the sweep set one, else the defaults;
+    `MethodError` for a method without knobs of its own."""
+    record = get(method).knobs
+    if record is None:
+        raise MethodError(f"method {method!r} has no settings of its own (Method.knobs)")
+    return given.get(method) or record()
 
 
 Scores = Callable[[jax.Array, jax.Array, jax.Array], jax.Array]
@@ -139,9 +161,14 @@ class Method:
       online: whether it queries the expert during training (DAgger).
       role: `"reference"` (BC-SO, BC-OH), `"ours"`, `"baseline"` or `"plugin"`.
       module: the module that registered it.
+      knobs: the method's own settings, a frozen dataclass whose defaults are the authors' (each field typed, as
+        `--set METHOD.FIELD=VALUE` parses it; a `tuple[float, ...]` field is a grid axis its `grid` spans), which
+        checks its values in `__post_init__` (`ValueError`, one line); None: it has none. Its grid and learner
+        read the sweep's record with `ctx.knobs_of(name)`.
       refuses: `refuses(settings, obs) -> why | None`: why the method cannot run under a sweep's
-        `ape_jax.pipeline.presets.Settings` and observation mode (RAP: without a history, or on images with an encoder other than `patch`), checked
-        when the sweep's spec is made, before anything is collected or compiled; None: it runs anywhere.
+        `ape_jax.pipeline.presets.Settings` and observation mode (RAP: without a history, or on images with an
+        encoder other than `patch`), checked when the sweep's spec is made, before anything is collected or
+        compiled; None: it runs anywhere.
     """
 
     name: str
@@ -157,6 +184,7 @@ class Method:
     role: str = "baseline"
     module: str = ""
     refuses: Callable[[Any, str], str | None] | None = None
+    knobs: type | None = None
 
     def settings(self, ctx: GridContext) -> list[dict]:
         """The default grid as plain dicts of floats (what `results.json` records as `hparams`)."""
@@ -203,6 +231,9 @@ def register(method: Method) -> Method:
                           f"pick another name; registered: {', '.join(_registry)}")
     if method.role not in ROLES:
         raise MethodError(f"method {method.name!r}: unknown role {method.role!r}; valid: {', '.join(ROLES)}")
+    if method.knobs is not None and not (dataclasses.is_dataclass(method.knobs)
+                                         and method.knobs.__dataclass_params__.frozen):
+        raise MethodError(f"method {method.name!r}: knobs must be a frozen dataclass, got {method.knobs!r}")
     if method.observation not in OBSERVATIONS:
         raise MethodError(f"method {method.name!r}: unknown observation {method.observation!r}; valid: "
                           f"{', '.join(map(str, OBSERVATIONS))}")
