@@ -215,7 +215,8 @@ def cost(env: str, settings, names) -> Cost | None:
     recipe, budget = settings.recipe, settings.budget
     ctx = methods.GridContext(task=tasks.get(env), step_grid=recipe.step_grid, softmax_grid=recipe.softmax_grid,
                               n_train=settings.protocol.train_transitions or 1, fca_alphas=recipe.fca_alphas,
-                              ib_weights=recipe.ib_weights, fca_adversary_lr=recipe.fca_adversary_lr, recipe=recipe)
+                              ib_weights=recipe.ib_weights, fca_adversary_lr=recipe.fca_adversary_lr, recipe=recipe,
+                              knobs=settings.knobs)
     try:
         configurations = len(grid_runs(names, 1, ctx))
     except Exception:  # noqa: BLE001 - a plugin's grid; the sweep lists it again with the real split

@@ -14,7 +14,8 @@ from ape_jax.learner import Data, Hparams, LearnerConfig, learning_rate, lr_boun
 from ape_jax.pipeline import data as data_lib
 from ape_jax.pipeline import sweep as S
 from ape_jax.pipeline.checkpoint import CheckpointError, SweepCheckpoint
-from ape_jax.pipeline.presets import RECIPES, SettingsError, arguments, format_set, parse_set, resolve
+from ape_jax.pipeline.presets import RECIPES, SettingsError, format_set, parse_set, resolve
+from ape_jax.pipeline.replay import arguments
 from experiments import sweep
 from _compare import STATS_RTOL, UPDATE_RTOL, stats_mismatch, update_mismatch
 

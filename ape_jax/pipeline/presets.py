@@ -35,6 +35,7 @@ from ape_jax.models import IMAGE_ENCODERS, StatePolicy
 from ape_jax.tasks import Protocol
 from ape_jax.pipeline.hints import SettingsError, check as _check, coerce as _coerce, describe as _describe
 from ape_jax.pipeline.hints import format_value as _format, parse as _parse
+from ape_jax.pipeline import method_knobs
 
 STEP_GRID = tuple((thr, w) for thr in (0.1, 0.2) for w in (3.0, 5.0, 10.0))
 SOFTMAX_GRID = (0.1, 0.2, 0.5, 1.0, 5.0, 10.0)
@@ -271,7 +272,8 @@ _RECORDS = {"protocol": Protocol, "budget": Budget, "recipe": Recipe}
 
 @dataclasses.dataclass(frozen=True)
 class Settings:
-    """A sweep's three records, resolved for one task and observation mode (`resolve`)."""
+    """A sweep's three records, resolved for one task and observation mode (`resolve`), and the methods' own
+    settings it was given (`knobs`: `{method: its Method.knobs record}`, `ape_jax.pipeline.method_knobs`)."""
 
     protocol: Protocol
     budget: Budget
@@ -281,6 +283,7 @@ class Settings:
     # the iterations the preset gave before `sets` (`--iterations`, `--set budget.iterations=`) were applied, so a
     # results file says itself whether it trained its preset's budget (None: settings not made by `resolve`)
     preset_iterations: int | None = None
+    knobs: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
     def learner_config(self, obs_shape, action_dim: int, history: int, task_loss: str,
                        unroll: bool = False, task_loss_weights: tuple[float, ...] = ()) -> LearnerConfig:
@@ -300,13 +303,16 @@ class Settings:
                              augment_shift=r.augment_shift if images else 0, dtype=r.dtype)
 
     def to_json(self) -> dict[str, dict]:
-        """`{"protocol": ..., "budget": ..., "recipe": ...}`, every field (results.json's blocks)."""
-        return {name: _jsonable(dataclasses.asdict(getattr(self, name))) for name in SECTIONS}
+        """`{"protocol": ..., "budget": ..., "recipe": ...}`, every field (results.json's blocks), and `"knobs"` where
+        a method's own settings were given."""
+        out = {name: _jsonable(dataclasses.asdict(getattr(self, name))) for name in SECTIONS}
+        return {**out, "knobs": method_knobs.to_json(self.knobs)} if self.knobs else out
 
     @classmethod
     def from_json(cls, blocks: Mapping[str, Mapping[str, Any]], preset: str = "quick") -> Settings:
         """The settings results.json's three blocks record (fields a block predates: the defaults)."""
-        return cls(*(_record(name, blocks.get(name) or {}) for name in SECTIONS), preset=preset)
+        return cls(*(_record(name, blocks.get(name) or {}) for name in SECTIONS), preset=preset,
+                   knobs=method_knobs.from_json(blocks.get("knobs")))
 
 
 def default_recipe(protocol: Protocol, obs: str) -> str:
@@ -377,16 +383,20 @@ def resolve(env: str, obs: str, protocol: str | None = None, preset: str = "quic
     for key, value in (smoke_overrides(values) if smoke else {}).items():
         values[_section_of(key)][key] = value
     preset_iterations = values["budget"]["iterations"]
-    explicit = set()
+    explicit, knobs = set(), {}
     for item in sets:
         section, field, value = parse_set(item)
-        values[section][field] = value
+        (knobs.setdefault(section, {}) if section not in _RECORDS else values[section])[field] = value
         explicit.add(field)
     if "eval_at" not in explicit:  # the preset's points inside the run only, when its length was changed
         budget = values["budget"]
         budget["eval_at"] = tuple(i for i in budget["eval_at"] if i < budget["iterations"])
+    records = method_knobs.build(knobs)
+    if smoke:  # one setting of each grid axis, as the recipe's grids
+        records = {m: dataclasses.replace(r, **{f.name: getattr(r, f.name)[:1] for f in dataclasses.fields(r)
+                                                 if isinstance(getattr(r, f.name), tuple)}) for m, r in records.items()}
     settings = Settings(*(_record(name, values[name]) for name in SECTIONS), preset=preset, smoke=smoke,
-                        preset_iterations=preset_iterations)
+                        preset_iterations=preset_iterations, knobs=records)
     _check_image_recipe(settings.recipe, obs, settings.protocol.image_size)
     if settings.recipe.dtype == "bfloat16" and (problem := models.bf16_problem()):
         raise SettingsError(f"recipe.dtype 'bfloat16': {problem}; use recipe.dtype=float32")
@@ -422,8 +432,11 @@ def parse_set(item: str) -> tuple[str, str, Any]:
     section, dot, field = key.strip().partition(".")
     if not sep or not dot:
         raise SettingsError(f"--set {item!r} is not SECTION.FIELD=VALUE (e.g. recipe.batch_size=64)")
+    if section not in _RECORDS and method_knobs.owns(section):
+        return section, field, method_knobs.parse_set(section, field, text, item)
     if section not in _RECORDS:
-        raise SettingsError(f"--set {item!r}: unknown section {section!r}; valid: {', '.join(SECTIONS)}")
+        raise SettingsError(f"--set {item!r}: unknown section {section!r}; valid: {', '.join(SECTIONS)} or a method "
+                            f"with settings of its own")
     if field not in fields(section):
         raise SettingsError(f"--set {item!r}: unknown field {section}.{field}; valid: "
                             + ", ".join(f"{section}.{f}" for f in fields(section)))
@@ -437,39 +450,6 @@ def parse_set(item: str) -> tuple[str, str, Any]:
 def format_set(section: str, field: str, value: Any) -> str:
     """`"SECTION.FIELD=VALUE"` that `parse_set` reads back as `value` (its inverse)."""
     return f"{section}.{field}={_format(typing.get_type_hints(_RECORDS[section])[field], value)}"
-
-
-def arguments(env: str, obs: str, target: Settings) -> list[str]:
-    """The sweep's arguments (`--preset`, `--protocol`, `--recipe`, `--smoke`, `--set`) under which `resolve`
-    gives `target`'s records: the command line of a results file that records its settings but not its command
-    (a sweep run from Python). Only what differs from the preset's, the protocol's and the recipe's own values
-    is set.
-
-    Raises:
-      SettingsError: no arguments give `target` (its preset, protocol or recipe is no longer known).
-    """
-    proto = target.protocol.name
-    args = ["--preset", target.preset]
-    if proto != tasks.get(env).protocol(None, obs).name:
-        args += ["--protocol", proto]
-    if target.recipe.name != default_recipe(target.protocol, obs):
-        args += ["--recipe", target.recipe.name]
-    if target.smoke:
-        args.append("--smoke")
-
-    def differences(settings: Settings, skip: tuple[str, ...] = ()) -> list[str]:
-        return [format_set(section, f, getattr(getattr(target, section), f)) for section in SECTIONS
-                for f in fields(section) if f not in skip
-                and getattr(getattr(settings, section), f) != getattr(getattr(target, section), f)]
-
-    def rebuild(sets: list[str]) -> Settings:
-        return resolve(env, obs, proto, target.preset, target.recipe.name, sets=sets, smoke=target.smoke)
-
-    # eval_at last: a changed budget.iterations trims the preset's points by itself (`resolve`)
-    sets = differences(rebuild([]), skip=("eval_at",))
-    sets += differences(rebuild(sets))
-    _check(not differences(rebuild(sets)), f"no --set gives the recorded settings of {env} ({obs})")
-    return args + [x for item in sets for x in ("--set", item)]
 
 
 # -- internals ------------------------------------------------------------------------------------------------------

@@ -104,7 +104,7 @@ def plan(spec: SweepSpec, prepared: Prepared) -> list[Program]:
     ctx = methods_lib.GridContext(task=prepared.task, step_grid=recipe.step_grid, softmax_grid=recipe.softmax_grid,
                                   n_train=len(prepared.train), fca_alphas=recipe.fca_alphas,
                                   ib_weights=recipe.ib_weights, fca_adversary_lr=recipe.fca_adversary_lr,
-                                  recipe=recipe)
+                                  recipe=recipe, knobs=spec.settings.knobs)
     runs = grid_runs(spec.methods, spec.budget.seeds, ctx, spec.budget.first_seed)
     if not runs:
         raise ValueError(f"nothing to train: the recipe's grids are empty for {', '.join(spec.methods)}")
@@ -119,7 +119,7 @@ def plan(spec: SweepSpec, prepared: Prepared) -> list[Program]:
         else:
             learner = method.learner(methods_lib.LearnerContext(
                 cfg=cfg, env=view.env, expert=view.expert, obs_mean=view.normalizer.mean,
-                obs_std=view.normalizer.std, n_train=len(view.train), recipe=recipe))
+                obs_std=view.normalizer.std, n_train=len(view.train), recipe=recipe, knobs=spec.settings.knobs))
         programs.append(Program(name, cfg, mine, learner))
     return programs
 

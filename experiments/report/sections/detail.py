@@ -8,7 +8,7 @@ import pathlib
 import shlex
 
 from ape_jax import methods as methods_lib
-from ape_jax.pipeline import presets
+from ape_jax.pipeline import presets, replay
 from ape_jax.pipeline import results as results_lib
 from experiments.report import figures
 from experiments.report.analysis import (BRAX, Group, Key, best_of, choices, config_key, copycat_groups, demonstrator,
@@ -130,7 +130,7 @@ def _protocol_provenance(r: results_lib.Results) -> str:
 
 def _rebuilt_command(r: results_lib.Results) -> str:
     """The sweep command of a file that does not record its own: a sweep run from Python is given the arguments
-    under which today's `presets.resolve` gives the settings it records (`presets.arguments`), its methods and its
+    under which today's `presets.resolve` gives the settings it records (`replay.arguments`), its methods and its
     dataset; a schema 1 file (or one whose settings no arguments give) the command as it ran, from its config."""
     cfg = r.config
     methods = [] if cfg.get("methods") == list(methods_lib.default()) else ["--methods", ",".join(cfg["methods"])]
@@ -138,7 +138,7 @@ def _rebuilt_command(r: results_lib.Results) -> str:
     if r.written_schema != 1 and former_preset(r) is None:  # run from Python: every setting, as today's arguments
         try:
             records = dataclasses.replace(r.records(), smoke=bool(cfg.get("smoke")))
-            args = presets.arguments(r.env, r.obs, records)
+            args = replay.arguments(r.env, r.obs, records)
         except presets.SettingsError:  # a file from before schema 3 records part of them: rebuilt from config below
             pass
         else:
