@@ -20,25 +20,7 @@ TABLE5_METHODS=bc-so,bc-oh,bc-full,ours-step,ours-softmax,fca
 TABLE5="$FCA --methods $TABLE5_METHODS $GRIDS"
 AFTER=rap,palr,mine
 
-sweep() {  # sweep NAME ARGS...: one sweep into $RUNS/NAME, its results to results/NAME.json
-  local name=$1; shift
-  if [ -f "results/$name.json" ]; then echo "skip $name (results/$name.json exists)"; return; fi
-  if [ ! -f "$RUNS/$name/results.json" ]; then
-    echo "start $name $(date -u +%FT%TZ)"
-    # --resume where a sweep was started (a folder without one is refused with it), else a fresh start
-    local resume=(); [ -f "$RUNS/$name/checkpoints/sweep.json" ] && resume=(--resume)
-    "$PY" -m experiments.sweep "$@" --out "$RUNS/$name" "${resume[@]}" > "$RUNS/$name.log" 2>&1 \
-      || { echo "FAILED $name (exit $?; $RUNS/$name.log)"; return; }
-  fi
-  cp "$RUNS/$name/results.json" "results/$name.json" && echo "done $name $(date -u +%FT%TZ)"
-}
-
-judge_by() {  # judge_by NAME SIBLING: results/NAME.json's controlled verdict from SIBLING's BC-SO, for a file with
-  # none of its own (no BC-SO, or policies that see the previous action); idempotent, so rerun on every start
-  [ -f "results/$1.json" ] || return
-  "$PY" -m experiments.evaluate --rejudge "results/$1.json" --control "results/$2.json" > /dev/null \
-    && echo "judged $1 against $2" || echo "FAILED judging $1 against $2"
-}
+source "$WT/results/queue/_lib.sh"
 
 # Table 5 with FCA's expert (Hopper): raw labels as FCA stored them, and clipped; FCA at the supplement's alpha 0.1
 # and FCA's code's 2.0; 8 seeds
