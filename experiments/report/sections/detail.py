@@ -3,12 +3,11 @@ paper's settings against its best, the loss analysis (the paper's Table 3), and 
 
 from __future__ import annotations
 
-import dataclasses
 import pathlib
 import shlex
 
 from ape_jax import methods as methods_lib
-from ape_jax.pipeline import presets, replay
+from ape_jax.pipeline import presets
 from ape_jax.pipeline import results as results_lib
 from experiments.report import figures
 from experiments.report.analysis import (BRAX, Group, Key, best_of, choices, config_key, copycat_groups, demonstrator,
@@ -18,6 +17,7 @@ from experiments.report.analysis import (BRAX, Group, Key, best_of, choices, con
 from experiments.report.sections.common import (SETTING_WORDS, Context, Section, expert_text, hparams_text, plus_minus,
                                                 table)
 from experiments.report.sections.diagnostics import group_diagnostics, training_table
+from experiments.results_index import dataset_of, settings_arguments
 
 
 def grid_table(m: Group) -> str:
@@ -130,19 +130,19 @@ def _protocol_provenance(r: results_lib.Results) -> str:
 
 def _rebuilt_command(r: results_lib.Results) -> str:
     """The sweep command of a file that does not record its own: a sweep run from Python is given the arguments
-    under which today's `presets.resolve` gives the settings it records (`replay.arguments`), its methods and its
-    dataset; a schema 1 file (or one whose settings no arguments give) the command as it ran, from its config."""
+    under which today's `presets.resolve` gives the settings it records (`results_index.settings_arguments`, which
+    the results index replays by too), its methods and its dataset; a schema 1 file (or one whose settings no
+    arguments give) the command as it ran, from its config."""
     cfg = r.config
     methods = [] if cfg.get("methods") == list(methods_lib.default()) else ["--methods", ",".join(cfg["methods"])]
-    dataset = ((cfg.get("data") or {}).get("settings") or {}).get("dataset")
+    dataset = dataset_of(r)
     if r.written_schema != 1 and former_preset(r) is None:  # run from Python: every setting, as today's arguments
         try:
-            records = dataclasses.replace(r.records(), smoke=bool(cfg.get("smoke")))
-            args = replay.arguments(r.env, r.obs, records)
+            args = settings_arguments(r)
         except presets.SettingsError:  # a file from before schema 3 records part of them: rebuilt from config below
             pass
         else:
-            return shlex.join(["python", "-m", "experiments.sweep", "--env", r.env, "--obs", r.obs, *args, *methods,
+            return shlex.join(["python", "-m", "experiments.sweep", *args, *methods,
                                *(["--dataset", dataset] if dataset else [])])
     cmd = f"python -m experiments.sweep --env {r.env} --obs {r.obs} --preset {r.preset}"
     if methods:
