@@ -46,6 +46,7 @@ for protocol in $TABLES; do
       fi
       [ "$rc" -eq 0 ] || { echo "FAILED $piece (exit $rc; $RUNS/$piece.log)"; exit 1; }
     fi
-    cp "$out/results.json" "results/$piece.json" && echo "done $piece $(date -u +%FT%TZ)"
+    cp "$out/results.json" "results/$piece.json" && "$PY" -m experiments.results_index > /dev/null \
+      && echo "done $piece $(date -u +%FT%TZ) (results/README.md regenerated)"
   done
 done
