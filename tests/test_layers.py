@@ -91,6 +91,14 @@ def test_the_circle_finder_finds_one():
     assert _circles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
 
 
+def test_nothing_in_envs_imports_from_above_it():
+    """`envs` is the bottom floor: the environments and their experts import neither `ape_jax` nor `experiments`."""
+    graph = _imports(_modules())
+    up = {m: sorted(t for t in targets if not t.startswith("envs")) for m, targets in graph.items()
+          if m.startswith("envs") and any(not t.startswith("envs") for t in targets)}
+    assert up == {}
+
+
 def test_no_module_over_500_lines():
     long = {name: n for name, path in _modules().items() if (n := len(path.read_text().splitlines())) > MAX_LINES}
     assert long == {}

@@ -35,6 +35,8 @@ import jax
 import numpy as np
 from flax import struct
 
+from envs.cache import cache_dir  # noqa: F401  (the pipeline's name for it: `data.cache_dir()`)
+
 FORMAT = 1
 REQUIRED = ("obs", "action", "episode", "t", "done", "reward")
 
@@ -399,14 +401,6 @@ def _check_episodes(episode: np.ndarray, t: np.ndarray, where: str) -> None:
 
 
 # -- cache ----------------------------------------------------------------------------------
-
-def cache_dir() -> pathlib.Path:
-    """`$APE_JAX_CACHE`, else `$XDG_CACHE_HOME/ape_jax`, else `~/.cache/ape_jax`."""
-    if os.environ.get("APE_JAX_CACHE"):
-        return pathlib.Path(os.environ["APE_JAX_CACHE"])
-    base = os.environ.get("XDG_CACHE_HOME") or pathlib.Path.home() / ".cache"
-    return pathlib.Path(base) / "ape_jax"
-
 
 def cache_path(data_dir: str | os.PathLike, settings: dict) -> pathlib.Path:
     """Where the dataset of collection `settings` lives: `DIR/<env>-<obs>-<hash>.npz`.

@@ -73,10 +73,10 @@ def import_command(name: str) -> str:
 
 def user_root() -> pathlib.Path:
     """The user's expert directory, where imported experts live: `$APE_JAX_EXPERTS`, else
-    `<ape_jax.pipeline.data.cache_dir()>/experts`."""
+    `<envs.cache.cache_dir()>/experts`."""
     if os.environ.get("APE_JAX_EXPERTS"):
         return pathlib.Path(os.environ["APE_JAX_EXPERTS"])
-    from ape_jax.pipeline.data import cache_dir
+    from envs.cache import cache_dir
 
     return cache_dir() / "experts"
 

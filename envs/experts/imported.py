@@ -5,7 +5,7 @@
 
 An imported expert is the same deterministic MLP as a shipped one (`envs.experts`: `obs_mean`, `obs_std`,
 `kernels`, `biases`, the card's `network.activation` and `network.head`), kept in the user's expert directory
-`$APE_JAX_EXPERTS/<env>-<name>/` (default: `<ape_jax.pipeline.data.cache_dir()>/experts/`), never in the
+`$APE_JAX_EXPERTS/<env>-<name>/` (default: `<envs.cache.cache_dir()>/experts/`), never in the
 repository: its weights may carry another licence (the FCA repository's carry none). The directory holds the
 converted parameters (`policy/`), `card.json` (source path, format, SHA-256, origin where known, the network,
 the references under `brax`) and `references.json` (the references under the other protocols), measured at import.
