@@ -21,27 +21,74 @@ over the steps before it ends:
   each of its actions from its previous 9, divided by the training set's mean
   APE: the expert's demonstrations score about 1, and a policy that copies its
   previous action is more predictable than the expert, so scores lower.
+
+**A method's own policy.** A trained policy is `cfg.model()` acting on its last `H` observations, unless the
+module that registered its method defines `policy_runtime(cfg, settings) -> Runtime` (`RUNTIME_HOOK`; ACT's
+action chunks with their temporal ensemble, PrimeNet's prime network feeding the history policy): then
+evaluation, the loss analysis, the copycat probes and the videos read it through that `Runtime` (`runtime_of`).
 """
 
 from __future__ import annotations
 
-from typing import Any
-from collections.abc import Callable
+import sys
+from typing import Any, NamedTuple
+from collections.abc import Callable, Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
 
 import envs
 from ape_jax import ape as ape_lib
-from ape_jax import weighting
+from ape_jax import methods, weighting
 from ape_jax.grid import in_blocks
-from ape_jax.learner import Data, LearnerConfig, dataset_losses, make_train
+from ape_jax.history import history_index
+from ape_jax.learner import Data, Learner, LearnerConfig, action_errors, dataset_losses, make_train
+
+RUNTIME_HOOK = "policy_runtime"  # the function a method's module defines when its policy is not `cfg.model()`
+
+
+class Runtime(NamedTuple):
+    """How a method's trained policies are read where they are not `cfg.model()` acting on its history.
+
+    A method's module defines `policy_runtime(cfg, settings) -> Runtime` (`RUNTIME_HOOK`): `cfg` the program's
+    `LearnerConfig`, `settings` the hyperparameters of each run of the group (`Method.settings`' dicts, in order).
+
+    Attributes:
+      apply: `apply(variables, x, return_embedding=False)`, as `cfg.model().apply`: the network on the policy
+        input `x` (`[B, ...]`, `make_train(cfg).policy_input` of the last `cfg.history` observations) -> the
+        action at `t` `[B, A]`; with `return_embedding=True` `(action, embedding [B, E])`, what the copycat
+        probes read. The loss analysis scores this action.
+      policy: `policy(obs_mean, obs_std, env) -> envs.Policy`: the run-time policy (stateful where the method
+        is, e.g. a buffer of past predictions), its params the policy's variables; None: `history_policy`
+        acting with `apply`.
+    """
+
+    apply: Callable[..., Any]
+    policy: Callable[[Any, Any, envs.Env], envs.Policy] | None = None
+
+
+def runtime_factory(method: str) -> Callable[[LearnerConfig, Sequence[Mapping[str, float]]], Runtime] | None:
+    """The `policy_runtime` of the module that registered `method`; None where it defines none (its policy is
+    `cfg.model()`) or `method` is not registered in this process (a plugin of a file evaluated again)."""
+    try:
+        module = methods.get(method).module
+    except methods.MethodError:
+        return None
+    return getattr(sys.modules.get(module), RUNTIME_HOOK, None)
+
+
+def runtime_of(cfg: LearnerConfig, method: str, settings: Sequence[Mapping[str, float]]) -> Runtime | None:
+    """The `Runtime` of `method`'s policies trained under `cfg` at `settings` (one dict per policy), or None: a
+    plain `cfg.model()` (`runtime_factory`)."""
+    make = runtime_factory(method)
+    return None if make is None else make(cfg, settings)
 
 
 def history_policy(cfg: LearnerConfig, obs_mean: jax.Array | None, obs_std: jax.Array | None,
-                   env: envs.Env) -> envs.Policy:
-    """A trained policy as an `envs.Policy` whose carry is the observation history `[H, *obs_shape]`."""
-    model = cfg.model()
+                   env: envs.Env, apply: Callable[..., Any] | None = None) -> envs.Policy:
+    """A trained policy as an `envs.Policy` whose carry is the observation history `[H, *obs_shape]`; `apply`
+    (a `Runtime`'s) applies the network, None: `cfg.model().apply`."""
+    apply = apply or cfg.model().apply
     learner = make_train(cfg)
     low, high = env.action_bounds
 
@@ -56,17 +103,28 @@ def history_policy(cfg: LearnerConfig, obs_mean: jax.Array | None, obs_std: jax.
 
     def act(params, carry, state, key):
         history = jnp.concatenate([carry[1:], observe(state)[None]])
-        action = model.apply(params, learner.policy_input(history[None]))[0]
+        action = apply(params, learner.policy_input(history[None]))[0]
         return jnp.clip(action, low, high), history
 
     return envs.Policy(init=init, act=act)
 
 
+def runtime_policy(cfg: LearnerConfig, obs_mean: jax.Array | None, obs_std: jax.Array | None, env: envs.Env,
+                   runtime: Runtime | None = None) -> envs.Policy:
+    """The policy a trained network acts as: `runtime`'s own, else `history_policy` (with `runtime.apply`)."""
+    if runtime is not None and runtime.policy is not None:
+        return runtime.policy(obs_mean, obs_std, env)
+    return history_policy(cfg, obs_mean, obs_std, env, None if runtime is None else runtime.apply)
+
+
 def make_evaluator(env: envs.Env, cfg: LearnerConfig, obs_mean: jax.Array | None, obs_std: jax.Array | None,
                    episodes: int, steps: int | None = None, expert: Callable[[jax.Array], jax.Array] | None = None,
                    ape_params: Any = None, ape_scale: float = 1.0,
-                   keep_actions: bool = False, width: int | None = None) -> Callable[[Any, jax.Array], dict]:
+                   keep_actions: bool = False, width: int | None = None,
+                   runtime: Runtime | None = None) -> Callable[[Any, jax.Array], dict]:
     """A jitted `(params [P, ...], key) -> {"return": [P, E], "length": [P, E], ...}`.
+
+    `runtime`: how the policies act where they are not `cfg.model()` on their history (`runtime_policy`).
 
     `width`: the policies go `width` at a time through one executable (`grid.in_blocks`), so a policy's
     episodes do not depend on how many are evaluated with it; None: all `P` in one call.
@@ -77,7 +135,7 @@ def make_evaluator(env: envs.Env, cfg: LearnerConfig, obs_mean: jax.Array | None
     `"actions": [P, E, T, A]` and `"valid": [P, E, T]` (for
     `ape_jax.diagnostics`' own-rollout predictability).
     """
-    policy = history_policy(cfg, obs_mean, obs_std, env)
+    policy = runtime_policy(cfg, obs_mean, obs_std, env, runtime)
     own_metrics = bool(env.episode_metric_names)
 
     def record(state):
@@ -115,9 +173,23 @@ def normalized(returns: jax.Array | float, expert: float, random: float) -> Any:
     return 100.0 * (returns - random) / (expert - random)
 
 
+def runtime_learner(cfg: LearnerConfig, runtime: Runtime | None = None) -> Learner:
+    """`make_train(cfg)`, its per-sample loss (`(params, data, idx) -> [B]`) that of `runtime.apply`'s action
+    where a `runtime` is given (the rows' histories built as the learner builds them)."""
+    learner = make_train(cfg)
+    if runtime is None:
+        return learner
+
+    def per_sample_loss(params, data: Data, idx: jax.Array) -> jax.Array:
+        x = learner.policy_input(data.obs[history_index(data.t, idx, cfg.history)])
+        return action_errors(cfg, runtime.apply(params, x), data.action[idx])
+
+    return learner._replace(per_sample_loss=per_sample_loss)
+
+
 def loss_analysis(cfg: LearnerConfig, params: Any, data: Data, changepoint_frac: float = 0.1,
-                  width: int | None = None) -> dict:
-    """The paper's Table 3 for a batch of policies on one split.
+                  width: int | None = None, runtime: Runtime | None = None) -> dict:
+    """The paper's Table 3 for a batch of policies on one split (`runtime`: their action, `runtime_learner`).
 
     Args:
       params: policies, leaves `[P, ...]`.
@@ -135,7 +207,7 @@ def loss_analysis(cfg: LearnerConfig, params: Any, data: Data, changepoint_frac:
     (9 GB for nine 32×32 policies). `width`: state policies go `width` at a time through one executable
     (`grid.in_blocks`); None: all together.
     """
-    learner = make_train(cfg)
+    learner = runtime_learner(cfg, runtime)
 
     def one(p, data):  # data is an argument, not a closed-over constant XLA would try to fold
         losses = dataset_losses(learner, p, data)

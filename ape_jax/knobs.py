@@ -3,8 +3,9 @@
 
 The recipe checks what a user typed (`--recipe`, `--set recipe.FIELD=VALUE`), naming the field `recipe.FIELD`;
 the learner config checks what a program is built from, naming it `LearnerConfig.FIELD`, so a config made in
-code (a benchmark, a notebook) is refused by the same rule and in the same words. `nonnegative` and `positive` are
-the range rules of the methods' own hyperparameters (their `Hparams.make`: weights, bandwidths, learning rates).
+code (a benchmark, a notebook) is refused by the same rule and in the same words. `nonnegative`, `positive` and
+`integer` are the range rules of the methods' own hyperparameters (their `Hparams.make` and `Method.knobs` records:
+weights, bandwidths, learning rates, chunk sizes).
 """
 
 from __future__ import annotations
@@ -66,6 +67,12 @@ def positive(name: str, value: float) -> None:
     """Refuses (`ValueError`, one line) a method's hyperparameter `name` at or below 0, infinite or NaN."""
     if not 0.0 < value < math.inf:
         raise ValueError(f"{name} must be > 0 and finite, got {value}")
+
+
+def integer(name: str, value: Any, least: int) -> None:
+    """Refuses (`ValueError`, one line) a method's integer setting `name` that is not an integer >= `least`."""
+    if problem := _integer(least)(value):
+        raise ValueError(f"{name} {problem}")
 
 
 def check(where: str, error: type[Exception] = ValueError, **knobs: Any) -> None:

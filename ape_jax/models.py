@@ -118,6 +118,11 @@ class StatePolicy(nn.Module):
     the batch's statistics and updates the running ones (`mutable=["batch_stats"]`); `train=False` (every use
     but a training step) uses the running statistics. Without BatchNorm `train` changes nothing. Leading
     dimensions are flattened for BatchNorm, whose statistics are over all of them.
+
+    `first_layer_input` (`[..., hidden[0]]`) is added to the first encoder layer's pre-activation (before its
+    BatchNorm): a second input block of that layer, projected by the caller (PrimeNet's prime,
+    `ape_jax.baselines.priming`). A layer on `[x, p]` is `x K_x + p K_p`, so this is concatenation with the
+    kernel split in two; a zero block leaves the network's function and gradients exactly as without it.
     """
 
     action_dim: int
@@ -129,12 +134,16 @@ class StatePolicy(nn.Module):
 
     @nn.compact
     def __call__(self, obs: jax.Array, return_embedding: bool = False, train: bool = False,
-                 embedding_noise: jax.Array | None = None) -> jax.Array | tuple[jax.Array, jax.Array]:
+                 embedding_noise: jax.Array | None = None, first_layer_input: jax.Array | None = None
+                 ) -> jax.Array | tuple[jax.Array, jax.Array]:
         lead = obs.shape[:-1]
         x = obs.reshape((-1, obs.shape[-1])) if self.batchnorm else obs
         for i, width in enumerate(self.hidden):
             x = nn.Dense(width, use_bias=not self.batchnorm, kernel_init=INITS[self.weights_init], dtype=self.dtype,
                          name=f"encoder_{i}")(x)
+            if i == 0 and first_layer_input is not None:
+                extra = first_layer_input.astype(x.dtype)
+                x = x + (extra.reshape((-1, extra.shape[-1])) if self.batchnorm else extra)
             if self.batchnorm:
                 # Flax's momentum is the old statistics' share: PyTorch's 0.1 is Flax's 0.9
                 x = nn.BatchNorm(use_running_average=not train, momentum=1.0 - self.bn_momentum, epsilon=1e-5,

@@ -30,7 +30,8 @@ def test_every_builtin_is_registered_once_with_its_program_and_role():
     names = methods.names()
     assert names[:5] == ("bc-so", "bc-oh", "bc-full", "ours-step", "ours-softmax")
     assert set(names) == {"bc-so", "bc-oh", "bc-full", "ours-step", "ours-softmax", "bcpd", "actfreq", "kmeans",
-                          "boosting", "history-dropout", "fca", "fca-ib", "dagger", "rap", "palr", "mine"}
+                          "boosting", "history-dropout", "fca", "fca-ib", "dagger", "rap", "palr", "mine",
+                          "action-chunks", "priming", "channel-dropout", "ptp"}
     assert methods.default() == ("bc-so", "bc-oh", "ours-step", "ours-softmax")   # bc-full: asked for by name
     assert set(methods.shortcuts()["baselines"]) == set(names) - set(methods.default()) - {"bc-full"}
     programs = {n: methods.get(n).program for n in names}
@@ -177,5 +178,6 @@ def test_the_listing_order_does_not_depend_on_which_module_was_imported_first():
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.strip().splitlines()[-1] == ",".join(methods.names())
-    assert methods.names("baseline") == ("actfreq", "bcpd", "boosting", "dagger", "fca", "fca-ib", "history-dropout",
-                                         "kmeans", "mine", "palr", "rap")
+    assert methods.names("baseline") == ("actfreq", "action-chunks", "bcpd", "boosting", "channel-dropout", "dagger",
+                                         "fca", "fca-ib", "history-dropout", "kmeans", "mine", "palr", "priming", "ptp",
+                                         "rap")

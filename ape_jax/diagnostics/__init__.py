@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import functools
 from typing import Any
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -89,9 +90,9 @@ def probe_rows(data: Data, at_most: int, seed: int = 0) -> np.ndarray:
     return rows
 
 
-@functools.partial(jax.jit, static_argnames=("cfg", "steps"))
+@functools.partial(jax.jit, static_argnames=("cfg", "steps", "apply"))
 def _probe_policies(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data, val: Data, rows: tuple,
-                    targets: tuple, steps: int) -> tuple[jax.Array, jax.Array]:
+                    targets: tuple, steps: int, apply: Callable[..., Any] | None = None) -> tuple[jax.Array, jax.Array]:
     """Per policy (a `lax.map`, so one policy's embeddings are in memory at a time): the probe's held-out MSE of
     `a_{t−1}` from its embedding `[P]`, and the velocity probe's ratio `[P]` (NaN without velocities)."""
     rows_train, rows_val = rows
@@ -99,8 +100,8 @@ def _probe_policies(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data
     key_prev, key_vel = jax.random.split(key)
 
     def one(p):
-        e_train = policy_embeddings(cfg, p, train, rows_train)
-        e_val = policy_embeddings(cfg, p, val, rows_val)
+        e_train = policy_embeddings(cfg, p, train, rows_train, apply=apply)
+        e_val = policy_embeddings(cfg, p, val, rows_val, apply=apply)
         prev = probe_target(key_prev, e_train, e_val, prev_train, prev_val, steps=steps).mse
         vel = (jnp.float32(jnp.nan) if vel_train is None else
                probe_target(key_vel, e_train, e_val, vel_train, vel_val, steps=steps).ratio)
@@ -112,7 +113,8 @@ def _probe_policies(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data
 def diagnose(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data, val: Data, rollouts: Any,
              rollouts_valid: Any, expert: tuple[Any, Any], velocity: tuple[Any, Any] | None = None,
              steps: int = PROBE_STEPS, max_rows: tuple[int, int] = PROBE_ROWS,
-             thresholds: Thresholds = THRESHOLDS, state: tuple[Any, Any] | None = None) -> dict[str, np.ndarray]:
+             thresholds: Thresholds = THRESHOLDS, state: tuple[Any, Any] | None = None,
+             apply: Callable[..., Any] | None = None) -> dict[str, np.ndarray]:
     """Both diagnostics and the verdict of every policy of a batch (one network, stacked parameters).
 
     - the embedding probe on the demonstrations: fitted on (at most `max_rows[0]`) training rows, scored on
@@ -144,6 +146,8 @@ def diagnose(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data, val: 
       steps: each probe's and ψ's Adam steps.
       max_rows: the embedding probes' training and held-out rows at most.
       thresholds: the verdict's.
+      apply: the policies' network as `cfg.model().apply` reads them (None: that); a method whose trained policy
+        is another network gives its own (`ape_jax.evaluate.Runtime.apply`), the embedding it returns probed.
 
     Returns:
       `{field: [P] array}` for every field of `FIELDS` (`velocity_ratio` NaN without `velocity`, `prev_from_state`
@@ -169,7 +173,7 @@ def diagnose(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data, val: 
         jnp.asarray(np.asarray(v)[r], jnp.float32) for v, r in zip(velocity, (rows_train, rows_val)))
     prev, vel_ratio = jax.device_get(_probe_policies(
         key_probe, cfg, params, train, val, (jnp.asarray(rows_train), jnp.asarray(rows_val)),
-        (prev_train, prev_val, *vel), steps=steps))
+        (prev_train, prev_val, *vel), steps=steps, apply=apply))
     rollouts, rollouts_valid = np.asarray(rollouts), np.asarray(rollouts_valid)
     pred = rollout_predictability_batch(key_psi, [(a, v) for a, v in zip(rollouts, rollouts_valid)], *expert,
                                         steps=steps)

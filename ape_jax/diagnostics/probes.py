@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 from typing import Any
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -20,7 +21,7 @@ from ape_jax.diagnostics.records import (PROBE_BATCH, PROBE_HIDDEN, PROBE_LR, PR
 # -- the policy's embedding ------------------------------------------------------------------------------------------
 
 def policy_embeddings(cfg: LearnerConfig, params: Any, data: Data, idx: jax.Array,
-                      chunk: int | None = None) -> jax.Array:
+                      chunk: int | None = None, apply: Callable[..., Any] | None = None) -> jax.Array:
     """The frozen policy's embedding of rows `idx`, `[B, E] float32` (E = 100 for the project's networks).
 
     Each row's observation history is built as the learner builds it (`history_index`: the last
@@ -36,6 +37,8 @@ def policy_embeddings(cfg: LearnerConfig, params: Any, data: Data, idx: jax.Arra
       data: the split; `obs [M, *obs_shape]`, `t [M] int32`.
       idx: `[B] int32` row indices into `data.obs` (not positions in `data.rows`).
       chunk: rows per forward pass.
+      apply: the network as `cfg.model().apply` (None: that), for a method whose trained policy is another one
+        (`ape_jax.evaluate.Runtime.apply`).
 
     Returns:
       `[B, E] float32`.
@@ -43,7 +46,7 @@ def policy_embeddings(cfg: LearnerConfig, params: Any, data: Data, idx: jax.Arra
     idx = jnp.asarray(idx, jnp.int32)
     if idx.ndim != 1 or idx.shape[0] < 1:
         raise ValueError(f"policy_embeddings: idx must be [B] with B >= 1, got shape {idx.shape}")
-    model, learner = cfg.model(), make_train(cfg)
+    apply, learner = apply or cfg.model().apply, make_train(cfg)
     b = idx.shape[0]
     chunk = max(1, min(chunk or (256 if cfg.images else 4096), b))
     rounds = -(-b // chunk)
@@ -51,7 +54,7 @@ def policy_embeddings(cfg: LearnerConfig, params: Any, data: Data, idx: jax.Arra
 
     def embed(rows):
         x = learner.policy_input(data.obs[history_index(data.t, rows, cfg.history)])
-        return model.apply(params, x, return_embedding=True)[1]
+        return apply(params, x, return_embedding=True)[1]
 
     emb = jax.lax.map(embed, padded)
     return emb.reshape((rounds * chunk,) + emb.shape[2:])[:b].astype(jnp.float32)

@@ -28,7 +28,9 @@ The finished sweep's policies go to `OUT/params/` (`RunDir.params`; `save_polici
 observation) or `<observation>-h<H>/` (e.g. `full-h1/`, `bc-full`'s), orbax: the
 parameters, leaves `[len(runs), ...]`, and the observation statistics; beside it
 `<group>.json`: `{"history", "observation", "runs"}` (the runs in order), which
-`experiments.evaluate` evaluates again. Files written before groups had an
+`experiments.evaluate` evaluates again. A method whose module reads its policies itself
+(`ape_jax.evaluate.Runtime`) saves them in groups of their own, `h<H>-<program>/`
+(e.g. `h1-action-chunks/`), read back through its runtime. Files written before groups had an
 observation hold the runs' list alone, named `h<H>.json`: the sweep's observation,
 history `H`.
 
@@ -399,7 +401,8 @@ class PolicyError(ValueError):
     """Saved policies that are missing or unreadable (one line)."""
 
 
-GROUP_NAME = re.compile(r"^(?:(?P<observation>[a-z]+)-)?h(?P<history>[0-9]+)$")  # `sweep.PolicyGroup.name`
+# `sweep.PolicyGroup.name`: `h<H>`, `<observation>-h<H>`, and either with `-<kind>` (a method's own policies)
+GROUP_NAME = re.compile(r"^(?:(?P<observation>[a-z]+)-)?h(?P<history>[0-9]+)(?:-(?P<kind>[a-z0-9][a-z0-9_.-]*))?$")
 
 
 def save_policies(params_dir: os.PathLike, groups: dict[str, dict]) -> None:

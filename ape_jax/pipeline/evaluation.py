@@ -1,5 +1,10 @@
 """A sweep's fourth phase (`ape_jax.pipeline.sweep`): every policy on the same episodes (`EVAL_SEED`), with the
-copycat diagnostics and the loss analysis on both splits."""
+copycat diagnostics and the loss analysis on both splits.
+
+Policies are evaluated in groups of one network: one observation, one history, and one way of acting. A method
+whose module defines `policy_runtime` (`ape_jax.evaluate.Runtime`: ACT's action chunks, PrimeNet's composite)
+gets groups of its own, named after its program (`h1-action-chunks`), read through its runtime everywhere here.
+"""
 
 from __future__ import annotations
 
@@ -15,6 +20,7 @@ import numpy as np
 
 from ape_jax import diagnostics as diagnostics_lib
 from ape_jax import evaluate as evaluate_lib
+from ape_jax import methods as methods_lib
 from ape_jax.learner import LearnerConfig
 from ape_jax.pipeline import checkpoint as ckpt_lib
 from ape_jax.pipeline.checkpoint import SweepCheckpoint
@@ -43,9 +49,32 @@ class PolicyGroup:
     observation: str | None = None
 
     @property
+    def kind(self) -> str | None:
+        """How its policies act: None, `cfg.model()` on the history; else the program of a method whose module
+        reads its policies itself (`policy_kind`)."""
+        return policy_kind(self.runs[0].method) if self.runs else None
+
+    @property
     def name(self) -> str:
-        """`h<H>` for the sweep's observation (the name every sweep has used), `<observation>-h<H>` for another."""
-        return f"h{self.history}" if self.observation is None else f"{self.observation}-h{self.history}"
+        """`h<H>` for the sweep's observation (the name every sweep has used), `<observation>-h<H>` for another;
+        `-<kind>` after it for a method's own policies (`h1-action-chunks`)."""
+        name = f"h{self.history}" if self.observation is None else f"{self.observation}-h{self.history}"
+        return name if self.kind is None else f"{name}-{self.kind}"
+
+    @property
+    def runtime(self) -> evaluate_lib.Runtime | None:
+        """How its policies are read where they are not `cfg.model()` (`ape_jax.evaluate.runtime_of`), or None."""
+        if self.kind is None:
+            return None
+        return evaluate_lib.runtime_of(self.cfg, self.runs[0].method, [dict(r.hparams) for r in self.runs])
+
+
+def policy_kind(method: str) -> str | None:
+    """The program of `method` where its module reads its trained policies itself (`evaluate.runtime_factory`):
+    its policies form groups of their own; None for a plain `cfg.model()` (or a method not registered here)."""
+    if evaluate_lib.runtime_factory(method) is None:
+        return None
+    return methods_lib.get(method).program
 
 
 @dataclasses.dataclass(frozen=True)
@@ -77,8 +106,9 @@ def group_diagnostics(prepared: Prepared, ape: ApeFit, group: PolicyGroup, actio
     own rollouts) as executed (`Demonstrations.executed`: the clipped actions the env ran, like the policies'
     rollout actions, whatever the labels), the velocity the demonstrations' `qvel` where they hold one. A
     network that gives no embedding (its `__call__` takes no `return_embedding`, e.g. a plugin's) gets
-    `{"diag_absent": [P]}`."""
-    if "return_embedding" not in inspect.signature(type(group.cfg.model()).__call__).parameters:
+    `{"diag_absent": [P]}`; a group with a `Runtime` is probed through its `apply`, which gives one."""
+    runtime = group.runtime
+    if runtime is None and "return_embedding" not in inspect.signature(type(group.cfg.model()).__call__).parameters:
         return {f"{DIAG}absent": np.ones(len(group.runs))}  # reported absent, never as zero
     train, val = prepared.data(prepared.train, ape.train), prepared.data(prepared.val, ape.val)
     demos = prepared.train.demos
@@ -90,7 +120,8 @@ def group_diagnostics(prepared: Prepared, ape: ApeFit, group: PolicyGroup, actio
             state = tuple(np.concatenate([sim["qpos"][:, 1:], sim["qvel"]], axis=-1) for sim in both)
     expert = diagnostics_lib.demonstration_rollouts(demos.executed, demos.episode)
     d = diagnostics_lib.diagnose(jax.random.PRNGKey(DIAGNOSTICS_SEED), group.cfg, group.params, train, val,
-                                 actions, valid, expert, velocity, steps=steps, state=state)
+                                 actions, valid, expert, velocity, steps=steps, state=state,
+                                 apply=None if runtime is None else runtime.apply)
     rows = d.pop("probe_rows")
     return {**{DIAG + k: np.asarray(v) for k, v in d.items()},
             f"{DIAG}probe_rows_train": np.full(len(group.runs), rows[0]),
@@ -104,12 +135,15 @@ def evaluate_group(prepared: Prepared, ape: ApeFit, episodes: int, group: Policy
     `ape_jax.diagnostics` ones as `diag_<field>` `[P]` with `probe_steps` where `diagnosable`), the loss
     analysis `{"train": {...: [P]}, "val": {...}}` of one group, and the diagnostics' seconds. The policies go
     `width` at a time (`Budget.width`; 0: all together) through the evaluation and the loss analysis. A group
-    reading another observation is evaluated, analysed and diagnosed in its own view (`Prepared.view`)."""
+    reading another observation is evaluated, analysed and diagnosed in its own view (`Prepared.view`); a group
+    with a `Runtime` (`PolicyGroup.runtime`) acts and is scored through it."""
     prepared = prepared.view(group.observation)
+    runtime = group.runtime
     diagnostics = diagnosable(episodes, probe_steps, prepared.train.demos.num_episodes)
     evaluator = evaluate_lib.make_evaluator(prepared.env, group.cfg, prepared.normalizer.mean, prepared.normalizer.std,
                                             episodes, expert=prepared.expert, ape_params=ape.params,
-                                            ape_scale=ape.raw_mean, keep_actions=diagnostics, width=width or None)
+                                            ape_scale=ape.raw_mean, keep_actions=diagnostics, width=width or None,
+                                            runtime=runtime)
     out = jax.device_get(evaluator(group.params, jax.random.PRNGKey(EVAL_SEED)))
     diag_s = 0.0
     if diagnostics:
@@ -117,15 +151,15 @@ def evaluate_group(prepared: Prepared, ape: ApeFit, episodes: int, group: Policy
         out.update(group_diagnostics(prepared, ape, group, out.pop("actions"), out.pop("valid"), probe_steps))
         diag_s = time.perf_counter() - t0
     losses = {split: jax.device_get(evaluate_lib.loss_analysis(group.cfg, group.params, prepared.data(s, a),
-                                                               width=width or None))
+                                                               width=width or None, runtime=runtime))
               for split, s, a in (("train", prepared.train, ape.train), ("val", prepared.val, ape.val))}
     return out, losses, diag_s
 
 
 def evaluate(trained: Sequence[Trained], prepared: Prepared, ape: ApeFit, episodes: int, hooks: Hooks = Hooks(),
              checkpoint: SweepCheckpoint | None = None, probe_steps: int = 0, width: int = 0) -> Evaluated:
-    """Phase 4: every policy on the same `episodes` episodes, one program per observation and history
-    (`PolicyGroup`; groups saved in `checkpoint` reused), `width` policies at a time (`Budget.width`; 0: a group
+    """Phase 4: every policy on the same `episodes` episodes, one program per observation, history and kind of
+    policy (`PolicyGroup`; groups saved in `checkpoint` reused), `width` policies at a time (`Budget.width`; 0: a group
     at once), with the copycat diagnostics at `probe_steps` (`Budget.probe_steps`; 0: none); the same for the
     policies kept at each iteration of `Budget.eval_at` (`Trained.snapshots`)."""
     points = sorted({i for t in trained for i in t.snapshots})
@@ -133,7 +167,8 @@ def evaluate(trained: Sequence[Trained], prepared: Prepared, ape: ApeFit, episod
     total = sum(len(t.program.runs) * (1 + len(t.snapshots)) for t in trained) * episodes
     with hooks.bar(desc="evaluate", total=total, unit="episode") as b:
 
-        def evaluated(seen: tuple[str | None, int], mine: list[Trained], params: list, at: int | None = None):
+        def evaluated(seen: tuple[str | None, int, str | None], mine: list[Trained], params: list,
+                      at: int | None = None):
             group = PolicyGroup(seen[1], mine[0].program.cfg, tuple(r for t in mine for r in t.program.runs),
                                 jax.tree.map(lambda *xs: jnp.concatenate(xs), *params), seen[0])
             name = f"eval-{group.name}" + ("" if at is None else f"-at{at}")
@@ -148,8 +183,9 @@ def evaluate(trained: Sequence[Trained], prepared: Prepared, ape: ApeFit, episod
             b.update(len(group.runs) * episodes)
             return group, *saved
 
-        def seen(t: Trained) -> tuple[str | None, int]:
-            return prepared.observing(observation_of(t.program)), t.program.cfg.history
+        def seen(t: Trained) -> tuple[str | None, int, str | None]:
+            return (prepared.observing(observation_of(t.program)), t.program.cfg.history,
+                    policy_kind(t.program.runs[0].method))
 
         final, snapshots = [], {i: [] for i in points}
         for key in dict.fromkeys(seen(t) for t in trained):

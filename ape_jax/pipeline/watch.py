@@ -138,7 +138,9 @@ def episode_of(results: Results, params_dir: str | pathlib.Path, method: str, se
     from ape_jax import evaluate as evaluate_lib
 
     cfg = prepared.learner_config(spec.settings, saved["history"])
-    policy = evaluate_lib.history_policy(cfg, prepared.normalizer.mean, prepared.normalizer.std, prepared.env)
+    runtime = evaluate_lib.runtime_of(cfg, record["method"], [record["hparams"]])  # a method's own way of acting
+    policy = evaluate_lib.runtime_policy(cfg, prepared.normalizer.mean, prepared.normalizer.std, prepared.env,
+                                         runtime)
     params = jax.tree.map(lambda x: x[j], saved["params"])
     env = prepared.env
     log(f"rolling out {spec.budget.eval_episodes} evaluation episodes of {method} seed {record['seed']}")
