@@ -22,15 +22,14 @@ over the steps before it ends:
   APE: the expert's demonstrations score about 1, and a policy that copies its
   previous action is more predictable than the expert, so scores lower.
 
-**A method's own policy.** A trained policy is `cfg.model()` acting on its last `H` observations, unless the
-module that registered its method defines `policy_runtime(cfg, settings) -> Runtime` (`RUNTIME_HOOK`; ACT's
-action chunks with their temporal ensemble, PrimeNet's prime network feeding the history policy): then
-evaluation, the loss analysis, the copycat probes and the videos read it through that `Runtime` (`runtime_of`).
+**A method's own policy.** A trained policy is `cfg.model()` acting on its last `H` observations, unless its
+method's record gives `Method.runtime(cfg, settings) -> Runtime` (ACT's action chunks with their temporal
+ensemble, PrimeNet's prime network feeding the history policy): then evaluation, the loss analysis, the copycat
+probes and the videos read it through that `Runtime` (`runtime_of`).
 """
 
 from __future__ import annotations
 
-import sys
 from typing import Any, NamedTuple
 from collections.abc import Callable, Mapping, Sequence
 
@@ -44,13 +43,11 @@ from ape_jax.grid import in_blocks
 from ape_jax.history import history_index
 from ape_jax.learner import Data, Learner, LearnerConfig, action_errors, dataset_losses, make_train
 
-RUNTIME_HOOK = "policy_runtime"  # the function a method's module defines when its policy is not `cfg.model()`
-
 
 class Runtime(NamedTuple):
     """How a method's trained policies are read where they are not `cfg.model()` acting on its history.
 
-    A method's module defines `policy_runtime(cfg, settings) -> Runtime` (`RUNTIME_HOOK`): `cfg` the program's
+    A method's record gives `Method.runtime(cfg, settings) -> Runtime`: `cfg` the program's
     `LearnerConfig`, `settings` the hyperparameters of each run of the group (`Method.settings`' dicts, in order).
 
     Attributes:
@@ -68,13 +65,12 @@ class Runtime(NamedTuple):
 
 
 def runtime_factory(method: str) -> Callable[[LearnerConfig, Sequence[Mapping[str, float]]], Runtime] | None:
-    """The `policy_runtime` of the module that registered `method`; None where it defines none (its policy is
-    `cfg.model()`) or `method` is not registered in this process (a plugin of a file evaluated again)."""
+    """`method`'s `Method.runtime`; None where it has none (its policy is `cfg.model()`) or `method` is not
+    registered in this process (a plugin of a file evaluated again)."""
     try:
-        module = methods.get(method).module
+        return methods.get(method).runtime
     except methods.MethodError:
         return None
-    return getattr(sys.modules.get(module), RUNTIME_HOOK, None)
 
 
 def runtime_of(cfg: LearnerConfig, method: str, settings: Sequence[Mapping[str, float]]) -> Runtime | None:

@@ -116,3 +116,12 @@ def test_the_sweep_trains_a_plugin_s_grid_from_its_knobs_and_refuses_knobs_of_an
                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 2 and "scaled-oh is not among the methods" in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and not idle.exists()
+
+
+def test_a_spec_rebuilt_to_evaluate_recorded_results_keeps_their_knobs(plugin):
+    from ape_jax.pipeline.spec import SweepSpec
+
+    s = resolve("hopper", "pos", preset="quick", sets=["scaled-oh.rounds=2"])
+    assert SweepSpec("hopper", "pos", s, ()).settings.knobs["scaled-oh"].rounds == 2   # no methods: evaluates only
+    with pytest.raises(ValueError, match="scaled-oh is not among the methods"):
+        SweepSpec("hopper", "pos", s, ("bc-oh",))

@@ -238,7 +238,7 @@ def ensemble_policy(cfg: LearnerConfig, k: int, m: float, obs_mean: jax.Array | 
 
 
 def policy_runtime(cfg: LearnerConfig, settings: Sequence[Mapping[str, float]]) -> Runtime:
-    """How evaluation reads ActionChunks' policies (`ape_jax.evaluate.RUNTIME_HOOK`): the chunk's first action and
+    """How evaluation reads ActionChunks' policies (its `Method.runtime`): the chunk's first action and
     the Head's embedding (`first_action`), and the temporal ensemble at run time (`ensemble_policy`), with the `k`
     and `m` each run recorded (one group's runs share them: one sweep's knobs)."""
     chosen = {(float(s["k"]), float(s["m"])) for s in settings}
@@ -258,4 +258,4 @@ def _grid(ctx) -> list[dict]:
 methods.register(methods.Method(
     NAME, "ActionChunks", grid=_grid, hparams=lambda settings, lr, row: ChunkHparams.make(lr),
     program=NAME, history=1, learner=lambda ctx: make_action_chunks(ctx.cfg, ctx.knobs_of(NAME).k),
-    knobs=ChunkKnobs, module=__name__))
+    knobs=ChunkKnobs, runtime=policy_runtime, module=__name__))

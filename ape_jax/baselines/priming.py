@@ -233,7 +233,7 @@ def make_priming(cfg: LearnerConfig, source: str = DEFAULT_SOURCE) -> Learner:
 
 
 def policy_runtime(cfg: LearnerConfig, settings: Sequence[Mapping[str, float]]) -> Runtime:
-    """How evaluation reads Priming's policies (`ape_jax.evaluate.RUNTIME_HOOK`): the composite on the history
+    """How evaluation reads Priming's policies (its `Method.runtime`): the composite on the history
     (`PrimedPolicy`, acting through `ape_jax.evaluate.history_policy`), the history policy's embedding probed. The
     weights are in the variables, so `settings` is not read."""
     return Runtime(apply=primed_model(cfg).apply)
@@ -257,4 +257,4 @@ def _learner(ctx) -> Learner:
 methods.register(methods.Method(
     NAME, "Priming", grid=lambda ctx: [{"weight": w} for w in ctx.knobs_of(NAME).weights],
     hparams=lambda settings, lr, row: PrimingHparams.make(settings["weight"], lr=lr),
-    program=NAME, learner=_learner, refuses=refusal, knobs=PrimingKnobs, module=__name__))
+    program=NAME, learner=_learner, refuses=refusal, knobs=PrimingKnobs, runtime=policy_runtime, module=__name__))

@@ -165,6 +165,8 @@ class Method:
         `--set METHOD.FIELD=VALUE` parses it; a `tuple[float, ...]` field is a grid axis its `grid` spans), which
         checks its values in `__post_init__` (`ValueError`, one line); None: it has none. Its grid and learner
         read the sweep's record with `ctx.knobs_of(name)`.
+      runtime: `runtime(cfg, settings) -> ape_jax.evaluate.Runtime`: how its trained policies act where they are
+        not `cfg.model()` on the history (action chunks with their ensemble, a composite); None: they are.
       refuses: `refuses(settings, obs) -> why | None`: why the method cannot run under a sweep's
         `ape_jax.pipeline.presets.Settings` and observation mode (RAP: without a history, or on images with an
         encoder other than `patch`), checked when the sweep's spec is made, before anything is collected or
@@ -185,6 +187,7 @@ class Method:
     module: str = ""
     refuses: Callable[[Any, str], str | None] | None = None
     knobs: type | None = None
+    runtime: Callable[[Any, Sequence[Mapping[str, float]]], Any] | None = None
 
     def settings(self, ctx: GridContext) -> list[dict]:
         """The default grid as plain dicts of floats (what `results.json` records as `hparams`)."""

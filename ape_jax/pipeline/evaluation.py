@@ -2,7 +2,7 @@
 copycat diagnostics and the loss analysis on both splits.
 
 Policies are evaluated in groups of one network: one observation, one history, and one way of acting. A method
-whose module defines `policy_runtime` (`ape_jax.evaluate.Runtime`: ACT's action chunks, PrimeNet's composite)
+whose record gives `Method.runtime` (`ape_jax.evaluate.Runtime`: ACT's action chunks, PrimeNet's composite)
 gets groups of its own, named after its program (`h1-action-chunks`), read through its runtime everywhere here.
 """
 
