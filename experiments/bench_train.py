@@ -19,7 +19,8 @@ hopper `pos` demonstrations shapes: input 2 × 5, action 3, batch 128):
 4. model-updates/s of the same grid under each recipe (`ape_jax.pipeline.presets.RECIPES`: `mlp`, batch
    128; `fca`, the FCA code's BatchNorm network at batch 64), one after another in this run;
 5. end-to-end wall time of the sweeps whose `results.json` are given;
-6. the methods after the paper (`rap`, `palr`, `mine`, `ape_jax.baselines`) against BC-OH: model-updates/s of
+6. the methods after the paper (`rap`, `palr`, `mine`, and the fixes after them: `channel-dropout`, `ptp`,
+   `action-chunks`, `priming`; `ape_jax.baselines`) against BC-OH: model-updates/s of
    13 configurations of each as one `jit(vmap(scan))` under the recipes `fca`, `mlp` and `palr` (batch 1,024,
    fewer iterations per timed call), the timed calls interleaved (BC-OH, RAP, PALR, MINE, BC-OH, ...) so a
    machine under shifting load slows all alike; and PALR's HSCIC estimator (value and gradient, a 100-unit
@@ -31,8 +32,9 @@ Medians of `--repeats` timed runs after a separate compiling call.
 
 from __future__ import annotations
 
-import os
+import dataclasses
 import json
+import os
 import pathlib
 import statistics
 import sys
@@ -52,7 +54,8 @@ from experiments._timing import machine, run_benchmark, time_jitted
 SECTION = "bench_train"
 METHODS_SECTION = "bench_train_methods"
 OBS, ACT, H, BATCH = 5, 3, 2, 128
-NEW_METHODS = ("rap", "palr", "mine")
+# the methods after the paper, and the fixes after them (issue 59), each in its own program
+NEW_METHODS = ("rap", "palr", "mine", "channel-dropout", "ptp", "action-chunks", "priming")
 HSCIC_BATCHES = (64, 128, 256, 512, 1024)
 
 
@@ -132,6 +135,8 @@ def _method_program(name: str, cfg: LearnerConfig, iters: int, data: Data, confi
     from ape_jax.baselines.mine import make_mine
 
     method = methods.get(name)
+    if method.history is not None:   # action-chunks: the current observation only, as the sweep trains it
+        cfg = dataclasses.replace(cfg, history=method.history)
     ctx = methods.GridContext(task=tasks.get("hopper"), step_grid=STEP_GRID, softmax_grid=SOFTMAX_GRID,
                               n_train=data.size)
     if method.learner is None:
