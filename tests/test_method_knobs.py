@@ -97,6 +97,7 @@ def test_knobs_of_a_method_without_any_are_refused():
     assert method_knobs.owns("bc-oh") is False and method_knobs.owns("no-such-method") is False
 
 
+@pytest.mark.integration
 def test_the_sweep_trains_a_plugin_s_grid_from_its_knobs_and_refuses_knobs_of_an_idle_method(plugin, tmp_path):
     env = {**os.environ, "PYTHONPATH": str(plugin)}
     out = tmp_path / "run"
