@@ -12,8 +12,8 @@ sweep() {  # sweep NAME ARGS...: one sweep into $RUNS/NAME, its results to resul
     "$PY" -m experiments.sweep "$@" --out "$RUNS/$name" "${resume[@]}" > "$RUNS/$name.log" 2>&1 \
       || { echo "FAILED $name (exit $?; $RUNS/$name.log)"; return; }
   fi
-  cp "$RUNS/$name/results.json" "results/$name.json" && "$PY" -m experiments.results_index > /dev/null \
-    && echo "done $name $(date -u +%FT%TZ) (results/README.md regenerated)"
+  cp "$RUNS/$name/results.json" "results/$name.json" && PY="$PY" "$WT/results/queue/land.sh" \
+    && echo "done $name $(date -u +%FT%TZ)"
 }
 
 judge_by() {  # judge_by NAME SIBLING: results/NAME.json's controlled verdict from SIBLING's BC-SO, for a file with

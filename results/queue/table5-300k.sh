@@ -36,6 +36,6 @@ for first in $(seq 0 "$SEEDS_PER" 7); do
     rc=$?; wait
     [ "$rc" -eq 0 ] || { echo "FAILED $piece (exit $rc; $RUNS/$piece.log)"; exit 1; }
   fi
-  cp "$out/results.json" "results/$piece.json" && "$PY" -m experiments.results_index > /dev/null \
-    && echo "done $piece $(date -u +%FT%TZ) (results/README.md regenerated)"
+  cp "$out/results.json" "results/$piece.json" && PY="$PY" "$WT/results/queue/land.sh" \
+    && echo "done $piece $(date -u +%FT%TZ)"
 done
