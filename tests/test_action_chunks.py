@@ -24,6 +24,7 @@ from experiments import evaluate as evaluate_cli
 from experiments import sweep
 from _compare import UPDATE_RTOL, update_mismatch
 from _planted import planted
+from _refusal import assert_sweep_refuses
 
 CFG = LearnerConfig(obs_shape=(4,), action_dim=2, history=1, iterations=30, batch_size=16, lr_boundaries=())
 
@@ -212,11 +213,5 @@ def test_a_smoke_sweep_keeps_their_policies_apart_evaluates_them_again_and_films
     (["--set", "action-chunks.m=-1"], "action-chunks.m must be >= 0"),
 ])
 def test_the_sweep_refuses_bad_knobs_in_one_line_before_any_work(tmp_path, capsys, args, message):
-    out, data = tmp_path / "out", tmp_path / "data"
-    with pytest.raises(SystemExit) as exc:
-        sweep.main(["--env", "toycar", "--obs", "full", "--quiet", "--methods", "action-chunks", *args,
-                    "--out", str(out), "--data-dir", str(data)])
-    err = capsys.readouterr().err.strip()
-    assert exc.value.code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
-    assert message in err
-    assert not out.exists() and not data.exists()   # nothing collected, compiled or written
+    assert_sweep_refuses(tmp_path, capsys, ["--env", "toycar", "--obs", "full", "--quiet", "--methods", "action-chunks",
+                                            *args], message)

@@ -22,6 +22,7 @@ from envs.toytown_render import strip_rows
 from experiments import sweep
 from _compare import update_mismatch
 from _planted import planted
+from _refusal import assert_sweep_refuses
 
 # the planted copycat's observation is [s_t, a_{t−1}]: the previous action in view, as protocol.prev_action has it
 CFG = LearnerConfig(obs_shape=(4,), action_dim=2, history=2, iterations=20, batch_size=64, lr_boundaries=(),
@@ -170,13 +171,7 @@ BASE = ["--env", "toycar", "--obs", "full", "--quiet", "--methods", "channel-dro
      "channel-dropout.channels must be 'auto' or prev_action, speed"),
 ])
 def test_the_sweep_refuses_in_one_line_before_any_work(tmp_path, capsys, args, message):
-    out, data = tmp_path / "out", tmp_path / "data"
-    with pytest.raises(SystemExit) as exc:
-        sweep.main([*BASE, *args, "--out", str(out), "--data-dir", str(data)])
-    err = capsys.readouterr().err.strip()
-    assert exc.value.code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
-    assert message in err
-    assert not out.exists() and not data.exists()   # nothing collected, compiled or written
+    assert_sweep_refuses(tmp_path, capsys, [*BASE, *args], message)
 
 
 @pytest.mark.slow

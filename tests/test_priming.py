@@ -18,9 +18,9 @@ from ape_jax.diagnostics import policy_embeddings
 from ape_jax.learner import Hparams, LearnerConfig, make_train, stack_hparams
 from ape_jax.models import StatePolicy
 from ape_jax.pipeline.presets import resolve
-from experiments import sweep
 from _compare import UPDATE_RTOL, update_mismatch
 from _planted import planted
+from _refusal import assert_sweep_refuses
 
 CFG = LearnerConfig(obs_shape=(4,), action_dim=2, history=2, iterations=30, batch_size=16, lr_boundaries=())
 
@@ -146,11 +146,5 @@ def test_the_method_s_grid_is_its_weights_knob():
     (["--obs", "image"], "priming runs on state observations"),
 ])
 def test_the_sweep_refuses_what_priming_cannot_run_in_one_line_before_any_work(tmp_path, capsys, args, message):
-    out, data = tmp_path / "out", tmp_path / "data"
-    with pytest.raises(SystemExit) as exc:
-        sweep.main(["--env", "toycar", "--obs", "full", "--quiet", "--methods", "priming", *args, "--out", str(out),
-                    "--data-dir", str(data)])
-    err = capsys.readouterr().err.strip()
-    assert exc.value.code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
-    assert message in err
-    assert not out.exists() and not data.exists()   # nothing collected, compiled or written
+    argv = ["--env", "toycar", "--obs", "full", "--quiet", "--methods", "priming", *args]
+    assert_sweep_refuses(tmp_path, capsys, argv, message)

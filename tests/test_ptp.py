@@ -14,9 +14,9 @@ from ape_jax import methods, tasks
 from ape_jax.baselines.ptp import DEFAULT_WEIGHT, PastHead, PtpHparams, PtpKnobs, make_ptp, past_actions
 from ape_jax.learner import Hparams, LearnerConfig, make_train, stack_hparams
 from ape_jax.models import PatchPolicy
-from experiments import sweep
 from _compare import update_mismatch
 from _planted import planted
+from _refusal import assert_sweep_refuses
 
 CFG = LearnerConfig(obs_shape=(4,), action_dim=2, history=2, iterations=100, batch_size=64, lr_boundaries=(),
                     beta1=0.5)
@@ -113,11 +113,5 @@ def test_the_knobs_refuse_bad_values_in_one_line():
     (["--set", "ptp.future=3"], "ptp has no setting 'future'; valid: ptp.past, ptp.weights"),
 ])
 def test_the_sweep_refuses_bad_knobs_in_one_line_before_any_work(tmp_path, capsys, args, message):
-    out, data = tmp_path / "out", tmp_path / "data"
-    with pytest.raises(SystemExit) as exc:
-        sweep.main(["--env", "toycar", "--obs", "full", "--quiet", "--methods", "ptp", *args, "--out", str(out),
-                    "--data-dir", str(data)])
-    err = capsys.readouterr().err.strip()
-    assert exc.value.code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
-    assert message in err
-    assert not out.exists() and not data.exists()   # nothing collected, compiled or written
+    assert_sweep_refuses(tmp_path, capsys, ["--env", "toycar", "--obs", "full", "--quiet", "--methods", "ptp", *args],
+                         message)

@@ -27,6 +27,7 @@ from ape_jax.models import PatchPolicy, StatePolicy
 from ape_jax.pipeline.presets import resolve
 from experiments import sweep
 from _planted import planted
+from _refusal import assert_sweep_refuses
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 CFG = LearnerConfig(obs_shape=(4,), action_dim=2, history=2, iterations=400, batch_size=64, lr_boundaries=(),
@@ -250,13 +251,7 @@ BASE = ["--env", "toycar", "--obs", "full", "--quiet"]
     (["--methods", "mine", "--set", "recipe.mine_rows=-1"], "recipe.mine_rows must be an integer >= 0"),
 ])
 def test_the_sweep_refuses_bad_knobs_and_rap_without_a_history_before_any_work(tmp_path, capsys, args, message):
-    out, data = tmp_path / "out", tmp_path / "data"
-    with pytest.raises(SystemExit) as exc:
-        sweep.main([*BASE, *args, "--out", str(out), "--data-dir", str(data)])
-    err = capsys.readouterr().err.strip()
-    assert exc.value.code == 2 and len(err.splitlines()) == 1 and "Traceback" not in err, err
-    assert message in err
-    assert not out.exists() and not data.exists()   # nothing collected, compiled or written
+    assert_sweep_refuses(tmp_path, capsys, [*BASE, *args], message)
 
 
 # the three methods' programs, 40 iterations saved every 20; SIGKILL after the KILL_AT-th training save
