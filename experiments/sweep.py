@@ -129,6 +129,7 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
     if paths := [m for m in args.plugins if "/" in m or m.endswith(".py")]:   # import_module's words would mislead
         fail(p, f"--plugins {paths[0]}: a file path; give the module's name (my_plugin for my_plugin.py, with its "
                 "folder on PYTHONPATH)")
+    named = {w.strip() for w in args.methods.split(",")} - set(methods.shortcuts())  # asked for by name
     try:
         methods.load_plugins(args.plugins)
         args.methods = methods.resolve(args.methods)
@@ -161,6 +162,7 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
     except presets.SettingsError as e:
         fail(p, str(e))
     args.checkpoint_every = args.checkpoint_every or args.settings.budget.chunk
+    args.methods = _runnable(p, args.methods, named, args.settings, args.obs)
     args.cost = cost(args.env, args.settings, args.methods)
     if args.cost is not None and args.cost.over and not args.yes:
         fail(p, f"{args.cost}, over the limit of {UPDATES_LIMIT:,} updates or {EPISODES_LIMIT:,} episodes; pass "
@@ -204,6 +206,25 @@ class Cost:
     def __str__(self) -> str:
         return (f"this sweep asks for {self.updates:,} model updates ({self.configurations:,} configurations x "
                 f"{self.seeds:,} seeds x {self.iterations:,} iterations) and {self.episodes:,} evaluation episodes")
+
+
+def _runnable(p, names: tuple[str, ...], named: set[str], settings, obs: str) -> tuple[str, ...]:
+    """`names` less the methods a shortcut (`all`, `baselines`, ...) brought in that cannot run under `settings`
+    (`Method.refuses`: ChannelDropout without a leaking channel in view, RAP on another image encoder), each left
+    out with a line saying why; a method asked for by name is refused by the sweep's spec instead."""
+    from ape_jax import methods
+
+    keep = []
+    for name in names:
+        refuses = methods.get(name).refuses
+        why = refuses(settings, obs) if refuses is not None and name not in named else None
+        if why:
+            print(f"{_prog()}: leaving out {name}, which the shortcut brought in: {why}", file=sys.stderr)
+        else:
+            keep.append(name)
+    if not keep:
+        fail(p, "none of the methods asked for can run under these settings (each is left out above)")
+    return tuple(keep)
 
 
 def cost(env: str, settings, names) -> Cost | None:

@@ -112,7 +112,8 @@ def test_every_baseline_runs_from_the_sweep_under_its_design_name(tmp_path):
             "--data-dir", str(tmp_path / "data")]
     assert sweep.main(argv) == 0
     r = json.loads((out / "results.json").read_text())
-    assert [run["method"] for run in r["runs"]] == list(methods.names("baseline"))
+    # channel-dropout has no leaking channel to drop without the previous action in view: the shortcut leaves it out
+    assert [run["method"] for run in r["runs"]] == [m for m in methods.names("baseline") if m != "channel-dropout"]
     assert all(run["status"] == "ok" and run["eval"]["episodes"] == 2 for run in r["runs"]), r["runs"]
     hp = {run["method"]: run["hparams"] for run in r["runs"]}
     car = tasks.get("toycar")
@@ -190,3 +191,16 @@ def test_custom_grids_replace_the_presets_and_name_the_runs():
     runs = grid_runs(("ours-step", "ours-softmax"), 1, ctx)
     assert [r.hparams for r in runs] == [{"thr": 0.1, "w": 4.0}, {"thr": 0.1, "w": 5.0}, {"thr": 0.1, "w": 6.0},
                                          {"tau": 0.1}, {"tau": 0.2}, {"tau": 0.5}]
+
+
+def test_a_shortcut_leaves_out_what_cannot_run_here_and_a_named_method_is_refused(tmp_path, capsys):
+    args = sweep.parse(["--env", "hopper", "--methods", "baselines", "--out", str(tmp_path / "a")], writes=False)
+    assert "channel-dropout" not in args.methods and "ptp" in args.methods
+    err = capsys.readouterr().err
+    assert "leaving out channel-dropout" in err and "protocol.prev_action=true" in err
+    kept = sweep.parse(["--env", "hopper", "--methods", "baselines", "--set", "protocol.prev_action=true",
+                        "--out", str(tmp_path / "b")], writes=False)
+    assert "channel-dropout" in kept.methods
+    named = sweep.parse(["--env", "hopper", "--methods", "bc-oh,channel-dropout", "--out", str(tmp_path / "c")],
+                        writes=False)
+    assert named.methods == ("bc-oh", "channel-dropout")   # asked for by name: the spec refuses it, in one line
