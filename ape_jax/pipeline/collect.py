@@ -189,12 +189,12 @@ def collect(env: envs.Env, expert: Callable[[jax.Array], jax.Array], key: jax.Ar
             progress(min((i + 1) * batch, num_episodes))
     demos = jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
     if labels == "clipped":
-        low, high = (np.asarray(b, np.float32) for b in env.action_bounds)
-        demos = demos.replace(action=np.clip(demos.action, low, high))
+        demos = demos.replace(action=_clipped(demos.action, env))
     return demos
 
 
 def _clipped(action: np.ndarray, env: envs.Env) -> np.ndarray:
+    """`action` clipped to `env.action_bounds`: what the environment executes, and the `"clipped"` labels."""
     low, high = (np.asarray(b, np.float32) for b in env.action_bounds)
     return np.clip(action, low, high)
 
@@ -264,8 +264,7 @@ def collect_cached(cfg: dict, data_dir, force: bool = False, progress=None, save
     seconds = time.perf_counter() - t0
     label_stats = {"mode": labels, **label_statistics(demos.action, env.action_bounds)}
     if labels == "clipped":
-        low, high = (np.asarray(b, np.float32) for b in env.action_bounds)
-        demos = demos.replace(action=np.clip(demos.action, low, high))
+        demos = demos.replace(action=_clipped(demos.action, env))
     returns = np.bincount(demos.episode, weights=demos.reward)
     lengths = np.bincount(demos.episode)
     meta = {
