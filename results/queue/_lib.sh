@@ -22,3 +22,32 @@ judge_by() {  # judge_by NAME SIBLING: results/NAME.json's controlled verdict fr
   "$PY" -m experiments.evaluate --rejudge "results/$1.json" --control "results/$2.json" > /dev/null \
     && echo "judged $1 against $2" || echo "FAILED judging $1 against $2"
 }
+
+piece() {  # piece NAME CORES ARGS...: one resumable sweep into $RUNS/NAME at the lowest priority, its results to
+  # results/NAME.json (index and report regenerated, one landing at a time). CORES: "all" = one process on every
+  # core; "0" or "1" = one process pinned to that core, XLA single-threaded (two pieces side by side); "0,1" = two
+  # processes pinned one per core, coordinated on $PORT (1.5x one process of two threads: docs/speed.md)
+  local name=$1 cores=$2; shift 2
+  if [ -f "results/$name.json" ]; then echo "skip $name (results/$name.json exists)"; return 0; fi
+  local out=$RUNS/$name rc=0
+  if [ ! -f "$out/results.json" ]; then
+    echo "start $name (cores $cores) $(date -u +%FT%TZ)"
+    local resume=(); [ -f "$out/checkpoints/sweep.json" ] && resume=(--resume)
+    local one=(env XLA_FLAGS="--xla_cpu_multi_thread_eigen=false" "$PY" -m experiments.sweep "$@" --out "$out")
+    case $cores in
+      all) nice -n 19 "$PY" -m experiments.sweep "$@" --out "$out" "${resume[@]}" > "$RUNS/$name.log" 2>&1; rc=$? ;;
+      0|1) taskset -c "$cores" nice -n 19 "${one[@]}" "${resume[@]}" > "$RUNS/$name.log" 2>&1; rc=$? ;;
+      0,1)
+        local multi=(--coordinator "localhost:$PORT" --num-processes 2)
+        # process 1 in the background; process 0 (which writes) in the foreground
+        taskset -c 1 nice -n 19 "${one[@]}" "${resume[@]}" "${multi[@]}" --process-id 1 > "$RUNS/$name.p1.log" 2>&1 &
+        taskset -c 0 nice -n 19 "${one[@]}" "${resume[@]}" "${multi[@]}" --process-id 0 > "$RUNS/$name.log" 2>&1
+        rc=$?; wait ;;
+      *) echo "piece: cores must be all, 0, 1 or 0,1 (got $cores)"; return 2 ;;
+    esac
+    [ "$rc" -eq 0 ] || { echo "FAILED $name (exit $rc; $RUNS/$name.log)"; return 1; }
+  fi
+  cp "$out/results.json" "results/$name.json" \
+    && flock "$RUNS/.land.lock" env PY="$PY" "$WT/results/queue/land.sh" > /dev/null \
+    && echo "done $name $(date -u +%FT%TZ) (index and report regenerated; commit results BENCHMARKS.md docs/results figures)"
+}

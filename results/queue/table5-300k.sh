@@ -17,25 +17,10 @@ PORT=${PORT:-12391}
 NAME=hopper-pos-fca-rows-paper-fca-fcaexpert-raw
 cd "$WT" || exit 2
 mkdir -p "$RUNS"
+source "$WT/results/queue/_lib.sh"
 ARGS=(--env hopper --protocol fca --recipe fca --preset paper --methods bc-so,bc-oh,ours-step,fca,palr
       --set recipe.step_grid=0.1:5 --set recipe.fca_alphas=0.1 --set protocol.expert=fca --set protocol.labels=raw
       --seeds "$SEEDS_PER" --quiet)
 for first in $(seq 0 "$SEEDS_PER" 7); do
-  piece=$NAME-seeds$first
-  if [ -f "results/$piece.json" ]; then echo "skip $piece (results/$piece.json exists)"; continue; fi
-  out=$RUNS/$piece
-  if [ ! -f "$out/results.json" ]; then
-    echo "start $piece $(date -u +%FT%TZ)"
-    resume=(); [ -f "$out/checkpoints/sweep.json" ] && resume=(--resume)
-    for i in 1 0; do   # process 1 first, in the background; process 0 (which writes) in the foreground
-      cmd=(taskset -c "$i" nice -n 19 env XLA_FLAGS="--xla_cpu_multi_thread_eigen=false" "$PY" -m experiments.sweep
-           "${ARGS[@]}" --set budget.first_seed="$first" --out "$out" "${resume[@]}"
-           --coordinator "localhost:$PORT" --num-processes 2 --process-id "$i")
-      if [ "$i" = 1 ]; then "${cmd[@]}" > "$RUNS/$piece.p1.log" 2>&1 & else "${cmd[@]}" > "$RUNS/$piece.log" 2>&1; fi
-    done
-    rc=$?; wait
-    [ "$rc" -eq 0 ] || { echo "FAILED $piece (exit $rc; $RUNS/$piece.log)"; exit 1; }
-  fi
-  cp "$out/results.json" "results/$piece.json" && PY="$PY" "$WT/results/queue/land.sh" \
-    && echo "done $piece $(date -u +%FT%TZ)"
+  piece "$NAME-seeds$first" 0,1 "${ARGS[@]}" --set budget.first_seed="$first" || exit 1
 done
