@@ -33,7 +33,8 @@ SUCCESS = {"bc-so": (0.300, 0.350, 0.400, 0.325, 0.375), "bc-oh": (0.400, 0.500,
            "history-dropout": (0.300, 0.325, 0.350, 0.375, 0.400), "dagger": (0.600, 0.650, 0.625, 0.575, 0.700),
            "boosting": (0.250, 0.300, 0.275, 0.325, 0.350), "rap": (0.400, 0.425, 0.450, 0.475, 0.500),
            "palr": (0.375, 0.400, 0.425, 0.450, 0.475), "mine": (0.325, 0.350, 0.375, 0.400, 0.425),
-           "bc-full": (0.850, 0.875, 0.900, 0.925, 0.900)}
+           "bc-full": (0.850, 0.875, 0.900, 0.925, 0.900),
+           **{k: (0.350, 0.375, 0.400, 0.425, 0.450) for k in ("channel-dropout", "ptp", "action-chunks", "priming")}}
 STUCK = {**{k: (0.1, 0.15, 0.05, 0.1, 0.1) for k in SUCCESS}, "bc-oh": (0.3, 0.25, 0.35, 0.2, 0.3),
          "bc-full": (0.0,) * SEEDS}
 COLLISIONS = {**{k: (0.5, 0.45, 0.4, 0.5, 0.45) for k in SUCCESS}, "bc-oh": (0.3, 0.25, 0.35, 0.2, 0.3),
@@ -136,6 +137,20 @@ def test_every_method_is_a_row_in_the_fixed_order_with_bc_full_last_as_the_ceili
             "collisions pedestrian | collisions offroad | red-light violations | timeout | stuck % | average speed | "
             "success % of all episodes [Wilson 95%] | copycat: first verdict | copycat: controlled verdict |") in table
     assert _row(table, "FCA (TCA)")[1] == "alpha 0.2, adversary_lr 0.0002"
+
+
+def test_the_remedies_after_the_paper_follow_mine_in_their_order(tmp_path):
+    """ChannelDropout, PTP, ActionChunks and Priming (listed out of order on purpose) are rows after MINE in
+    `LATER`'s order, BC-full still last, in the table as in `driving_rows`."""
+    remedies = (("priming", {"weight": 1.0}), ("action-chunks", {"k": 100.0, "m": 0.01}), ("ptp", {"weight": 1.0}),
+                ("channel-dropout", {"rate": 0.5}))
+    obj = toytown_file(methods=METHODS + remedies)
+    rows = driving_rows(merge([_load(tmp_path, obj, "remedies.json")])[Key("toytown", "image", "nocrash")])
+    assert [r.method for r in rows][-6:] == ["mine", "channel-dropout", "ptp", "action-chunks", "priming", "bc-full"]
+    table = _section(report.build([_load(tmp_path, obj, "remedies.json")]).text, "## ToyTown (nocrash)")
+    lines = [x.split(" | ")[0][2:] for x in table.splitlines() if x.startswith("| ") and not x.startswith("| method")]
+    assert lines[len(ORDER) - 2:len(ORDER) + 4] == ["MINE", "ChannelDropout", "PTP", "ActionChunks", "Priming",
+                                                     "BC-full (full state: the ceiling)"]
 
 
 def test_ours_is_shown_at_the_papers_setting_and_a_baselines_settings_each_get_a_row(tmp_path):

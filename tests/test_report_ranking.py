@@ -1,4 +1,4 @@
-"""The later methods (RAP, PALR, MINE) ranked in the report: cells by family (by setting: where copying is expected,
+"""The later methods (RAP, PALR, MINE and the remedies after them) ranked in the report: cells by family (by setting: where copying is expected,
 the default tasks), each method's best configuration per cell against BC-OH, the IQM and probability of
 improvement across cells, a method missing from a cell left out of that family, and the section with its figure.
 
@@ -18,6 +18,8 @@ from test_report_regime import SHIPPED, _load, regime_file
 LATER = (("rap", {"memory_width": 150, "weight": 1.0}, 1000.0), ("rap", {"memory_width": 150, "weight": 0.0}, 500.0),
          ("palr", {"bandwidth": 1.0, "weight": 10.0}, 640.0), ("mine", {"weight": 0.1}, 200.0))
 PAPER = (("bc-so", {}, 400.0), ("bc-oh", {}, 600.0), ("ours-step", {"thr": 0.1, "w": 5.0}, 700.0))
+# the remedies published after the paper, as their own sweep writes them: PTP 40%, ActionChunks 25% (BC-OH 30%)
+REMEDIES = (("ptp", {"weight": 1.0}, 800.0), ("action-chunks", {"k": 100.0, "m": 0.01}, 500.0))
 
 
 def _pair(tmp_path, prefix, later=LATER, **kw):
@@ -85,3 +87,21 @@ def test_no_later_method_no_section_and_the_section_with_its_figure(tmp_path):
     assert rows[1].endswith("0/3 (first verdict 0/3) |")
     assert "reference; 2/3 (first verdict 3/3)" in next(r for r in rows if r.startswith("| BC-OH |"))
     assert "ranking.png)" in built.summary   # and in the findings' block
+
+
+def test_the_remedies_are_later_methods_ranked_against_bc_oh(tmp_path):
+    """A file of PTP and ActionChunks alone beside the paper's methods makes a cell; both are ranked against BC-OH,
+    and the section's title names the later methods that ran, in `LATER`'s order (RAP, PALR, MINE first)."""
+    files = _pair(tmp_path, "fca", later=REMEDIES)
+    (copycat,) = ranking(merge(files), reps=200)
+    assert [r.method for r in copycat.ranked] == ["ptp", "ours-step", "bc-oh", "action-chunks", "bc-so"]
+    ptp, chunks = copycat.ranked[0], copycat.ranked[3]
+    assert ptp.cells[0].versus.diff == pytest.approx(10) and ptp.cells[0].versus.low > 0
+    assert ptp.improvement.value == pytest.approx(1.0) and chunks.improvement.value == pytest.approx(0.0)
+    assert chunks.cells[0].hparams == {"k": 100.0, "m": 0.01} and chunks.cells[0].versus.high < 0
+
+    text = report.build(files).text
+    section = text[text.index("## The methods that came after: PTP, ActionChunks, ranked"):]
+    assert "\n| PTP | 40.0 [" in section and "\n| ActionChunks | 25.0 [" in section
+    both = report.build([*_pair(tmp_path, "fca"), _load(tmp_path, regime_file(methods=REMEDIES), "fca-remedies.json")])
+    assert "## The methods that came after: RAP, PALR, MINE, PTP, ActionChunks, ranked" in both.text

@@ -187,3 +187,20 @@ def test_a_regime_files_bootstrap_is_seeded(tmp_path):
     (m,) = regime_groups(merge([_load(tmp_path, regime_file("raw"), "raw.json")]))
     a, b = regime_table(m), regime_table(m)
     assert a.rows == b.rows and np.isfinite([r.normalized.low for r in a.rows]).all()
+
+
+def test_the_later_methods_follow_fca_in_their_order_before_bc_full(tmp_path):
+    """PALR and the remedies after it (listed out of order on purpose) are rows after FCA in `LATER`'s order, BC-full
+    last, each against BC-OH and with no Table 5 number."""
+    later = (("priming", {"weight": 1.0}, 700.0), ("ptp", {"weight": 1.0}, 800.0),
+             ("action-chunks", {"k": 100.0, "m": 0.01}, 500.0), ("palr", {"bandwidth": 1.0, "weight": 10.0}, 640.0),
+             ("channel-dropout", {"rate": 0.5}, 900.0))
+    (m,) = regime_groups(merge([_load(tmp_path, regime_file(methods=METHODS + later), "raw.json")]))
+    t = regime_table(m)
+    assert [r.method for r in t.rows][5:] == ["fca", "palr", "channel-dropout", "ptp", "action-chunks", "priming",
+                                              "bc-full"]
+    rows = {r.method: r for r in t.rows}
+    assert [rows[k].label for k in ("channel-dropout", "ptp", "action-chunks", "priming")] == [
+        "ChannelDropout", "PTP", "ActionChunks", "Priming"]
+    assert rows["ptp"].versus.diff == pytest.approx(10) and rows["ptp"].versus.low > 0 and rows["ptp"].paper is None
+    assert rows["channel-dropout"].normalized.mean == pytest.approx(45)

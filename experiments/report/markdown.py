@@ -29,7 +29,7 @@ from experiments.report.sections.common import Context, Section, figures_note, t
 SUMMARY: tuple[Callable[[Context], list[Section]], ...] = (
     recipe.budget_summary,                # the paper's budget beside Table 5, with the differences
     regime.regime_summary,                # Table 5 with FCA's expert, returns only
-    ranking.ranking_section,              # the later methods (RAP, PALR, MINE) ranked with the paper's
+    ranking.ranking_section,              # the later methods ranked with the paper's
     copycat.copycat_map_section,          # the copycat map per frame skip
 )
 

@@ -14,7 +14,7 @@ what these functions return. One module per concern, each re-exported here:
 - `diagnostics`: copycat diagnostics per configuration, at the end and over training;
 - `copycat`: the copycat map (`copycat_map`) and the extended map (`extended_map`);
 - `recipe`: the recipe comparison (mlp against fca) and the paper's budget beside Table 5;
-- `ranking`: the later methods (RAP, PALR, MINE) ranked with the paper's per family of cells (where copying is
+- `ranking`: the later methods (`LATER`) ranked with the paper's per family of cells (where copying is
   expected, the default tasks): IQM, probability of improvement over BC-OH, per-cell differences and copycat counts;
 - `regime`: Table 5 with FCA's expert (an imported expert or raw labels under the paper's protocol and recipe):
   every configuration against BC-OH and beside Table 5, with its copycat diagnostics (`regime_table`);

@@ -1,4 +1,5 @@
-"""The methods that came after the paper (RAP, PALR, MINE) ranked with the paper's, per family of cells.
+"""The methods that came after the paper (`LATER`: RAP, PALR, MINE, ChannelDropout, PTP, ActionChunks, Priming)
+ranked with the paper's, per family of cells.
 
 A *cell* is a merged group (one task, protocol, expert and budget) in which at least one of `LATER` ran. Cells fall
 into two families, by their setting (never by their results):
@@ -28,9 +29,8 @@ from experiments.report.analysis.differences import Interval, mean_difference
 from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics
 from experiments.report.analysis.groups import Group, Merged, ordered, raw_labels
 from experiments.report.analysis.regime import is_regime
-from experiments.report.analysis.selection import best_of, is_finite, method_rows, ok_runs
+from experiments.report.analysis.selection import LATER, best_of, is_finite, method_rows, ok_runs
 
-LATER = ("rap", "palr", "mine")  # the methods published after the paper against the copycat problem
 RANKED = ("bc-so", "bc-oh", "bc-full", "ours-step", "ours-softmax", "fca", *LATER)  # the ranking's methods, in order
 REFERENCE = "bc-oh"  # what every method is measured against
 RESAMPLES = 2000  # bootstrap resamples of the across-cell estimates (`stats`' default)

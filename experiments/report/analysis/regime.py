@@ -20,11 +20,13 @@ from experiments.report.analysis.differences import (Interval, RecipeCell, Share
                                                    mean_cell)
 from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics
 from experiments.report.analysis.groups import FCA, MUJOCO, Group, Merged, ordered, other_history, raw_labels
-from experiments.report.analysis.selection import CEILING, CEILING_LABEL, is_finite, label, method_rows, ok_runs
+from experiments.report.analysis.selection import (CEILING, CEILING_LABEL, LATER, is_finite, label, method_rows,
+                                                   ok_runs)
 from experiments.report.paper import PAPER_STEP, PAPER_TABLE5
 
-# The table's methods in order (each configuration that ran, in the order of its hyperparameters); others after.
-REGIME_METHODS = ("bc-so", "bc-oh", "ours-step", "ours-softmax", "fca", "fca-ib", "rap", "palr", "mine", CEILING)
+# The table's methods in order (each configuration that ran, in the order of its hyperparameters): the references and
+# ours, FCA, the methods published after the paper (`LATER`), BC-full; others after.
+REGIME_METHODS = ("bc-so", "bc-oh", "ours-step", "ours-softmax", "fca", "fca-ib", *LATER, CEILING)
 
 
 class RegimeRow(NamedTuple):

@@ -31,6 +31,12 @@ from experiments.report.paper import (PAPER_DRIVING_TABLES, PAPER_SENSITIVITY_TA
 
 # -- methods: labels and which ones the tables list ----------------------------------------------------------------
 
+# The methods published after the paper against the copycat problem, in the order the tables list them: RAP, PALR,
+# MINE, then the remedies added after them (ChannelDropout: ChauffeurNet's and PlanTF's dropout of the leaking
+# channel; PTP: past-token prediction; ActionChunks: ACT's history-free chunks; Priming: PrimeNet).
+LATER = ("rap", "palr", "mine", "channel-dropout", "ptp", "action-chunks", "priming")
+
+
 def known_methods(merged: Merged) -> dict[str, dict]:
     """What the results files record of each method (label, role, online), over every environment."""
     out: dict[str, dict] = {}
@@ -219,10 +225,10 @@ def expert_ape(m: Group) -> float | None:
 # -- the driving tables: the supplement's Tables 1 and 2 ---------------------------------------------------------
 
 # The driving tables' methods, in order: the references and ours, the paper's baselines (FCA, HistoryDropout, DAgger,
-# Boosting, then the other baselines of its issue), the methods published after it (RAP, PALR, MINE); any other
-# baseline after them in registry order, then plugins in order of appearance, and BC-full (`CEILING`) last.
+# Boosting, then the other baselines of its issue), the methods published after it (`LATER`); any other baseline
+# after them in registry order, then plugins in order of appearance, and BC-full (`CEILING`) last.
 DRIVING_ORDER = ("bc-so", "bc-oh", "ours-step", "ours-softmax", "fca", "fca-ib", "history-dropout", "dagger",
-                 "boosting", "bcpd", "actfreq", "kmeans", "rap", "palr", "mine")
+                 "boosting", "bcpd", "actfreq", "kmeans", *LATER)
 
 
 class DrivingTable(NamedTuple):

@@ -6,7 +6,7 @@
   every method with its copycat verdicts, the paper's comparisons and a figure of success and stuck);
 - `recipe`: the paper's recipe (mlp against fca) and the paper's budget beside Table 5;
 - `regime`: Table 5 with FCA's expert (an imported expert or raw labels), against BC-OH and with its diagnostics;
-- `ranking`: the later methods (RAP, PALR, MINE) ranked with the paper's, per family of cells;
+- `ranking`: the later methods (`analysis.LATER`) ranked with the paper's, per family of cells;
 - `copycat`: the copycat map and the extended map;
 - `differences`: the differences' table and training longer;
 - `curves`: the sensitivity study, the training curves and the weights;

@@ -1,5 +1,5 @@
-"""The methods that came after (RAP, PALR, MINE) ranked with the paper's: per family of cells
-(`analysis.ranking`), one table and one interval figure."""
+"""The methods that came after (`analysis.LATER`) ranked with the paper's: per family of cells (`analysis.ranking`),
+one table and one interval figure."""
 
 from __future__ import annotations
 
@@ -26,7 +26,8 @@ def _table(f: Family, names: dict) -> str:
 
 def ranking_section(ctx: Context) -> list[Section]:
     """"The methods that came after, ranked": per family, the table, and the IQM figure; nothing where no file holds
-    RAP, PALR or MINE."""
+    one of `LATER`. The title names, in `LATER`'s order, the later methods some family ranks (those that ran in every
+    cell of it)."""
     families = ranking(ctx.merged)
     if not families:
         return []
@@ -35,6 +36,7 @@ def ranking_section(ctx: Context) -> list[Section]:
                       lambda: ranking_figure(families, names))
     for f in families:
         body += [f"**In {FAMILIES[f.name]}**", "", _table(f, names)]
-    return [Section(f"The methods that came after: {', '.join(n.upper() for n in LATER)}, ranked",
+    later = ", ".join(names[n] for n in LATER if n in names)   # `names`: every method some family ranks
+    return [Section(f"The methods that came after{': ' + later if later else ''}, ranked",
                     "Per method: IQM over every cell's seeds and P(> BC-OH), stratified bootstrap; per cell its best "
                     "configuration − BC-OH (bold: above 0) and copycat count.", body)]
