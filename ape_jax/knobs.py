@@ -75,6 +75,19 @@ def integer(name: str, value: Any, least: int) -> None:
         raise ValueError(f"{name} {problem}")
 
 
+def axis(name: str, values: tuple, rule: Callable[[str, Any], None] | None = None, empty: bool = False) -> None:
+    """Refuses (`ValueError`, one line) a grid axis of a method's settings, `name`, that lists a value twice, is
+    empty (unless `empty`: an empty axis means the task's), or holds a value `rule(name, value)` refuses (`nonnegative`,
+    `positive`)."""
+    if not values and not empty:
+        raise ValueError(f"{name} must list at least one value")
+    if len(set(values)) != len(values):
+        raise ValueError(f"{name} lists a value twice: {', '.join(map(str, values))}")
+    for v in values:
+        if rule is not None:
+            rule(name, v)
+
+
 def check(where: str, error: type[Exception] = ValueError, **knobs: Any) -> None:
     """Refuses, with `error("{where}{knob} ...")` (one line), the first of `knobs` whose value breaks its rule
     (`RULES`), then an encoder normalisation on ResNet-18, which normalises its own layers.

@@ -357,7 +357,7 @@ _TOYTOWN_METRICS = ("success", "route_completion", "collisions", "collisions_veh
 TASKS: Mapping[str, Task] = MappingProxyType({t.name: t for t in (
     # FCA's α and adversary lr: the FCA code's README runs Hopper at α 2.0 and 4e-4; it gives nothing for
     # Walker2d and HalfCheetah, whose α and lr are its defaults (`factory.py`: 1.0 and 2e-4). The keyframe
-    # paper's supplement ran its own FCA at α 0.1 (Hopper) and 0.5 (the others): `--set recipe.fca_alphas=...`.
+    # paper's supplement ran its own FCA at α 0.1 (Hopper) and 0.5 (the others): `--set fca.alphas=...`.
     Task("hopper", "Hopper", fca_alpha=2.0, fca_adversary_lr=4e-4),
     Task("halfcheetah", "HalfCheetah", fca_alpha=1.0),
     Task("walker2d", "Walker2d", fca_alpha=1.0),

@@ -24,6 +24,9 @@ used as they are with the `given` kind), so they join the same program.
 
 from __future__ import annotations
 
+import dataclasses
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -31,6 +34,47 @@ from flax import struct
 
 UNIFORM, STEP, SOFTMAX, GIVEN = 0, 1, 2, 3
 KINDS = {"uniform": UNIFORM, "step": STEP, "softmax": SOFTMAX, "given": GIVEN}
+# The paper's grids (Sec. 5, "Implementation details"; its code's `--thr`/`--weight` and `--temperature` sweeps)
+STEP_GRID = tuple((thr, w) for thr in (0.1, 0.2) for w in (3.0, 5.0, 10.0))
+SOFTMAX_GRID = (0.1, 0.2, 0.5, 1.0, 5.0, 10.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class StepKnobs:
+    """A step weighting's own settings (`ours-step`'s, and a step plugin's without a fixed grid:
+    `--set ours-step.grid=0.1:5,0.2:3`, or `experiments.sweep --step-grid` for every step weighting at once).
+
+    Attributes:
+      grid: the (THR, W) settings it runs at: THR in (0, 1), W finite and >= 1; default the paper's `STEP_GRID`.
+    """
+
+    grid: tuple[tuple[float, float], ...] = STEP_GRID
+
+    def __post_init__(self):
+        for thr, w in self.grid:
+            if not (0.0 < thr < 1.0 and 1.0 <= w < math.inf):
+                raise ValueError(f"grid: THR must be in (0, 1) and W a finite number >= 1, got {thr:g}:{w:g}")
+        if len(set(self.grid)) != len(self.grid):
+            raise ValueError(f"grid lists a setting twice: {self.grid!r}")
+
+
+@dataclasses.dataclass(frozen=True)
+class SoftmaxKnobs:
+    """A softmax weighting's own settings (`ours-softmax`'s: `--set ours-softmax.taus=0.2`, or
+    `experiments.sweep --softmax-grid` for every softmax weighting at once).
+
+    Attributes:
+      taus: the temperatures τ it runs at, each finite and > 0; default the paper's `SOFTMAX_GRID`; empty: none
+        (the image presets leave the softmax weighting out).
+    """
+
+    taus: tuple[float, ...] = SOFTMAX_GRID
+
+    def __post_init__(self):
+        if not all(0.0 < v < math.inf for v in self.taus):
+            raise ValueError(f"taus: every value must be a finite number > 0, got {self.taus!r}")
+        if len(set(self.taus)) != len(self.taus):
+            raise ValueError(f"taus lists a setting twice: {self.taus!r}")
 
 
 def _count(thr: jax.Array, n: int) -> jax.Array:

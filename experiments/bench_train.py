@@ -47,7 +47,8 @@ import numpy as np
 from ape_jax import methods
 from ape_jax.grid import grid_runner
 from ape_jax.learner import Data, Hparams, LearnerConfig, make_train, stack_hparams
-from ape_jax.pipeline.presets import RECIPES, SOFTMAX_GRID, STEP_GRID, resolve
+from ape_jax.pipeline.presets import RECIPES, resolve
+from ape_jax.weighting import SOFTMAX_GRID, STEP_GRID
 from experiments._cli import Parser
 from experiments._timing import machine, run_benchmark, time_jitted
 
@@ -137,8 +138,7 @@ def _method_program(name: str, cfg: LearnerConfig, iters: int, data: Data, confi
     method = methods.get(name)
     if method.history is not None:   # action-chunks: the current observation only, as the sweep trains it
         cfg = dataclasses.replace(cfg, history=method.history)
-    ctx = methods.GridContext(task=tasks.get("hopper"), step_grid=STEP_GRID, softmax_grid=SOFTMAX_GRID,
-                              n_train=data.size)
+    ctx = methods.GridContext(task=tasks.get("hopper"), n_train=data.size)
     if method.learner is None:
         learner = make_train(cfg)
     elif learner_kw:
@@ -232,8 +232,8 @@ def methods_table(args) -> str:
         "| batch | HSCIC value and gradient, ms | one BC-OH update, ms | ratio |", "|---:|---:|---:|---:|",
         *[f"| {n} | {c['hscic_s'] * 1e3:,.2f} | {c['bc_step_s'] * 1e3:,.2f} | {c['hscic_s'] / c['bc_step_s']:.2f} |"
           for n, c in cost.items()],
-        "", "PALR's estimator and MINE's bound read at most 256 rows of a minibatch (`recipe.palr_rows`, "
-        "`recipe.mine_rows`): every recipe's batch up to 256 is read whole, PALR's own 1,024 on its first 256.",
+        "", "PALR's estimator and MINE's bound read at most 256 rows of a minibatch (`palr.rows`, "
+        "`mine.rows`): every recipe's batch up to 256 is read whole, PALR's own 1,024 on its first 256.",
     ]
     for line in lines[4:]:
         print(line, file=sys.stderr)

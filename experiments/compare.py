@@ -37,7 +37,6 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ape_jax.pipeline import presets
 from ape_jax.pipeline.rundir import RunDir
 from experiments._cli import Parser, fail, unwritable
 from experiments.report import analysis
@@ -49,7 +48,7 @@ REFERENCES = ("bc-so", "bc-oh", "ours-step", "fca")
 REFERENCE_LABELS = {"bc-so": "BC-SO", "bc-oh": "BC-OH", "ours-step": PAPER_STEP_LABEL, "fca": "FCA"}
 # the settings that may differ between comparable files: which configurations ran, how many seeds, and amounts
 # that do not change what a configuration computes (chunking, the diagnostics, the width: statistically alike)
-FREE = {"recipe": {"name", *presets.METHOD_KNOBS},
+FREE = {"recipe": {"name"}, "knobs": None,   # None: the whole section (the methods' own settings)
         "budget": {"seeds", "chunk", "probe_steps", "eval_at", "width"},
         "protocol": {"doc"}}
 PROFILE_TAUS = np.linspace(0.0, 1.25, 126)  # fractions of the expert's return (normalised scores)
@@ -75,6 +74,8 @@ def comparable_fields(res: analysis.Source) -> dict[str, object]:
     """What must agree between your file and a reference file: `{"section.field": value}`."""
     out: dict[str, object] = {"env": res.env, "obs": res.obs, "expert": res.expert.get("return_mean")}
     for section, values in res.records().to_json().items():
+        if section in FREE and FREE[section] is None:
+            continue
         out.update({f"{section}.{k}": v for k, v in values.items() if k not in FREE.get(section, ())})
     return out
 

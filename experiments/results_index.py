@@ -39,12 +39,16 @@ def dataset_of(r: results_lib.Results) -> str | None:
 
 def settings_arguments(r: results_lib.Results) -> list[str]:
     """`--env`, `--obs` and the sweep arguments under which today's `presets.resolve` gives the settings `r`
-    records (`replay.arguments`; a `--smoke` run's with `--smoke`). Methods and dataset are the caller's to add.
+    records (`replay.arguments`; a `--smoke` run's with `--smoke`), the methods' own settings of the methods it ran
+    only (an old file's recipe set FCA-IB's α with FCA's, say). Methods and dataset are the caller's to add.
 
     Raises:
       SettingsError: no arguments give them (a preset, protocol or recipe this code no longer knows).
     """
-    records = dataclasses.replace(r.records(), smoke=bool(r.config.get("smoke")))
+    records = r.records()
+    ran = set(r.config.get("methods") or ())
+    records = dataclasses.replace(records, smoke=bool(r.config.get("smoke")),
+                                  knobs={m: k for m, k in records.knobs.items() if m in ran})
     return ["--env", r.env, "--obs", r.obs, *replay.arguments(r.env, r.obs, records)]
 
 

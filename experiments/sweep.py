@@ -50,6 +50,7 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
     from ape_jax import methods, tasks
     from ape_jax.pipeline import data
     from ape_jax.pipeline import presets
+    from ape_jax.weighting import SoftmaxKnobs, StepKnobs
 
     p = Parser(prog=PROG, description=__doc__.splitlines()[0])
     p.add_argument("--env", default="hopper", help=f"{', '.join(tasks.sweepable())} (default: hopper)")
@@ -66,8 +67,8 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
                         "fca protocols for state observations, the FCA code's BatchNorm network, Adam beta1 0.5, "
                         "batch 64; mlp otherwise)")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="sets",
-                   help="change one field of the protocol, budget or recipe (repeatable), e.g. "
-                        "recipe.batch_size=64, protocol.split=episodes, recipe.fca_alphas=0.1,0.5,1,2")
+                   help="change one field of the protocol, budget or recipe, or one of a method's own settings "
+                        "(repeatable), e.g. recipe.batch_size=64, protocol.split=episodes, fca.alphas=0.1,0.5,1,2")
     p.add_argument("--plugins", default="", metavar="MODULE,...",
                    help="import these modules (from PYTHONPATH) first: each registers methods with "
                         "@ape_jax.methods.weighting(NAME), which --methods can then name")
@@ -142,15 +143,15 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
         if value is not None and value > presets.BUDGET_MAX:   # would overflow on the device after collecting
             fail(p, f"--{name.replace('_', '-')} must be at most {presets.BUDGET_MAX:,} (the device counts in "
                     f"32-bit integers), got {value:,}")
-    # the shortcuts are --set's of the budget and the recipe, applied before the --set's given
+    # the shortcuts are --set's of the budget and of every step (softmax) weighting's grid, before the --set's given
     sets = [f"budget.{k}={v}" for k, v in (("seeds", args.seeds), ("iterations", args.iterations),
                                            ("eval_episodes", args.eval_episodes)) if v is not None]
     if args.step_grid is not None:
         steps = grid(p, "--step-grid", args.step_grid, step_setting)
-        sets.append("recipe.step_grid=" + ",".join(f"{thr!r}:{w!r}" for thr, w in steps))
+        sets += [f"{m}.grid=" + ",".join(f"{thr!r}:{w!r}" for thr, w in steps) for m in methods.sharing(StepKnobs)]
     if args.softmax_grid is not None:
-        sets.append("recipe.softmax_grid=" + ",".join(map(repr, grid(p, "--softmax-grid", args.softmax_grid,
-                                                                      temperature))))
+        taus = ",".join(map(repr, grid(p, "--softmax-grid", args.softmax_grid, temperature)))
+        sets += [f"{m}.taus={taus}" for m in methods.sharing(SoftmaxKnobs)]
     try:
         args.settings = presets.resolve(args.env, args.obs, args.protocol, args.preset, args.recipe, sets + args.sets,
                                         smoke=args.smoke)
@@ -163,6 +164,12 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
         fail(p, str(e))
     args.checkpoint_every = args.checkpoint_every or args.settings.budget.chunk
     args.methods = _runnable(p, args.methods, named, args.settings, args.obs)
+    # a method's own setting given for a method the sweep will not train: said, as it may be a slip (recorded all
+    # the same: a replayed file's settings are its own, whichever methods it ran)
+    for m in dict.fromkeys(s.partition(".")[0] for s in args.sets):
+        if m in methods.names() and m not in args.methods:
+            print(f"note: --set {m}.*: {m} is not among the methods ({', '.join(args.methods)}); its settings are "
+                  "recorded but nothing reads them", file=sys.stderr)
     args.cost = cost(args.env, args.settings, args.methods)
     if args.cost is not None and args.cost.over and not args.yes:
         fail(p, f"{args.cost}, over the limit of {UPDATES_LIMIT:,} updates or {EPISODES_LIMIT:,} episodes; pass "
@@ -233,10 +240,8 @@ def cost(env: str, settings, names) -> Cost | None:
     from ape_jax import methods, tasks
     from ape_jax.pipeline.sweep import grid_runs
 
-    recipe, budget = settings.recipe, settings.budget
-    ctx = methods.GridContext(task=tasks.get(env), step_grid=recipe.step_grid, softmax_grid=recipe.softmax_grid,
-                              n_train=settings.protocol.train_transitions or 1, fca_alphas=recipe.fca_alphas,
-                              ib_weights=recipe.ib_weights, fca_adversary_lr=recipe.fca_adversary_lr, recipe=recipe,
+    budget = settings.budget
+    ctx = methods.GridContext(task=tasks.get(env), n_train=settings.protocol.train_transitions or 1,
                               knobs=settings.knobs)
     try:
         configurations = len(grid_runs(names, 1, ctx))

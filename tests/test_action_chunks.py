@@ -174,7 +174,7 @@ def test_the_method_reads_its_knobs_and_trains_without_a_history():
     method = methods.get("action-chunks")
     assert (method.history, method.program, method.knobs, method.label) == (1, "action-chunks", ChunkKnobs,
                                                                            "ActionChunks")
-    ctx = methods.GridContext(task=tasks.get("hopper"), step_grid=(), softmax_grid=(), n_train=100)
+    ctx = methods.GridContext(task=tasks.get("hopper"), n_train=100)
     assert method.settings(ctx) == [{"k": 100.0, "m": 0.01}]
     ctx = dataclasses.replace(ctx, knobs={"action-chunks": ChunkKnobs(k=5, m=0.1)})
     assert method.settings(ctx) == [{"k": 5.0, "m": 0.1}]

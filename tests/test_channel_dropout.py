@@ -137,7 +137,7 @@ def test_the_knobs_and_the_learner_refuse_what_they_cannot_run():
         make_channel_dropout(dataclasses.replace(CFG, obs_shape=(2,)))
     assert ChannelDropoutKnobs().names(images=True) == ("speed",)
     assert ChannelDropoutKnobs("prev_action, speed").names(images=False) == ("prev_action", "speed")
-    ctx = methods.GridContext(task=tasks.get("hopper"), step_grid=(), softmax_grid=(), n_train=100)
+    ctx = methods.GridContext(task=tasks.get("hopper"), n_train=100)
     assert methods.get("channel-dropout").settings(ctx) == [{"rate": DEFAULT_RATE}]
     ctx = dataclasses.replace(ctx, knobs={"channel-dropout": ChannelDropoutKnobs(rates=(0.0, 0.5))})
     assert methods.get("channel-dropout").settings(ctx) == [{"rate": 0.0}, {"rate": 0.5}]

@@ -16,10 +16,11 @@ import numpy as np
 import pytest
 
 from ape_jax import methods, tasks
-from ape_jax.baselines.fca import DEFAULT_IB_WEIGHT, LOG_VAR_INIT, FcaHparams, make_fca
+from ape_jax.baselines.fca import DEFAULT_IB_WEIGHT, LOG_VAR_INIT, FcaHparams, FcaIbKnobs, FcaKnobs, make_fca
 from ape_jax.history import history_index
 from ape_jax.learner import Data, LearnerConfig, stack_hparams
 from ape_jax.models import ImagePolicy, StatePolicy
+from ape_jax.pipeline.presets import resolve
 from _compare import UPDATE_RTOL, update_mismatch
 
 
@@ -160,13 +161,15 @@ def test_the_hparams_refuse_bad_values():
 
 
 def test_tca_and_tca_ib_are_registered_as_one_program():
-    ctx = methods.GridContext(task=tasks.get("hopper"), step_grid=(), softmax_grid=(), n_train=100)
+    ctx = methods.GridContext(task=tasks.get("hopper"), n_train=100)
     tca, ib = methods.get("fca"), methods.get("fca-ib")
     assert (tca.label, ib.label) == ("FCA (TCA)", "FCA (TCA + IB)")
     assert tca.program == ib.program == "fca" and tca.learner is ib.learner
     assert tca.settings(ctx) == [{"alpha": 2.0, "adversary_lr": 4e-4}]
     assert ib.settings(ctx) == [{"alpha": 2.0, "adversary_lr": 4e-4, "ib_weight": DEFAULT_IB_WEIGHT}]
-    ctx = dataclasses.replace(ctx, task=tasks.get("walker2d"), fca_alphas=(0.5, 1.0), ib_weights=(1e-5, 1e-3))
+    ctx = methods.GridContext(task=tasks.get("walker2d"), n_train=100,
+                              knobs={"fca": FcaKnobs(alphas=(0.5, 1.0)),
+                                     "fca-ib": FcaIbKnobs(alphas=(0.5, 1.0), weights=(1e-5, 1e-3))})
     assert [s["alpha"] for s in tca.settings(ctx)] == [0.5, 1.0]
     grid = ib.settings(ctx)
     assert [(s["alpha"], s["ib_weight"]) for s in grid] == [(0.5, 1e-5), (0.5, 1e-3), (1.0, 1e-5), (1.0, 1e-3)]
@@ -175,8 +178,10 @@ def test_tca_and_tca_ib_are_registered_as_one_program():
     np.testing.assert_allclose(hp.ib_weight, [0.0, 0.0, 1e-5, 1e-3, 1e-5, 1e-3])
     np.testing.assert_allclose(hp.adversary_lr, [2e-4] * 6)
     np.testing.assert_allclose(hp.lr, [3e-4] * 6)
-    # the recipe may set the adversary's learning rate for every task (`--set recipe.fca_adversary_lr=X`)
-    ctx = dataclasses.replace(ctx, task=tasks.get("hopper"), fca_alphas=(0.1,), fca_adversary_lr=2e-4)
+    # its settings may set the adversary's learning rate for every task (`--set fca.adversary_lr=X`); the old
+    # recipe names set both methods' (`--set recipe.fca_alphas=0.1 --set recipe.fca_adversary_lr=X`)
+    knobs = resolve("hopper", "pos", sets=["recipe.fca_alphas=0.1", "recipe.fca_adversary_lr=2e-4"]).knobs
+    ctx = methods.GridContext(task=tasks.get("hopper"), n_train=100, knobs=knobs)
     assert tca.settings(ctx) == [{"alpha": 0.1, "adversary_lr": 2e-4}]
     assert {s["adversary_lr"] for s in ib.settings(ctx)} == {2e-4}
 

@@ -90,11 +90,11 @@ def test_the_plan_fits_the_most_iterations_in_the_limit_and_runs_the_supplements
     # a fast enough device gets the paper's budget, and no more
     assert images.plan(images.TASKS, 10_000.0, None, 1e9, "bfloat16", False).iterations == images.PAPER_ITERATIONS
     hopper, cheetah = p.argv["hopper"], p.argv["halfcheetah"]
-    for flag in ("protocol.frames=states", "recipe.step_grid=0.1:5", "budget.seeds=3", "recipe.dtype=bfloat16",
+    for flag in ("protocol.frames=states", "ours-step.grid=0.1:5", "budget.seeds=3", "recipe.dtype=bfloat16",
                  "budget.width=15", f"budget.iterations={p.iterations}"):
         assert flag in hopper
-    assert "recipe.softmax_grid=0.2" in hopper and "recipe.fca_alphas=0.1" in hopper
-    assert "recipe.softmax_grid=0.1" in cheetah and "recipe.fca_alphas=0.5" in cheetah
+    assert "ours-softmax.taus=0.2" in hopper and "fca.alphas=0.1" in hopper
+    assert "ours-softmax.taus=0.1" in cheetah and "fca.alphas=0.5" in cheetah
     assert hopper[hopper.index("--recipe") + 1] == "drq" and hopper[hopper.index("--obs") + 1] == "image"
 
 

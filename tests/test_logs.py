@@ -20,7 +20,6 @@ from tensorboardX.record_writer import masked_crc32c
 
 from ape_jax.pipeline.logs import run_label, write_curves
 from ape_jax import methods, tasks
-from ape_jax.pipeline.presets import SOFTMAX_GRID, STEP_GRID
 from ape_jax.pipeline.sweep import Run, grid_runs
 
 RUNS = [Run("bc-oh", {}, 0), Run("ours-step", {"thr": 0.1, "w": 5.0}, 0), Run("ours-step", {"thr": 0.1, "w": 5.0}, 1)]
@@ -122,7 +121,7 @@ def test_labels_are_readable_unique_and_directory_safe():
     assert run_label(Run("bc-oh", {}, 2)) == "bc-oh_seed2"
     assert run_label(Run("x", {"lr": 1e-5, "big": 1e20, "name": "a b/c", "on": True}, 3)) == \
         "x_big=1e20_lr=1e-05_name=a-b-c_on=True_seed3"   # 1e+20: the + dropped
-    ctx = methods.GridContext(task=tasks.get("hopper"), step_grid=STEP_GRID, softmax_grid=SOFTMAX_GRID, n_train=800)
+    ctx = methods.GridContext(task=tasks.get("hopper"), n_train=800)   # every method's grid at its defaults
     runs = grid_runs(methods.names(), 3, ctx)
     labels = [run_label(run) for run in runs]
     assert len(set(labels)) == len(runs) > 30

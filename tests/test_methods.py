@@ -13,6 +13,7 @@ import pytest
 
 from ape_jax import methods
 from ape_jax.learner import Hparams
+from ape_jax.weighting import SoftmaxKnobs, StepKnobs
 from experiments import sweep
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -66,10 +67,14 @@ def test_a_program_shared_with_another_history_or_learner_is_refused():
 
 
 def test_plugin_weightings_become_traced_hparams_of_their_kind_on_their_score_row():
-    ctx = methods.GridContext(task=None, step_grid=((0.1, 5.0), (0.2, 3.0)), softmax_grid=(0.5,), n_train=10)
     with methods.scratch():
         for kind in ("step", "softmax", "given"):
             methods.weighting(f"p-{kind}", kind=kind)(lambda key, a, t: jnp.ones(a.shape[0], jnp.float32))
+        # a step (softmax) weighting without a fixed grid owns one, as ours-step (ours-softmax) does
+        assert methods.get("p-step").knobs is StepKnobs and methods.get("p-softmax").knobs is SoftmaxKnobs
+        assert methods.get("p-given").knobs is None and "p-step" in methods.sharing(StepKnobs)
+        ctx = methods.GridContext(task=None, n_train=10, knobs={"p-step": StepKnobs(((0.1, 5.0), (0.2, 3.0))),
+                                                                "p-softmax": SoftmaxKnobs((0.5,))})
         assert methods.get("p-step").settings(ctx) == [{"thr": 0.1, "w": 5.0}, {"thr": 0.2, "w": 3.0}]
         assert methods.get("p-softmax").settings(ctx) == [{"tau": 0.5}] and methods.get("p-given").settings(ctx) == [{}]
         hp = methods.get("p-step").hparams({"thr": 0.2, "w": 3.0}, 1e-3, 2)

@@ -129,7 +129,7 @@ def test_the_knobs_refuse_bad_values():
         make_mine(CFG, inner_steps=0)
     with pytest.raises(ValueError, match="rows must be >= 0"):
         make_mine(CFG, rows=-1)
-    ctx = methods.GridContext(task=tasks.get("hopper"), step_grid=(), softmax_grid=(), n_train=100)
+    ctx = methods.GridContext(task=tasks.get("hopper"), n_train=100)
     assert methods.get("mine").settings(ctx) == [{"weight": 0.1}]
-    recipe = resolve("hopper", "pos", sets=["recipe.mine_weights=0,1"]).recipe
-    assert methods.get("mine").settings(dataclasses.replace(ctx, recipe=recipe)) == [{"weight": 0.0}, {"weight": 1.0}]
+    knobs = resolve("hopper", "pos", sets=["mine.weights=0,1"]).knobs
+    assert methods.get("mine").settings(dataclasses.replace(ctx, knobs=knobs)) == [{"weight": 0.0}, {"weight": 1.0}]

@@ -120,10 +120,10 @@ def test_the_knobs_refuse_bad_values():
 
 
 def test_the_grid_is_the_recipe_s_weights_by_bandwidths_or_the_authors_defaults():
-    ctx = methods.GridContext(task=tasks.get("hopper"), step_grid=(), softmax_grid=(), n_train=100)
+    ctx = methods.GridContext(task=tasks.get("hopper"), n_train=100)
     assert methods.get("palr").settings(ctx) == [{"weight": 10.0, "bandwidth": 1.0}]
-    recipe = resolve("hopper", "pos", sets=["recipe.palr_weights=1,10", "recipe.palr_bandwidths=0.5"]).recipe
-    ctx = methods.GridContext(task=tasks.get("hopper"), step_grid=(), softmax_grid=(), n_train=100, recipe=recipe)
+    knobs = resolve("hopper", "pos", sets=["palr.weights=1,10", "palr.bandwidths=0.5"]).knobs
+    ctx = methods.GridContext(task=tasks.get("hopper"), n_train=100, knobs=knobs)
     assert methods.get("palr").settings(ctx) == [{"weight": 1.0, "bandwidth": 0.5}, {"weight": 10.0, "bandwidth": 0.5}]
 
 

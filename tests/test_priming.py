@@ -132,7 +132,7 @@ def test_the_knobs_and_the_learner_refuse_what_priming_cannot_run_in_one_line():
 def test_the_method_s_grid_is_its_weights_knob():
     method = methods.get("priming")
     assert (method.program, method.history, method.knobs, method.label) == ("priming", None, PrimingKnobs, "Priming")
-    ctx = methods.GridContext(task=tasks.get("hopper"), step_grid=(), softmax_grid=(), n_train=100)
+    ctx = methods.GridContext(task=tasks.get("hopper"), n_train=100)
     assert method.settings(ctx) == [{"weight": 1.0}]
     ctx = dataclasses.replace(ctx, knobs={"priming": PrimingKnobs(weights=(0.0, 0.5))})
     assert method.settings(ctx) == [{"weight": 0.0}, {"weight": 0.5}]

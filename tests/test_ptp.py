@@ -100,7 +100,7 @@ def test_the_knobs_refuse_bad_values_in_one_line():
         PtpHparams.make(1.0, lr=-1.0)
     with pytest.raises(ValueError, match="ptp.past must be an integer >= 1"):
         make_ptp(CFG, past=0)
-    ctx = methods.GridContext(task=tasks.get("hopper"), step_grid=(), softmax_grid=(), n_train=100)
+    ctx = methods.GridContext(task=tasks.get("hopper"), n_train=100)
     assert methods.get("ptp").settings(ctx) == [{"weight": DEFAULT_WEIGHT}]
     ctx = dataclasses.replace(ctx, knobs={"ptp": PtpKnobs(weights=(0.0, 0.5))})
     assert methods.get("ptp").settings(ctx) == [{"weight": 0.0}, {"weight": 0.5}]

@@ -224,10 +224,10 @@ def test_the_knobs_and_the_learner_refuse_what_rap_cannot_run():
         make_rap(dataclasses.replace(IMAGE_CFG, history=1))
     image = resolve("hopper", "image", sets=["recipe.encoder=patch", "recipe.encoder_norm=group"])
     assert refusal(image, "image") is None
-    ctx = methods.GridContext(task=tasks.get("hopper"), step_grid=(), softmax_grid=(), n_train=100)
+    ctx = methods.GridContext(task=tasks.get("hopper"), n_train=100)
     assert methods.get("rap").settings(ctx) == [{"weight": 1.0, "memory_width": 150.0}]
-    recipe = resolve("hopper", "pos", sets=["recipe.rap_weights=0.5,1", "recipe.rap_widths=60"]).recipe
-    assert methods.get("rap").settings(dataclasses.replace(ctx, recipe=recipe)) == [
+    knobs = resolve("hopper", "pos", sets=["rap.weights=0.5,1", "rap.widths=60"]).knobs
+    assert methods.get("rap").settings(dataclasses.replace(ctx, knobs=knobs)) == [
         {"weight": 0.5, "memory_width": 60.0}, {"weight": 1.0, "memory_width": 60.0}]
 
 
@@ -240,15 +240,15 @@ BASE = ["--env", "toycar", "--obs", "full", "--quiet"]
     (["--methods", "rap", "--obs", "image", "--set", "recipe.encoder=drq"], "use --set recipe.encoder=patch"),
     (["--methods", "rap", "--obs", "image", "--set", "recipe.encoder=patch", "--set", "protocol.history=1"],
      "rap needs a history"),
-    (["--methods", "rap", "--set", "recipe.rap_weights=1.5"], "recipe.rap_weights: every value must be in [0, 1]"),
-    (["--methods", "rap", "--set", "recipe.rap_widths=0"], "recipe.rap_widths: every value must be an integer"),
-    (["--methods", "palr", "--set", "recipe.palr_bandwidths=0"], "recipe.palr_bandwidths: every value must be"),
-    (["--methods", "palr", "--set", "recipe.palr_bandwidths=-1"], "recipe.palr_bandwidths: every value must be"),
-    (["--methods", "palr", "--set", "recipe.palr_weights=-1"], "recipe.palr_weights: every value must be"),
-    (["--methods", "mine", "--set", "recipe.mine_weights=-0.5"], "recipe.mine_weights: every value must be"),
-    (["--methods", "mine", "--set", "recipe.mine_steps=0"], "recipe.mine_steps must be an integer >= 1"),
-    (["--methods", "palr", "--set", "recipe.palr_rows=-1"], "recipe.palr_rows must be an integer >= 0"),
-    (["--methods", "mine", "--set", "recipe.mine_rows=-1"], "recipe.mine_rows must be an integer >= 0"),
+    (["--methods", "rap", "--set", "rap.weights=1.5"], "rap: weights: every value must be in [0, 1]"),
+    (["--methods", "rap", "--set", "rap.widths=0"], "rap: widths: every value must be an integer"),
+    (["--methods", "palr", "--set", "palr.bandwidths=0"], "palr: bandwidths must be > 0"),
+    (["--methods", "palr", "--set", "palr.bandwidths=-1"], "palr: bandwidths must be > 0"),
+    (["--methods", "palr", "--set", "palr.weights=-1"], "palr: weights must be >= 0"),
+    (["--methods", "mine", "--set", "mine.weights=-0.5"], "mine: weights must be >= 0"),
+    (["--methods", "mine", "--set", "mine.steps=0"], "mine: steps must be an integer >= 1"),
+    (["--methods", "palr", "--set", "palr.rows=-1"], "palr: rows must be an integer >= 0"),
+    (["--methods", "mine", "--set", "recipe.mine_rows=-1"], "mine: rows must be an integer >= 0"),   # the old name
 ])
 def test_the_sweep_refuses_bad_knobs_and_rap_without_a_history_before_any_work(tmp_path, capsys, args, message):
     assert_sweep_refuses(tmp_path, capsys, [*BASE, *args], message)

@@ -46,7 +46,9 @@ def test_smoke_shrinks_the_amounts_and_keeps_what_a_step_computes():
         assert getattr(smoke.protocol, kept) == getattr(paper.protocol, kept)
     b = smoke.budget
     assert (b.iterations, b.seeds, b.eval_episodes, b.chunk, b.eval_at, b.probe_steps) == (4, 1, 2, 2, (2,), 10)
-    assert (smoke.recipe.batch_size, smoke.recipe.step_grid, smoke.recipe.softmax_grid) == (4, ((0.1, 3.0),), (0.1,))
+    assert (smoke.recipe.batch_size, smoke.knob("ours-step").grid, smoke.knob("ours-softmax").taus) == \
+        (4, ((0.1, 3.0),), (0.1,))
+    assert smoke.knob("palr").weights == (10.0,) and "palr" not in smoke.knobs   # one setting already: its defaults
     assert (smoke.protocol.episodes, smoke.protocol.horizon) == (3, 20)
     rows = resolve("hopper", "pos", preset="paper", smoke=True).protocol   # the fca protocol splits by rows
     assert (rows.split, rows.collect_transitions, rows.train_transitions, rows.val_transitions) == \
@@ -57,11 +59,13 @@ def test_smoke_shrinks_the_amounts_and_keeps_what_a_step_computes():
 
 def test_set_changes_any_field_parsed_by_its_type():
     s = resolve("hopper", "pos", preset="default", sets=[
-        "recipe.batch_size=32", "recipe.lr=1e-3", "recipe.step_grid=0.1:4,0.2:6", "recipe.fca_alphas=0.1,2",
+        "recipe.batch_size=32", "recipe.lr=1e-3", "ours-step.grid=0.1:4,0.2:6", "recipe.fca_alphas=0.1,2",
         "protocol.split=episodes", "protocol.eval_steps=1000", "protocol.image_size=16x24", "budget.seeds=7",
         "recipe.loss=l1", "recipe.loss=none"])
-    assert (s.recipe.batch_size, s.recipe.lr, s.recipe.step_grid) == (32, 1e-3, ((0.1, 4.0), (0.2, 6.0)))
-    assert s.recipe.fca_alphas == (0.1, 2.0) and s.recipe.loss is None   # the last --set of a field wins
+    assert (s.recipe.batch_size, s.recipe.lr, s.knob("ours-step").grid) == (32, 1e-3, ((0.1, 4.0), (0.2, 6.0)))
+    assert s.recipe.loss is None   # the last --set of a field wins
+    # an old recipe name of a method's knob sets what it means now: FCA's and FCA-IB's α
+    assert s.knob("fca").alphas == s.knob("fca-ib").alphas == (0.1, 2.0)
     assert (s.protocol.split, s.protocol.eval_steps, s.protocol.image_size) == ("episodes", 1000, (16, 24))
     assert s.budget.seeds == 7 and s.budget.iterations == 30_000
     with pytest.raises(dataclasses.FrozenInstanceError):
@@ -93,10 +97,11 @@ def test_the_arguments_of_recorded_settings_resolve_to_them_again(env, obs, prot
         assert resolve(env, obs, protocol, preset, recipe, sets=rest, smoke=smoke) != target, item
     if not sets:
         assert args == ["--preset", preset]
-    for section, field, value in [("recipe", "step_grid", ((0.1, 4.0), (0.2, 6.0))), ("recipe", "lr", 2e-4 / 3),
-                                  ("protocol", "image_size", (16, 24)), ("recipe", "loss", None),
-                                  ("recipe", "fca_alphas", ()), ("budget", "chunk", 500)]:
+    for section, field, value in [("recipe", "lr", 2e-4 / 3), ("protocol", "image_size", (16, 24)),
+                                  ("recipe", "loss", None), ("budget", "chunk", 500)]:
         assert parse_set(format_set(section, field, value)) == (section, field, value)
+    assert parse_set("ours-step.grid=0.1:4,0.2:6") == ("ours-step", "grid", ((0.1, 4.0), (0.2, 6.0)))
+    assert parse_set("recipe.fca_alphas=") == ("recipe", "fca_alphas", ())   # an old name, parsed as fca.alphas
 
 
 @pytest.mark.parametrize("item, message", [
@@ -108,7 +113,9 @@ def test_the_arguments_of_recorded_settings_resolve_to_them_again(env, obs, prot
     ("recipe.network=cnn", "recipe.network 'cnn' is not one of mlp, bn-mlp"),
     ("recipe.step_grid=0.1", "is not THR:W"),
     ("recipe.softmax_grid=0,1", "every value must be a finite number > 0"),
-    ("recipe.fca_adversary_lr=0", "recipe.fca_adversary_lr must be a finite number > 0, got 0.0"),
+    ("recipe.fca_adversary_lr=0", "fca: adversary_lr must be > 0 and finite, got 0.0"),
+    ("fca.adversary_lr=-1", "fca: adversary_lr must be > 0 and finite, got -1.0"),
+    ("ours-step.grid=0.1:0.5", "ours-step: grid: THR must be in (0, 1) and W a finite number >= 1, got 0.1:0.5"),
     ("budget.iterations=0", "budget.iterations must be an integer >= 1"),
     ("budget.seeds=none", "budget.seeds takes int"),
     ("protocol.split=halves", "protocol.split 'halves' is not one of rows, episodes"),

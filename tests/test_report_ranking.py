@@ -1,6 +1,7 @@
-"""The later methods (RAP, PALR, MINE and the remedies after them) ranked in the report: cells by family (by setting: where copying is expected,
-the default tasks), each method's best configuration per cell against BC-OH, the IQM and probability of
-improvement across cells, a method missing from a cell left out of that family, and the section with its figure.
+"""The later methods (RAP, PALR, MINE and the remedies after them) ranked in the report: cells by family (by setting:
+where copying is expected, the default tasks), each method's best configuration per cell against BC-OH, the IQM and
+probability of improvement across cells, a method missing from a cell left out of that family, and the section with
+its figure.
 
 Fixtures: `test_report_regime`'s synthetic expert-regime file (FCA's imported expert, raw labels; 3 seeds, % of
 expert = return / 20, seeds at ±0.5 points) beside a file of the later methods on the same rows, as the queue's

@@ -55,8 +55,11 @@ def test_every_sweep_replay_parses_and_resolves_to_the_settings_its_file_records
         assert out == f"runs/replay/{e.path.removesuffix('.json')}", e.path   # a new folder, one per file
         args = sweep.parse(argv, writes=False)   # parse only: nothing runs
         recorded = r.records()
-        for section in ("protocol", "budget", "recipe", "knobs"):
+        for section in ("protocol", "budget", "recipe"):
             assert getattr(args.settings, section) == getattr(recorded, section), (e.path, section)
+        ran = set(args.methods)   # the methods' own settings: those of the methods it ran
+        assert {m: k for m, k in args.settings.knobs.items() if m in ran} == \
+            {m: k for m, k in recorded.knobs.items() if m in ran}, e.path
         assert (args.env, args.obs, args.methods) == (r.env, r.obs, tuple(r.config["methods"])), e.path
         assert args.settings.smoke == bool(r.config.get("smoke")), e.path
 

@@ -184,10 +184,11 @@ def test_custom_grids_replace_the_presets_and_name_the_runs():
 
     args = sweep.parse(["--env", "walker2d", "--preset", "default", "--step-grid", "0.1:4,0.1:5,0.1:6",
                         "--softmax-grid", "0.1,0.2,0.5"])
-    p = args.settings.recipe
-    assert p.step_grid == ((0.1, 4.0), (0.1, 5.0), (0.1, 6.0)) and p.softmax_grid == (0.1, 0.2, 0.5)
-    ctx = methods.GridContext(task=tasks.get("walker2d"), step_grid=p.step_grid, softmax_grid=p.softmax_grid,
-                              n_train=100)
+    s = args.settings
+    assert s.knob("ours-step").grid == ((0.1, 4.0), (0.1, 5.0), (0.1, 6.0))
+    assert s.knob("ours-softmax").taus == (0.1, 0.2, 0.5)
+    ctx = methods.GridContext(task=tasks.get("walker2d"), n_train=100, knobs=s.knobs)
+    assert methods.get("bcpd").settings(ctx) == [{"thr": 0.1, "w": 5.0}]   # a weighting with a fixed grid keeps it
     runs = grid_runs(("ours-step", "ours-softmax"), 1, ctx)
     assert [r.hparams for r in runs] == [{"thr": 0.1, "w": 4.0}, {"thr": 0.1, "w": 5.0}, {"thr": 0.1, "w": 6.0},
                                          {"tau": 0.1}, {"tau": 0.2}, {"tau": 0.5}]

@@ -29,14 +29,14 @@ of both is one `vmap`:
   (github.com/AlvinWen428/fighting-copycat-agents) ships: its temporally
   correlated adversary without a bottleneck.
 - `fca-ib`, "FCA (TCA + IB)": the paper's FCA, TCA plus a variational
-  information bottleneck, at the KL weights of `GridContext.ib_weights`
-  (default `DEFAULT_IB_WEIGHT`).
+  information bottleneck, at the KL weights of its `weights` (`FcaIbKnobs`,
+  `--set fca-ib.weights=...`; default `DEFAULT_IB_WEIGHT`).
 
-Both run at each α of `GridContext.fca_alphas`, by default the task's
-(`ape_jax.tasks`, `Task.fca_alpha`: the FCA code's README and defaults, Hopper
-2.0 and 1.0 elsewhere; 0.2 for the driving sandbox), with D's learning rate
-`Task.fca_adversary_lr` (Hopper 4e-4, 2e-4 elsewhere) unless the recipe gives one
-(`GridContext.fca_adversary_lr`, `--set recipe.fca_adversary_lr=X`).
+Each runs at each α of its `alphas` (`FcaKnobs`, `--set fca.alphas=0.1,2`), by
+default the task's (`ape_jax.tasks`, `Task.fca_alpha`: the FCA code's README and
+defaults, Hopper 2.0 and 1.0 elsewhere; 0.2 for the driving sandbox), with D's
+learning rate `Task.fca_adversary_lr` (Hopper 4e-4, 2e-4 elsewhere) unless its
+`adversary_lr` gives one (`--set fca.adversary_lr=X`).
 
 **The information bottleneck** (FCA-IB). The embedding is a Gaussian
 `N(μ(history), diag σ²)`: `μ` the `embedding` layer's output, `log σ²` a learned
@@ -141,6 +141,8 @@ bottleneck's KL (0 for TCA).
 
 from __future__ import annotations
 
+import dataclasses
+
 from typing import Any
 from collections.abc import Sequence
 
@@ -150,14 +152,49 @@ import jax.numpy as jnp
 from flax import struct
 
 from ape_jax.history import history_index
-from ape_jax.knobs import nonnegative, positive
+from ape_jax.knobs import axis, nonnegative, positive
 from ape_jax.learner import (Data, Learner, LearnerConfig, action_errors, adam_step, augment, learning_rate, make_train,
                              policy_apply, scanned_learner, trainable)
 from ape_jax import methods
 
 ADVERSARY_HIDDEN = (300, 300)
 LOG_VAR_INIT = -6.0       # the bottleneck's initial log σ² in every dimension: σ ≈ 0.05
-DEFAULT_IB_WEIGHT = 1e-4  # FCA-IB's KL weight β where `GridContext.ib_weights` gives none (module docstring)
+DEFAULT_IB_WEIGHT = 1e-4  # FCA-IB's KL weight β unless `fca-ib.weights` gives others (module docstring)
+
+
+@dataclasses.dataclass(frozen=True)
+class FcaKnobs:
+    """FCA's own settings (`--set fca.KNOB=VALUE`; the module docstring).
+
+    Attributes:
+      alphas: a grid axis: the adversarial weights α to run, each finite and >= 0; empty: the task's one
+        (`Task.fca_alpha`, from the FCA code's README; the supplement ran 0.1 on Hopper, 0.5 elsewhere).
+      adversary_lr: the adversary's learning rate, finite and > 0; None: the task's (`Task.fca_adversary_lr`).
+    """
+
+    alphas: tuple[float, ...] = ()
+    adversary_lr: float | None = None
+
+    def __post_init__(self):
+        axis("alphas", self.alphas, nonnegative, empty=True)
+        if self.adversary_lr is not None:
+            positive("adversary_lr", self.adversary_lr)
+
+
+@dataclasses.dataclass(frozen=True)
+class FcaIbKnobs(FcaKnobs):
+    """FCA-IB's own settings (`--set fca-ib.KNOB=VALUE`): FCA's, and the bottleneck's KL weights.
+
+    Attributes:
+      weights: a grid axis: the KL weights β to run, each finite and >= 0; default `DEFAULT_IB_WEIGHT` (ours: the
+        FCA paper gives no value for its continuous-control runs; module docstring).
+    """
+
+    weights: tuple[float, ...] = (DEFAULT_IB_WEIGHT,)
+
+    def __post_init__(self):
+        super().__post_init__()
+        axis("weights", self.weights, nonnegative)
 
 
 class Adversary(nn.Module):
@@ -306,20 +343,17 @@ def _hparams(settings, lr: float, row: int) -> FcaHparams:
                            ib_weight=settings.get("ib_weight", 0.0))
 
 
-def _alphas(ctx) -> tuple[float, ...]:
-    return ctx.fca_alphas or (ctx.task.fca_alpha,)
-
-
-def _adversary_lr(ctx) -> float:
-    return ctx.fca_adversary_lr or ctx.task.fca_adversary_lr
+def _runs(ctx, name: str) -> list[dict]:
+    """Method `name`'s settings: each α (the task's unless given) at its adversary's learning rate."""
+    knobs = ctx.knobs_of(name)
+    lr = knobs.adversary_lr or ctx.task.fca_adversary_lr
+    return [{"alpha": a, "adversary_lr": lr} for a in knobs.alphas or (ctx.task.fca_alpha,)]
 
 
 methods.register(methods.Method(
-    "fca", "FCA (TCA)",
-    grid=lambda ctx: [{"alpha": a, "adversary_lr": _adversary_lr(ctx)} for a in _alphas(ctx)],
-    hparams=_hparams, program="fca", learner=_learner, module=__name__))
+    "fca", "FCA (TCA)", grid=lambda ctx: _runs(ctx, "fca"),
+    hparams=_hparams, program="fca", learner=_learner, module=__name__, knobs=FcaKnobs))
 methods.register(methods.Method(
     "fca-ib", "FCA (TCA + IB)",
-    grid=lambda ctx: [{"alpha": a, "adversary_lr": _adversary_lr(ctx), "ib_weight": b}
-                      for a in _alphas(ctx) for b in (ctx.ib_weights or (DEFAULT_IB_WEIGHT,))],
-    hparams=_hparams, program="fca", learner=_learner, module=__name__))
+    grid=lambda ctx: [{**run, "ib_weight": b} for run in _runs(ctx, "fca-ib") for b in ctx.knobs_of("fca-ib").weights],
+    hparams=_hparams, program="fca", learner=_learner, module=__name__, knobs=FcaIbKnobs))

@@ -16,7 +16,7 @@ backward pass gives both players their gradients of the same bound:
 2. `T` steps up `I_DV` (`φ` as it is), then takes `inner_steps − 1` more steps on the same rows (fresh
    permutations and noise shifts).
 
-The penalty weight is a traced knob (`MineHparams`: the recipe's `mine_weights` train in one vmapped program);
+The penalty weight is a traced knob (`MineHparams`: its `weights`, `MineKnobs`, train in one vmapped program);
 weight 0 is BC-OH (the bound's gradient reaches the policy × 0; `T` still trains beside it).
 
 Defaults as in the authors' code (`github.com/KAIST-AILab/palr`): weight 0.1 (`train.py`: MINE runs at
@@ -37,15 +37,15 @@ Our readings:
   policy step with 5 estimator steps, each on a fresh batch with `φ` recomputed; and the noise is drawn once per
   iteration and shared by its passes (`draw_noise`). Their 5 steps on fresh batches would cost ~2× a BC-OH step,
   fresh noise for every pass another ~1×; as here MINE trains at ~0.7–0.8× BC-OH's updates/s (within the budget of
-  1.5× its time; `experiments.bench_train --methods-only` also times 5 steps). `--set recipe.mine_steps=5` gives
+  1.5× its time; `experiments.bench_train --methods-only` also times 5 steps). `--set mine.steps=5` gives
   their count of steps (on the same rows), and matters: on the planted copycat of `tests/test_mine.py` one step
   leaves the embedding with as much of `a_{t−1}` as BC-OH's (the policy keeps the estimator at chance by hiding it
   below the estimator's input noise), five steps at weight 10 halve it (PALR: 30× less).
 - **The loss** is the project's BC loss, not their tanh-Gaussian likelihood; the estimator's learning rate stays
   constant (theirs: no schedule at all) while the policy's follows the recipe's.
 - **The previous action** at an episode's first step repeats the first action (`ape_jax.baselines._batch`).
-- **Cost**: the bound reads at most `rows` rows of each minibatch (`recipe.mine_rows`, default `ESTIMATOR_ROWS`
-  = 256; 0: the whole batch), as PALR's estimator does (`recipe.palr_rows`): the rows are drawn uniformly with
+- **Cost**: the bound reads at most `rows` rows of each minibatch (`mine.rows`, default `ESTIMATOR_ROWS`
+  = 256; 0: the whole batch), as PALR's estimator does (`palr.rows`): the rows are drawn uniformly with
   replacement, so the first `rows` are a uniform subsample. Every recipe's batch up to 256 (`fca` 64, `mlp` 128)
   is read whole, so those trainings are as they were before the cap; under PALR's batch of 1,024 (`recipe palr`)
   `T` on all 2,048 joint and marginal rows made MINE 1.5× BC-OH's time per update (docs/speed.md).
@@ -55,6 +55,8 @@ BC loss), `"mi"` (the bound in the policy's step) and `"estimator_mi"` (the boun
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import itertools
 from typing import Any
@@ -67,7 +69,7 @@ import optax
 from flax import struct
 
 from ape_jax import methods
-from ape_jax.knobs import nonnegative, positive
+from ape_jax.knobs import axis, integer, nonnegative, positive
 from ape_jax.baselines._batch import OWN_KEYS, errors, sample_batch
 from ape_jax.learner import (Data, Learner, LearnerConfig, adam_step, learning_rate, make_train, policy_apply,
                              scanned_learner, trainable)
@@ -246,18 +248,34 @@ def make_mine(cfg: LearnerConfig, inner_steps: int = INNER_STEPS, rows: int = ES
     return scanned_learner(cfg, base, init, update)
 
 
-def _grid(ctx) -> list[dict]:
-    recipe = getattr(ctx, "recipe", None)
-    weights = (recipe.mine_weights if recipe is not None else ()) or (DEFAULT_WEIGHT,)
-    return [{"weight": w} for w in weights]
+@dataclasses.dataclass(frozen=True)
+class MineKnobs:
+    """MINE's own settings (`--set mine.KNOB=VALUE`; the module docstring).
+
+    Attributes:
+      weights: a grid axis: the penalty's weights, each finite and >= 0; default `DEFAULT_WEIGHT` (theirs).
+      steps: the estimator's steps per iteration, >= 1; default `INNER_STEPS` (ours: theirs is 5, ~2× BC-OH's time
+        per update; 1 keeps MINE within 1.5× of it).
+      rows: the rows of each minibatch the bound reads; 0: the whole batch; default `ESTIMATOR_ROWS` (ours, "Cost").
+    """
+
+    weights: tuple[float, ...] = (DEFAULT_WEIGHT,)
+    steps: int = INNER_STEPS
+    rows: int = ESTIMATOR_ROWS
+
+    def __post_init__(self):
+        axis("weights", self.weights, nonnegative)
+        integer("steps", self.steps, 1)
+        integer("rows", self.rows, 0)
 
 
 def _learner(ctx):
-    """MINE's learner for a grid context: its estimator steps and rows from the recipe (the defaults without one)."""
-    recipe = getattr(ctx, "recipe", None)
-    return make_mine(ctx.cfg, getattr(recipe, "mine_steps", INNER_STEPS), getattr(recipe, "mine_rows", ESTIMATOR_ROWS))
+    """MINE's learner for a learner context: its estimator's steps and rows (`MineKnobs`)."""
+    knobs = ctx.knobs_of("mine")
+    return make_mine(ctx.cfg, knobs.steps, knobs.rows)
 
 
 methods.register(methods.Method(
-    "mine", "MINE", grid=_grid, hparams=lambda settings, lr, row: MineHparams.make(settings["weight"], lr=lr),
-    program="mine", module=__name__, learner=_learner))
+    "mine", "MINE", grid=lambda ctx: [{"weight": w} for w in ctx.knobs_of("mine").weights],
+    hparams=lambda settings, lr, row: MineHparams.make(settings["weight"], lr=lr),
+    program="mine", module=__name__, learner=_learner, knobs=MineKnobs))

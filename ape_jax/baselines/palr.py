@@ -20,17 +20,17 @@ Defaults as in the authors' code (`github.com/KAIST-AILab/palr`): weight 10 (`tr
 ridge λ = 1e-5 (`ridge_lambda_list`), `bandwidth` = σ² = 1 (`core/hscic.py`: `exp(−d² / σ²)` with σ² = 1
 unless the median heuristic is asked for), the actions standardised by the training set's mean and standard
 deviation before their kernels (`imitation/palr.py`), the embedding as it is. The weight and the bandwidth are
-traced knobs (`PalrHparams`): the recipe's `palr_weights` × `palr_bandwidths` train in one vmapped program.
+traced knobs (`PalrHparams`): its `weights` × `bandwidths` (`PalrKnobs`) train in one vmapped program.
 
 Our readings:
 
 - **The loss** is the project's BC loss (squared error summed over action dimensions), not the authors'
-  tanh-Gaussian likelihood, so the weight's scale is not theirs: sweep `recipe.palr_weights` around it.
+  tanh-Gaussian likelihood, so the weight's scale is not theirs: sweep `palr.weights` around it.
 - **The previous action** at an episode's first step repeats the first action (`ape_jax.baselines._batch`), as
   FCA and the history padding do here; the authors' code puts zeros there.
 - **Cost**: the estimator solves an `n × n` system and multiplies `n × n` matrices (`O(n³)`). On a 2-core CPU
   its gradient costs ~0.2× a BC-OH step at batch 64, ~1.2× at 256 and ~10× at 1024 (measured here), so it runs on
-  at most `rows` rows of each minibatch (`recipe.palr_rows`, default `HSCIC_ROWS` = 256; 0: the whole batch, for
+  at most `rows` rows of each minibatch (`palr.rows`, default `HSCIC_ROWS` = 256; 0: the whole batch, for
   GPUs): the rows are drawn uniformly with replacement, so the first `rows` are a uniform subsample and the
   penalty is the same estimator at a smaller `n`. Every recipe's batch up to 256 (`fca` 64, `mlp` 128) is
   estimated whole; PALR's own batch of 1,024 (`recipe palr`) is subsampled on a CPU. Random Fourier features
@@ -44,6 +44,8 @@ and `"hscic"` (the penalty before its weight).
 
 from __future__ import annotations
 
+import dataclasses
+
 from typing import Any
 
 import jax
@@ -52,7 +54,7 @@ from flax import struct
 
 from ape_jax import methods
 from ape_jax.baselines._batch import action_statistics, errors, sample_batch
-from ape_jax.knobs import nonnegative, positive
+from ape_jax.knobs import axis, integer, nonnegative, positive
 from ape_jax.learner import (Data, Learner, LearnerConfig, gradient_step, learning_rate, make_train, policy_apply,
                              scanned_learner, trainable)
 
@@ -175,21 +177,34 @@ def make_palr(cfg: LearnerConfig, rows: int = HSCIC_ROWS) -> Learner:
     return scanned_learner(cfg, base, init, update)
 
 
-def _recipe_value(ctx, name: str, default):
-    """A recipe field the sweep's context carries (`GridContext.recipe`, `LearnerContext.recipe`), or `default`
-    where the context has no recipe (a hand-made context)."""
-    recipe = getattr(ctx, "recipe", None)
-    return getattr(recipe, name) if recipe is not None else default
+@dataclasses.dataclass(frozen=True)
+class PalrKnobs:
+    """PALR's own settings (`--set palr.KNOB=VALUE`; the module docstring). Every pair of the two axes runs.
+
+    Attributes:
+      weights: the HSCIC penalty's weights, each finite and >= 0; default `DEFAULT_WEIGHT` (theirs).
+      bandwidths: the Gaussian kernel's bandwidths σ², each finite and > 0; default `DEFAULT_BANDWIDTH` (theirs).
+      rows: the rows of each minibatch the estimator reads (its cost grows as their cube); 0: the whole batch (for
+        GPUs); default `HSCIC_ROWS` (ours, "Cost").
+    """
+
+    weights: tuple[float, ...] = (DEFAULT_WEIGHT,)
+    bandwidths: tuple[float, ...] = (DEFAULT_BANDWIDTH,)
+    rows: int = HSCIC_ROWS
+
+    def __post_init__(self):
+        axis("weights", self.weights, nonnegative)
+        axis("bandwidths", self.bandwidths, positive)
+        integer("rows", self.rows, 0)
 
 
 def _grid(ctx) -> list[dict]:
-    weights = _recipe_value(ctx, "palr_weights", ()) or (DEFAULT_WEIGHT,)
-    bandwidths = _recipe_value(ctx, "palr_bandwidths", ()) or (DEFAULT_BANDWIDTH,)
-    return [{"weight": w, "bandwidth": b} for w in weights for b in bandwidths]
+    knobs = ctx.knobs_of("palr")
+    return [{"weight": w, "bandwidth": b} for w in knobs.weights for b in knobs.bandwidths]
 
 
 methods.register(methods.Method(
     "palr", "PALR", grid=_grid,
     hparams=lambda settings, lr, row: PalrHparams.make(settings["weight"], settings["bandwidth"], lr=lr),
-    program="palr", learner=lambda ctx: make_palr(ctx.cfg, _recipe_value(ctx, "palr_rows", HSCIC_ROWS)),
-    module=__name__))
+    program="palr", learner=lambda ctx: make_palr(ctx.cfg, ctx.knobs_of("palr").rows), module=__name__,
+    knobs=PalrKnobs))

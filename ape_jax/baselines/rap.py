@@ -15,7 +15,7 @@ the policy is what predicts the change, not the previous action itself. Per mini
 default) is the authors' RAP: the memory sees no gradient of the policy's loss. λ = 0 is BC-OH on RAP's network:
 BC-OH's loss, its gradient reaching every weight, the residual head idle. In between, `1 − λ` of the policy's
 gradient leaks into the memory. Under Adam only the ratio of the two gradients matters, so λ is a traced knob
-on [0, 1] (`RapHparams`), and so is the memory's width: the recipe's `rap_weights` × `rap_widths` train in one
+on [0, 1] (`RapHparams`), and so is the memory's width: its `weights` × `widths` (`RapKnobs`) train in one
 vmapped program. (Both implementations we read train each branch with its own optimiser; λ = 1 is theirs.)
 
 **The network is BC-OH's `StatePolicy`, split in two.** The memory is the first `memory_width` units of each of
@@ -62,6 +62,8 @@ Metrics (`[n]` float32 per `run` of `n` iterations): `"loss"` (`L_BC + λ L_res`
 
 from __future__ import annotations
 
+import dataclasses
+
 from typing import Any
 
 import flax.linen as nn
@@ -71,13 +73,14 @@ from flax import struct
 
 from ape_jax import methods
 from ape_jax.baselines._batch import Batch, errors, sample_batch
-from ape_jax.knobs import positive
+from ape_jax.knobs import axis, positive
 from ape_jax.learner import (Data, Learner, LearnerConfig, adam_step, learning_rate, make_train, scanned_learner,
                              trainable)
 from ape_jax.models import GROUPS, StatePolicy
 
 DEFAULT_WEIGHT = 1.0   # both implementations: the memory learns from the residual loss alone
 DEFAULT_WIDTH = 150    # half of StatePolicy's 300 units: the branches equally wide, as in both implementations
+UNITS = StatePolicy.hidden[0]  # the memory's width is counted in the state policy's units (images: shares)
 RESIDUAL_HIDDEN = 300
 UNITS = StatePolicy.hidden[0]   # the encoder's units per layer, split between the branches
 ENCODERS = tuple(f"encoder_{i}" for i in range(len(StatePolicy.hidden)))
@@ -346,14 +349,42 @@ def refusal(settings, obs: str) -> str | None:
     return None
 
 
+@dataclasses.dataclass(frozen=True)
+class RapKnobs:
+    """RAP's own settings (`--set rap.KNOB=VALUE`; the module docstring). Every pair of the two axes runs.
+
+    Attributes:
+      weights: the residual loss's shares λ of the memory's gradient, each in [0, 1]; default `DEFAULT_WEIGHT`.
+      widths: the memory's widths in encoder units, each in [1, `UNITS` − 1] (of `StatePolicy`'s 300; images: the
+        same share of the patch encoder's channels); default `DEFAULT_WIDTH`.
+    """
+
+    weights: tuple[float, ...] = (DEFAULT_WEIGHT,)
+    widths: tuple[int, ...] = (DEFAULT_WIDTH,)
+
+    def __post_init__(self):
+        axis("weights", self.weights, _share)
+        axis("widths", self.widths, _width)
+
+
+def _share(name: str, v: float) -> None:
+    if not 0.0 <= v <= 1.0:
+        raise ValueError(f"{name}: every value must be in [0, 1] (the residual loss's share of the memory's "
+                         f"gradient), got {v}")
+
+
+def _width(name: str, v: int) -> None:
+    if not (isinstance(v, int) and not isinstance(v, bool) and 1 <= v < UNITS):
+        raise ValueError(f"{name}: every value must be an integer in [1, {UNITS - 1}] (memory units of the "
+                         f"encoder's {UNITS}), got {v!r}")
+
+
 def _grid(ctx) -> list[dict]:
-    recipe = getattr(ctx, "recipe", None)
-    weights = (recipe.rap_weights if recipe is not None else ()) or (DEFAULT_WEIGHT,)
-    widths = (recipe.rap_widths if recipe is not None else ()) or (DEFAULT_WIDTH,)
-    return [{"weight": w, "memory_width": float(m)} for w in weights for m in widths]
+    knobs = ctx.knobs_of("rap")
+    return [{"weight": w, "memory_width": float(m)} for w in knobs.weights for m in knobs.widths]
 
 
 methods.register(methods.Method(
     "rap", "RAP", grid=_grid,
     hparams=lambda settings, lr, row: RapHparams.make(settings["weight"], settings["memory_width"], lr=lr),
-    program="rap", learner=lambda ctx: make_rap(ctx.cfg), refuses=refusal, module=__name__))
+    program="rap", learner=lambda ctx: make_rap(ctx.cfg), refuses=refusal, module=__name__, knobs=RapKnobs))

@@ -67,26 +67,14 @@ class GridContext:
 
     Attributes:
       task: the environment's `ape_jax.tasks.Task` (e.g. FCA's α per task).
-      step_grid: the preset's (THR, W) settings of step weightings.
-      softmax_grid: the preset's temperatures of softmax weightings.
       n_train: transitions in the training split (e.g. DAgger's query budget).
-      fca_alphas: FCA's adversarial weights α to run (the recipe's); empty: the task's one.
-      fca_adversary_lr: the learning rate of FCA's adversary (the recipe's); None: the task's.
-      ib_weights: the information bottleneck's KL weights of FCA-IB (the recipe's).
-      recipe: the sweep's whole `ape_jax.pipeline.presets.Recipe` (RAP's, PALR's and MINE's grids read their
-        fields); None: a context made by hand, and the methods' defaults.
-      knobs: the method-owned settings the sweep was given (`--set METHOD.KNOB=...`), `{method: its Knobs
-        record}`; a method not listed runs at its record's defaults (`knobs_of`).
+      knobs: the methods' own settings as the sweep resolved them (`Method.knobs`, `--set METHOD.KNOB=...`, the
+        presets' grids), `{method: its knobs record}`; a method not listed runs at its record's defaults
+        (`knobs_of`).
     """
 
     task: Any
-    step_grid: tuple[tuple[float, float], ...]
-    softmax_grid: tuple[float, ...]
     n_train: int
-    fca_alphas: tuple[float, ...] = ()
-    ib_weights: tuple[float, ...] = ()
-    fca_adversary_lr: float | None = None
-    recipe: Any = None
     knobs: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
     def knobs_of(self, method: str) -> Any:
@@ -104,9 +92,8 @@ class LearnerContext:
       expert: the expert as `full observation -> action` (online methods query it).
       obs_mean, obs_std: the observation standardisation (None for images).
       n_train: transitions in the training split.
-      recipe: the sweep's `ape_jax.pipeline.presets.Recipe` (a learner's static settings that are not the
-        `LearnerConfig`'s, e.g. PALR's `palr_rows`); None: the learner's defaults.
-      knobs: the method-owned settings the sweep was given, as `GridContext.knobs` (`knobs_of`).
+      knobs: the methods' own settings, as `GridContext.knobs` (`knobs_of`: a learner's static settings, e.g.
+        PALR's `rows`).
     """
 
     cfg: Any
@@ -115,7 +102,6 @@ class LearnerContext:
     obs_mean: Any
     obs_std: Any
     n_train: int
-    recipe: Any = None
     knobs: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
     def knobs_of(self, method: str) -> Any:
@@ -332,7 +318,10 @@ def weighting_hparams(kind: str) -> Callable[[Mapping[str, float], float, int], 
     return hparams
 
 
-def weighting_grid(kind: str, grid: Sequence[Mapping[str, float]] | None) -> Callable[[GridContext], list[dict]]:
+def weighting_grid(kind: str, grid: Sequence[Mapping[str, float]] | None,
+                   name: str = "") -> Callable[[GridContext], list[dict]]:
+    """The grid of weighting method `name` of `kind`: `grid` where given, else its own settings' (`StepKnobs.grid`,
+    `SoftmaxKnobs.taus`: `weighting_knobs`)."""
     keys = {"step": {"thr", "w"}, "softmax": {"tau"}, "given": set()}[kind]
     if grid is not None:
         grid = [dict(s) for s in grid]
@@ -341,10 +330,26 @@ def weighting_grid(kind: str, grid: Sequence[Mapping[str, float]] | None) -> Cal
                 raise MethodError(f"a {kind} weighting's grid settings have the keys {sorted(keys)}, got {sorted(s)}")
         return lambda ctx: grid
     if kind == "step":
-        return lambda ctx: [{"thr": thr, "w": w} for thr, w in ctx.step_grid]
+        return lambda ctx: [{"thr": thr, "w": w} for thr, w in ctx.knobs_of(name).grid]
     if kind == "softmax":
-        return lambda ctx: [{"tau": tau} for tau in ctx.softmax_grid]
+        return lambda ctx: [{"tau": tau} for tau in ctx.knobs_of(name).taus]
     return lambda ctx: [{}]
+
+
+def weighting_knobs(kind: str, grid: Sequence[Mapping[str, float]] | None) -> type | None:
+    """The settings record of a weighting of `kind` whose grid is not fixed (`grid` None): `StepKnobs` or
+    `SoftmaxKnobs`; None where it has none."""
+    from ape_jax.weighting import SoftmaxKnobs, StepKnobs
+
+    return None if grid is not None else {"step": StepKnobs, "softmax": SoftmaxKnobs}.get(kind)
+
+
+def sharing(record: type) -> list[str]:
+    """The registered methods whose settings are a `record` (e.g. every step weighting's `StepKnobs`), in
+    registration order: what `experiments.sweep --step-grid` and the presets' grids set at once."""
+    _ensure_builtins()
+    return [n for n in sorted(_registry, key=_sequence.get)
+            if _registry[n].knobs is not None and issubclass(_registry[n].knobs, record)]
 
 
 def weighting(name: str, kind: str = "step", grid: Sequence[Mapping[str, float]] | None = None,
@@ -356,8 +361,10 @@ def weighting(name: str, kind: str = "step", grid: Sequence[Mapping[str, float]]
       kind: `"step"` (ranked, top THR × W), `"softmax"` (minibatch softmax at
         temperature τ) or `"given"` (the scores are the weights, >= 0).
       grid: the settings it runs at, e.g. `[{"thr": 0.1, "w": 5.0}]`; default:
-        the preset's step grid (`"step"`), its softmax grid (`"softmax"`), or
-        one setting `{}` (`"given"`).
+        its own settings (`--set NAME.grid=...` for `"step"`, `NAME.taus=...`
+        for `"softmax"`, the paper's grids unless set; the presets' and
+        `--step-grid`/`--softmax-grid` set every such weighting's), or one
+        setting `{}` (`"given"`).
       label: its name in tables and figures (default: `name`).
       role: `"plugin"` for user modules; the built-in baselines say `"baseline"`.
 
@@ -367,11 +374,12 @@ def weighting(name: str, kind: str = "step", grid: Sequence[Mapping[str, float]]
     """
     if kind not in WEIGHTING_KINDS:
         raise MethodError(f"method {name!r}: unknown weighting kind {kind!r}; valid: {', '.join(WEIGHTING_KINDS)}")
-    make_grid = weighting_grid(kind, grid)
+    make_grid = weighting_grid(kind, grid, name)
 
     def decorate(fn: Scores) -> Scores:
         register(Method(name=name, label=label or name, grid=make_grid, hparams=weighting_hparams(kind),
-                        score=_checked(name, kind, fn), role=role, module=getattr(fn, "__module__", "") or ""))
+                        score=_checked(name, kind, fn), role=role, module=getattr(fn, "__module__", "") or "",
+                        knobs=weighting_knobs(kind, grid)))
         return fn
 
     return decorate

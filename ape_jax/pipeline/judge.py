@@ -30,12 +30,12 @@ import numpy as np
 
 from ape_jax import diagnostics as diagnostics_lib
 from ape_jax import methods as methods_lib
-from ape_jax.pipeline import presets
 from ape_jax.pipeline.results import Results
 
 CONTROL_FIELDS = ("control_ratio", "controlled_verdict")   # what judging adds to a run's `diagnostics`
-# The recipe's fields that do not change how the control trains: the other methods' knobs, and how ours scales APE
-_OTHER_METHODS = (*presets.METHOD_KNOBS, "ape_normalization")
+# The recipe's field that does not change how the control trains: how ours scales APE (the other methods' knobs are
+# their own records, `Settings.knobs`, not the recipe's)
+_OTHER_METHODS = ("ape_normalization",)
 
 
 class JudgeError(ValueError):

@@ -8,16 +8,18 @@
 - `Budget` (`--preset`, whose names it keeps: `quick`, `default`, `paper`): how much compute — iterations,
   seeds, evaluation episodes, APE fit steps, the chunk of iterations per compiled call.
 - `Recipe` (`--recipe`): how a policy is built and trained — the network and its initialisation, the
-  optimiser, batch size, the learning rate's decay points, the loss, the APE normalisation, the weighting
-  grids and FCA's knobs. `mlp` is the project's first recipe; `fca` is the FCA code's (BatchNorm network,
-  Adam β1 0.5, batch 64), the default under the fca protocols for state observations; `drq` is DrQ's pixel
-  encoder at 84×84 with random shifts, for images (`IMAGE_RECIPES`).
+  optimiser, batch size, the learning rate's schedule, the loss, the APE normalisation. The methods' own
+  settings (the weightings' grids, FCA's α, PALR's weights, ...) are not the recipe's: each method owns a record
+  (`Method.knobs`, `--set METHOD.KNOB=VALUE`, `ape_jax.pipeline.method_knobs`), resolved into `Settings.knobs`.
+  `mlp` is the project's first recipe; `fca` is the FCA code's (BatchNorm network, Adam β1 0.5, batch 64), the
+  default under the fca protocols for state observations; `drq` is DrQ's pixel encoder at 84×84 with random
+  shifts, for images (`IMAGE_RECIPES`).
 
 `resolve` starts from the named records, applies the image observations' budget (`IMAGE_PRESETS`) and an image
 recipe's own settings (`IMAGE_RECIPES`), the task's own overrides (`Task.presets`, e.g. ToyCar's), the smoke
-run's amounts (`smoke_overrides`, `--smoke`) and the `--set SECTION.FIELD=VALUE` overrides, in that order, and
-validates the result; nothing rewrites a record after it is built. A bad name, field or value is a one-line
-`SettingsError`.
+run's amounts (`smoke_overrides`, `--smoke`) and the `--set SECTION.FIELD=VALUE` (or `METHOD.KNOB=VALUE`)
+overrides, in that order, and validates the result; nothing rewrites a record after it is built. A bad name,
+field or value is a one-line `SettingsError`.
 """
 
 from __future__ import annotations
@@ -28,24 +30,16 @@ import typing
 from typing import Any
 from collections.abc import Iterable, Mapping
 
-from ape_jax import knobs, models, tasks
+from ape_jax import knobs, methods, models, tasks
 from ape_jax.ape import NORMALIZATIONS
 from ape_jax.learner import LearnerConfig, lr_boundaries
-from ape_jax.models import IMAGE_ENCODERS, StatePolicy
+from ape_jax.models import IMAGE_ENCODERS
 from ape_jax.tasks import Protocol
 from ape_jax.pipeline.hints import SettingsError, check as _check, coerce as _coerce, describe as _describe
 from ape_jax.pipeline.hints import format_value as _format, parse as _parse
 from ape_jax.pipeline import method_knobs
 
-STEP_GRID = tuple((thr, w) for thr in (0.1, 0.2) for w in (3.0, 5.0, 10.0))
-SOFTMAX_GRID = (0.1, 0.2, 0.5, 1.0, 5.0, 10.0)
-# METHOD_GRIDS: the grids of the methods after the paper (`ape_jax.baselines.rap`, `palr`, `mine`; a smoke run keeps
-# one setting of each). METHOD_KNOBS: every recipe field only methods other than BC-SO and BC-OH read; changing one
-# leaves the control's training (`pipeline.judge`) and a configuration's comparability (`experiments.compare`) as is
-METHOD_GRIDS = ("rap_weights", "rap_widths", "palr_weights", "palr_bandwidths", "mine_weights")
-METHOD_KNOBS = ("step_grid", "softmax_grid", "fca_alphas", "fca_adversary_lr", "ib_weights", *METHOD_GRIDS,
-                "palr_rows", "mine_steps", "mine_rows")
-RAP_UNITS = StatePolicy.hidden[0]  # RAP's memory width is counted in the state policy's units (images: shares)
+from ape_jax.weighting import SOFTMAX_GRID, STEP_GRID  # noqa: F401 - the paper's grids, where callers look for them
 
 
 # the most any budget count may be: the device counts steps, seeds and episodes in 32-bit integers (a larger
@@ -130,20 +124,6 @@ class Recipe:
       loss_weights: each action dimension's share of the loss; empty: the task's (`Task.loss_weights`: CILRS's
         0.5 / 0.45 / 0.05 for ToyTown's steer, throttle and brake; else 1 each).
       ape_normalization: `"none"` (the raw APE, as the official code) or `"mean"`.
-      step_grid, softmax_grid: the weightings' (THR, W) and τ settings.
-      fca_alphas: FCA's adversarial weights to run; empty: the task's (`Task.fca_alpha`).
-      fca_adversary_lr: the learning rate of FCA's adversary; None: the task's (`Task.fca_adversary_lr`).
-      ib_weights: FCA-IB's KL weights to run; empty: its default.
-      rap_weights, rap_widths: RAP's residual-loss shares λ in [0, 1] and memory widths (encoder units, of
-        `StatePolicy`'s 300) to run, every pair; empty: its defaults (`ape_jax.baselines.rap`: 1 and 150).
-      palr_weights, palr_bandwidths: PALR's HSCIC weights (>= 0) and kernel bandwidths σ² (> 0) to run, every
-        pair; empty: its defaults (`ape_jax.baselines.palr`: 10 and 1).
-      palr_rows: the rows of each minibatch PALR's estimator reads (its cost grows as their cube); 0: the whole
-        batch (for GPUs).
-      mine_weights: MINE's penalty weights (>= 0) to run; empty: its default (`ape_jax.baselines.mine`: 0.1).
-      mine_steps: MINE's estimator steps per iteration (the authors' code: 5, ~2× BC-OH's time per update; 1 keeps
-        MINE within 1.5× of it).
-      mine_rows: the rows of each minibatch MINE's bound reads; 0: the whole batch.
     """
 
     name: str = "mlp"
@@ -165,19 +145,6 @@ class Recipe:
     loss: str | None = None
     loss_weights: tuple[float, ...] = ()
     ape_normalization: str = "none"
-    step_grid: tuple[tuple[float, float], ...] = STEP_GRID
-    softmax_grid: tuple[float, ...] = SOFTMAX_GRID
-    fca_alphas: tuple[float, ...] = ()
-    fca_adversary_lr: float | None = None
-    ib_weights: tuple[float, ...] = ()
-    rap_weights: tuple[float, ...] = ()
-    rap_widths: tuple[int, ...] = ()
-    palr_weights: tuple[float, ...] = ()
-    palr_bandwidths: tuple[float, ...] = ()
-    palr_rows: int = 256
-    mine_weights: tuple[float, ...] = ()
-    mine_steps: int = 1
-    mine_rows: int = 256
 
     def __post_init__(self):
         # the knobs a LearnerConfig takes from the recipe: one rule each (`ape_jax.knobs`), the config's too
@@ -190,39 +157,12 @@ class Recipe:
                and (not self.loss_weights or max(self.loss_weights) > 0),
                f"recipe.loss_weights: finite numbers >= 0, not all 0 (empty: the task's), got {self.loss_weights!r}")
         _check(self.lr > 0 and math.isfinite(self.lr), f"recipe.lr must be a finite number > 0, got {self.lr!r}")
-        _check(self.fca_adversary_lr is None or (self.fca_adversary_lr > 0 and math.isfinite(self.fca_adversary_lr)),
-               f"recipe.fca_adversary_lr must be a finite number > 0, got {self.fca_adversary_lr!r}")
         _check(all(0.0 < f < 1.0 for f in self.lr_decay_at) and list(self.lr_decay_at) == sorted(set(self.lr_decay_at)),
                f"recipe.lr_decay_at must be increasing fractions in (0, 1), got {self.lr_decay_at!r}")
         _check(0.0 <= self.warmup < 1.0, f"recipe.warmup must be a fraction in [0, 1), got {self.warmup!r}")
         _check(self.warmup == 0.0 or self.lr_schedule == "cosine",
                f"recipe.warmup is the cosine schedule's (--set recipe.lr_schedule=cosine), got lr_schedule "
                f"{self.lr_schedule!r}")
-        for thr, w in self.step_grid:
-            _check(0.0 < thr < 1.0 and 1.0 <= w < math.inf,
-                   f"recipe.step_grid: THR must be in (0, 1) and W a finite number >= 1, got {thr:g}:{w:g}")
-        for name in ("softmax_grid",):
-            _check(all(0.0 < v < math.inf for v in getattr(self, name)),
-                   f"recipe.{name}: every value must be a finite number > 0, got {getattr(self, name)!r}")
-        for name in ("fca_alphas", "ib_weights", "palr_weights", "mine_weights"):
-            _check(all(0.0 <= v < math.inf for v in getattr(self, name)),
-                   f"recipe.{name}: every value must be a finite number >= 0, got {getattr(self, name)!r}")
-        _check(all(0.0 <= v <= 1.0 for v in self.rap_weights),
-               f"recipe.rap_weights: every value must be in [0, 1] (the residual loss's share of the memory's "
-               f"gradient), got {self.rap_weights!r}")
-        _check(all(1 <= v < RAP_UNITS for v in self.rap_widths),
-               f"recipe.rap_widths: every value must be an integer in [1, {RAP_UNITS - 1}] (memory units of the "
-               f"encoder's {RAP_UNITS}), got {self.rap_widths!r}")
-        _check(all(0.0 < v < math.inf for v in self.palr_bandwidths),
-               f"recipe.palr_bandwidths: every value must be a finite number > 0, got {self.palr_bandwidths!r}")
-        _check(isinstance(self.palr_rows, int) and not isinstance(self.palr_rows, bool) and self.palr_rows >= 0,
-               f"recipe.palr_rows must be an integer >= 0 (0: the whole batch), got {self.palr_rows!r}")
-        _check(isinstance(self.mine_rows, int) and not isinstance(self.mine_rows, bool) and self.mine_rows >= 0,
-               f"recipe.mine_rows must be an integer >= 0 (0: the whole batch), got {self.mine_rows!r}")
-        _check(isinstance(self.mine_steps, int) and not isinstance(self.mine_steps, bool) and self.mine_steps >= 1,
-               f"recipe.mine_steps must be an integer >= 1, got {self.mine_steps!r}")
-        for name in ("step_grid", "softmax_grid", "fca_alphas", "ib_weights", *METHOD_GRIDS):
-            _check(len(set(getattr(self, name))) == len(getattr(self, name)), f"recipe.{name} lists a setting twice")
 
 
 # The project's first recipe, and the FCA code's (AlvinWen428/fighting-copycat-agents: `gan_mlp.py`,
@@ -251,7 +191,8 @@ BUDGETS: Mapping[str, Budget] = {
                     eval_at=(30_000, 100_000)),
 }
 # Image observations. A conv policy trains tens of times slower per iteration than the state MLP on a
-# 2-core CPU, so there `quick` and `default` shrink the images and the grid to the paper's step setting;
+# 2-core CPU, so there `quick` and `default` shrink the images and the grid to the paper's step setting (the
+# keys `step_grid` and `softmax_grid`: every step and softmax weighting's grid, `method_knobs.LEGACY`);
 # `paper` keeps the supplement's protocol with its ResNet-18, for GPUs. Keys are fields of any of the three
 # records. `default` trains the patch encoder with GroupNorm (`recipe.encoder`, `encoder_norm`:
 # ~4.6x the small conv encoder's updates/s at 32x32, `experiments.bench_images`) on 100 demonstrations
@@ -273,7 +214,8 @@ _RECORDS = {"protocol": Protocol, "budget": Budget, "recipe": Recipe}
 @dataclasses.dataclass(frozen=True)
 class Settings:
     """A sweep's three records, resolved for one task and observation mode (`resolve`), and the methods' own
-    settings it was given (`knobs`: `{method: its Method.knobs record}`, `ape_jax.pipeline.method_knobs`)."""
+    settings (`knobs`: `{method: its Method.knobs record}`, `ape_jax.pipeline.method_knobs`; those at their
+    defaults are left out, so a record is there only where the sweep's settings differ from its method's own)."""
 
     protocol: Protocol
     budget: Budget
@@ -284,6 +226,13 @@ class Settings:
     # results file says itself whether it trained its preset's budget (None: settings not made by `resolve`)
     preset_iterations: int | None = None
     knobs: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self):
+        object.__setattr__(self, "knobs", method_knobs.without_defaults(self.knobs))
+
+    def knob(self, method: str) -> Any:
+        """Method `method`'s settings record in this sweep (`Method.knobs`): the sweep's, else its defaults."""
+        return methods.knobs_of(method, self.knobs)
 
     def learner_config(self, obs_shape, action_dim: int, history: int, task_loss: str,
                        unroll: bool = False, task_loss_weights: tuple[float, ...] = ()) -> LearnerConfig:
@@ -310,9 +259,11 @@ class Settings:
 
     @classmethod
     def from_json(cls, blocks: Mapping[str, Mapping[str, Any]], preset: str = "quick") -> Settings:
-        """The settings results.json's three blocks record (fields a block predates: the defaults)."""
+        """The settings results.json's blocks record (fields a block predates: the defaults; a recipe's method
+        fields from before the methods owned them, `method_knobs.LEGACY`: the methods' records)."""
+        legacy = method_knobs.from_legacy(blocks.get("recipe") or {})
         return cls(*(_record(name, blocks.get(name) or {}) for name in SECTIONS), preset=preset,
-                   knobs=method_knobs.from_json(blocks.get("knobs")))
+                   knobs=method_knobs.from_json(blocks.get("knobs"), legacy))
 
 
 def default_recipe(protocol: Protocol, obs: str) -> str:
@@ -330,11 +281,12 @@ def smoke_overrides(values: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
     the frame skip, the split's kind, the optimiser. The amounts become seconds: 3 demonstration episodes (2
     train, the fewest the diagnostics take) of 20 standard steps where the task takes a horizon (the MuJoCo
     tasks; a row-split protocol: 240 collected transitions, 144 training and 48 validating), one setting of
-    each grid, one seed, four iterations in chunks of two (evaluated after the first chunk too, so the mid-run
-    evaluation runs; DAgger's four rounds get one iteration each), batch 4, two evaluation episodes (the fewest
-    the diagnostics take), ten steps of the APE fit and of every diagnostic's probe.
+    each grid (`method_knobs.first_only`, in `resolve`), one seed, four iterations in chunks of two (evaluated
+    after the first chunk too, so the mid-run evaluation runs; DAgger's four rounds get one iteration each),
+    batch 4, two evaluation episodes (the fewest the diagnostics take), ten steps of the APE fit and of every
+    diagnostic's probe.
     """
-    protocol, recipe = values["protocol"], values["recipe"]
+    protocol = values["protocol"]
     out: dict[str, Any] = dict(iterations=4, seeds=1, eval_episodes=2, ape_steps=10, chunk=2, eval_at=(2,),
                                batch_size=4, horizon=20, episodes=3)
     if values["budget"]["probe_steps"]:
@@ -343,8 +295,6 @@ def smoke_overrides(values: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
         out.update(collect_transitions=240, train_transitions=144, val_transitions=48)
     if protocol["eval_steps"] is not None:
         out["eval_steps"] = min(protocol["eval_steps"], 20)
-    for name in ("step_grid", "softmax_grid", "fca_alphas", "ib_weights", *METHOD_GRIDS):
-        out[name] = tuple(recipe[name][:1])
     return out
 
 
@@ -376,30 +326,39 @@ def resolve(env: str, obs: str, protocol: str | None = None, preset: str = "quic
     _check(obs == "image" or recipe not in IMAGE_RECIPES, f"recipe {recipe!r} is for image observations (--obs image)")
     values = {"protocol": dataclasses.asdict(proto), "budget": dataclasses.asdict(BUDGETS[preset]),
               "recipe": dataclasses.asdict(RECIPES[recipe])}
+    knobs: dict[str, dict[str, Any]] = {}  # {method: {knob: value}}
     images = (IMAGE_PRESETS[preset], IMAGE_RECIPES.get(recipe, {})) if obs == "image" else ()
     for layer in (*images, task.preset_overrides(obs, preset)):
         for key, value in layer.items():
-            values[_section_of(key)][key] = value
+            if key in method_knobs.LEGACY:  # a grid of every weighting of its kind
+                method_knobs.merge(knobs, method_knobs.legacy(key, value))
+            else:
+                values[_section_of(key)][key] = value
     for key, value in (smoke_overrides(values) if smoke else {}).items():
         values[_section_of(key)][key] = value
     preset_iterations = values["budget"]["iterations"]
-    explicit, knobs = set(), {}
+    explicit, old_names = set(), []
     for item in sets:
         section, field, value = parse_set(item)
-        (knobs.setdefault(section, {}) if section not in _RECORDS else values[section])[field] = value
+        if section == "recipe" and field in method_knobs.LEGACY:
+            old_names.append(field)
+            method_knobs.merge(knobs, method_knobs.legacy(field, value))
+        else:
+            (knobs.setdefault(section, {}) if section not in _RECORDS else values[section])[field] = value
         explicit.add(field)
     if "eval_at" not in explicit:  # the preset's points inside the run only, when its length was changed
         budget = values["budget"]
         budget["eval_at"] = tuple(i for i in budget["eval_at"] if i < budget["iterations"])
     records = method_knobs.build(knobs)
-    if smoke:  # one setting of each grid axis, as the recipe's grids
-        records = {m: dataclasses.replace(r, **{f.name: getattr(r, f.name)[:1] for f in dataclasses.fields(r)
-                                                 if isinstance(getattr(r, f.name), tuple)}) for m, r in records.items()}
+    if smoke:  # one setting of each grid axis of every method's settings
+        records = method_knobs.first_only(records)
     settings = Settings(*(_record(name, values[name]) for name in SECTIONS), preset=preset, smoke=smoke,
                         preset_iterations=preset_iterations, knobs=records)
     _check_image_recipe(settings.recipe, obs, settings.protocol.image_size)
     if settings.recipe.dtype == "bfloat16" and (problem := models.bf16_problem()):
         raise SettingsError(f"recipe.dtype 'bfloat16': {problem}; use recipe.dtype=float32")
+    for field in old_names:  # once the settings are good: a refusal stays one line
+        method_knobs.notice(field)
     return settings
 
 
@@ -434,6 +393,8 @@ def parse_set(item: str) -> tuple[str, str, Any]:
         raise SettingsError(f"--set {item!r} is not SECTION.FIELD=VALUE (e.g. recipe.batch_size=64)")
     if section not in _RECORDS and method_knobs.owns(section):
         return section, field, method_knobs.parse_set(section, field, text, item)
+    if section == "recipe" and field in method_knobs.LEGACY:  # a method's knob under its old recipe name
+        return section, field, method_knobs.parse_legacy(field, text, item)
     if section not in _RECORDS:
         raise SettingsError(f"--set {item!r}: unknown section {section!r}; valid: {', '.join(SECTIONS)} or a method "
                             f"with settings of its own")

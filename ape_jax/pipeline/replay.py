@@ -42,6 +42,6 @@ def arguments(env: str, obs: str, target: Settings) -> list[str]:
     # eval_at last: a changed budget.iterations trims the preset's points by itself (`resolve`)
     sets = differences(rebuild([]), skip=("eval_at",))
     sets += differences(rebuild(sets))
-    sets += list(method_knobs.differences(target.knobs))
+    sets += list(method_knobs.differences(target.knobs, rebuild(sets).knobs))   # over the preset's grids
     check(not differences(rebuild(sets)), f"no --set gives the recorded settings of {env} ({obs})")
     return args + [x for item in sets for x in ("--set", item)]

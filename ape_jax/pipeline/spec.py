@@ -78,11 +78,6 @@ class SweepSpec:
     setup: Setup = dataclasses.field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
-        # knobs of a method the sweep will not train (a spec rebuilt to evaluate recorded results lists none)
-        idle = [m for m in self.settings.knobs if m not in self.methods] if self.methods else []
-        if idle:
-            raise ValueError(f"--set {idle[0]}.*: {idle[0]} is not among the methods ({', '.join(self.methods)}); add "
-                             f"it to --methods or drop its settings")
         for m in self.methods:
             method = methods_lib.get(m)  # MethodError for an unknown name
             why = method.refuses(self.settings, self.obs) if method.refuses is not None else None

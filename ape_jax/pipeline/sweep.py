@@ -100,14 +100,10 @@ def grid_runs(names: Sequence[str], seeds: int, ctx: methods_lib.GridContext, fi
 
 def plan(spec: SweepSpec, prepared: Prepared) -> list[Program]:
     """Phase 3a: the sweep's runs, grouped by the program they train in (in registry order)."""
-    recipe = spec.recipe
-    ctx = methods_lib.GridContext(task=prepared.task, step_grid=recipe.step_grid, softmax_grid=recipe.softmax_grid,
-                                  n_train=len(prepared.train), fca_alphas=recipe.fca_alphas,
-                                  ib_weights=recipe.ib_weights, fca_adversary_lr=recipe.fca_adversary_lr,
-                                  recipe=recipe, knobs=spec.settings.knobs)
+    ctx = methods_lib.GridContext(task=prepared.task, n_train=len(prepared.train), knobs=spec.settings.knobs)
     runs = grid_runs(spec.methods, spec.budget.seeds, ctx, spec.budget.first_seed)
     if not runs:
-        raise ValueError(f"nothing to train: the recipe's grids are empty for {', '.join(spec.methods)}")
+        raise ValueError(f"nothing to train: the grids of {', '.join(spec.methods)} are empty")
     programs = []
     for name in dict.fromkeys(methods_lib.get(r.method).program for r in runs):
         mine = tuple(r for r in runs if methods_lib.get(r.method).program == name)
@@ -119,7 +115,7 @@ def plan(spec: SweepSpec, prepared: Prepared) -> list[Program]:
         else:
             learner = method.learner(methods_lib.LearnerContext(
                 cfg=cfg, env=view.env, expert=view.expert, obs_mean=view.normalizer.mean,
-                obs_std=view.normalizer.std, n_train=len(view.train), recipe=recipe, knobs=spec.settings.knobs))
+                obs_std=view.normalizer.std, n_train=len(view.train), knobs=spec.settings.knobs))
         programs.append(Program(name, cfg, mine, learner))
     return programs
 

@@ -98,8 +98,8 @@ class Plan:
 def sweep_args(env: str, iterations: int | None, dtype: str, smoke: bool) -> list[str]:
     """`experiments.sweep`'s arguments for `env`'s part of the grid (`--out` apart)."""
     out = ["--env", env, "--obs", "image", "--recipe", "drq", "--preset", "default", "--methods", ",".join(METHODS),
-           "--set", f"budget.seeds={SEEDS}", "--set", "protocol.frames=states", "--set", "recipe.step_grid=0.1:5",
-           "--set", f"recipe.softmax_grid={TAU[env]}", "--set", f"recipe.fca_alphas={ALPHA[env]}",
+           "--set", f"budget.seeds={SEEDS}", "--set", "protocol.frames=states", "--set", "ours-step.grid=0.1:5",
+           "--set", f"ours-softmax.taus={TAU[env]}", "--set", f"fca.alphas={ALPHA[env]}",
            "--set", f"recipe.dtype={dtype}", "--set", f"budget.width={len(METHODS) * SEEDS}"]
     if smoke:
         out.append("--smoke")

@@ -136,7 +136,7 @@ elif [ "$PLAN" = fcaexpert ]; then
   # 16 FCA models at 300k training in 219 s). A stage out of time stops and says so.
   export XLA_PYTHON_CLIENT_MEM_FRACTION=${XLA_PYTHON_CLIENT_MEM_FRACTION:-0.2}
   common=(--env hopper --obs pos --protocol fca --recipe fca --seeds 8 --set protocol.expert=fca
-          --set protocol.labels=raw --step-grid 0.1:5 --softmax-grid 0.2 --set recipe.fca_alphas=0.1,2
+          --set protocol.labels=raw --step-grid 0.1:5 --softmax-grid 0.2 --set fca.alphas=0.1,2
           --set budget.width=24)
   # --smoke: enough episodes for the smoke's split whatever the expert (one that falls early too)
   if [ "$SMOKE" = 1 ]; then common+=(--smoke --set protocol.collect_transitions=2000); else common+=(--preset paper); fi

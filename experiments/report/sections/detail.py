@@ -154,9 +154,9 @@ def _rebuilt_command(r: results_lib.Results) -> str:
     for key, flag in (("iterations", "--iterations"), ("seeds", "--seeds"), ("eval_episodes", "--eval-episodes")):
         if preset is not None and cfg.get(key) != getattr(preset.budget, key):
             cmd += f" {flag} {cfg[key]}"
-    if preset is not None and "step_grid" in cfg and [list(g) for g in preset.recipe.step_grid] != cfg["step_grid"]:
+    if preset is not None and "step_grid" in cfg and list(map(list, preset.knob("ours-step").grid)) != cfg["step_grid"]:
         cmd += " --step-grid " + ",".join(f"{thr:g}:{w:g}" for thr, w in cfg["step_grid"])
-    if preset is not None and "softmax_grid" in cfg and list(preset.recipe.softmax_grid) != cfg["softmax_grid"]:
+    if preset is not None and "softmax_grid" in cfg and list(preset.knob("ours-softmax").taus) != cfg["softmax_grid"]:
         cmd += " --softmax-grid " + ",".join(f"{tau:g}" for tau in cfg["softmax_grid"])
     return cmd
 
