@@ -182,8 +182,9 @@ def main(argv=None) -> int:
     from envs.experts import ExpertError
 
     try:
-        cfg = collect.data_key(args.env, args.obs, args.episodes, args.seed, args.noise_frac, args.noise_std,
-                               args.batch, expert=args.setup.expert, labels=args.setup.labels,
+        cfg = collect.data_key(args.env, args.obs, args.episodes, args.setup.expert, seed=args.seed,
+                               noise_frac=args.noise_frac, noise_std=args.noise_std, batch=args.batch,
+                               labels=args.setup.labels,
                                noise_steps=args.noise_steps if args.noise_frac > 0 else 1, **args.overrides)
         references, why = _references(args)
     except ExpertError as e:

@@ -142,7 +142,7 @@ def test_collect_names_the_dataset_the_sweep_of_the_same_protocol_uses(protocol,
     spec = S.SweepSpec.make("hopper", "pos", ("bc-oh",), protocol=protocol)
     assert args.setup.name == spec.protocol.name == (protocol or "fca")
     assert args.episodes == spec.episodes
-    mine = collect_lib.data_key("hopper", "pos", args.episodes, args.seed, **args.overrides)
+    mine = collect_lib.data_key("hopper", "pos", args.episodes, seed=args.seed, **args.overrides)
     assert mine == spec.data_settings()   # the same settings: the same cached file
 
 

@@ -218,15 +218,16 @@ def _flatten(traj: envs.Trajectory, keep: int, first_episode: int) -> data_lib.D
         sim={k: rows(v) for k, v in traj.extra["sim"].items()})
 
 
-def data_key(env_name: str, obs: str, episodes: int, seed: int = 0, noise_frac: float = 0.0,
-             noise_std: float = 0.0, batch: int = 32, expert: str | None = None, labels: str = "clipped",
+def data_key(env_name: str, obs: str, episodes: int, expert: str | None = None, *, seed: int = 0,
+             noise_frac: float = 0.0, noise_std: float = 0.0, batch: int = 32, labels: str = "clipped",
              noise_steps: int = 1, **env_overrides) -> dict:
-    """The collection settings that name a cached dataset (`setup.data_key`) for expert variant `expert` (None:
-    the task's own), from names: the environment's settings are checked by making it and the expert is resolved
-    (a sweep's `Setup` does both once and calls `setup.data_key` itself)."""
+    """The collection settings that name a cached dataset (`setup.data_key`, whose arguments these are, in its
+    order) for expert variant `expert` by name (None: the task's own): the environment's settings are checked by
+    making it and the expert is resolved (a sweep's `Setup` does both once and calls `setup.data_key` itself)."""
     env = envs.make(env_name, obs=obs, **env_overrides)
-    return setup_lib.data_key(env_name, obs, episodes, ExpertRef.resolve(env_name, expert, env=env), seed,
-                              noise_frac, noise_std, batch, labels, noise_steps=noise_steps, **env_overrides)
+    return setup_lib.data_key(env_name, obs, episodes, ExpertRef.resolve(env_name, expert, env=env), seed=seed,
+                              noise_frac=noise_frac, noise_std=noise_std, batch=batch, labels=labels,
+                              noise_steps=noise_steps, **env_overrides)
 
 
 def collect_cached(cfg: dict, data_dir, force: bool = False, progress=None, save: bool = True,

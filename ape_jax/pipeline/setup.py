@@ -181,10 +181,11 @@ def variant_of(env_name: str, description: dict) -> str | None:
     return name[len(env_name) + 1:] if name.startswith(env_name + "-") else None
 
 
-def data_key(env_name: str, obs: str, episodes: int, expert: ExpertRef, seed: int = 0, noise_frac: float = 0.0,
+def data_key(env_name: str, obs: str, episodes: int, expert: ExpertRef, *, seed: int = 0, noise_frac: float = 0.0,
              noise_std: float = 0.0, batch: int = 32, labels: str = "clipped", frames: str = "rollout",
              noise_steps: int = 1, **env_overrides) -> dict:
-    """The collection settings that name a cached dataset (`data.cache_path`) and enter a sweep's fingerprint:
+    """The collection settings that name a cached dataset (`data.cache_path`) and enter a sweep's fingerprint
+    (`collect.data_key` takes the same arguments in the same order, the expert by name):
     the task, observation mode, episodes, seed, noise, batch, environment settings, the expert's description
     and the storage format; `labels`, `frames` (`tasks.Protocol.frames`) and `noise_steps` (bursts) recorded only
     when not their default, so the names of datasets collected before those fields stay valid."""
