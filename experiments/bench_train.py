@@ -25,13 +25,18 @@ hopper `pos` demonstrations shapes: input 2 × 5, action 3, batch 128):
    fewer iterations per timed call), the timed calls interleaved (BC-OH, RAP, PALR, MINE, BC-OH, ...) so a
    machine under shifting load slows all alike; and PALR's HSCIC estimator (value and gradient, a 100-unit
    embedding) against one BC-OH step at batches of 64 to 1,024 (`--methods-only`: this part alone, written to
-   its own section).
+   its own section);
+7. the share of the float32 matmul peak (measured in the same run) that BC-OH grids of 13, 32 and 64 models
+   reach under each recipe (`fca`, `mlp`, `palr`), in one process of every thread and as one process per core,
+   each pinned (`taskset`) and single-threaded, side by side, each with its share of the models (`--share`:
+   this part alone, written to its own section).
 
 Medians of `--repeats` timed runs after a separate compiling call.
 """
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import os
@@ -54,6 +59,7 @@ from experiments._timing import machine, run_benchmark, time_jitted
 
 SECTION = "bench_train"
 METHODS_SECTION = "bench_train_methods"
+SHARE_SECTION = "bench_train_share"
 OBS, ACT, H, BATCH = 5, 3, 2, 128
 # the methods after the paper, and the fixes after them (issue 59), each in its own program
 NEW_METHODS = ("rap", "palr", "mine", "channel-dropout", "ptp", "action-chunks", "priming")
@@ -148,6 +154,9 @@ def _method_program(name: str, cfg: LearnerConfig, iters: int, data: Data, confi
                                                         obs_std=None, n_train=data.size))
     hps = stack_hparams([method.hparams(method.settings(ctx)[0], 2e-4, 0)] * configs)
     keys = jax.random.split(jax.random.PRNGKey(0), configs)
+    if method.reads is not None and (read := method.reads(ctx)):   # priming: BC-SO's policies, untrained here
+        other = dataclasses.replace(cfg, history=methods.get(read).history or cfg.history)
+        hps = hps.read(jax.vmap(lambda k: make_train(other).init_policy(k, data))(keys))
     states = jax.jit(jax.vmap(learner.init, (0, 0, None)))(keys, hps, data)
     run = grid_runner(lambda s, hp, d: learner.policy_params(learner.run(s, hp, d, iters)[0]), width=None)
     return run, (states, hps, data)
@@ -335,6 +344,9 @@ def _native_eval(env, steps: int, repeats: int) -> float | None:
 def table(args) -> str:
     if args.methods_only:
         return methods_table(args)
+    if args.share:
+        from experiments._share import share_table
+        return share_table(args)
     t = jax_throughput(args.iters, args.repeats)
     torch_rate = torch_throughput(args.torch_iters, args.repeats, t["models"])
     peak = matmul_peak(args.repeats)
@@ -404,10 +416,23 @@ def main(argv=None) -> int:
     p.add_argument("--repeats", type=int, default=3, help="timed runs; the median is reported")
     p.add_argument("--results", nargs="*", default=[], help="results.json files whose end-to-end timing to report")
     p.add_argument("--methods-only", action="store_true",
-                   help="time only RAP, PALR and MINE against BC-OH, and PALR's estimator (its own section)")
-    methods_only = "--methods-only" in (sys.argv[1:] if argv is None else argv)
+                   help="time only the methods after the paper against BC-OH, and PALR's estimator (its own section)")
+    p.add_argument("--share", action="store_true",
+                   help="only the share of the matmul peak per recipe and grid size, one process and one per core "
+                        "(its own section)")
+    p.add_argument("--share-worker", metavar="RECIPE:MODELS:ITERS:REPEATS", help=argparse.SUPPRESS)
+    given = sys.argv[1:] if argv is None else argv
+    if "--share-worker" in given:   # one pinned process of `--share`: its rate as one JSON line
+        from experiments._share import grid_rate
+
+        recipe, models, iters, repeats = p.parse_args(given).share_worker.split(":")
+        print(json.dumps(grid_rate(recipe, int(models), int(iters), int(repeats))))
+        return 0
+    if "--methods-only" in given and "--share" in given:
+        p.error("--methods-only and --share each write a section of their own: give one")
+    section = METHODS_SECTION if "--methods-only" in given else SHARE_SECTION if "--share" in given else SECTION
     return run_benchmark(p, argv, ("--iters", "--torch-iters", "--policies", "--episodes", "--repeats"), table,
-                         METHODS_SECTION if methods_only else SECTION, check=_check_results)
+                         section, check=_check_results)
 
 
 def _check_results(args) -> str | None:

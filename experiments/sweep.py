@@ -217,14 +217,16 @@ class Cost:
 
 def _runnable(p, names: tuple[str, ...], named: set[str], settings, obs: str) -> tuple[str, ...]:
     """`names` less the methods a shortcut (`all`, `baselines`, ...) brought in that cannot run under `settings`
-    (`Method.refuses`: ChannelDropout without a leaking channel in view, RAP on another image encoder), each left
-    out with a line saying why; a method asked for by name is refused by the sweep's spec instead."""
+    (`Method.refuses`: ChannelDropout without a leaking channel in view, RAP on another image encoder) or without
+    a method they read (`methods.unread`: Priming without BC-SO), each left out with a line saying why; a method
+    asked for by name is refused by the sweep's spec instead."""
     from ape_jax import methods
 
     keep = []
     for name in names:
         refuses = methods.get(name).refuses
-        why = refuses(settings, obs) if refuses is not None and name not in named else None
+        why = None if name in named else (refuses(settings, obs) if refuses is not None else None) \
+            or methods.unread(name, settings.knobs, names)
         if why:
             print(f"{_prog()}: leaving out {name}, which the shortcut brought in: {why}", file=sys.stderr)
         else:

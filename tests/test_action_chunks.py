@@ -200,6 +200,9 @@ def test_a_smoke_sweep_keeps_their_policies_apart_evaluates_them_again_and_films
     saved = ckpt_lib.load_policies(out / "params")
     assert {name: [r["method"] for r in g["runs"]] for name, g in saved.items()} == {
         "h1": ["bc-so"], "h1-action-chunks": ["action-chunks"], "h2-priming": ["priming"]}
+    # Priming's prime (its default source, `bc-so`) is the sweep's own BC-SO policy of the same seed, as trained
+    jax.tree.map(np.testing.assert_array_equal, saved["h2-priming"]["params"]["params"]["prime"],
+                 saved["h1"]["params"]["params"])
     capsys.readouterr()
     assert evaluate_cli.main([str(out), "--data-dir", str(data), "--out", str(tmp_path / "again.json")]) == 0
     assert "every recorded return and metric came out as recorded" in capsys.readouterr().out

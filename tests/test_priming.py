@@ -1,9 +1,11 @@
-"""Priming (PrimeNet): at weight 0 the history policy trains as BC-OH and the composite acts as BC-OH; a 2 × 2 grid
-(weights × seeds) trains in one vmapped program; the trained composite is the prime network on the current state
-feeding the history policy, probed through the history policy's embedding; its knobs and the sweep refuse what it
-cannot run, in one line."""
+"""Priming (PrimeNet): at weight 0 the history policy trains as BC-OH and the composite acts as BC-OH, with the prime
+read from a trained BC-SO (`bc-so`, kept as it is) or trained beside it (`joint`); a 2 × 2 grid (weights × seeds)
+trains in one vmapped program; the trained composite is the prime network on the current state feeding the history
+policy, probed through the history policy's embedding; each run reads its own seed's BC-SO; its knobs and the sweep
+refuse what it cannot run, in one line."""
 
 import dataclasses
+import types
 
 import jax
 import jax.numpy as jnp
@@ -30,17 +32,58 @@ def _policy_part(variables):
     return {k: v["policy"] for k, v in variables.items()}
 
 
+def _bc_so(cfg: LearnerConfig, data, key=jax.random.PRNGKey(9)):
+    """A BC-SO policy of `cfg`'s recipe, trained: the prime the `bc-so` source reads."""
+    return jax.jit(make_train(dataclasses.replace(cfg, history=1)).train)(key, Hparams.make(lr=1e-3), data)[0]
+
+
+def _prime_part(variables):
+    return {k: v["prime"] for k, v in variables.items()}
+
+
+@pytest.mark.parametrize("source", ["bc-so", "joint"])
 @pytest.mark.parametrize("network", ["mlp", "bn-mlp"])
-def test_at_weight_0_the_history_policy_trains_as_bc_oh(network):
+def test_at_weight_0_the_history_policy_trains_as_bc_oh(network, source):
     cfg, key, data = dataclasses.replace(CFG, network=network), jax.random.PRNGKey(3), planted(rho=0.7)
-    primed, metrics = jax.jit(make_priming(cfg).train)(key, PrimingHparams.make(0.0, lr=1e-3), data)
+    hp = PrimingHparams.make(0.0, lr=1e-3)
+    bc_so = _bc_so(cfg, data)
+    primed, metrics = jax.jit(make_priming(cfg, source).train)(key, hp.read(bc_so) if source == "bc-so" else hp, data)
     bc_oh, bc_metrics = jax.jit(make_train(cfg).train)(jax.random.split(key)[0], Hparams.make(lr=1e-3), data)
     init = make_train(cfg).init_policy(jax.random.split(jax.random.split(key)[0])[0], data)
     assert jax.tree.structure(_policy_part(primed)) == jax.tree.structure(bc_oh)
     assert update_mismatch(_policy_part(primed), bc_oh, init) < 1e-4
     np.testing.assert_allclose(metrics["unweighted_loss"], bc_metrics["unweighted_loss"], rtol=1e-4)
     assert not np.any(primed["params"]["prime_input"]["kernel"])    # the prime's block, scaled by 0
-    assert float(metrics["prime_loss"][-5:].mean()) < float(metrics["prime_loss"][:5].mean())   # BC-SO trained beside
+    if source == "joint":   # BC-SO trained beside
+        assert float(metrics["prime_loss"][-5:].mean()) < float(metrics["prime_loss"][:5].mean())
+        np.testing.assert_allclose(metrics["loss"], metrics["unweighted_loss"] + metrics["prime_loss"], rtol=1e-5)
+    else:   # BC-SO read as it is: its parameters and running statistics untouched, its loss not trained
+        jax.tree.map(np.testing.assert_array_equal, _prime_part(primed), bc_so)
+        np.testing.assert_array_equal(metrics["loss"], metrics["unweighted_loss"])
+
+
+def test_the_bc_so_source_primes_with_the_policy_it_reads_and_refuses_to_run_without_one():
+    data = planted(rho=0.7)
+    bc_so = _bc_so(CFG, data)
+    primed, metrics = jax.jit(make_priming(CFG, "bc-so").train)(
+        jax.random.PRNGKey(3), PrimingHparams.make(1.0, lr=1e-3).read(bc_so), data)
+    x = make_train(CFG).policy_input(data.obs[jnp.stack([jnp.maximum(jnp.arange(64) - 1, 0), jnp.arange(64)], 1)])
+    np.testing.assert_allclose(primed_model(CFG).apply(primed, x, method="prime_of"),
+                               StatePolicy(2).apply(bc_so, x[:, -4:]), rtol=1e-6, atol=1e-6)   # BC-SO's actions
+    loss = metrics["unweighted_loss"]
+    assert float(loss[-5:].mean()) < float(loss[:5].mean())   # the history policy learns beside the fixed prime
+    with pytest.raises(ValueError, match="reads BC-SO's trained policies, and none were given"):
+        make_priming(CFG, "bc-so").init(jax.random.PRNGKey(0), PrimingHparams.make(1.0), data)
+
+
+def test_each_run_reads_the_policy_of_its_own_seed():
+    runs = [types.SimpleNamespace(method="priming", seed=s) for s in (4, 3, 4)]
+    source = [types.SimpleNamespace(method="bc-so", seed=s) for s in (3, 4)]
+    params = {"w": jnp.asarray([30.0, 40.0])}
+    hp = methods.read_trained(stack_hparams([PrimingHparams.make(1.0)] * 3), runs, "bc-so", source, params)
+    np.testing.assert_array_equal(hp.prime["w"], [40.0, 30.0, 40.0])
+    with pytest.raises(methods.MethodError, match=r"bc-so's policies, which has no run of seed\(s\) \[7\]"):
+        methods.read_trained(hp, [types.SimpleNamespace(method="priming", seed=7)], "bc-so", source, params)
 
 
 @pytest.fixture(scope="module")
@@ -49,15 +92,16 @@ def grid():
     keys = jax.random.split(jax.random.PRNGKey(5), 2)
     keys = jnp.concatenate([keys, keys])
     hp = stack_hparams([PrimingHparams.make(w, lr=1e-3) for w in (1.0, 0.0) for _ in range(2)])
-    params, metrics = jax.jit(jax.vmap(make_priming(CFG).train, (0, 0, None)))(keys, hp, planted(rho=0.7))
-    alone, _ = jax.jit(make_priming(CFG).train)(keys[0], PrimingHparams.make(1.0, lr=1e-3), planted(rho=0.7))
+    joint = make_priming(CFG, "joint")
+    params, metrics = jax.jit(jax.vmap(joint.train, (0, 0, None)))(keys, hp, planted(rho=0.7))
+    alone, _ = jax.jit(joint.train)(keys[0], PrimingHparams.make(1.0, lr=1e-3), planted(rho=0.7))
     return params, metrics, alone, keys
 
 
 def test_a_grid_of_two_weights_by_two_seeds_trains_in_one_vmapped_program(grid):
     params, metrics, alone, keys = grid
     row = lambda j: jax.tree.map(lambda x: x[j], params)   # noqa: E731
-    init = make_priming(CFG).init(keys[0], PrimingHparams.make(1.0), planted()).params
+    init = make_priming(CFG, "joint").init(keys[0], PrimingHparams.make(1.0), planted()).params
     assert update_mismatch(row(0), alone, init) < UPDATE_RTOL
     assert all(update_mismatch(row(j), alone, init) > 0.1 for j in (1, 2, 3))   # another seed or weight
     assert metrics["loss"].shape == (4, CFG.iterations)
@@ -93,7 +137,7 @@ def test_at_weight_0_the_composite_acts_as_bc_oh():
     env = envs.make("toycar", obs="full", episode_length=40)
     cfg = dataclasses.replace(CFG, obs_shape=(5,))
     data = planted()
-    states = jax.vmap(lambda key: make_priming(cfg).init(key, PrimingHparams.make(0.0), data))(
+    states = jax.vmap(lambda key: make_priming(cfg, "joint").init(key, PrimingHparams.make(0.0), data))(
         jax.random.split(jax.random.PRNGKey(2), 2))
     params = jax.tree_util.tree_map_with_path(   # untrained; actions moved inside ToyCar's bounds [0, 1]
         lambda path, v: v + 0.5 if jax.tree_util.keystr(path).endswith("['action']['bias']") else v, states.params)
@@ -110,8 +154,8 @@ def test_at_weight_0_the_composite_acts_as_bc_oh():
 
 
 def test_the_knobs_and_the_learner_refuse_what_priming_cannot_run_in_one_line():
-    assert (PrimingKnobs().source, PrimingKnobs().weights) == ("joint", (1.0,))
-    for bad, words in (({"source": "staged"}, "priming.source must be one of joint"),
+    assert (PrimingKnobs().source, PrimingKnobs().weights) == ("bc-so", (1.0,))
+    for bad, words in (({"source": "staged"}, "priming.source must be one of bc-so, joint"),
                        ({"weights": (1.0, -0.5)}, "priming.weights must be >= 0"),
                        ({"weights": ()}, "priming.weights must list each weight once"),
                        ({"weights": (1.0, 1.0)}, "priming.weights must list each weight once")):
@@ -140,10 +184,11 @@ def test_the_method_s_grid_is_its_weights_knob():
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--set", "priming.source=staged"], "priming.source must be one of joint"),
+    (["--set", "priming.source=staged"], "priming.source must be one of bc-so, joint"),
     (["--set", "priming.weights=1,-1"], "priming.weights must be >= 0"),
     (["--set", "protocol.history=1"], "priming primes a history policy"),
     (["--obs", "image"], "priming runs on state observations"),
+    ([], "priming reads the trained policies of bc-so: add bc-so to --methods, or change priming's settings"),
 ])
 def test_the_sweep_refuses_what_priming_cannot_run_in_one_line_before_any_work(tmp_path, capsys, args, message):
     argv = ["--env", "toycar", "--obs", "full", "--quiet", "--methods", "priming", *args]

@@ -199,6 +199,10 @@ def test_a_shortcut_leaves_out_what_cannot_run_here_and_a_named_method_is_refuse
     assert "channel-dropout" not in args.methods and "ptp" in args.methods
     err = capsys.readouterr().err
     assert "leaving out channel-dropout" in err and "protocol.prev_action=true" in err
+    # Priming reads BC-SO's policies, which `baselines` does not bring: left out too; `all` brings both
+    assert "priming" not in args.methods and "leaving out priming" in err and "add bc-so to --methods" in err
+    every = sweep.parse(["--env", "hopper", "--methods", "all", "--out", str(tmp_path / "d")], writes=False)
+    assert {"bc-so", "priming"} <= set(every.methods)
     kept = sweep.parse(["--env", "hopper", "--methods", "baselines", "--set", "protocol.prev_action=true",
                         "--out", str(tmp_path / "b")], writes=False)
     assert "channel-dropout" in kept.methods

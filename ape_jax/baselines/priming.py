@@ -15,11 +15,14 @@ trained first and kept fixed), `ℓ` the project's loss. The prime enters the hi
 second input block: that layer computes `K_x o + K_p (w · p̂)` (`StatePolicy`'s `first_layer_input`), which is a
 layer on the concatenation `[o, w · p̂]` with its kernel split in two.
 
-Knobs (`PrimingKnobs`, `--set priming.KNOB=VALUE`): `source`, where the prime comes from: `"joint"` (the default
-and so far the only one), BC-SO trained in the same program beside the history policy, on the same minibatches;
+Knobs (`PrimingKnobs`, `--set priming.KNOB=VALUE`): `source`, where the prime comes from: `"bc-so"` (the default,
+PrimeNet's staging: the key-input network trained first and kept fixed), the sweep's own BC-SO policy of the run's
+seed, trained before this program and read without its gradient (`Method.reads`: the sweep refuses priming without
+`bc-so` among its methods); or `"joint"`, BC-SO trained in the same program beside the history policy, on the same
+minibatches (two networks learn: about twice BC-OH's time per update, where `"bc-so"` adds one forward pass);
 `weights`, a grid axis scaling the prime, default `(1.0,)` (PrimeNet feeds the prime as it is). **Neutral:** weight 0
 gives the history policy a zero block, so it trains exactly as BC-OH (the same initialisation from the same key,
-minibatches, loss and gradients; tested), its prime block idle; the prime network trains beside it unread.
+minibatches, loss and gradients; tested for both sources), its prime block idle.
 
 The composite is the trained policy (`PrimedPolicy`): at evaluation the prime network reads the current frame and the
 history policy the history and the prime, both with BatchNorm's running statistics where the recipe has them. Its
@@ -29,21 +32,23 @@ copycat probes read it; the probes read the history policy's embedding.
 
 Our readings:
 
-- **One program, not two stages.** PrimeNet trains the key-input network first and the main network after it; here
-  both train in every iteration of one scan, the history policy reading the prime as it currently is (without
-  gradient). A staged source would need the prime's training apart from the policy's: under `vmap` a switch between
-  the two per iteration computes both.
-- **The prime network is BC-SO's** (the recipe's network, init and loss), trained on the history policy's minibatch
-  rows rather than its own draws; its initialisation comes from the run key's second half (the history policy's and
-  its minibatches from the first, as `make_train`'s from that key).
+- **The stages are the sweep's programs.** PrimeNet trains the key-input network first and the main network after
+  it; `"bc-so"` reads the sweep's BC-SO, trained first as a program of its own (the same network, initialisation,
+  loss and budget as BC-SO's row of the table), so the prime is exactly the table's BC-SO policy. `"joint"` trains
+  both in every iteration of one scan instead, the history policy reading the prime as it currently is.
+- **The prime network is BC-SO's** (the recipe's network, init and loss). Under `"joint"` it trains on the history
+  policy's minibatch rows rather than its own draws, its initialisation from the run key's second half (the history
+  policy's and its minibatches from the first, as `make_train`'s from that key); under `"bc-so"` it is read with
+  BatchNorm's running statistics, as BC-SO acts.
 - **The projection `K_p`** is initialised as the recipe initialises a Dense layer over its own fan-in (`A`), where a
   layer on the concatenation would draw its rows over the fan-in `H · D + A`.
 - **State observations only**: the key input is the current observation's slice of the stacked states; images are
   refused (`refusal`), and so is a history of 1 (nothing to prime against).
-- **Cost**: two networks train per iteration, about twice BC-OH's work.
+- **Cost**: `"bc-so"` adds the prime's forward pass to BC-OH's update; `"joint"` trains two networks per iteration,
+  about twice BC-OH's work (`experiments.bench_train --methods-only`, docs/speed.md).
 
-Metrics (`[n]` float32 per `run` of `n` iterations): `"loss"` (`L`), `"unweighted_loss"` (the history policy's BC
-loss, BC-OH's) and `"prime_loss"` (the prime network's, BC-SO's).
+Metrics (`[n]` float32 per `run` of `n` iterations): `"loss"` (`L`; under `"bc-so"` the history policy's alone),
+`"unweighted_loss"` (the history policy's BC loss, BC-OH's) and `"prime_loss"` (the prime network's, BC-SO's).
 """
 
 from __future__ import annotations
@@ -66,8 +71,9 @@ from ape_jax.learner import (Data, Learner, LearnerConfig, action_errors, gradie
 from ape_jax.models import INITS, StatePolicy
 
 NAME = "priming"
-SOURCES = ("joint",)      # where the prime comes from (the module docstring)
-DEFAULT_SOURCE = "joint"  # ours: PrimeNet trains its key-input network first (a staged source)
+SOURCES = ("bc-so", "joint")  # where the prime comes from (the module docstring)
+DEFAULT_SOURCE = "bc-so"      # PrimeNet: the key-input network is trained first and kept fixed (its Sec. 3)
+READS = "bc-so"               # the method whose trained policies the "bc-so" source reads
 DEFAULT_WEIGHT = 1.0      # PrimeNet feeds the prime to the main network as it is
 
 
@@ -76,7 +82,8 @@ class PrimingKnobs:
     """Priming's own settings (`--set priming.KNOB=VALUE`; the module docstring).
 
     Attributes:
-      source: where the prime comes from, one of `SOURCES`: `"joint"`, BC-SO trained beside the history policy.
+      source: where the prime comes from, one of `SOURCES`: `"bc-so"`, the sweep's BC-SO (its run of the same
+        seed); `"joint"`, BC-SO trained beside the history policy.
       weights: a grid axis: the prime's scale in the history policy's input, each >= 0 (0: BC-OH).
     """
 
@@ -98,6 +105,7 @@ class PrimingHparams:
 
     weight: jax.Array   # [] float32, the prime's scale; 0 = BC-OH
     lr: jax.Array       # [] float32, both networks'
+    prime: Any = None   # source "bc-so": the BC-SO policy's variables the prime is read from (`read`)
 
     @classmethod
     def make(cls, weight: float = DEFAULT_WEIGHT, lr: float = 2e-4) -> PrimingHparams:
@@ -105,6 +113,11 @@ class PrimingHparams:
         nonnegative(f"{NAME} weight", weight)
         positive("learning rate", lr)
         return cls(weight=jnp.float32(weight), lr=jnp.float32(lr))
+
+    def read(self, params: Any) -> PrimingHparams:
+        """These hyperparameters with the prime's variables (`Method.reads`: BC-SO's trained policies, each run's
+        own seed's, stacked as the runs are)."""
+        return self.replace(prime=params)
 
 
 class PrimedPolicy(nn.Module):
@@ -140,8 +153,17 @@ class PrimedPolicy(nn.Module):
                train: bool = False) -> tuple[Any, jax.Array]:
         """`(the history policy's output, the prime [..., A])`."""
         prime = self.prime(x[..., -self.obs_dim:], train=train)
+        return self.reading(x, prime, prime_weight, return_embedding, train), prime
+
+    def prime_of(self, x: jax.Array) -> jax.Array:
+        """The prime `[..., A]` as the prime network acts (BatchNorm's running statistics)."""
+        return self.prime(x[..., -self.obs_dim:], train=False)
+
+    def reading(self, x: jax.Array, prime: jax.Array, prime_weight: jax.Array | float = 1.0,
+                return_embedding: bool = False, train: bool = False) -> Any:
+        """The history policy's output on `x` and a given `prime` (without its gradient)."""
         block = self.prime_input(prime_weight * jax.lax.stop_gradient(prime))
-        return self.policy(x, return_embedding, train, first_layer_input=block), prime
+        return self.policy(x, return_embedding, train, first_layer_input=block)
 
 
 def primed_model(cfg: LearnerConfig) -> PrimedPolicy:
@@ -179,8 +201,9 @@ def make_priming(cfg: LearnerConfig, source: str = DEFAULT_SOURCE) -> Learner:
 
     Returns:
       A `Learner` whose policy parameters are a `PrimedPolicy`'s (`policy_params`); its `init(key)` draws the
-      history policy and its minibatches as `make_train(cfg).init(jax.random.split(key)[0])` does, the prime
-      network and the projection from the other half.
+      history policy and its minibatches as `make_train(cfg).init(jax.random.split(key)[0])` does, the
+      projection (and under `"joint"` the prime network) from the other half; under `"bc-so"` the prime network
+      is the hyperparameters' `prime` (`PrimingHparams.read`).
     """
     PrimingKnobs(source=source)   # the one rule for the source
     if cfg.images:
@@ -197,7 +220,13 @@ def make_priming(cfg: LearnerConfig, source: str = DEFAULT_SOURCE) -> Learner:
         key_init, key_run = jax.random.split(key_policy)   # make_train's init of key_policy
         key_net, key_block = jax.random.split(key_prime)
         policy = base.init_policy(key_init, data)
-        prime = prime_base.init_policy(key_net, data)
+        if source == "joint":
+            prime = prime_base.init_policy(key_net, data)
+        elif hp.prime is None:
+            raise ValueError(f"{NAME}.source {source!r} reads BC-SO's trained policies, and none were given "
+                             "(PrimingHparams.read)")
+        else:
+            prime = hp.prime
         block = nn.Dense(StatePolicy.hidden[0], use_bias=False, kernel_init=INITS[cfg.init]).init(
             key_block, jnp.zeros((1, cfg.action_dim), jnp.float32))["params"]
         variables = {"params": {"policy": policy["params"], "prime": prime["params"], "prime_input": block}}
@@ -213,10 +242,17 @@ def make_priming(cfg: LearnerConfig, source: str = DEFAULT_SOURCE) -> Learner:
         action = data.action[idx]
 
         def loss_fn(variables):
-            (predicted, prime), variables = policy_apply(model, variables, x, train=True, method=PrimedPolicy.primed,
-                                                         prime_weight=hp.weight)
+            if source == "joint":
+                (predicted, prime), variables = policy_apply(model, variables, x, train=True,
+                                                             method=PrimedPolicy.primed, prime_weight=hp.weight)
+                bc, prime_bc = (jnp.mean(action_errors(cfg, p, action)) for p in (predicted, prime))
+                return bc + prime_bc, ((bc, prime_bc), variables)
+            # the prime as BC-SO acts, read without its gradient: its variables get none, so Adam leaves them
+            prime = jax.lax.stop_gradient(model.apply(variables, x, method=PrimedPolicy.prime_of))
+            predicted, variables = policy_apply(model, variables, x, train=True, method=PrimedPolicy.reading,
+                                                prime=prime, prime_weight=hp.weight)
             bc, prime_bc = (jnp.mean(action_errors(cfg, p, action)) for p in (predicted, prime))
-            return bc + prime_bc, ((bc, prime_bc), variables)
+            return bc, ((bc, prime_bc), variables)
 
         params, opt_state, loss, (bc, prime_bc) = gradient_step(
             adam, state.params, state.opt_state, learning_rate(cfg, hp.lr, state.step), loss_fn)
@@ -247,7 +283,7 @@ def refusal(settings: Any, obs: str) -> str | None:
     if settings.protocol.history < 2:
         return (f"{NAME} primes a history policy (protocol.history >= 2), got "
                 f"protocol.history={settings.protocol.history}")
-    return None
+    return None   # without BC-SO among the methods under source bc-so: `Method.reads` (`methods.unread`)
 
 
 def _learner(ctx) -> Learner:
@@ -257,4 +293,5 @@ def _learner(ctx) -> Learner:
 methods.register(methods.Method(
     NAME, "Priming", grid=lambda ctx: [{"weight": w} for w in ctx.knobs_of(NAME).weights],
     hparams=lambda settings, lr, row: PrimingHparams.make(settings["weight"], lr=lr),
-    program=NAME, learner=_learner, refuses=refusal, knobs=PrimingKnobs, runtime=policy_runtime, module=__name__))
+    program=NAME, learner=_learner, refuses=refusal, knobs=PrimingKnobs, runtime=policy_runtime, module=__name__,
+    reads=lambda ctx: READS if ctx.knobs_of(NAME).source == "bc-so" else None))

@@ -153,6 +153,9 @@ class Method:
         read the sweep's record with `ctx.knobs_of(name)`.
       runtime: `runtime(cfg, settings) -> ape_jax.evaluate.Runtime`: how its trained policies act where they are
         not `cfg.model()` on the history (action chunks with their ensemble, a composite); None: they are.
+      reads: `reads(GridContext) -> method | None`: the method whose trained policies its runs read, each run
+        its own seed's (Priming's prime: BC-SO's): the sweep trains that method's program first, refuses a sweep
+        without it, and hands its policies to the stacked hyperparameters' `read(params)` (`read_trained`).
       refuses: `refuses(settings, obs) -> why | None`: why the method cannot run under a sweep's
         `ape_jax.pipeline.presets.Settings` and observation mode (RAP: without a history, or on images with an
         encoder other than `patch`), checked when the sweep's spec is made, before anything is collected or
@@ -174,6 +177,7 @@ class Method:
     refuses: Callable[[Any, str], str | None] | None = None
     knobs: type | None = None
     runtime: Callable[[Any, Sequence[Mapping[str, float]]], Any] | None = None
+    reads: Callable[[GridContext], str | None] | None = None
 
     def settings(self, ctx: GridContext) -> list[dict]:
         """The default grid as plain dicts of floats (what `results.json` records as `hparams`)."""
@@ -350,6 +354,32 @@ def sharing(record: type) -> list[str]:
     _ensure_builtins()
     return [n for n in sorted(_registry, key=_sequence.get)
             if _registry[n].knobs is not None and issubclass(_registry[n].knobs, record)]
+
+
+def unread(name: str, knobs: Mapping[str, Any], names: Sequence[str]) -> str | None:
+    """Why method `name` cannot train among the methods `names` under the methods' settings `knobs`: it reads the
+    trained policies of a method not among them (`Method.reads`); None where it can."""
+    method = get(name)
+    read = method.reads(GridContext(task=None, n_train=0, knobs=knobs)) if method.reads is not None else None
+    if read is None or read in names:
+        return None
+    return f"{name} reads the trained policies of {read}: add {read} to --methods, or change {name}'s settings"
+
+
+def read_trained(hparams: Any, runs: Sequence[Any], read: str, source_runs: Sequence[Any], source_params: Any) -> Any:
+    """`hparams` (stacked over `runs`) given the trained policies of method `read` (`Method.reads`): each run gets
+    the policy of `read`'s run of its own seed, from a program's runs `source_runs` and their policies
+    `source_params` (leaves `[len(source_runs), ...]`).
+
+    Raises:
+      MethodError: a run's seed has no run of `read` (one line).
+    """
+    index = {r.seed: i for i, r in enumerate(source_runs) if r.method == read}
+    missing = sorted({r.seed for r in runs} - set(index))
+    if missing:
+        raise MethodError(f"{runs[0].method} reads {read}'s policies, which has no run of seed(s) {missing}")
+    take = np.asarray([index[r.seed] for r in runs])
+    return hparams.read(jax.tree.map(lambda x: jnp.asarray(x)[take], source_params))
 
 
 def weighting(name: str, kind: str = "step", grid: Sequence[Mapping[str, float]] | None = None,

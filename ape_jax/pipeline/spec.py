@@ -81,7 +81,7 @@ class SweepSpec:
         for m in self.methods:
             method = methods_lib.get(m)  # MethodError for an unknown name
             why = method.refuses(self.settings, self.obs) if method.refuses is not None else None
-            if why:
+            if why or (why := methods_lib.unread(m, self.settings.knobs, self.methods)):
                 raise ValueError(why)
         resolved = {"task": tasks.get(self.env), "protocol": self.settings.protocol, "budget": self.settings.budget,
                     "recipe": self.settings.recipe, "preset_name": self.settings.preset,

@@ -117,7 +117,14 @@ def plan(spec: SweepSpec, prepared: Prepared) -> list[Program]:
                 cfg=cfg, env=view.env, expert=view.expert, obs_mean=view.normalizer.mean,
                 obs_std=view.normalizer.std, n_train=len(view.train), knobs=spec.settings.knobs))
         programs.append(Program(name, cfg, mine, learner))
-    return programs
+    # a program whose runs read another's trained policies (`Method.reads`: Priming, BC-SO's) trains after it
+    return sorted(programs, key=lambda p: _reads(p, ctx) is not None)
+
+
+def _reads(program: Program, ctx: methods_lib.GridContext) -> str | None:
+    """The method whose trained policies `program`'s runs read (`Method.reads`), or None."""
+    method = methods_lib.get(program.runs[0].method)
+    return method.reads(ctx) if method.reads is not None else None
 
 
 def train(programs: Sequence[Program], spec: SweepSpec, prepared: Prepared, data: Data, hooks: Hooks = Hooks(),
@@ -156,8 +163,16 @@ def train(programs: Sequence[Program], spec: SweepSpec, prepared: Prepared, data
             curves = None if hooks.curves is None else hooks.curves(program.name, program.runs, iterations)
             view = prepared.view(observation_of(program))
             own = data if view is prepared else data.replace(obs=view.normalizer(view.train.demos.obs))
+            hparams = traced_hparams(program.runs, spec.recipe.lr, rows)
+            ctx = methods_lib.GridContext(task=prepared.task, n_train=len(prepared.train), knobs=spec.settings.knobs)
+            if read := _reads(program, ctx):   # e.g. Priming's prime: each run its own seed's BC-SO policy
+                if jax.process_count() > 1:   # the policies read are sharded over the processes' devices
+                    raise ValueError(f"{program.name} reads {read}'s trained policies, which a multi-process sweep "
+                                     "does not gather: run it in one process")
+                source = next(t for t in out if any(r.method == read for r in t.program.runs))
+                hparams = methods_lib.read_trained(hparams, program.runs, read, source.program.runs, source.params)
             params, metrics, snapshots = train_program(
-                program, traced_hparams(program.runs, spec.recipe.lr, rows), spec.budget, own, tick,
+                program, hparams, spec.budget, own, tick,
                 chunk=CPU_IMAGE_CHUNK if sequential else None, vectorize=not sequential,
                 checkpoint=None if checkpoint is None else checkpoint.program(program.name), curves=curves)
             jax.block_until_ready(params)
