@@ -18,7 +18,7 @@ from ape_jax import methods
 from ape_jax.learner import make_train, stack_hparams
 from ape_jax.pipeline.presets import RECIPES
 from experiments._timing import machine, time_jitted
-from experiments.bench_train import BATCH, _data, macs_per_sample, matmul_peak, recipe_config
+from experiments._bench_common import BATCH, _data, macs_per_sample, matmul_peak, recipe_config
 
 SHARE_RECIPES = ("fca", "mlp", "palr")
 SHARE_MODELS = (13, 32, 64)

@@ -52,43 +52,24 @@ import numpy as np
 from ape_jax import methods
 from ape_jax.grid import grid_runner
 from ape_jax.learner import Data, Hparams, LearnerConfig, make_train, stack_hparams
-from ape_jax.pipeline.presets import RECIPES, resolve
+from ape_jax.pipeline.presets import RECIPES
 from ape_jax.weighting import SOFTMAX_GRID, STEP_GRID
 from experiments._cli import Parser
 from experiments._timing import machine, run_benchmark, time_jitted
+from experiments._bench_common import ACT, BATCH, H, OBS, _data, macs_per_sample, matmul_peak, recipe_config  # noqa: F401
 
 SECTION = "bench_train"
 METHODS_SECTION = "bench_train_methods"
 SHARE_SECTION = "bench_train_share"
-OBS, ACT, H, BATCH = 5, 3, 2, 128
 # the methods after the paper, and the fixes after them (issue 59), each in its own program
 NEW_METHODS = ("rap", "palr", "mine", "channel-dropout", "ptp", "action-chunks", "priming")
 HSCIC_BATCHES = (64, 128, 256, 512, 1024)
-
-
-def _data(n=20_000, seed=0) -> Data:
-    rng = np.random.default_rng(seed)
-    return Data(obs=jnp.asarray(rng.normal(size=(n, OBS)), jnp.float32),
-                action=jnp.asarray(np.tanh(rng.normal(size=(n, ACT))), jnp.float32),
-                t=jnp.asarray(np.tile(np.arange(1000), n // 1000), jnp.int32),
-                ape=jnp.asarray(rng.exponential(size=n), jnp.float32))
 
 
 def _grid() -> list[Hparams]:
     runs = [("bc-oh", {})] + [("ours-step", {"thr": t, "w": w}) for t, w in STEP_GRID] + \
            [("ours-softmax", {"tau": tau}) for tau in SOFTMAX_GRID]
     return [methods.get(name).hparams(settings, 2e-4, 0) for name, settings in runs]
-
-
-def macs_per_sample(cfg: LearnerConfig) -> int:
-    params = cfg.model().init(jax.random.PRNGKey(0), jnp.zeros((1, cfg.history * cfg.obs_shape[0])))
-    return int(sum(np.prod(k.shape) for k in jax.tree.leaves(params) if k.ndim == 2))
-
-
-def recipe_config(recipe: str, iters: int) -> LearnerConfig:
-    """The learner of recipe `recipe` on the benchmark's shapes (Hopper `pos`, history 2), `iters` iterations."""
-    settings = resolve("hopper", "pos", recipe=recipe, sets=[f"budget.iterations={iters}"])
-    return settings.learner_config((OBS,), ACT, H, "l2")
 
 
 def recipe_throughput(iters: int, repeats: int) -> dict[str, dict]:
@@ -282,15 +263,6 @@ def torch_throughput(iters: int, repeats: int, configs: int) -> float | None:
         times.append(time.perf_counter() - t0)
     return configs * iters / statistics.median(times)
 
-
-def matmul_peak(repeats: int, sizes: tuple[int, ...] = (256, 512, 1024, 2048), dtype=jnp.float32) -> dict[int, float]:
-    """FLOP/s of one `n×n @ n×n` product in `dtype` (2n³ operations) per size `n`: medians after a compiling call."""
-    out = {}
-    for n in sizes:
-        a = jax.random.normal(jax.random.PRNGKey(0), (n, n), jnp.float32).astype(dtype)
-        _, steady, _ = time_jitted(jax.jit(lambda x: x @ x), a, repeats=repeats)
-        out[n] = 2 * n**3 / steady
-    return out
 
 
 def eval_throughput(policies: int, episodes: int, repeats: int) -> dict:
