@@ -6,3 +6,4 @@
 set -uo pipefail
 Q=$(cd "$(dirname "$0")" && pwd)
 "$Q/toytown-tables.sh" && "$Q/table5-300k.sh" && "$Q/onpolicy-check.sh"
+"$Q/remedies.sh"   # issue 59: the remedies ranked (appended while all.sh ran: it runs after the chain above)
