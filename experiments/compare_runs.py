@@ -1,12 +1,15 @@
 """The runs two sweeps share, side by side: does a configuration give the same numbers in another program?
 
     python -m experiments.compare_runs RUN_A RUN_B
+    python -m experiments.compare_runs results/NAME.json runs/replay/NAME     # a committed file and its replay
 
 `RUN_A` and `RUN_B` are sweep `--out` folders (each with `results.json`, read and validated by
-`ape_jax.pipeline.results.load`, and `params/`: `ape_jax.pipeline.rundir.RunDir`). For every run both
-hold (the same method, hyperparameters and seed, hence the same PRNG key), it prints the two mean returns and
-how far apart the saved parameters are (largest absolute difference over all weights), then a summary: the
-median and largest return difference, and how many runs have bit-identical parameters. A run's key does not
+`ape_jax.pipeline.results.load`, and `params/`: `ape_jax.pipeline.rundir.RunDir`), or results files (no
+parameters: a committed one). For every run both hold (the same method, hyperparameters and seed, hence the same
+PRNG key), it prints the two mean returns, whether every number the two record of the run is the same (its
+evaluation: each episode's return and metrics, and its losses), and how far apart the saved parameters are (largest
+absolute difference over all weights, where both saved them), then a summary: the median and largest return
+difference, and how many runs have identical records and bit-identical parameters. A run's key does not
 fix its float rounding, which can depend on how many runs a program vmaps over (docs/reliability.md, "Seeds are
 not bit-reproducible across program sizes").
 """
@@ -28,19 +31,30 @@ def _ident(run: dict) -> tuple:
     return run["method"], json.dumps(run["hparams"], sort_keys=True), run["seed"]
 
 
-def _returns(folder: pathlib.Path) -> dict[tuple, float]:
+def _runs(path: pathlib.Path) -> dict[tuple, dict]:
+    """The finished runs of a sweep folder or a results file, by identity."""
     from ape_jax.pipeline import results as results_lib
 
-    runs = results_lib.load(RunDir(folder).results).runs
-    return {_ident(r): r["eval"]["return_mean"] for r in runs if r["status"] == "ok"}
+    runs = results_lib.load(path if path.is_file() else RunDir(path).results).runs
+    return {_ident(r): r for r in runs if r["status"] == "ok"}
+
+
+def _recorded(run: dict) -> str:
+    """What a run records that training and evaluation computed: its evaluation, losses and training curves, and
+    those of its snapshots (`at`); not its diagnostics, which judging a file adds to."""
+    at = [{k: v for k, v in snap.items() if k != "diagnostics"} for snap in run.get("at") or []]
+    return json.dumps({**{k: run.get(k) for k in ("eval", "losses", "train_final", "train_curve")}, "at": at},
+                      sort_keys=True)
 
 
 def _params(folder: pathlib.Path) -> dict[tuple, list[np.ndarray]]:
-    """Each saved run's parameter leaves, by identity."""
+    """Each saved run's parameter leaves, by identity (none for a results file)."""
     import jax
 
     from ape_jax.pipeline.checkpoint import load_policies
 
+    if folder.is_file():
+        return {}
     out = {}
     for group in load_policies(RunDir(folder).params).values():
         leaves = [np.asarray(x) for x in jax.tree.leaves(group["params"])]
@@ -52,26 +66,29 @@ def _params(folder: pathlib.Path) -> dict[tuple, list[np.ndarray]]:
 def compare(a: pathlib.Path, b: pathlib.Path) -> list[dict]:
     """One row per run both sweeps hold, in `a`'s order: identity, both returns, and the largest absolute
     difference between their parameters (None where either sweep saved none for it)."""
-    returns_a, returns_b = _returns(a), _returns(b)
+    runs_a, runs_b = _runs(a), _runs(b)
     params_a, params_b = _params(a), _params(b)
     rows = []
-    for ident in (i for i in returns_a if i in returns_b):
+    for ident in (i for i in runs_a if i in runs_b):
         pa, pb = params_a.get(ident), params_b.get(ident)
         diff = (None if pa is None or pb is None else
                 max(float(np.max(np.abs(x.astype(np.float64) - y))) for x, y in zip(pa, pb)))
         rows.append({"method": ident[0], "hparams": json.loads(ident[1]), "seed": ident[2],
-                     "return_a": returns_a[ident], "return_b": returns_b[ident], "param_max_abs_diff": diff})
+                     "return_a": runs_a[ident]["eval"]["return_mean"], "return_b": runs_b[ident]["eval"]["return_mean"],
+                     "same_record": _recorded(runs_a[ident]) == _recorded(runs_b[ident]), "param_max_abs_diff": diff})
     return rows
 
 
 def main(argv=None) -> int:
     parser = Parser(prog="python -m experiments.compare_runs", description=__doc__.split("\n\n")[0])
-    parser.add_argument("run_a", type=pathlib.Path, help="a sweep's --out folder")
-    parser.add_argument("run_b", type=pathlib.Path, help="another sweep's --out folder")
+    parser.add_argument("run_a", type=pathlib.Path, help="a sweep's --out folder, or a results file")
+    parser.add_argument("run_b", type=pathlib.Path, help="another sweep's --out folder, or a results file")
     args = parser.parse_args(argv)
     from ape_jax.pipeline.results import ResultsError
 
     for folder in (args.run_a, args.run_b):
+        if folder.is_file():
+            continue   # a results file: `compare` reads and validates it
         if why := not_a_folder(folder, "a sweep's --out folder"):
             fail(parser, why)
         if not RunDir(folder).finished():
@@ -84,15 +101,19 @@ def main(argv=None) -> int:
         fail(parser, f"could not read the sweeps: {type(e).__name__}: {e}")
     if not rows:
         fail(parser, "the two sweeps share no run (the same method, hyperparameters and seed)")
-    print(f"{'method':<16} {'hparams':<28} {'seed':>4} {'return A':>10} {'return B':>10} {'|param diff|':>12}")
+    print(f"{'method':<16} {'hparams':<28} {'seed':>4} {'return A':>10} {'return B':>10} {'same record':>11} "
+          f"{'|param diff|':>12}")
     for r in rows:
         hp = ", ".join(f"{k}={v:g}" for k, v in r["hparams"].items()) or "-"
         diff = "—" if r["param_max_abs_diff"] is None else f"{r['param_max_abs_diff']:.3g}"
-        print(f"{r['method']:<16} {hp:<28} {r['seed']:>4} {r['return_a']:>10,.1f} {r['return_b']:>10,.1f} {diff:>12}")
+        print(f"{r['method']:<16} {hp:<28} {r['seed']:>4} {r['return_a']:>10,.1f} {r['return_b']:>10,.1f} "
+              f"{'yes' if r['same_record'] else 'no':>11} {diff:>12}")
     gaps = [abs(r["return_a"] - r["return_b"]) for r in rows]
     same = sum(r["param_max_abs_diff"] == 0.0 for r in rows)
+    compared = sum(r["param_max_abs_diff"] is not None for r in rows)
     print(f"{len(rows)} shared runs: |return A − return B| median {statistics.median(gaps):,.1f}, "
-          f"largest {max(gaps):,.1f}; bit-identical parameters in {same} of {len(rows)}")
+          f"largest {max(gaps):,.1f}; every recorded number the same in {sum(r['same_record'] for r in rows)} of "
+          f"{len(rows)}; bit-identical parameters in {same} of {compared} with parameters on both sides")
     return 0
 
 

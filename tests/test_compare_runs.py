@@ -36,8 +36,18 @@ def test_shared_runs_are_matched_by_identity_and_their_differences_summed_up(tmp
         ("bc-oh", 0, 100.0, 110.0), ("ours-step", 0, 200.0, 230.0)]
     assert [r["param_max_abs_diff"] for r in rows] == [0.0, pytest.approx(0.5)]
     assert compare_runs.main([str(a), str(b)]) == 0
-    assert ("2 shared runs: |return A − return B| median 20.0, largest 30.0; bit-identical parameters in 1 of 2"
-            in capsys.readouterr().out)
+    assert ("2 shared runs: |return A − return B| median 20.0, largest 30.0; every recorded number the same in 0 of "
+            "2; bit-identical parameters in 1 of 2 with parameters on both sides" in capsys.readouterr().out)
+
+
+def test_a_results_file_is_compared_with_its_replay_by_every_recorded_number(tmp_path, capsys):
+    """A committed results file has no parameters: its runs are matched by what they record."""
+    a = _sweep(tmp_path / "a", [("bc-oh", {}, 0, 100.0), ("bc-oh", {}, 1, 90.0)], [[1.0], [2.0]])
+    b = _sweep(tmp_path / "b", [("bc-oh", {}, 0, 100.0), ("bc-oh", {}, 1, 91.0)], [[1.0], [2.0]])
+    rows = compare_runs.compare(a / "results.json", b)
+    assert [(r["seed"], r["same_record"], r["param_max_abs_diff"]) for r in rows] == [(0, True, None), (1, False, None)]
+    assert compare_runs.main([str(a / "results.json"), str(b)]) == 0
+    assert "every recorded number the same in 1 of 2; bit-identical parameters in 0 of 0" in capsys.readouterr().out
 
 
 def test_folders_that_are_not_sweeps_or_share_nothing_are_refused(tmp_path, capsys):
