@@ -45,11 +45,9 @@ def settings_arguments(r: results_lib.Results) -> list[str]:
     Raises:
       SettingsError: no arguments give them (a preset, protocol or recipe this code no longer knows).
     """
-    records = r.records()
-    ran = set(r.config.get("methods") or ())
-    records = dataclasses.replace(records, smoke=bool(r.config.get("smoke")),
-                                  knobs={m: k for m, k in records.knobs.items() if m in ran})
-    return ["--env", r.env, "--obs", r.obs, *replay.arguments(r.env, r.obs, records)]
+    records = dataclasses.replace(r.records(), smoke=bool(r.config.get("smoke")))
+    return ["--env", r.env, "--obs", r.obs,
+            *replay.arguments(r.env, r.obs, records, methods=tuple(r.config.get("methods") or ()))]
 
 
 @dataclasses.dataclass(frozen=True)
