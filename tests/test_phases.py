@@ -104,7 +104,7 @@ def test_the_softmax_weights_a_batch_by_b_softmax_of_the_raw_ape_over_tau(small)
 @pytest.mark.integration
 def test_evaluate_and_assemble_give_one_record_per_run_in_plan_order(small):
     spec, prepared, programs, ape, trained = small
-    evaluated = S.evaluate(trained, prepared, ape, spec.budget.eval_episodes, probe_steps=spec.budget.probe_steps)
+    evaluated = S.evaluate(trained, ape, spec.budget.eval_episodes, probe_steps=spec.budget.probe_steps)
     assert [g.name for g in evaluated.groups] == ["h1", "h2"]
     res = S.assemble(spec, prepared, ape, trained, evaluated, timing={})
     assert [(r["method"], r["seed"]) for r in res.runs] == [(r.method, r.seed) for p in programs for r in p.runs]
@@ -188,7 +188,7 @@ def test_policies_kept_at_eval_at_are_the_training_state_there_and_leave_trainin
         np.testing.assert_array_equal(x, y)
     for x, y in zip(jax.tree.leaves(trained[0].snapshots[10]), jax.tree.leaves(short[0].params)):
         np.testing.assert_array_equal(x, y)
-    evaluated = S.evaluate(trained, prepared, ape, s.budget.eval_episodes)
+    evaluated = S.evaluate(trained, ape, s.budget.eval_episodes)
     res = S.assemble(s, prepared, ape, trained, evaluated, timing={})
     for r in res.runs:
         assert [a["iteration"] for a in r["at"]] == [10, 30]
@@ -209,6 +209,6 @@ def test_a_network_without_an_embedding_gets_its_diagnostics_recorded_absent_not
             return nn.Dense(2)(x)
 
     group = S.PolicyGroup(2, types.SimpleNamespace(model=NoEmbedding), (S.Run("bc-oh", {}, 0),) * 3, None)
-    out = S.group_diagnostics(None, None, group, None, None, steps=100)
+    out = S.group_diagnostics(group, None, None, None, steps=100)
     assert [S.diagnostics_record(out, j) for j in range(3)] == [
         {"absent": "the policy's network gives no embedding (it takes no return_embedding)"}] * 3

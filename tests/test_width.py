@@ -37,7 +37,7 @@ def _bc_oh(data_dir, *sets, evaluate=True, seed=None, task=("hopper", "pos", SET
     j = trained[0].program.runs.index(runs[0])
     if not evaluate:
         return jax.tree.map(lambda x: np.asarray(x[j]), trained[0].params)
-    evaluated = S.evaluate(trained, prepared, ape, spec.budget.eval_episodes, width=spec.budget.width)
+    evaluated = S.evaluate(trained, ape, spec.budget.eval_episodes, width=spec.budget.width)
     (done,), (group,), (out,), (losses,) = trained, evaluated.groups, evaluated.outputs, evaluated.losses
     assert group.runs[j].method == "bc-oh"
     return (len(done.program.runs), jax.tree.map(lambda x: np.asarray(x[j]), done.params),

@@ -21,12 +21,12 @@ import numpy as np
 from ape_jax import diagnostics as diagnostics_lib
 from ape_jax import evaluate as evaluate_lib
 from ape_jax import methods as methods_lib
-from ape_jax.learner import LearnerConfig
+from ape_jax.learner import Data, LearnerConfig
 from ape_jax.pipeline import checkpoint as ckpt_lib
 from ape_jax.pipeline.checkpoint import SweepCheckpoint
 from ape_jax.pipeline.hooks import Hooks
 from ape_jax.pipeline.prepare import ApeFit, Prepared
-from ape_jax.pipeline.training import Trained, observation_of
+from ape_jax.pipeline.training import Trained
 from ape_jax.pipeline.records import DIAG
 from ape_jax.pipeline.spec import Run
 
@@ -40,13 +40,16 @@ DIAGNOSTICS_SEED = 0  # the embedding probes' and ψ's key in `ape_jax.diagnosti
 class PolicyGroup:
     """Policies with the same observation and history (the same network): one evaluation program.
 
-    `observation`: what they read (`Prepared.observing`: None, the sweep's own; `"full"`, the full state)."""
+    `observation`: what they read (`Prepared.observing`: None, the sweep's own; `"full"`, the full state); `view`:
+    the sweep in that observation (`Prepared.view`, a sweep's `Program.view`), what they are evaluated, analysed
+    and diagnosed in, and whose normalizer they are saved with."""
 
     history: int
     cfg: LearnerConfig
     runs: tuple[Run, ...]
     params: Any  # leaves [len(runs), ...]
     observation: str | None = None
+    view: Prepared | None = dataclasses.field(default=None, compare=False, repr=False)
 
     @property
     def kind(self) -> str | None:
@@ -70,11 +73,14 @@ class PolicyGroup:
 
 
 def policy_kind(method: str) -> str | None:
-    """The program of `method` where its module reads its trained policies itself (`evaluate.runtime_factory`):
-    its policies form groups of their own; None for a plain `cfg.model()` (or a method not registered here)."""
-    if evaluate_lib.runtime_factory(method) is None:
+    """The program of `method` where its record gives its trained policies a run-time policy of their own
+    (`Method.runtime`, what `evaluate.runtime_factory` reads): its policies form groups of their own; None for a plain
+    `cfg.model()` (or a method not registered here)."""
+    try:
+        record = methods_lib.get(method)
+    except methods_lib.MethodError:   # a plugin's, of a file evaluated again: not registered in this process
         return None
-    return methods_lib.get(method).program
+    return record.program if record.runtime is not None else None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,9 +105,10 @@ def diagnosable(episodes: int, probe_steps: int, expert_episodes: int = 2) -> bo
     return probe_steps > 0 and episodes >= 2 and expert_episodes >= 2
 
 
-def group_diagnostics(prepared: Prepared, ape: ApeFit, group: PolicyGroup, actions: np.ndarray,
-                      valid: np.ndarray, steps: int) -> dict[str, np.ndarray]:
-    """The group's copycat diagnostics (`ape_jax.diagnostics.diagnose`) as `{"diag_<field>": [P]}`; the expert's
+def group_diagnostics(group: PolicyGroup, data: tuple[Data, Data], actions: np.ndarray, valid: np.ndarray,
+                      steps: int) -> dict[str, np.ndarray]:
+    """The group's copycat diagnostics (`ape_jax.diagnostics.diagnose`) as `{"diag_<field>": [P]}`, probed on
+    `data`, the training and validation rows of its view with their APE (`Prepared.data`); the expert's
     rollouts are its demonstrations' training episodes (a sweep collects them without noise, so they are its
     own rollouts) as executed (`Demonstrations.executed`: the clipped actions the env ran, like the policies'
     rollout actions, whatever the labels), the velocity the demonstrations' `qvel` where they hold one. A
@@ -110,10 +117,10 @@ def group_diagnostics(prepared: Prepared, ape: ApeFit, group: PolicyGroup, actio
     runtime = group.runtime
     if runtime is None and "return_embedding" not in inspect.signature(type(group.cfg.model()).__call__).parameters:
         return {f"{DIAG}absent": np.ones(len(group.runs))}  # reported absent, never as zero
-    train, val = prepared.data(prepared.train, ape.train), prepared.data(prepared.val, ape.val)
-    demos = prepared.train.demos
+    (train, val), view = data, group.view
+    demos = view.train.demos
     velocity = state = None
-    both = [d.sim for d in (demos, prepared.val.demos)]
+    both = [d.sim for d in (demos, view.val.demos)]
     if all("qvel" in sim for sim in both):
         velocity = tuple(sim["qvel"] for sim in both)
         if all("qpos" in sim for sim in both):  # the experts' observation: the root's x left out, as Brax does
@@ -129,39 +136,40 @@ def group_diagnostics(prepared: Prepared, ape: ApeFit, group: PolicyGroup, actio
             f"{DIAG}probe_steps": np.full(len(group.runs), steps)}
 
 
-def evaluate_group(prepared: Prepared, ape: ApeFit, episodes: int, group: PolicyGroup,
-                   probe_steps: int = 0, width: int = 0) -> tuple[dict, dict, float]:
+def evaluate_group(ape: ApeFit, episodes: int, group: PolicyGroup, probe_steps: int = 0,
+                   width: int = 0) -> tuple[dict, dict, float]:
     """Evaluation outputs `{"return": [P, E], metric: [P, E], ...}` (copycat diagnostics included: the
     `ape_jax.diagnostics` ones as `diag_<field>` `[P]` with `probe_steps` where `diagnosable`), the loss
     analysis `{"train": {...: [P]}, "val": {...}}` of one group, and the diagnostics' seconds. The policies go
-    `width` at a time (`Budget.width`; 0: all together) through the evaluation and the loss analysis. A group
-    reading another observation is evaluated, analysed and diagnosed in its own view (`Prepared.view`); a group
-    with a `Runtime` (`PolicyGroup.runtime`) acts and is scored through it."""
-    prepared = prepared.view(group.observation)
-    runtime = group.runtime
-    diagnostics = diagnosable(episodes, probe_steps, prepared.train.demos.num_episodes)
-    evaluator = evaluate_lib.make_evaluator(prepared.env, group.cfg, prepared.normalizer.mean, prepared.normalizer.std,
-                                            episodes, expert=prepared.expert, ape_params=ape.params,
-                                            ape_scale=ape.raw_mean, keep_actions=diagnostics, width=width or None,
-                                            runtime=runtime)
+    `width` at a time (`Budget.width`; 0: all together) through the evaluation and the loss analysis. The group is
+    evaluated, analysed and diagnosed in its own view (`PolicyGroup.view`: another observation's for a group
+    reading one); a group with a `Runtime` (`PolicyGroup.runtime`) acts and is scored through it."""
+    view, runtime = group.view, group.runtime
+    diagnostics = diagnosable(episodes, probe_steps, view.train.demos.num_episodes)
+    evaluator = evaluate_lib.make_evaluator(view.env, group.cfg, view.normalizer.mean, view.normalizer.std, episodes,
+                                            expert=view.expert, ape_params=ape.params, ape_scale=ape.raw_mean,
+                                            keep_actions=diagnostics, width=width or None, runtime=runtime)
     out = jax.device_get(evaluator(group.params, jax.random.PRNGKey(EVAL_SEED)))
+    # both splits on device with their APE, once: the loss analysis and the diagnostics read the same rows
+    data = view.data(view.train, ape.train), view.data(view.val, ape.val)
+    losses = {split: jax.device_get(evaluate_lib.loss_analysis(group.cfg, group.params, d, width=width or None,
+                                                               runtime=runtime))
+              for split, d in zip(("train", "val"), data)}
     diag_s = 0.0
     if diagnostics:
         t0 = time.perf_counter()
-        out.update(group_diagnostics(prepared, ape, group, out.pop("actions"), out.pop("valid"), probe_steps))
+        out.update(group_diagnostics(group, data, out.pop("actions"), out.pop("valid"), probe_steps))
         diag_s = time.perf_counter() - t0
-    losses = {split: jax.device_get(evaluate_lib.loss_analysis(group.cfg, group.params, prepared.data(s, a),
-                                                               width=width or None, runtime=runtime))
-              for split, s, a in (("train", prepared.train, ape.train), ("val", prepared.val, ape.val))}
     return out, losses, diag_s
 
 
-def evaluate(trained: Sequence[Trained], prepared: Prepared, ape: ApeFit, episodes: int, hooks: Hooks = Hooks(),
+def evaluate(trained: Sequence[Trained], ape: ApeFit, episodes: int, hooks: Hooks = Hooks(),
              checkpoint: SweepCheckpoint | None = None, probe_steps: int = 0, width: int = 0) -> Evaluated:
     """Phase 4: every policy on the same `episodes` episodes, one program per observation, history and kind of
-    policy (`PolicyGroup`; groups saved in `checkpoint` reused), `width` policies at a time (`Budget.width`; 0: a group
-    at once), with the copycat diagnostics at `probe_steps` (`Budget.probe_steps`; 0: none); the same for the
-    policies kept at each iteration of `Budget.eval_at` (`Trained.snapshots`)."""
+    policy (`PolicyGroup`, in its programs' view, `Program.view`; groups saved in `checkpoint` reused), `width`
+    policies at a time (`Budget.width`; 0: a group at once), with the copycat diagnostics at `probe_steps`
+    (`Budget.probe_steps`; 0: none); the same for the policies kept at each iteration of `Budget.eval_at`
+    (`Trained.snapshots`)."""
     points = sorted({i for t in trained for i in t.snapshots})
     seconds = {"eval": 0.0, "diagnostics": 0.0}
     total = sum(len(t.program.runs) * (1 + len(t.snapshots)) for t in trained) * episodes
@@ -169,13 +177,14 @@ def evaluate(trained: Sequence[Trained], prepared: Prepared, ape: ApeFit, episod
 
         def evaluated(seen: tuple[str | None, int, str | None], mine: list[Trained], params: list,
                       at: int | None = None):
-            group = PolicyGroup(seen[1], mine[0].program.cfg, tuple(r for t in mine for r in t.program.runs),
-                                jax.tree.map(lambda *xs: jnp.concatenate(xs), *params), seen[0])
+            program = mine[0].program
+            group = PolicyGroup(seen[1], program.cfg, tuple(r for t in mine for r in t.program.runs),
+                                jax.tree.map(lambda *xs: jnp.concatenate(xs), *params), seen[0], program.view)
             name = f"eval-{group.name}" + ("" if at is None else f"-at{at}")
             saved = ckpt_lib.load_evaluation(checkpoint, name)
             if saved is None:
                 t0 = time.perf_counter()
-                out, loss, diag_s = evaluate_group(prepared, ape, episodes, group, probe_steps, width)
+                out, loss, diag_s = evaluate_group(ape, episodes, group, probe_steps, width)
                 saved = out, loss
                 seconds["eval"] += time.perf_counter() - t0
                 seconds["diagnostics"] += diag_s
@@ -184,8 +193,7 @@ def evaluate(trained: Sequence[Trained], prepared: Prepared, ape: ApeFit, episod
             return group, *saved
 
         def seen(t: Trained) -> tuple[str | None, int, str | None]:
-            return (prepared.observing(observation_of(t.program)), t.program.cfg.history,
-                    policy_kind(t.program.runs[0].method))
+            return t.program.observation, t.program.cfg.history, policy_kind(t.program.runs[0].method)
 
         final, snapshots = [], {i: [] for i in points}
         for key in dict.fromkeys(seen(t) for t in trained):

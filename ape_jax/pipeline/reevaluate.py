@@ -123,7 +123,7 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
                                     "demonstrations: they were trained on other data")
         runs = tuple(Run(r["method"], r["hparams"], r["seed"]) for r in saved["runs"])
         group = sweep_lib.PolicyGroup(history, view.learner_config(spec.settings, history), runs, saved["params"],
-                                      prepared.observing(observation))
+                                      prepared.observing(observation), view)
         seen = "" if group.observation is None else f", reading the {group.observation} observation"
         log(f"evaluating {len(runs)} saved policies with history {history}{seen} ({episodes} episodes each)")
         lacking = any(_lacks(records.get(results_lib.run_key(r), {})) for r in saved["runs"])
@@ -131,8 +131,7 @@ def reevaluate(results: Results, params_dir: str | pathlib.Path, data_dir=None, 
         # budget's, else (a file that ran none) the default's
         steps = ((config.get("diagnostics") or {}).get("probe_steps") or spec.budget.probe_steps
                  or diagnostics_lib.PROBE_STEPS)
-        out, _, seconds = sweep_lib.evaluate_group(prepared, ape, episodes, group, steps if lacking else 0,
-                                                       spec.budget.width)
+        out, _, seconds = sweep_lib.evaluate_group(ape, episodes, group, steps if lacking else 0, spec.budget.width)
         diag_s += seconds
         diag_config = diag_config or records_lib.diagnostics_config(prepared.train.demos, [out])
         for j, run in enumerate(saved["runs"]):

@@ -16,9 +16,11 @@ fix everything else (`ape_jax.pipeline.presets.Settings`: protocol, budget, reci
    into the compiled programs they train in (`ape_jax.methods`: BC-OH, the
    weighting grids and the weighting baselines share the grid program; BC-SO,
    with a history of one, is a second; Boosting, FCA and DAgger have their
-   own); `train` → `[Trained]`: each program trained vmapped over its runs and
-   sharded over devices (`training.train_program`), in chunks so progress moves
-   and checkpoints can be taken;
+   own), each with the sweep as its policies see it (`Program.view`, made here
+   once and read from the program by `train` and `evaluate`); `train` →
+   `[Trained]`: each program trained vmapped over its runs and sharded over
+   devices (`training.train_program`), in chunks so progress moves and
+   checkpoints can be taken;
 4. `evaluate` → `Evaluated`: every policy on the same episodes, with the copycat
    diagnostics (the rollouts' `imitation_error` and `rollout_ape`, `ape_jax.evaluate`;
    the embedding probe, own-rollout predictability and verdict, `ape_jax.diagnostics`)
@@ -38,8 +40,8 @@ This module holds the third and fifth phases and the sweep itself; the first two
 beside it: `spec` (the `SweepSpec`, its `Run`s and the checks that refuse it early),
 `training` (the training driver: `Program`, `train_program` with its checkpointed
 chunks and rounds and the restore on every process), `ape_jax.scores` (the score table
-the weighted learner reads) and `results` (the records `assemble` writes, the
-fingerprint). Their public names are importable from here too (`__all__`), so a caller
+the weighted learner reads), `records` (the records `assemble` writes) and `results`
+(the results file, the fingerprint). Their public names are importable from here too (`__all__`), so a caller
 of the sweep needs this module alone.
 """
 from __future__ import annotations
@@ -67,8 +69,8 @@ from ape_jax.pipeline.prepare import (PROTOCOL_KEYS, ApeFit, Normalizer, Prepare
 from ape_jax.pipeline.records import (COPYCAT_METRICS, CURVE_POINTS, DIAG, diagnostics_config, diagnostics_record,
                                       eval_record, run_record, snapshot_record, window_means)
 from ape_jax.pipeline.spec import Run, SweepSpec
-from ape_jax.pipeline.training import (CPU_IMAGE_CHUNK, Program, Trained, observation_of, traced_hparams,
-                                       train_program, trains_sequentially)
+from ape_jax.pipeline.training import (CPU_IMAGE_CHUNK, Program, Trained, traced_hparams, train_program,
+                                       trains_sequentially)
 from ape_jax.scores import method_scores, score_rows, score_table
 
 __all__ = [
@@ -76,13 +78,13 @@ __all__ = [
     "Hooks", "Normalizer", "Prepared", "prepare", "ApeFit", "part_errors", "fit_ape", "plan", "Trained", "train",
     "PolicyGroup", "Evaluated", "diagnosable", "group_diagnostics", "evaluate_group", "evaluate", "assemble",
     "policies", "train_sweep", "run_sweep", "EVAL_SEED", "DIAGNOSTICS_SEED",
-    # the spec and its checks (`spec`)
+    # the spec (`spec`), its runs, and the demonstrations' checks (`prepare`)
     "SweepSpec", "Run", "grid_runs", "check_protocol", "check_fits", "PROTOCOL_KEYS",
     # the training driver (`training`)
     "Program", "train_program", "traced_hparams", "trains_sequentially", "CPU_IMAGE_CHUNK",
     # the score table (`ape_jax.scores`)
     "score_rows", "method_scores", "score_table",
-    # the records of results.json (`results`)
+    # the records of results.json (`records`)
     "run_record", "snapshot_record", "eval_record", "diagnostics_record", "diagnostics_config", "window_means",
     "CURVE_POINTS", "COPYCAT_METRICS", "DIAG",
 ]
@@ -99,7 +101,9 @@ def grid_runs(names: Sequence[str], seeds: int, ctx: methods_lib.GridContext, fi
 
 
 def plan(spec: SweepSpec, prepared: Prepared) -> list[Program]:
-    """Phase 3a: the sweep's runs, grouped by the program they train in (in registry order)."""
+    """Phase 3a: the sweep's runs, grouped by the program they train in (in registry order), each program with the
+    observation its policies read and the sweep in it (`Program.view`, made here once: training and evaluation
+    read it from the program)."""
     ctx = methods_lib.GridContext(task=prepared.task, n_train=len(prepared.train), knobs=spec.settings.knobs)
     runs = grid_runs(spec.methods, spec.budget.seeds, ctx, spec.budget.first_seed)
     if not runs:
@@ -108,7 +112,8 @@ def plan(spec: SweepSpec, prepared: Prepared) -> list[Program]:
     for name in dict.fromkeys(methods_lib.get(r.method).program for r in runs):
         mine = tuple(r for r in runs if methods_lib.get(r.method).program == name)
         method = methods_lib.get(mine[0].method)
-        view = prepared.view(method.observation)   # FullStateError before anything compiles
+        observation = prepared.observing(method.observation)
+        view = prepared.view(observation)   # FullStateError before anything compiles
         cfg = view.learner_config(spec.settings, method.history or spec.protocol.history)
         if method.learner is None:
             learner = make_train(cfg)
@@ -116,15 +121,10 @@ def plan(spec: SweepSpec, prepared: Prepared) -> list[Program]:
             learner = method.learner(methods_lib.LearnerContext(
                 cfg=cfg, env=view.env, expert=view.expert, obs_mean=view.normalizer.mean,
                 obs_std=view.normalizer.std, n_train=len(view.train), knobs=spec.settings.knobs))
-        programs.append(Program(name, cfg, mine, learner))
+        programs.append(Program(name, cfg, mine, learner, observation, view,
+                                method.reads(ctx) if method.reads is not None else None))
     # a program whose runs read another's trained policies (`Method.reads`: Priming, BC-SO's) trains after it
-    return sorted(programs, key=lambda p: _reads(p, ctx) is not None)
-
-
-def _reads(program: Program, ctx: methods_lib.GridContext) -> str | None:
-    """The method whose trained policies `program`'s runs read (`Method.reads`), or None."""
-    method = methods_lib.get(program.runs[0].method)
-    return method.reads(ctx) if method.reads is not None else None
+    return sorted(programs, key=lambda p: p.reads is not None)
 
 
 def train(programs: Sequence[Program], spec: SweepSpec, prepared: Prepared, data: Data, hooks: Hooks = Hooks(),
@@ -132,15 +132,7 @@ def train(programs: Sequence[Program], spec: SweepSpec, prepared: Prepared, data
     """Phase 3b: every program trained, one after another; compile time estimated apart from steady state.
 
     `data` is the training split in the sweep's observation; a program reading another (`bc-full`) trains on
-    the same rows, APE and scores in its own (`Prepared.view`)."""
-    sequential = prepared.sequential(spec.recipe.encoder)
-    if sequential:
-        hooks.log(f"image policies on CPU: configurations train one after another, {CPU_IMAGE_CHUNK} unrolled "
-                  "iterations per call (XLA:CPU is slow at convolution gradients in loops and under vmap)")
-        if spec.recipe.encoder == "resnet18":
-            hooks.log("warning: ResNet-18 trains about a hundred times slower than the small encoder on a CPU; "
-                      "the paper preset's image protocol is meant for GPUs")
-    rows = score_rows(spec.methods)
+    the same rows, APE and scores in its own (`Program.view`)."""
     if jax.process_count() > 1:
         # each process gives its devices their rows from its own copy: every copy must be the same
         differ = differing_processes(data)
@@ -148,6 +140,15 @@ def train(programs: Sequence[Program], spec: SweepSpec, prepared: Prepared, data
             raise ValueError(f"the training data of process(es) {', '.join(map(str, differ))} differ from process "
                              "0's (other demonstrations, or another machine computing them differently): every "
                              "process must train on the same data")
+    # the sweep's own observation decides, for every program (`bc-full` too)
+    sequential = trains_sequentially(prepared.env.observation_shape, spec.recipe.encoder)
+    if sequential:
+        hooks.log(f"image policies on CPU: configurations train one after another, {CPU_IMAGE_CHUNK} unrolled "
+                  "iterations per call (XLA:CPU is slow at convolution gradients in loops and under vmap)")
+        if spec.recipe.encoder == "resnet18":
+            hooks.log("warning: ResNet-18 trains about a hundred times slower than the small encoder on a CPU; "
+                      "the paper preset's image protocol is meant for GPUs")
+    rows = score_rows(spec.methods)
     out = []
     total = sum(p.learner.rounds * p.learner.round_iterations for p in programs)
     with hooks.bar(desc="train", total=total, unit="it") as b:
@@ -161,11 +162,10 @@ def train(programs: Sequence[Program], spec: SweepSpec, prepared: Prepared, data
             t0 = time.perf_counter()
             iterations = program.learner.rounds * program.learner.round_iterations
             curves = None if hooks.curves is None else hooks.curves(program.name, program.runs, iterations)
-            view = prepared.view(observation_of(program))
-            own = data if view is prepared else data.replace(obs=view.normalizer(view.train.demos.obs))
+            view = program.view
+            own = data if program.observation is None else data.replace(obs=view.normalizer(view.train.demos.obs))
             hparams = traced_hparams(program.runs, spec.recipe.lr, rows)
-            ctx = methods_lib.GridContext(task=prepared.task, n_train=len(prepared.train), knobs=spec.settings.knobs)
-            if read := _reads(program, ctx):   # e.g. Priming's prime: each run its own seed's BC-SO policy
+            if read := program.reads:   # e.g. Priming's prime: each run its own seed's BC-SO policy
                 if jax.process_count() > 1:   # the policies read are sharded over the processes' devices
                     raise ValueError(f"{program.name} reads {read}'s trained policies, which a multi-process sweep "
                                      "does not gather: run it in one process")
@@ -246,13 +246,12 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
     return judge_lib.judge_own(res)  # the controlled copycat verdict, where the sweep trained its control (BC-SO)
 
 
-def policies(evaluated: Evaluated, prepared: Prepared) -> dict[str, dict]:
+def policies(evaluated: Evaluated) -> dict[str, dict]:
     """The trained policies per group (observation and history, `PolicyGroup.name`), as
-    `checkpoint.save_policies` writes them, each with its own observation statistics."""
+    `checkpoint.save_policies` writes them, each with its own observation statistics (its view's)."""
     return {g.name: {"runs": [dataclasses.asdict(r) for r in g.runs], "params": g.params,
                      "history": g.history, "observation": g.observation,
-                     "obs_mean": prepared.view(g.observation).normalizer.mean,
-                     "obs_std": prepared.view(g.observation).normalizer.std}
+                     "obs_mean": g.view.normalizer.mean, "obs_std": g.view.normalizer.std}
             for g in evaluated.groups}
 
 
@@ -292,8 +291,8 @@ def run_sweep(spec: SweepSpec, hooks: Hooks = Hooks(),
     """
     t_start, started = time.perf_counter(), provenance.system()  # the code that runs, taken when it starts
     prepared, ape, trained = train_sweep(spec, hooks, checkpoint)
-    evaluated = evaluate(trained, prepared, ape, spec.budget.eval_episodes, hooks, checkpoint,
-                         spec.budget.probe_steps, spec.budget.width)
+    evaluated = evaluate(trained, ape, spec.budget.eval_episodes, hooks, checkpoint, spec.budget.probe_steps,
+                         spec.budget.width)
     timing = {"compile_s": sum(t.compile_s for t in trained), "train_s": sum(t.train_s for t in trained),
               "eval_s": evaluated.eval_s, "diagnostics_s": evaluated.diagnostics_s,  # included in eval_s
               "total_s": time.perf_counter() - t_start,
@@ -304,4 +303,4 @@ def run_sweep(spec: SweepSpec, hooks: Hooks = Hooks(),
               **({"peak_device_mb": peak} if (peak := peak_device_mb()) is not None else {})}
     res = assemble(spec, prepared, ape, trained, evaluated, timing)
     res.system = started
-    return res, policies(evaluated, prepared)
+    return res, policies(evaluated)

@@ -52,12 +52,25 @@ def trains_sequentially(obs_shape: Sequence[int], encoder: str) -> bool:
 
 @dataclasses.dataclass(frozen=True)
 class Program:
-    """Runs that train in one compiled program, with its config and learner."""
+    """Runs that train in one compiled program, with its config and learner, and the sweep as its policies see it.
+
+    Attributes:
+      observation: what its policies read (`Method.observation` as `prepare.Prepared.observing` names it: None,
+        the sweep's own; `"full"`, the full state).
+      view: the sweep in that observation (`prepare.Prepared.view`: the environment, the demonstrations' rows, their
+        normalizer and the expert), made once when the sweep is planned; what the program trains on and its
+        policies are evaluated in. None for a program trained outside a sweep.
+      reads: the method whose trained policies its runs read (`Method.reads`: Priming's, BC-SO), trained first and
+        handed to its hyperparameters (`methods.read_trained`); None for most.
+    """
 
     name: str
     cfg: LearnerConfig
     runs: tuple[Run, ...]
     learner: Learner
+    observation: str | None = None
+    view: Any = dataclasses.field(default=None, compare=False, repr=False)
+    reads: str | None = None
 
 
 def traced_hparams(runs: Sequence[Run], lr: float, rows: Sequence[str]) -> Any:
@@ -98,10 +111,7 @@ def train_program(program: Program, hparams: Any, budget, data: Data, progress: 
     hps = pad_grid(hparams, pad)
     state = init(pad_grid(keys, pad), hps, data)
     start, metrics = 0, []
-    if jax.process_count() == 1:
-        saved = checkpoint.restore(state) if checkpoint is not None else None
-    else:
-        saved = _restore_on_every_process(checkpoint, state, learner, hps, data)
+    saved = _restore_on_every_process(checkpoint, state, learner, hps, data)
     trim = functools.partial(jax.tree.map, lambda x: x[: len(runs)])
     at = tuple(getattr(budget, "eval_at", ()))
     snapshots = {}
@@ -149,12 +159,14 @@ def train_program(program: Program, hparams: Any, budget, data: Data, progress: 
 
 def _restore_on_every_process(checkpoint: ProgramCheckpoint | None, state: Any, learner: Learner, hparams: Any,
                                data: Data) -> tuple[int, Any, dict] | None:
-    """`checkpoint.restore(state)` as process 0 has it, on every process of a multi-process run.
+    """`checkpoint.restore(state)` as process 0 has it, on every process (one process: its own restore).
 
     Only process 0 reads checkpoints (the others get none), but every process
     must run the same training chunks: the iteration it resumes from, the
     state and the curves so far are sent from it to the others, bit for bit.
     """
+    if jax.process_count() == 1:
+        return checkpoint.restore(state) if checkpoint is not None else None
     failure, saved = None, None
     if checkpoint is not None:
         try:
@@ -194,7 +206,3 @@ class Trained:
     train_s: float
     snapshots: dict = dataclasses.field(default_factory=dict)  # {iteration: params} at `Budget.eval_at`
 
-
-def observation_of(program: Program) -> str | None:
-    """The observation a program's policies read (`Method.observation` of its methods: one per program)."""
-    return methods_lib.get(program.runs[0].method).observation
