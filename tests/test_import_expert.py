@@ -352,8 +352,9 @@ def test_a_dataset_normalises_by_its_own_references_else_its_experts_else_none(t
     with pytest.raises(ValueError, match="collected by expert 'ppo'.*--set protocol.expert=ppo"):
         S.prepare(_hopper_spec(path), hooks)
     # a changed card: its expert is not the one that collected it any more
-    found = collect.dataset_expert(hopper_pos, _hopper_spec(path, ["protocol.expert=ppo"]).protocol,
-                                   {"settings": {**brax, "expert": ppo}}, "d.npz")
+    ppo_spec = _hopper_spec(path, ["protocol.expert=ppo"])
+    found = collect.dataset_expert(hopper_pos, ppo_spec.task, ppo_spec.protocol, {"settings": {**brax, "expert": ppo}},
+                                   "d.npz")
     assert found.expert is None and "not the one that collected it" in found.why
 
 

@@ -34,18 +34,17 @@ copycat. Results files keep both (`ape_jax.pipeline.judge`).
     c = controlled_verdict(control_ratio(probe.prev_from_embedding, bc_so_prev_from_embedding), pred.ratio,
                            sees_past=True)
 
-The package: `records` (the results' records, constants and `Thresholds`), `probes`
-(the embeddings and the probe), `predictability` (own-rollout predictability), `verdicts`
-(both verdicts) and, here, `diagnose` (every diagnostic of a batch of policies); every name
-is importable from `ape_jax.diagnostics`. The probe (`fit_probe`, `probe_mse`, `probe_target`,
-`embedding_probe`) is pure and jit-able (leaves are `jax.Array`s, so it vmaps over policies);
-`rollout_predictability` is host code around a jitted fit, because validity
-masks decide how many steps each side keeps; the verdicts are host code.
+The package: `records` (the results' records, constants and `Thresholds`), `probes` (the embeddings,
+the probe, and both probes of every policy of a batch), `predictability` (own-rollout
+predictability), `verdicts` (both verdicts) and, here, `diagnose` (every diagnostic of a batch of
+policies); every name is importable from `ape_jax.diagnostics`. The probe (`fit_probe`, `probe_mse`,
+`probe_target`, `embedding_probe`) is pure and jit-able (leaves are `jax.Array`s, so it vmaps over
+policies); `rollout_predictability` is host code around a jitted fit, because validity masks decide
+how many steps each side keeps; the verdicts are host code.
 """
 
 from __future__ import annotations
 
-import functools
 from typing import Any
 from collections.abc import Callable
 
@@ -56,7 +55,7 @@ import numpy as np
 from ape_jax.diagnostics.predictability import (demonstration_rollouts, rollout_predictability,
                                                 rollout_predictability_batch)
 from ape_jax.diagnostics.probes import (embedding_probe, fit_probe, policy_embeddings, previous_action_rows,
-                                        probe_apply, probe_inputs, probe_mse, probe_target)
+                                        probe_apply, probe_inputs, probe_mse, probe_policies, probe_target)
 from ape_jax.diagnostics.records import (CONTROL, COPYCAT, NOT_COPYCAT, PROBE_BATCH, PROBE_HIDDEN, PROBE_LR,
                                          PROBE_STEPS, THRESHOLDS, EmbeddingProbe, Predictability, ProbeInputs,
                                          ProbeParams, TargetProbe, Thresholds, Verdict)
@@ -68,7 +67,7 @@ __all__ = [
     "PROBE_ROWS", "PROBE_STEPS", "THRESHOLDS", "EmbeddingProbe", "Predictability", "ProbeInputs", "ProbeParams",
     "TargetProbe", "Thresholds", "Verdict", "control_ratio", "controlled_verdict", "demonstration_rollouts",
     "diagnose", "embedding_probe", "fit_probe", "policy_embeddings", "previous_action_rows", "probe_apply",
-    "probe_inputs", "probe_mse", "probe_rows", "probe_target", "rollout_predictability",
+    "probe_inputs", "probe_mse", "probe_policies", "probe_rows", "probe_target", "rollout_predictability",
     "rollout_predictability_batch", "verdict",
 ]
 
@@ -88,26 +87,6 @@ def probe_rows(data: Data, at_most: int, seed: int = 0) -> np.ndarray:
     if len(rows) > at_most:
         rows = np.sort(np.random.default_rng(seed).permutation(rows)[:at_most])
     return rows
-
-
-@functools.partial(jax.jit, static_argnames=("cfg", "steps", "apply"))
-def _probe_policies(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data, val: Data, rows: tuple,
-                    targets: tuple, steps: int, apply: Callable[..., Any] | None = None) -> tuple[jax.Array, jax.Array]:
-    """Per policy (a `lax.map`, so one policy's embeddings are in memory at a time): the probe's held-out MSE of
-    `a_{t−1}` from its embedding `[P]`, and the velocity probe's ratio `[P]` (NaN without velocities)."""
-    rows_train, rows_val = rows
-    prev_train, prev_val, vel_train, vel_val = targets
-    key_prev, key_vel = jax.random.split(key)
-
-    def one(p):
-        e_train = policy_embeddings(cfg, p, train, rows_train, apply=apply)
-        e_val = policy_embeddings(cfg, p, val, rows_val, apply=apply)
-        prev = probe_target(key_prev, e_train, e_val, prev_train, prev_val, steps=steps).mse
-        vel = (jnp.float32(jnp.nan) if vel_train is None else
-               probe_target(key_vel, e_train, e_val, vel_train, vel_val, steps=steps).ratio)
-        return prev, vel
-
-    return jax.lax.map(one, params)
 
 
 def diagnose(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data, val: Data, rollouts: Any,
@@ -171,7 +150,7 @@ def diagnose(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data, val: 
                                         steps=steps).mse)
     vel = (None, None) if velocity is None else tuple(
         jnp.asarray(np.asarray(v)[r], jnp.float32) for v, r in zip(velocity, (rows_train, rows_val)))
-    prev, vel_ratio = jax.device_get(_probe_policies(
+    prev, vel_ratio = jax.device_get(probe_policies(
         key_probe, cfg, params, train, val, (jnp.asarray(rows_train), jnp.asarray(rows_val)),
         (prev_train, prev_val, *vel), steps=steps, apply=apply))
     rollouts, rollouts_valid = np.asarray(rollouts), np.asarray(rollouts_valid)

@@ -1,5 +1,6 @@
 """The embedding probe: a frozen policy's embeddings of demonstration rows, and a small MLP fitted on them to
-predict a target (the previous action, the velocity) against a reference input. Pure and jit-able."""
+predict a target (the previous action, the velocity) against a reference input; `probe_policies` runs both probes
+on every policy of a batch. Pure and jit-able."""
 
 from __future__ import annotations
 
@@ -219,3 +220,25 @@ def embedding_probe(key: jax.Array, emb_train: jax.Array, emb_val: jax.Array, pr
     from_action = probe_target(key_action, cur_train, cur_val, prev_train, prev_val, **fit).mse
     return EmbeddingProbe(prev_from_embedding=from_embedding, prev_from_action=from_action,
                           ratio=from_embedding / from_action)
+
+
+# -- every policy of a batch ----------------------------------------------------------------------------------------
+
+@functools.partial(jax.jit, static_argnames=("cfg", "steps", "apply"))
+def probe_policies(key: jax.Array, cfg: LearnerConfig, params: Any, train: Data, val: Data, rows: tuple,
+                   targets: tuple, steps: int, apply: Callable[..., Any] | None = None) -> tuple[jax.Array, jax.Array]:
+    """Per policy (a `lax.map`, so one policy's embeddings are in memory at a time): the probe's held-out MSE of
+    `a_{t−1}` from its embedding `[P]`, and the velocity probe's ratio `[P]` (NaN without velocities)."""
+    rows_train, rows_val = rows
+    prev_train, prev_val, vel_train, vel_val = targets
+    key_prev, key_vel = jax.random.split(key)
+
+    def one(p):
+        e_train = policy_embeddings(cfg, p, train, rows_train, apply=apply)
+        e_val = policy_embeddings(cfg, p, val, rows_val, apply=apply)
+        prev = probe_target(key_prev, e_train, e_val, prev_train, prev_val, steps=steps).mse
+        vel = (jnp.float32(jnp.nan) if vel_train is None else
+               probe_target(key_vel, e_train, e_val, vel_train, vel_val, steps=steps).ratio)
+        return prev, vel
+
+    return jax.lax.map(one, params)

@@ -331,9 +331,10 @@ class DatasetExpert:
     references_from: str | None = None
 
 
-def dataset_expert(env: envs.Env, protocol: tasks.Protocol, meta: dict | None, where: str) -> DatasetExpert:
+def dataset_expert(env: envs.Env, task: tasks.Task, protocol: tasks.Protocol, meta: dict | None,
+                   where: str) -> DatasetExpert:
     """The expert of a dataset whose metadata is `meta` (`minari_io.dataset_metadata`: the collection `settings`,
-    recorded `references`), for a sweep of `protocol` on `env`.
+    recorded `references`), for a sweep of `protocol` on `env`, whose task record is `task`.
 
     The dataset's expert is the one its settings describe, if the expert of that name here is still that one
     (the description `expert_for` gives now equals the recorded one: the same card, or the same imported file);
@@ -349,7 +350,6 @@ def dataset_expert(env: envs.Env, protocol: tasks.Protocol, meta: dict | None, w
 
     meta = meta or {}
     description = (meta.get("settings") or {}).get("expert") if isinstance(meta.get("settings"), dict) else None
-    task = tasks.get(env.name)
     variant = protocol.expert
     if description is not None:
         variant = variant_of(env.name, description)
@@ -363,7 +363,8 @@ def dataset_expert(env: envs.Env, protocol: tasks.Protocol, meta: dict | None, w
         why = f"{where} names no expert (set protocol.expert to a shipped or imported one that made it)"
     else:
         try:
-            expert, now = expert_for(env, variant)
+            ref = ExpertRef.resolve(env.name, variant, env=env)
+            expert, now = ref.policy(env), ref.description
             if description is not None and json.loads(json.dumps(now)) != description:
                 expert = None
                 why = (f"{where}'s expert {now.get('name') or now.get('path') or now.get('kind')} is not the one "

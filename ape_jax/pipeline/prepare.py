@@ -204,10 +204,10 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
                       f"compiled in {frames['compile_s']:.1f} s)")
     else:
         where = str(spec.dataset)
-        recorded = minari_io.dataset_metadata(spec.dataset)
+        recorded, collected_under = minari_io.dataset_metadata(spec.dataset), minari_io.dataset_settings(spec.dataset)
         check_task(recorded, spec, where)   # first: another task's data fails every later check, each its own way
-        check_protocol(minari_io.dataset_settings(spec.dataset), spec, where)
-        found = collect.dataset_expert(env, protocol, recorded, where)
+        check_protocol(collected_under, spec, where)
+        found = collect.dataset_expert(env, spec.task, protocol, recorded, where)
         online = [m for m in spec.methods if methods_lib.get(m).online]
         if online and found.expert is None:
             raise ValueError(f"{', '.join(online)} queries the expert of the demonstrations, but {found.why}; drop "
@@ -218,6 +218,7 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
         expert, description, card = found.expert, found.description, found.references
         if card is None and spec.task.has_card:
             hooks.log(f"no normalised scores: {collect.no_references_advice(found, where)}")
+    expert = None if expert is None else collect.labeller(expert, env, protocol.labels)
     check_fits(demos, env, str(path))
     if spec.protocol.prev_action:  # the previous action in view, in the rollouts and the demonstrations alike
         env, demos = observations.with_previous_action(env, demos)
@@ -227,7 +228,6 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
     if len(train) < spec.recipe.batch_size:
         raise ValueError(f"the training split has {len(train)} transitions, fewer than the batch size "
                          f"{spec.recipe.batch_size}; collect more episodes")
-    expert = None if expert is None else collect.labeller(expert, env, protocol.labels)
     return Prepared(env=env, task=spec.task, train=train, val=val, normalizer=Normalizer.fit(train.obs),
                     expert=expert, card=card, data_path=str(path), source=source, settings=settings,
                     data_sha256=digest, expert_description=description)
