@@ -6,10 +6,11 @@
 A spec holds the task, the observation mode, the methods and the three records
 that fix everything else (`ape_jax.pipeline.presets.Settings`: protocol, budget,
 recipe). Its `fingerprint` is `ape_jax.pipeline.results.fingerprint`, the one a
-finished `results.json` gives too. A `Run` is one (method, hparams, seed) of it;
-`grid_runs` lists them in plan order. `check_protocol` and `check_fits` refuse
-demonstrations of another protocol or shape before anything compiles. The phases
-that run a spec are `ape_jax.pipeline.sweep`'s.
+finished `results.json` gives too. A `Run` is one (method, hparams, seed) of it
+(`sweep.grid_runs` lists them in plan order). The spec refuses, when it is made, what
+cannot run (a method's `refuses`, a history longer than an episode, ...); the checks of
+the demonstrations themselves (`check_protocol`, `check_fits`) are the prepare phase's
+(`ape_jax.pipeline.prepare`). The phases that run a spec are `ape_jax.pipeline.sweep`'s.
 """
 
 from __future__ import annotations
