@@ -86,9 +86,15 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     from ape_jax.pipeline.results import ResultsError
 
+    from ape_jax.pipeline import results as results_lib
+
     for folder in (args.run_a, args.run_b):
-        if folder.is_file():
-            continue   # a results file: `compare` reads and validates it
+        if folder.is_file():   # a results file, read and validated here so a file of another kind is named as such
+            try:
+                results_lib.load(folder)
+            except ResultsError as e:
+                fail(parser, f"{folder} is a file, not a sweep's --out folder, nor a results file ({e})")
+            continue
         if why := not_a_folder(folder, "a sweep's --out folder"):
             fail(parser, why)
         if not RunDir(folder).finished():
