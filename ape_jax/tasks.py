@@ -26,12 +26,46 @@ LABELS = ("clipped", "raw")
 FRAMES = ("rollout", "states")
 
 
+STATE = "mujoco-state"   # the paper's MuJoCo-State protocol (FCA's data setting) and its family
+# Names before each thing had one (`docs/design.md`, "Words"): the MuJoCo-State protocols were `fca`, `fca-fs2`, ...
+# (the method `fca` is FCA's algorithm), and FCA's imported CS294 Hopper expert was imported as `fca`. An old name
+# reads as its new one: on the command line with a notice (`ape_jax.pipeline.presets.renamed`), in a results file or
+# checkpoint silently, so their settings, fingerprints and replays are what they were.
+FORMER_PROTOCOLS: Mapping[str, str] = MappingProxyType(
+    {f"fca{v}": f"{STATE}{v}" for v in ("", "-fs2", "-fs4", "-train5k", "-train80k")})
+FORMER_EXPERTS: Mapping[str, str] = MappingProxyType({"fca": "cs294"})
+
+
+def protocol_name(name: str) -> str:
+    """The protocol's name now: `name`, or what a former name (`FORMER_PROTOCOLS`) is called now."""
+    return FORMER_PROTOCOLS.get(name, name)
+
+
+def current_names(name: Any, reference: Any = None, expert: Any = None) -> dict[str, Any]:
+    """A protocol record's `name`, `reference` and `expert` as they are called now (each as given where it was not
+    renamed): what a protocol record or block of a file from before the renaming means."""
+    return {"name": FORMER_PROTOCOLS.get(name, name) if isinstance(name, str) else name,
+            "reference": FORMER_PROTOCOLS.get(reference, reference) if isinstance(reference, str) else reference,
+            "expert": FORMER_EXPERTS.get(expert, expert) if isinstance(expert, str) else expert}
+
+
+def current_expert(description: dict) -> dict:
+    """An expert's description (a data key's `expert`: `name` `env-variant`, `variant`) with a former variant name
+    (`FORMER_EXPERTS`) as it is called now; the rest as it is."""
+    old = description.get("variant")
+    if old not in FORMER_EXPERTS:
+        return description
+    name = description.get("name")
+    renamed = name[:-len(old)] + FORMER_EXPERTS[old] if isinstance(name, str) and name.endswith(f"-{old}") else name
+    return {**description, "variant": FORMER_EXPERTS[old], **({"name": renamed} if "name" in description else {})}
+
+
 @dataclasses.dataclass(frozen=True)
 class Protocol:
     """How a task's demonstrations and evaluation are set up, apart from the compute preset.
 
     Attributes:
-      name: `"fca"` or `"brax"`.
+      name: the protocol's name (`PROTOCOLS`): `"mujoco-state"`, `"brax"`, ...
       frame_skip: simulator steps per control step (Brax's `n_frames`); None: the environment's own.
       horizon: simulated time per episode, in the environment's *standard* control steps (at its own
         frame skip); None: its own episode length. At frame skip 1 an episode of `horizon` standard steps
@@ -85,7 +119,7 @@ class Protocol:
     train_transitions: int | None = None
     val_transitions: int | None = None
     history: int = 2
-    doc: str = ""
+    doc: str = dataclasses.field(default="", compare=False)
     reference: str | None = None
     split: str = "episodes"
     val_frac: float = 0.2
@@ -105,6 +139,8 @@ class Protocol:
     noise_std: float = 0.0
 
     def __post_init__(self):
+        for field, value in current_names(self.name, self.reference, self.expert).items():
+            object.__setattr__(self, field, value)   # a former name (a file's, an old command's) reads as today's
         if self.split not in SPLITS:
             raise ValueError(f"protocol.split {self.split!r} is not one of {', '.join(SPLITS)}")
         if self.split == "rows" and (self.train_transitions is None or self.val_transitions is None):
@@ -137,7 +173,7 @@ class Protocol:
 
     @property
     def family(self) -> str:
-        """The family the protocol is listed under (`FAMILIES`: `"fca"` for the paper's and its variants)."""
+        """The family the protocol is listed under (`FAMILIES`: `"mujoco-state"` for the paper's and its variants)."""
         return protocol_family(self.name)
 
     def expert_name(self, env: str) -> str:
@@ -191,25 +227,27 @@ class Protocol:
         return {k: getattr(self, f"eval_{k}") for k in ("town", "weather") if getattr(self, f"eval_{k}") is not None}
 
 
-def _fca(frame_skip: int = 1, train: int = 20_000) -> Protocol:
-    """FCA's protocol at simulator frame skip `frame_skip` with `train` training transitions: the same 500 standard
-    steps of simulated time and 4,000 validation transitions at any frame skip; the expert steps collected are
-    fca's 50,000, or `train` + 10,000 where that is more."""
+
+def _state(frame_skip: int = 1, train: int = 20_000) -> Protocol:
+    """The paper's MuJoCo-State protocol (the FCA code's data setting, which the paper follows) at simulator frame
+    skip `frame_skip` with `train` training transitions: the same 500 standard steps of simulated time and 4,000
+    validation transitions at any frame skip; the expert steps collected are its 50,000, or `train` + 10,000 where
+    that is more."""
     skip = "" if frame_skip == 1 else f"-fs{frame_skip}"
-    name = f"fca{skip}" + ("" if train == 20_000 else f"-train{train // 1000}k")
-    if name == "fca":
+    name = f"{STATE}{skip}" + ("" if train == 20_000 else f"-train{train // 1000}k")
+    if name == STATE:
         doc = ("the paper's MuJoCo-State setting (FCA's code): frame skip 1, 500 standard steps of simulated time, "
                "rewards on the standard-step scale, 50,000 expert steps of which 20,000 train and 4,000 validate, rows "
                "drawn by a fixed permutation")
     elif train == 20_000:
-        doc = (f"the copycat map's fca at frame skip {frame_skip}: fca's simulated time, rewards and data sizes, "
+        doc = (f"the copycat map's {STATE} at frame skip {frame_skip}: its simulated time, rewards and data sizes, "
                f"{frame_skip} simulator steps per control step")
     else:
-        doc = (f"the copycat map's fca{skip} with {train:,} training transitions instead of 20,000: as much "
+        doc = (f"the copycat map's {STATE}{skip} with {train:,} training transitions instead of 20,000: as much "
                f"simulated time of demonstrations as {train * frame_skip // 4:,} frame-skip-4 steps")
     return Protocol(name, frame_skip=frame_skip, horizon=500, collect_transitions=max(50_000, train + 10_000),
                     train_transitions=train, val_transitions=4_000, doc=doc, split="rows",
-                    reference=None if train == 20_000 else f"fca{skip}")
+                    reference=None if train == 20_000 else f"{STATE}{skip}")
 
 
 def _palr(history: int) -> Protocol:
@@ -245,18 +283,19 @@ def _nocrash(speed_input: bool) -> Protocol:
                                        f"the held-out layouts")
 
 
-# The copycat map (BENCHMARKS.md) compares fca at frame skips 1, 2 and 4 (where does the history stop helping?),
-# and at frame skip 1 with a quarter and four times the training transitions (80,000 at frame skip 1 cover the
-# simulated time 20,000 cover at frame skip 4: is it the frame rate, or how much of the task the data shows?).
+# The copycat map (BENCHMARKS.md) compares mujoco-state at frame skips 1, 2 and 4 (where does the history stop
+# helping?), and at frame skip 1 with a quarter and four times the training transitions (80,000 at frame skip 1
+# cover the simulated time 20,000 cover at frame skip 4: is it the frame rate, or how much of the task the data
+# shows?).
 # PALR's paper runs every method at histories 2 and 4 (`palr-h2`, `palr-h4`).
-FCA_FRAME_SKIPS = (1, 2, 4)
-FCA_TRAIN_SIZES = (5_000, 80_000)
+STATE_FRAME_SKIPS = (1, 2, 4)
+STATE_TRAIN_SIZES = (5_000, 80_000)
 PALR_HISTORIES = (2, 4)
 # The protocols by family: a family is one setting and its variants (the paper's at other frame skips and
-# training-set sizes: `fca-fs2`, ...; PALR's at other histories), which the report reads together (the copycat
+# training-set sizes: `mujoco-state-fs2`, ...; PALR's at other histories), which the report reads together (the copycat
 # map, Table 5 on the paper's scale). A protocol belongs to the family it is listed under, never by its name.
 FAMILIES: Mapping[str, tuple[Protocol, ...]] = MappingProxyType({
-    "fca": (*(_fca(k) for k in FCA_FRAME_SKIPS), *(_fca(1, n) for n in FCA_TRAIN_SIZES)),
+    STATE: (*(_state(k) for k in STATE_FRAME_SKIPS), *(_state(1, n) for n in STATE_TRAIN_SIZES)),
     "brax": (Protocol("brax", doc="the environment's own settings: Brax's frame skip and 1,000-step episodes for "
                                   "MuJoCo"),),
     "palr": tuple(_palr(h) for h in PALR_HISTORIES),
@@ -266,10 +305,10 @@ PROTOCOLS: Mapping[str, Protocol] = MappingProxyType({p.name: p for ps in FAMILI
 _FAMILY_OF = {p.name: family for family, ps in FAMILIES.items() for p in ps}
 DRIVING_FAMILIES = ("nocrash",)  # the protocols that set a driving task's own settings (ToyTown's)
 
-
 def protocol_family(name: str) -> str:
     """The family (`FAMILIES`) of the protocol named `name`; a name no family lists (a results file's from
     elsewhere) is a family of its own."""
+    name = protocol_name(name)
     return _FAMILY_OF.get(name, name)
 
 
@@ -317,7 +356,7 @@ class Task:
     paper: Mapping[str, tuple[float, float]] = dataclasses.field(default_factory=lambda: MappingProxyType({}))
     protocols: tuple[str, ...] = tuple(p for p in PROTOCOLS if _FAMILY_OF[p] not in DRIVING_FAMILIES)
     default_protocols: Mapping[str, str] = dataclasses.field(
-        default_factory=lambda: MappingProxyType({"pos": "fca", "full": "fca"}))
+        default_factory=lambda: MappingProxyType({"pos": STATE, "full": STATE}))
 
     def __post_init__(self):
         if self.loss not in ("l1", "l2"):
@@ -330,7 +369,7 @@ class Task:
 
     def protocol(self, name: str | None, obs: str) -> Protocol:
         """Protocol `name` (None: this task's default for `obs`); `ValueError` listing the valid ones."""
-        name = name or self.default_protocols.get(obs, "brax")
+        name = protocol_name(name or self.default_protocols.get(obs, "brax"))
         if name not in self.protocols:
             raise ValueError(f"unknown protocol {name!r} for {self.name}; valid: {', '.join(self.protocols)}")
         return PROTOCOLS[name]

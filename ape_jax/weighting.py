@@ -32,6 +32,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from ape_jax.ape import NORMALIZATIONS
+
 UNIFORM, STEP, SOFTMAX, GIVEN = 0, 1, 2, 3
 KINDS = {"uniform": UNIFORM, "step": STEP, "softmax": SOFTMAX, "given": GIVEN}
 # The paper's grids (Sec. 5, "Implementation details"; its code's `--thr`/`--weight` and `--temperature` sweeps)
@@ -66,11 +68,20 @@ class SoftmaxKnobs:
     Attributes:
       taus: the temperatures τ it runs at, each finite and > 0; default the paper's `SOFTMAX_GRID`; empty: none
         (the image presets leave the softmax weighting out).
+      ape_normalization: the APE the softmax reads: `"none"`, the raw APE, as the official code's
+        `softmax(APE / τ)` (`network/loss.py`), so the paper's τ grid means what it meant there; `"mean"`, divided
+        by its training-set mean (τ then means τ · mean APE). A step weighting ranks the APE, so no scale changes
+        it; the sweep fits one APE, so its softmax weightings take one normalisation
+        (`Settings.ape_normalization`).
     """
 
     taus: tuple[float, ...] = SOFTMAX_GRID
+    ape_normalization: str = "none"
 
     def __post_init__(self):
+        if self.ape_normalization not in NORMALIZATIONS:
+            raise ValueError(f"ape_normalization must be one of {', '.join(NORMALIZATIONS)}, got "
+                             f"{self.ape_normalization!r}")
         if not all(0.0 < v < math.inf for v in self.taus):
             raise ValueError(f"taus: every value must be a finite number > 0, got {self.taus!r}")
         if len(set(self.taus)) != len(self.taus):

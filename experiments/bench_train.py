@@ -17,19 +17,20 @@ hopper `pos` demonstrations shapes: input 2 × 5, action 3, batch 128):
    policy included) against native MuJoCo stepping the same model with the same
    network (PyTorch, one step at a time) in a Python loop;
 4. model-updates/s of the same grid under each recipe (`ape_jax.pipeline.presets.RECIPES`: `mlp`, batch
-   128; `fca`, the FCA code's BatchNorm network at batch 64), one after another in this run;
+   128; `bn-mlp`, the FCA code's BatchNorm network at batch 64), one after another in this run;
 5. end-to-end wall time of the sweeps whose `results.json` are given;
 6. the methods after the paper (`rap`, `palr`, `mine`, and the fixes after them: `channel-dropout`, `ptp`,
    `action-chunks`, `priming`; `ape_jax.baselines`) against BC-OH: model-updates/s of
-   13 configurations of each as one `jit(vmap(scan))` under the recipes `fca`, `mlp` and `palr` (batch 1,024,
+   13 configurations of each as one `jit(vmap(scan))` under the recipes `bn-mlp`, `mlp` and `palr` (batch 1,024,
    fewer iterations per timed call), the timed calls interleaved (BC-OH, RAP, PALR, MINE, BC-OH, ...) so a
    machine under shifting load slows all alike; and PALR's HSCIC estimator (value and gradient, a 100-unit
    embedding) against one BC-OH step at batches of 64 to 1,024 (`--methods-only`: this part alone, written to
    its own section);
 7. the share of the float32 matmul peak (measured in the same run) that BC-OH grids of 13, 32 and 64 models
-   reach under each recipe (`fca`, `mlp`, `palr`), in one process of every thread and as one process per core,
+   reach under each recipe (`bn-mlp`, `mlp`, `palr`), in one process of every thread and as one process per core,
    each pinned (`taskset`) and single-threaded, side by side, each with its share of the models (`--share`:
-   this part alone, written to its own section).
+   this part alone, written to its own section), with where one core's time goes under `bn-mlp` and `mlp`: the
+   network's dense products alone, then BatchNorm, then Adam, beside the learner's own step.
 
 Medians of `--repeats` timed runs after a separate compiling call.
 """
@@ -144,12 +145,12 @@ def _method_program(name: str, cfg: LearnerConfig, iters: int, data: Data, confi
 
 
 def methods_throughput(iters: int, repeats: int, configs: int = 13) -> dict[str, dict]:
-    """Per recipe (`fca`, `mlp`, `palr`): model-updates/s of `configs` configurations of BC-OH, RAP, PALR, MINE
+    """Per recipe (`bn-mlp`, `mlp`, `palr`): model-updates/s of `configs` configurations of BC-OH, RAP, PALR, MINE
     (and MINE at the authors' 5 estimator steps) in one `jit(vmap(scan))` each, timed calls interleaved; the
     `palr` recipe's batch of 1,024 runs `iters · 128 / 1024` iterations per call."""
     out = {}
     rows = [("bc-oh", {}), *((m, {}) for m in NEW_METHODS), ("mine", {"inner_steps": 5})]
-    for recipe in ("fca", "mlp", "palr"):
+    for recipe in ("bn-mlp", "mlp", "palr"):
         cfg = recipe_config(recipe, iters)
         n = max(10, iters * BATCH // cfg.batch_size)
         cfg = recipe_config(recipe, n)
@@ -395,10 +396,14 @@ def main(argv=None) -> int:
     p.add_argument("--share-worker", metavar="RECIPE:MODELS:ITERS:REPEATS", help=argparse.SUPPRESS)
     given = sys.argv[1:] if argv is None else argv
     if "--share-worker" in given:   # one pinned process of `--share`: its rate as one JSON line
-        from experiments._share import grid_rate
+        from experiments._share import grid_rate, profile_rates
 
-        recipe, models, iters, repeats = p.parse_args(given).share_worker.split(":")
-        print(json.dumps(grid_rate(recipe, int(models), int(iters), int(repeats))))
+        spec = p.parse_args(given).share_worker.split(":")
+        if spec[0] == "profile":   # profile:RECIPE:ITERS:REPEATS
+            print(json.dumps(profile_rates(spec[1], int(spec[2]), int(spec[3]))))
+        else:
+            recipe, models, iters, repeats = spec
+            print(json.dumps(grid_rate(recipe, int(models), int(iters), int(repeats))))
         return 0
     if "--methods-only" in given and "--share" in given:
         p.error("--methods-only and --share each write a section of their own: give one")

@@ -1,6 +1,6 @@
 """Collects expert demonstrations: `python -m experiments.collect --env hopper --obs pos`.
 
-Under `--protocol` (default: the task's, as the sweep: `fca` for state
+Under `--protocol` (default: the task's, as the sweep: `mujoco-state` for state
 observations, `brax` for images and ToyCar), with its frame skip, episode
 length, reward scale and number of expert steps, so the dataset is the one a
 sweep of the same protocol collects (and accepts with `--dataset`).
@@ -43,21 +43,22 @@ def parse(argv=None) -> argparse.Namespace:
     import envs
     from ape_jax import tasks
     from ape_jax.pipeline import collect, data
-    from ape_jax.pipeline.presets import BUDGET_MAX, parse_set
+    from ape_jax.pipeline.presets import BUDGET_MAX, current_protocol, parse_set
 
     p = Parser(prog="python -m experiments.collect", description=__doc__.splitlines()[0])
     p.add_argument("--env", default="hopper", help=f"{', '.join(tasks.sweepable())}, or any Brax env with an expert "
                                                    "(default: hopper)")
     p.add_argument("--obs", default=None, help="full, pos or image (default: the task's, e.g. pos for MuJoCo)")
     p.add_argument("--protocol", default=None,
-                   help=f"{', '.join(tasks.PROTOCOLS)} (default: the task's, as the sweep's: fca for state "
+                   help=f"{', '.join(tasks.PROTOCOLS)} (default: the task's, as the sweep's: mujoco-state for state "
                         "observations, brax for images)")
     p.add_argument("--set", action="append", default=[], metavar="protocol.FIELD=VALUE",
-                   help="change a field of the protocol, as the sweep's --set (e.g. protocol.expert=fca, "
+                   help="change a field of the protocol, as the sweep's --set (e.g. protocol.expert=cs294, "
                         "protocol.labels=raw)")
     p.add_argument("--episodes", type=int, default=None,
-                   help="episodes to collect (default: the protocol's: fca's 50,000 expert steps, 25 episodes of "
-                        "2,000 steps for Hopper; under brax the task's: 25 for MuJoCo, 10 for the driving sandbox)")
+                   help="episodes to collect (default: the protocol's: mujoco-state's 50,000 expert steps, 25 "
+                        "episodes of 2,000 steps for Hopper; under brax the task's: 25 for MuJoCo, 10 for the driving "
+                        "sandbox)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--noise-frac", type=float, default=None,
                    help="share of the steps whose executed action is perturbed (the label stays the expert's; "
@@ -91,7 +92,7 @@ def parse(argv=None) -> argparse.Namespace:
     if args.obs not in modes:
         fail(p, f"--obs {args.obs!r} is not supported by {args.env}; valid: {', '.join(modes)}")
     try:
-        proto = tasks.get(args.env).protocol(args.protocol, args.obs)
+        proto = tasks.get(args.env).protocol(current_protocol(args.protocol), args.obs)
         changes = {}
         for item in args.set:
             section, field, value = parse_set(item)

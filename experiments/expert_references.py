@@ -4,7 +4,7 @@
 and a random policy's returns in the setting the policies are evaluated in.
 The card (`envs/experts/<env>/card.json`) holds them for the setting the expert
 was trained at (`brax`); this measures them under another protocol (default
-`fca`: frame skip 1, 500 standard steps of simulated time, rewards on the
+`mujoco-state`: frame skip 1, 500 standard steps of simulated time, rewards on the
 standard-step scale) over `--episodes` episodes each, and writes them into
 `envs/experts/<env>/references.json` (atomically; other protocols' entries
 are kept); `--expert ppo` measures the variant shipped beside it,
@@ -91,11 +91,12 @@ def record(directory: pathlib.Path, entries: dict[str, dict]) -> pathlib.Path:
 def main(argv=None) -> int:
     import envs
     from ape_jax import tasks
+    from ape_jax.pipeline import presets
     from envs import experts
 
     p = Parser(prog="python -m experiments.expert_references", description=__doc__.splitlines()[0])
     p.add_argument("--env", default="hopper", help=f"an env with a shipped expert: {', '.join(experts.available())}")
-    p.add_argument("--protocol", default="fca", help=f"one of {', '.join(tasks.PROTOCOLS)} ('brax': imported "
+    p.add_argument("--protocol", default=tasks.STATE, help=f"one of {', '.join(tasks.PROTOCOLS)} ('brax': imported "
                                                      "experts only; a shipped card holds it)")
     p.add_argument("--episodes", type=int, default=100, help="episodes of the expert and of a random policy")
     p.add_argument("--seed", type=int, default=0)
@@ -107,6 +108,7 @@ def main(argv=None) -> int:
     known = (*experts.available(), *experts.imported_names())
     if args.env not in envs.names() or name not in known:
         fail(p, f"no shipped or imported expert {name!r}; valid: {', '.join(known)}")
+    args.protocol = presets.current_protocol(args.protocol)
     if args.protocol not in tasks.PROTOCOLS or (args.protocol == "brax" and not experts.is_imported(name)):
         fail(p, f"unknown protocol {args.protocol!r}; valid: {', '.join(n for n in tasks.PROTOCOLS if n != 'brax')} "
                 "('brax' is a shipped card's own setting)")

@@ -1,6 +1,6 @@
 """Measure how rough an expert's labels are: `python -m experiments.expert_stats --env hopper --expert own,rough`.
 
-Collects each expert's demonstrations under a protocol (default `fca`: frame skip 1, 50,000 expert steps, the
+Collects each expert's demonstrations under a protocol (default `mujoco-state`: frame skip 1, 50,000 expert steps, the
 expert's raw output as the label) and measures them (`ape_jax.experts.stats`): the share of label entries outside
 the action range, the copy-previous error (mean Σ_d (a_t − a_{t−1})² within episodes), ψ's held-out error (fitted
 on the protocol's 20,000 training rows, scored on its 4,000 validation rows) and the action variance (per dim,
@@ -23,7 +23,7 @@ import time
 from experiments._cli import Parser, fail, not_a_folder, unwritable_file
 
 
-def measure(env_name: str, policy, protocol: str = "fca", psi_steps: int = 5_000, seed: int = 0) -> dict:
+def measure(env_name: str, policy, protocol: str = "mujoco-state", psi_steps: int = 5_000, seed: int = 0) -> dict:
     """The statistics of `policy`'s demonstrations under `protocol`.
 
     Args:
@@ -89,6 +89,7 @@ def table(rows: dict[str, dict]) -> str:
 def main(argv=None) -> int:
     import envs
     from ape_jax import tasks
+    from ape_jax.pipeline import presets
     from envs import experts
 
     p = Parser(prog="python -m experiments.expert_stats", description=__doc__.splitlines()[0])
@@ -98,7 +99,7 @@ def main(argv=None) -> int:
                         "default: own unless --dir is given")
     p.add_argument("--dir", action="append", type=pathlib.Path, default=[], metavar="PATH",
                    help="an expert directory (card.json and policy/), labelled by its name; repeatable")
-    p.add_argument("--protocol", default="fca", help=f"one of {', '.join(tasks.PROTOCOLS)}")
+    p.add_argument("--protocol", default=tasks.STATE, help=f"one of {', '.join(tasks.PROTOCOLS)}")
     p.add_argument("--psi-steps", type=int, default=5_000, help="ψ's Adam steps (the default budget's)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=pathlib.Path, default=None,
@@ -107,6 +108,7 @@ def main(argv=None) -> int:
     if args.env not in envs.names() or not tasks.get(args.env).has_card:
         fail(p, f"unknown env {args.env!r} or one without a trained expert; valid: "
                 f"{', '.join(sorted({n.partition('-')[0] for n in experts.available()}))}")
+    args.protocol = presets.current_protocol(args.protocol)
     if args.protocol not in tasks.PROTOCOLS:
         fail(p, f"unknown protocol {args.protocol!r}; valid: {', '.join(tasks.PROTOCOLS)}")
     if args.psi_steps < 1:
@@ -115,6 +117,9 @@ def main(argv=None) -> int:
     chosen = {}   # label -> (card's name, root or None)
     known = (*experts.available(), *experts.imported_names())
     for n in names:
+        if n in tasks.FORMER_EXPERTS and f"{args.env}-{n}" not in known:   # imported under its former name
+            presets.notice_renamed("expert", n, tasks.FORMER_EXPERTS[n])
+            n = tasks.FORMER_EXPERTS[n]
         name = args.env if n == "own" else f"{args.env}-{n}"
         if name not in known:
             fail(p, f"no shipped or imported expert {name!r}; valid for --expert: own, "

@@ -1,10 +1,10 @@
-"""Import an expert from a file: `python -m experiments.import_expert PATH --env hopper --name fca`.
+"""Import an expert from a file: `python -m experiments.import_expert PATH --env hopper --name cs294`.
 
 Reads a CS294/FCA policy pickle (with an unpickler that builds numpy arrays and
 plain containers only) or a plain `.npz` MLP (the formats: `envs.experts.imported`),
 checks that it reads the task's full observation and gives its actions,
 measures its and a random policy's returns under `--protocols` (default: the
-task's `fca` and `brax`; the same code path as `experiments.expert_references`),
+task's `mujoco-state` and `brax`; the same code path as `experiments.expert_references`),
 and writes it, converted, with its card (source path, format, SHA-256, origin)
 and references into the user's expert directory, `$APE_JAX_EXPERTS/<env>-<name>/`
 (default: the cache directory's `experts/`), never into the repository.
@@ -30,8 +30,8 @@ from experiments._cli import (Parser, add_compile_cache_flag, fail, interruptibl
                              unwritable, use_compile_cache)
 
 # Episodes of the expert and of a random policy per protocol: the whole import of a Hopper expert within two
-# minutes on a 2-core CPU (fca's episodes are 2,000 steps at frame skip 1, brax's 1,000 at frame skip 4)
-EPISODES = {"fca": 20, "brax": 10}
+# minutes on a 2-core CPU (mujoco-state's episodes are 2,000 steps at frame skip 1, brax's 1,000 at frame skip 4)
+EPISODES = {"mujoco-state": 20, "brax": 10}
 DEFAULT_EPISODES = 10
 
 
@@ -40,6 +40,7 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     import envs
     from ape_jax import tasks
+    from ape_jax.pipeline import presets
     from envs import experts
     from envs.experts import imported
     from experiments import expert_references
@@ -47,12 +48,14 @@ def main(argv=None) -> int:
     p = Parser(prog="python -m experiments.import_expert", description=__doc__.splitlines()[0])
     p.add_argument("path", type=pathlib.Path, help="the expert's file: a CS294 pickle or an .npz MLP")
     p.add_argument("--env", default="hopper", help="the task it acts in (default: hopper)")
-    p.add_argument("--name", required=True, help="its variant name: lowercase letters, digits and _ (e.g. fca); "
+    p.add_argument("--name", required=True, help="its variant name: lowercase letters, digits and _ (e.g. cs294, "
+                                                 "FCA's CS294 Hopper expert); "
                                                  "selected with --set protocol.expert=NAME")
     p.add_argument("--format", default="auto", choices=("auto", *imported.FORMATS),
                    help="the file's format (default: by its first bytes)")
     p.add_argument("--protocols", default=None,
-                   help="comma-separated protocols to measure its references under (default: the task's fca and brax)")
+                   help="comma-separated protocols to measure its references under (default: the task's "
+                        "mujoco-state and brax)")
     p.add_argument("--episodes", type=int, default=None,
                    help=f"episodes of the expert and of a random policy per protocol (default: {EPISODES})")
     p.add_argument("--seed", type=int, default=0)
@@ -65,7 +68,7 @@ def main(argv=None) -> int:
         fail(p, f"--env {args.env!r}: experts are imported for MuJoCo tasks; valid: "
                 f"{', '.join(n for n in envs.names() if tasks.get(n).has_card)}")
     if not imported.NAME.fullmatch(args.name):
-        fail(p, f"--name {args.name!r} must be lowercase letters, digits and _ (e.g. fca)")
+        fail(p, f"--name {args.name!r} must be lowercase letters, digits and _ (e.g. cs294)")
     if why := unreadable(args.path, "an expert file (a CS294 pickle or an .npz MLP)"):
         fail(p, why)
     full = f"{args.env}-{args.name}"
@@ -75,7 +78,7 @@ def main(argv=None) -> int:
     try:
         protocols = {}
         for n in names:
-            proto = task.protocol(n.strip(), "full")
+            proto = task.protocol(presets.current_protocol(n.strip()), "full")
             protocols.setdefault(proto.reference or proto.name, task.protocol(proto.reference or proto.name, "full"))
     except ValueError as e:
         fail(p, f"--protocols: {e}")

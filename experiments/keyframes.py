@@ -1,7 +1,7 @@
 """Draws one expert episode's keyframes as a picture: `python -m experiments.keyframes --env hopper`.
 
 For one episode of the shipped expert's cached demonstrations (those the sweep
-uses under `--protocol`, by default the task's: `fca` (frame skip 1) for
+uses under `--protocol`, by default the task's: `mujoco-state` (frame skip 1) for
 MuJoCo, where the picture is `figures/keyframes-ENV.png`, or e.g. `brax`,
 `figures/keyframes-ENV-brax.png`; `pos` observations for MuJoCo, `full` for
 ToyCar; seed 0): APE along time with its keyframes, the expert's actions (a
@@ -45,7 +45,7 @@ def parse(argv=None) -> argparse.Namespace:
     p = Parser(prog="python -m experiments.keyframes", description=__doc__.splitlines()[0])
     p.add_argument("--env", default="hopper", help=f"one of {', '.join(tasks.sweepable())} (default: hopper)")
     p.add_argument("--protocol", default=None,
-                   help=f"{', '.join(tasks.PROTOCOLS)} (default: the task's, as the sweep's: fca for MuJoCo)")
+                   help=f"{', '.join(tasks.PROTOCOLS)} (default: the task's, as the sweep's: mujoco-state for MuJoCo)")
     p.add_argument("--episode", type=int, default=0, help="which demonstration episode to draw (default: 0)")
     p.add_argument("--out", type=pathlib.Path, default=None,
                    help="the PNG to write (default: figures/keyframes-ENV.png)")

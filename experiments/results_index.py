@@ -225,19 +225,22 @@ says where). `queue/` and `retrained/queue.sh` hold the shell queues that wrote 
 Names are built as `TASK-OBS[-PROTOCOL][-SPLIT]-PRESET[-RECIPE][-VARIANT][-LABELS][-SUFFIX][-seedsK].json`:
 
 - `TASK-OBS`: the task and its observations (`pos`, positions only; `image`).
-- `PROTOCOL`: absent for Brax's own (the first files and the image files); else `fca` or a member of its family
-  (`fca-fs2`, `fca-fs4`: another frame skip; `fca-train5k`, `fca-train80k`: another training set), `-h7` after it
-  for history 7.
+- `PROTOCOL`: absent for Brax's own (the first files and the image files); else `mujoco-state` or a member of its
+  family (`mujoco-state-fs2`, `-fs4`: another frame skip; `mujoco-state-train5k`, `-train80k`: another training
+  set), `-h7` after it for history 7; `nocrash`, `nocrash-nospeed` for the driving tables.
 - `SPLIT`: `rows` where the demonstrations are split by rows; absent where they are split by episode.
 - `PRESET`: the budget, `default` or `paper` (`TASK-image-patch-*`: the current `default` image preset, whose
-  encoder is the patch encoder); `RECIPE`, `fca` or `mlp`, follows it where the name has a split.
-- `VARIANT`: another demonstrator or setting (`fcaexpert`, FCA's imported expert; `rough`, `ppo`, shipped variants;
+  encoder is the patch encoder); `RECIPE`, `bn-mlp` or `mlp`, follows it where the name has a split.
+- `VARIANT`: another demonstrator or setting (`cs294`, FCA's imported CS294 expert; `rough`, `ppo`, shipped variants;
   `prevaction`, the previous action in view); `LABELS`: `raw` or `clipped`.
 - `SUFFIX`: which part of a sweep: `main`, `bc` (BC-SO, BC-OH, ours), `grid`, `softmax`, `ours`, `fca`, `fcaib`,
   `baselines`, `after` (BC-full and the methods after the paper), `map` (a cell of the copycat map), `long`
   (100,000 iterations), `sensitivity`, `rerun`.
 - `-seedsK`: one piece of a sweep split by seeds, from seed `K` (`--set budget.first_seed=K`); the report merges
   the pieces.
+- Files written before each thing had one name (`docs/design.md`, "Words") keep the names they were committed
+  under: `fca` for the protocol (`fca-fs2`, ...) and the recipe, `fcaexpert` for FCA's expert. Their settings read
+  as today's names, so the columns below and the report show `mujoco-state`, `bn-mlp` and `cs294`.
 
 **Replaying.** A sweep's command is built from the settings it records (`ape_jax.pipeline.replay.arguments`, the
 inverse of `presets.resolve`), with its methods and seeds, into `runs/replay/NAME`; `tests/test_results_index.py`

@@ -4,8 +4,8 @@ Collects (or reuses) the shipped expert's demonstrations, fits APE, trains
 BC-SO, BC-OH, the paper's step and softmax weighting grids and any baselines
 asked for (`--methods`) × seeds as compiled programs, evaluates every policy, and writes `results.json` (the
 schema: `ape_jax.pipeline.results`), `results.csv` and the trained parameters (orbax) into
-`--out`. No arguments: hopper, `pos` observations, the `fca` protocol, the `quick` preset (the budget), the
-protocol's recipe (`fca`: the FCA code's BatchNorm network and optimiser).
+`--out`. No arguments: hopper, `pos` observations, the `mujoco-state` protocol, the `quick` preset (the budget), the
+protocol's recipe (`bn-mlp`: the FCA code's BatchNorm network and optimiser).
 
 Settings come as three records (`ape_jax.pipeline.presets`): `--protocol` (the task's setting), `--preset`
 (the budget) and `--recipe` (network and optimisation); `--set SECTION.FIELD=VALUE` changes any field of
@@ -58,14 +58,14 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
                                                "driving sandbox)")
     p.add_argument("--protocol", default=None,
                    help=f"how demonstrations and evaluation are set up: {', '.join(tasks.PROTOCOLS)} (default: the "
-                        "task's: fca, the paper's frame skip 1, for state observations; brax for images)")
+                        "task's: mujoco-state, the paper's frame skip 1, for state observations; brax for images)")
     p.add_argument("--preset", default="quick", choices=sorted(presets.BUDGETS),
                    help="the budget: quick: <= 5 min on a 2-core CPU; default: the CPU numbers we report; paper: "
                         "for GPUs")
     p.add_argument("--recipe", default=None,
-                   help=f"how policies are built and trained: {', '.join(presets.RECIPES)} (default: fca under the "
-                        "fca protocols for state observations, the FCA code's BatchNorm network, Adam beta1 0.5, "
-                        "batch 64; mlp otherwise)")
+                   help=f"how policies are built and trained: {', '.join(presets.RECIPES)} (default: bn-mlp under "
+                        "the mujoco-state protocols for state observations, the FCA code's BatchNorm network, Adam "
+                        "beta1 0.5, batch 64; mlp otherwise)")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.FIELD=VALUE", dest="sets",
                    help="change one field of the protocol, budget or recipe, or one of a method's own settings "
                         "(repeatable), e.g. recipe.batch_size=64, protocol.split=episodes, fca.alphas=0.1,0.5,1,2")
@@ -123,7 +123,7 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
     if args.obs not in envs.obs_modes(args.env):
         fail(p, f"--obs {args.obs!r} is not supported by {args.env}; valid: {', '.join(envs.obs_modes(args.env))}")
     try:
-        args.protocol = tasks.get(args.env).protocol(args.protocol, args.obs).name
+        args.protocol = tasks.get(args.env).protocol(presets.current_protocol(args.protocol), args.obs).name
     except ValueError as e:
         fail(p, str(e))
     args.plugins = tuple(m.strip() for m in args.plugins.split(",") if m.strip())

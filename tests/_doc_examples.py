@@ -32,7 +32,7 @@ SKIPPED = {
     "experiments.train_expert": "trains an expert for an hour (tests/test_experts.py trains a tiny one)",
     "experiments.expert_references": "rewrites a shipped expert's card (tests/test_import_expert.py measures one)",
     "compare_runs runs/a runs/b": "placeholders for two sweeps of yours (tests/test_compare_runs.py runs it)",
-    "protocol.expert=fca": "needs FCA's expert, which the import above reads from the user's file",
+    "protocol.expert=cs294": "needs FCA's expert, which the import above reads from the user's file",
 }
 # commands whose documented outcome at the shrunk amounts is a refusal: `(exit status, what stderr says)`
 REFUSED = {

@@ -38,8 +38,8 @@ def test_a_tanh_expert_applies_tanh_between_layers_and_an_unknown_activation_is_
 def test_a_variant_names_its_own_commands():
     assert experts.train_command("hopper-ppo") == "python -m experiments.train_expert --env hopper --algorithm ppo"
     assert experts.train_command("hopper") == "python -m experiments.train_expert --env hopper"
-    assert experts.reference_command("hopper-ppo", "fca") == \
-        "python -m experiments.expert_references --env hopper --expert ppo --protocol fca"
+    assert experts.reference_command("hopper-ppo", "mujoco-state") == \
+        "python -m experiments.expert_references --env hopper --expert ppo --protocol mujoco-state"
 
 
 @pytest.fixture
@@ -52,8 +52,8 @@ def variant_root(tmp_path, monkeypatch):
 
 
 def test_the_protocols_expert_names_the_data_and_is_recorded_only_when_set(variant_root):
-    own = resolve("hopper", "pos", "fca", "quick").protocol
-    ppo = resolve("hopper", "pos", "fca", "quick", sets=["protocol.expert=ppo"]).protocol
+    own = resolve("hopper", "pos", "mujoco-state", "quick").protocol
+    ppo = resolve("hopper", "pos", "mujoco-state", "quick", sets=["protocol.expert=ppo"]).protocol
     assert (own.expert_name("hopper"), ppo.expert_name("hopper")) == ("hopper", "hopper-ppo")
     assert "expert" not in own.settings(4) and ppo.settings(4)["expert"] == "ppo"   # old records stay valid
     setup = collect.protocol_setup("hopper", "pos", ppo)
@@ -65,7 +65,7 @@ def test_the_protocols_expert_names_the_data_and_is_recorded_only_when_set(varia
 
 def test_a_bad_or_missing_variant_is_refused_with_its_command(variant_root):
     with pytest.raises(ValueError, match="protocol.expert must be a variant name"):
-        resolve("hopper", "pos", "fca", "quick", sets=["protocol.expert=PPO!"])
+        resolve("hopper", "pos", "mujoco-state", "quick", sets=["protocol.expert=PPO!"])
     with pytest.raises(ExpertError, match="--env hopper --algorithm sac2"):
         collect.data_key("hopper", "pos", 2, expert="sac2")
     with pytest.raises(ValueError, match="rule-based"):

@@ -160,7 +160,8 @@ def test_import_writes_the_expert_outside_the_repository_and_the_pipeline_finds_
     tree = _cs294(rng)
     path = _write_pickle(tmp_path / "Hopper-v1.pkl", tree)
     assert import_expert.main([str(path), "--env", "hopper", "--name", "mine"]) == 0
-    assert sorted(no_measuring) == [("brax", 10), ("fca", 20)]   # the task's fca and brax, the budget's episodes
+    # the task's mujoco-state and brax, the budget's episodes
+    assert sorted(no_measuring) == [("brax", 10), ("mujoco-state", 20)]
     home = expert_dir / "hopper-mine"
     card = json.loads((home / "card.json").read_text())
     digest = imported.sha256(path)
@@ -170,7 +171,7 @@ def test_import_writes_the_expert_outside_the_repository_and_the_pipeline_finds_
                                "head": "linear"}
     assert experts.directory("hopper-mine") == home and experts.imported_names() == ("hopper-mine",)
     assert experts.reference("hopper-mine", "brax")["return_mean"] == 100.0   # references.json holds brax too
-    assert experts.reference("hopper-mine", "fca")["random_return_mean"] == 10.0
+    assert experts.reference("hopper-mine", "mujoco-state")["random_return_mean"] == 10.0
     obs = rng.normal(size=(4, HOPPER_D))
     np.testing.assert_allclose(jax.jit(experts.load("hopper-mine"))(obs), _cs294_action(tree, obs), rtol=1e-4,
                                atol=1e-4)

@@ -37,7 +37,7 @@ def test_without_speed_names_other_demonstrations_and_new_weather_is_one_set_awa
 
 
 def test_protocols_without_task_settings_name_their_data_as_before():
-    setup = Setup.resolve("hopper", "pos", tasks.get("hopper").protocol("fca", "pos"))
+    setup = Setup.resolve("hopper", "pos", tasks.get("hopper").protocol("mujoco-state", "pos"))
     assert "noise_steps" not in setup.data_key and "traffic" not in setup.applied.settings
     assert setup.data_key["noise_frac"] == 0.0
 
@@ -48,7 +48,7 @@ def test_protocols_without_task_settings_name_their_data_as_before():
 ])
 def test_a_setting_the_task_lacks_is_refused(sets, needle):
     with pytest.raises(ValueError, match=needle):
-        Setup.resolve("hopper", "pos", resolve("hopper", "pos", protocol="fca", sets=sets).protocol)
+        Setup.resolve("hopper", "pos", resolve("hopper", "pos", protocol="mujoco-state", sets=sets).protocol)
 
 
 def test_mujoco_tasks_do_not_list_the_driving_protocols():

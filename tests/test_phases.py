@@ -75,10 +75,11 @@ def test_fit_ape_gives_the_raw_ape_by_default_and_divides_by_its_mean_on_request
 
     spec, prepared, _, ape, _ = small
     raw = ape_lib.errors(ape.params, jnp.asarray(prepared.train.action), jnp.asarray(prepared.train.demos.t))
-    assert spec.recipe.ape_normalization == "none" and ape.scale == 1.0
+    assert spec.settings.ape_normalization == "none" and ape.scale == 1.0
     np.testing.assert_array_equal(ape.train, np.asarray(raw))   # no rescaling: the paper's τ means what it meant
     assert np.isclose(ape.raw_mean, float(np.mean(raw)), rtol=1e-6)
-    mean = S.fit_ape(prepared, resolve("toycar", "full", recipe="mlp", sets=[*SETS, "recipe.ape_normalization=mean"]))
+    mean = S.fit_ape(prepared, resolve("toycar", "full", recipe="mlp",
+                                       sets=[*SETS, "ours-softmax.ape_normalization=mean"]))
     assert np.isclose(np.mean(mean.train), 1.0, rtol=1e-4) and np.isclose(mean.scale, float(np.mean(raw)), rtol=1e-5)
     assert np.isclose(mean.raw_mean, ape.raw_mean, rtol=1e-5)
 

@@ -18,10 +18,10 @@ from envs import experts
 from experiments import sweep
 
 
-def test_the_fca_protocol_resolves_per_task_from_brax_frame_skips():
+def test_the_mujoco_state_protocol_resolves_per_task_from_brax_frame_skips():
     hopper = S.SweepSpec.make("hopper", "pos", ("bc-oh",))
     p = hopper.protocol_settings()
-    assert hopper.protocol.name == "fca" and p["split"] == "rows" and \
+    assert hopper.protocol.name == "mujoco-state" and p["split"] == "rows" and \
         (p["frame_skip"], p["standard_frame_skip"]) == (1, 4)
     assert (p["episode_length"], p["reward_scale"], p["train_transitions"], p["val_transitions"]) == \
         (2000, 0.25, 20_000, 4_000)
@@ -31,7 +31,7 @@ def test_the_fca_protocol_resolves_per_task_from_brax_frame_skips():
     assert cheetah.protocol_settings()["reward_scale"] == pytest.approx(0.2)
     image = S.SweepSpec.make("hopper", "image", ("bc-oh",))
     assert image.protocol.name == "brax" and image.protocol_settings()["frame_skip"] == 4   # images keep Brax's
-    assert image.recipe.name == "mlp" and hopper.recipe.name == "fca"   # the fca protocols' default recipe
+    assert image.recipe.name == "mlp" and hopper.recipe.name == "bn-mlp"   # the mujoco-state protocols' default recipe
     brax = S.SweepSpec.make("hopper", "pos", ("bc-oh",), protocol="brax")
     assert brax.recipe.name == "mlp" and brax.protocol.split == "episodes"
     assert brax.collection_overrides() == {} and brax.protocol_settings()["episode_length"] == 1000
@@ -79,9 +79,11 @@ def test_split_sizes_gives_exact_sizes_from_disjoint_episodes():
 
 
 def test_an_unknown_protocol_or_one_the_task_cannot_take_is_refused(capsys):
-    for argv, message in ((["--protocol", "gym"], "unknown protocol 'gym' for hopper; valid: fca, fca-fs2, fca-fs4, "
-                                                  "fca-train5k, fca-train80k, brax"),
-                          (["--env", "toycar", "--protocol", "fca"], "unknown protocol 'fca' for toycar; valid: brax")):
+    for argv, message in ((["--protocol", "gym"], "unknown protocol 'gym' for hopper; valid: mujoco-state, "
+                                                  "mujoco-state-fs2, mujoco-state-fs4, mujoco-state-train5k, "
+                                                  "mujoco-state-train80k, brax"),
+                          (["--env", "toycar", "--protocol", "fca"],   # a former name, refused by its new one
+                           "unknown protocol 'mujoco-state' for toycar; valid: brax")):
         with pytest.raises(SystemExit) as exc:
             sweep.parse(argv)
         assert exc.value.code == 2 and message in capsys.readouterr().err
@@ -93,13 +95,13 @@ def test_a_dataset_of_another_protocol_is_refused(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         sweep.main(["--dataset", str(tmp_path / "old.npz"), "--out", str(tmp_path / "run")])
     err = capsys.readouterr().err
-    assert exc.value.code == 2 and "not under the 'fca' protocol's" in err and "--protocol" in err
+    assert exc.value.code == 2 and "not under the 'mujoco-state' protocol's" in err and "--protocol" in err
     assert not (tmp_path / "run").exists()
 
 
 def test_a_checkpoint_of_another_protocol_is_not_resumed(tmp_path):
     fca = S.SweepSpec.make("hopper", "pos", ("bc-oh",))
-    brax = S.SweepSpec.make("hopper", "pos", ("bc-oh",), protocol="brax", recipe="fca")
+    brax = S.SweepSpec.make("hopper", "pos", ("bc-oh",), protocol="brax", recipe="bn-mlp")
     SweepCheckpoint(tmp_path / "ck", fca.fingerprint(), 100).open()
     with pytest.raises(CheckpointError, match="protocol"):
         SweepCheckpoint(tmp_path / "ck", brax.fingerprint(), 100).open()
@@ -111,17 +113,18 @@ def test_expert_references_come_per_protocol(tmp_path):
     root = tmp_path / "hopper"
     root.mkdir()
     (root / experts.CARD).write_text(json.dumps(card))
-    with pytest.raises(experts.ExpertError, match="experiments.expert_references --env hopper --protocol fca"):
-        experts.reference("hopper", "fca", root=root)
-    (root / experts.REFERENCES).write_text(json.dumps({"fca": {"return_mean": 1.0, "return_std": 0.5,
+    with pytest.raises(experts.ExpertError, match="experiments.expert_references --env hopper --protocol mujoco-state"):
+        experts.reference("hopper", "mujoco-state", root=root)
+    (root / experts.REFERENCES).write_text(json.dumps({"mujoco-state": {"return_mean": 1.0, "return_std": 0.5,
                                                                "random_return_mean": 0.1, "episodes": 100}}))
-    assert experts.reference("hopper", "fca", root=root) == {"return_mean": 1.0, "return_std": 0.5,
+    assert experts.reference("hopper", "mujoco-state", root=root) == {"return_mean": 1.0, "return_std": 0.5,
                                                              "random_return_mean": 0.1, "episodes": 100}
-    assert tasks.PROTOCOLS["fca"].settings(4)["episode_length"] == 2000
+    assert tasks.PROTOCOLS["mujoco-state"].settings(4)["episode_length"] == 2000
 
 
 @pytest.mark.parametrize("name,standard,length,scale", [
-    ("fca", 4, 2000, 0.25), ("fca-fs2", 4, 1000, 0.5), ("fca-fs4", 4, 500, 1.0), ("fca-fs4", 5, 625, 0.8)])
+    ("mujoco-state", 4, 2000, 0.25), ("mujoco-state-fs2", 4, 1000, 0.5), ("mujoco-state-fs4", 4, 500, 1.0),
+    ("mujoco-state-fs4", 5, 625, 0.8)])
 def test_the_copycat_maps_protocols_keep_fcas_time_rewards_and_data_at_every_frame_skip(name, standard, length, scale):
     """The map's columns differ only in frame skip: 500 standard steps of simulated time, returns on the standard
     scale, the same 50,000 expert steps and 20,000 / 4,000 training / validation transitions."""
@@ -132,7 +135,7 @@ def test_the_copycat_maps_protocols_keep_fcas_time_rewards_and_data_at_every_fra
     assert name in tasks.get("hopper").protocols and name not in tasks.get("toycar").protocols
 
 
-@pytest.mark.parametrize("protocol", [None, "fca-fs2", "brax"])
+@pytest.mark.parametrize("protocol", [None, "mujoco-state-fs2", "brax"])
 def test_collect_names_the_dataset_the_sweep_of_the_same_protocol_uses(protocol, tmp_path):
     """`experiments.collect` defaults to the sweep's protocol, so what it collects is what `--dataset` accepts."""
     from experiments import collect as collect_cli
@@ -140,7 +143,7 @@ def test_collect_names_the_dataset_the_sweep_of_the_same_protocol_uses(protocol,
     flags = [] if protocol is None else ["--protocol", protocol]
     args = collect_cli.parse(["--env", "hopper", "--obs", "pos", "--data-dir", str(tmp_path), *flags])
     spec = S.SweepSpec.make("hopper", "pos", ("bc-oh",), protocol=protocol)
-    assert args.setup.name == spec.protocol.name == (protocol or "fca")
+    assert args.setup.name == spec.protocol.name == (protocol or "mujoco-state")
     assert args.episodes == spec.episodes
     mine = collect_lib.data_key("hopper", "pos", args.episodes, seed=args.seed, **args.overrides)
     assert mine == spec.data_settings()   # the same settings: the same cached file
@@ -150,18 +153,20 @@ def test_collect_refuses_a_protocol_the_task_cannot_take(capsys):
     from experiments import collect as collect_cli
 
     for argv, message in ((["--env", "hopper", "--protocol", "gym"], "unknown protocol 'gym' for hopper"),
-                          (["--env", "toycar", "--protocol", "fca"], "unknown protocol 'fca' for toycar; valid: brax")):
+                          (["--env", "toycar", "--protocol", "mujoco-state"],
+                           "unknown protocol 'mujoco-state' for toycar; valid: brax")):
         with pytest.raises(SystemExit) as exc:
             collect_cli.parse(argv)
         assert exc.value.code == 2 and message in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("name,train,collected", [("fca-train5k", 5_000, 50_000), ("fca-train80k", 80_000, 90_000)])
+@pytest.mark.parametrize("name,train,collected", [("mujoco-state-train5k", 5_000, 50_000),
+                                                   ("mujoco-state-train80k", 80_000, 90_000)])
 def test_the_maps_data_size_protocols_change_only_the_training_transitions(name, train, collected):
-    """fca with another training-set size: the simulator settings (and so the expert references) are fca's."""
-    p, fca = tasks.PROTOCOLS[name], tasks.PROTOCOLS["fca"]
+    """mujoco-state with another training-set size: the simulator settings (and so the expert references) are its."""
+    p, fca = tasks.PROTOCOLS[name], tasks.PROTOCOLS["mujoco-state"]
     assert (p.train_transitions, p.collect_transitions, p.val_transitions) == (train, collected, 4_000)
-    assert p.env_overrides(4) == fca.env_overrides(4) and p.reference == "fca"
+    assert p.env_overrides(4) == fca.env_overrides(4) and p.reference == "mujoco-state"
     s, f = p.settings(4), fca.settings(4)
     assert {k: v for k, v in s.items() if k not in ("name", "train_transitions", "collect_transitions")} == \
         {k: v for k, v in f.items() if k not in ("name", "train_transitions", "collect_transitions")}

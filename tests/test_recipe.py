@@ -24,15 +24,16 @@ LOSS_RTOL = 1e-4
 
 # -- the records ----------------------------------------------------------------------------------------------------
 
-def test_the_fca_protocols_default_to_the_fca_codes_recipe_and_the_others_to_mlp():
+def test_the_mujoco_state_protocols_default_to_the_fca_codes_recipe_and_the_others_to_mlp():
     s = resolve("hopper", "pos")
-    assert (s.protocol.name, s.protocol.split, s.recipe.name, s.budget.iterations) == ("fca", "rows", "fca", 3_000)
+    assert (s.protocol.name, s.protocol.split, s.recipe.name, s.budget.iterations) == \
+        ("mujoco-state", "rows", "bn-mlp", 3_000)
     assert (s.recipe.network, s.recipe.init, s.recipe.beta1, s.recipe.batch_size) == ("bn-mlp", "xavier", 0.5, 64)
     assert resolve("hopper", "pos", protocol="brax").recipe == RECIPES["mlp"]
     assert resolve("hopper", "image").recipe.name == "mlp" and resolve("toycar", "image").recipe.name == "mlp"
     cfg = s.learner_config((5,), 3, 2, "l2")
     assert (cfg.network, cfg.batch_size, cfg.beta1, cfg.lr_boundaries) == ("bn-mlp", 64, 0.5, (1_000, 2_000))
-    image = resolve("hopper", "image", recipe="fca").learner_config((32, 32, 3), 3, 2, "l2")
+    image = resolve("hopper", "image", recipe="bn-mlp").learner_config((32, 32, 3), 3, 2, "l2")
     assert image.network == "mlp" and image.encoder == "small"   # BatchNorm is the state network's
 
 
@@ -75,7 +76,7 @@ def test_set_changes_any_field_parsed_by_its_type():
 
 @pytest.mark.parametrize("env, obs, protocol, preset, recipe, sets, smoke", [
     ("hopper", "pos", None, "default", None, [], False),
-    ("hopper", "pos", "fca-fs2", "paper", "mlp", ["recipe.batch_size=32", "recipe.lr=1e-3", "budget.seeds=4",
+    ("hopper", "pos", "mujoco-state-fs2", "paper", "mlp", ["recipe.batch_size=32", "recipe.lr=1e-3", "budget.seeds=4",
                                                   "recipe.step_grid=0.1:4,0.2:6", "recipe.fca_alphas=",
                                                   "recipe.fca_adversary_lr=0.0002",
                                                   "recipe.lr_decay_at=0.25", "recipe.loss=none",
@@ -183,12 +184,12 @@ def test_an_image_setting_the_observations_cannot_take_is_refused_before_anythin
 def test_an_unknown_recipe_is_refused_listing_the_valid_ones(capsys):
     with pytest.raises(SystemExit) as code:
         sweep.parse(["--recipe", "resnet"], writes=False)
-    assert code.value.code == 2 and "unknown recipe 'resnet'; valid: mlp, fca" in capsys.readouterr().err
+    assert code.value.code == 2 and "unknown recipe 'resnet'; valid: mlp, bn-mlp" in capsys.readouterr().err
 
 
 def test_a_resumed_sweep_with_another_recipe_is_refused_naming_the_fields(tmp_path):
     fca = S.SweepSpec.make("hopper", "pos", ("bc-oh",))
-    other = S.SweepSpec.make("hopper", "pos", ("bc-oh",), recipe="fca", sets=["recipe.batch_size=32"])
+    other = S.SweepSpec.make("hopper", "pos", ("bc-oh",), recipe="bn-mlp", sets=["recipe.batch_size=32"])
     SweepCheckpoint(tmp_path / "ck", fca.fingerprint(), 100).open()
     with pytest.raises(CheckpointError, match="settings.recipe.batch_size \\(64 there, 32 now\\)"):
         SweepCheckpoint(tmp_path / "ck", other.fingerprint(), 100).open()
@@ -197,7 +198,7 @@ def test_a_resumed_sweep_with_another_recipe_is_refused_naming_the_fields(tmp_pa
 def test_a_checkpoint_from_before_a_recipe_field_existed_resumes_when_the_field_is_at_its_default(tmp_path):
     import json
 
-    spec = S.SweepSpec.make("hopper", "pos", ("bc-oh",), recipe="fca")
+    spec = S.SweepSpec.make("hopper", "pos", ("bc-oh",), recipe="bn-mlp")
     older = spec.fingerprint()
     for field in ("encoder_norm", "augment_shift"):  # fields added after such checkpoints were written
         del older["settings"]["recipe"][field]

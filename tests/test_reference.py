@@ -31,7 +31,7 @@ def _short_run(tmp_path, so: float, oh: float, iterations=3_000, **changes) -> p
 def test_a_short_run_is_shown_under_the_shipped_rows_of_its_setting_and_its_reversed_order_is_named(tmp_path):
     lines = reference_lines(_short_run(tmp_path, so=23.5, oh=4.7))
     text = "\n".join(lines)
-    assert lines[0].startswith("shipped reference: hopper (pos), protocol fca, recipe fca")
+    assert lines[0].startswith("shipped reference: hopper (pos), protocol mujoco-state, recipe bn-mlp")
     budgets = [line.split()[0] for line in lines[2:-1]]
     assert budgets == ["30,000", "300,000", "3,000"]            # the shipped budgets in order, then this run
     assert "51.9 [37.2, 66.6]" in lines[2] and "80.4 [64.4, 96.3]" in lines[2]   # the 30k file's own numbers

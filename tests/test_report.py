@@ -148,7 +148,7 @@ def test_provenance_quotes_the_recorded_command():
     from_python = report.provenance(Results.from_json(_schema2(_results())))   # schema 2, run from Python
     assert "--seeds 2` (rebuilt from its settings: the sweep ran from Python)" in from_python
     # a schema-3 one records its settings whole: it is given the arguments that resolve to them, its dataset too
-    settings = resolve("hopper", "pos", "fca", "default", sets=["recipe.batch_size=32", "budget.seeds=2"])
+    settings = resolve("hopper", "pos", "mujoco-state", "default", sets=["recipe.batch_size=32", "budget.seeds=2"])
     obj = _schema2(_results(), protocol=_fca(), methods={"bc-so": {}})
     obj = {**obj, "schema": 3, "preset": "default", "settings": settings.to_json(),
            "config": {**obj["config"], "methods": ["bc-so"], "data": {"settings": {"dataset": "my data.npz"}}}}
@@ -610,29 +610,31 @@ def test_python_m_experiments_report_runs(tmp_path):
 def test_fca_and_brax_results_of_one_task_are_merged_apart_into_two_tables(tmp_path, capsys):
     files = _map_files(tmp_path)
     merged = report.merge(files)
-    assert sorted(merged) == sorted([("hopper", "pos", p, None) for p in ("fca", "fca-fs2", "fca-fs4", "brax")])
+    assert sorted(merged) == sorted([("hopper", "pos", p, None)
+                                     for p in ("mujoco-state", "mujoco-state-fs2", "mujoco-state-fs4", "brax")])
     assert merged[("hopper", "pos", "brax", None)].expert["return_mean"] == 3000.0   # each group keeps its expert
-    assert [m.title for m in merged.values()] == ["Hopper (fca)", "Hopper (fca, frame skip 2)",
-                                                     "Hopper (fca, frame skip 4)", "Hopper (brax)"]
+    assert [m.title for m in merged.values()] == ["Hopper (mujoco-state)", "Hopper (mujoco-state, frame skip 2)",
+                                                     "Hopper (mujoco-state, frame skip 4)", "Hopper (brax)"]
     text = report.report(files)
     index = _index(files)
-    fca = index[index.index("## MuJoCo-State, the paper's protocol (fca)\n\nFrame skip 1, 500 standard steps of "
-                            "simulated time, 20,000 training transitions, split"):
+    fca = index[index.index("## MuJoCo-State, the paper's protocol (mujoco-state)\n\nFrame skip 1, 500 standard steps "
+                            "of simulated time, 20,000 training transitions, split"):
                 index.index("## MuJoCo-State, Brax's")]
     brax = index[index.index("## MuJoCo-State, Brax's frame skip (the project's first results)"):
                  index.index("## The copycat map")]
     assert "| BC-SO | 600 ± 10 (30%) |" in fca and "| FCA (TCA) | 1,200 ± 10 (60%) |" in fca
     assert "| BC-SO | 300 ± 14 (15%) |" in brax and "| expert (ours) | 3,000 ± 80 |" in brax
     assert index.count("| method | Hopper |") == 2         # frame skips 2 and 4 get no state table: they feed the map
-    assert "| Hopper (fca) | BC-OH − BC-SO (does the history help?) | 3 / 3 |" in text
+    assert "| Hopper (mujoco-state) | BC-OH − BC-SO (does the history help?) | 3 / 3 |" in text
     assert "| Hopper (brax) | BC-OH − BC-SO (does the history help?) | 2 / 2 | +700 (return) |" in text
-    assert "## Protocol fca, frame skip 4\n" in text
-    assert ("protocol fca-fs2, frame skip 2 (the environment's own: 4), 1,000-step episodes, 20,000 training "
+    assert "## Protocol mujoco-state, frame skip 4\n" in text
+    assert ("protocol mujoco-state-fs2, frame skip 2 (the environment's own: 4), 1,000-step episodes, 20,000 training "
             "transitions; commit") in text
     assert "protocol brax (not recorded: results schema 1 predates protocols" in text
     # within one group the same configuration twice, or another expert or frame skip, is still refused
     again = [_schema2(_results(), protocol=_fca(1)), _schema2(_results(), protocol=_fca(1))]
-    with pytest.raises(report.ReportError, match="is also in another results file of hopper \\(pos, protocol fca\\)"):
+    with pytest.raises(report.ReportError,
+                       match="is also in another results file of hopper \\(pos, protocol mujoco-state\\)"):
         report.merge([_loaded(tmp_path, r, f"again{i}.json") for i, r in enumerate(again)])
     other = _schema2(_results(methods=(("fca", {"alpha": 0.1}, 1.0),)), protocol={**_fca(1), "frame_skip": 2})
     with pytest.raises(report.ReportError, match="its protocol differs .* \\(frame_skip 2 vs 1"):
@@ -663,7 +665,7 @@ def test_the_copycat_map_gives_each_frame_skip_its_row_and_gaps(tmp_path):
     files = _map_files(tmp_path)
     (cm,) = report.copycat_map(report.merge(files))
     assert cm.title == "Hopper" and [(r.frame_skip, r.protocol) for r in cm.rows] == [
-        (1, "fca"), (2, "fca-fs2"), (4, "fca-fs4")]
+        (1, "mujoco-state"), (2, "mujoco-state-fs2"), (4, "mujoco-state-fs4")]
     # % of expert = return / 20; the frame-skip-1 file's softmax and FCA rows and its third seed are not the map's
     assert [[c.mean for c in r.cells] for r in cm.rows] == [[30.0, 30.5, 50.0], [30.0, 50.0, 55.0],
                                                             [20.0, 80.0, 75.0]]
@@ -674,8 +676,8 @@ def test_the_copycat_map_gives_each_frame_skip_its_row_and_gaps(tmp_path):
         [16.957, 23.043, 56.957, 63.043], abs=1e-3)
     assert cm.rows[0].history_ci == report.mean_difference([30.0, 30.5, 31.0], [29.5, 30.0, 30.5])
     text = report.report(files)
-    assert ("| Hopper | 2 | 20,000 | fca-fs2 | 30.0 ± 0.7 | 50.0 ± 0.7 | 55.0 ± 0.7 | 2 / 2 / 2 | +20.0 [+17.0, "
-            "+23.0] | 50.0 |") in text
+    assert ("| Hopper | 2 | 20,000 | mujoco-state-fs2 | 30.0 ± 0.7 | 50.0 ± 0.7 | 55.0 ± 0.7 | 2 / 2 / 2 | "
+            "+20.0 [+17.0, +23.0] | 50.0 |") in text
     low, high = cm.rows[0].history_ci.low, cm.rows[0].history_ci.high
     assert low < 0 < high   # at frame skip 1 the history is not significant; at 2 and 4 it is
     # one frame skip of the family is no map
@@ -688,12 +690,12 @@ def test_figure_names_are_unique_per_protocol(tmp_path):
     out = tmp_path / "B.md"
     assert report.main([src.path for src in files] + ["--out", str(out)]) == 0
     names = sorted(p.name for p in (tmp_path / "figures").iterdir())
-    assert names == ["copycat-map.png", "grid-hopper-fca-fs2.png", "grid-hopper-fca-fs4.png", "grid-hopper-fca.png",
-                     "grid-hopper.png", "returns-first.png", "returns-other.png"]
+    assert names == ["copycat-map.png", "grid-hopper-mujoco-state-fs2.png", "grid-hopper-mujoco-state-fs4.png",
+                     "grid-hopper-mujoco-state.png", "grid-hopper.png", "returns-first.png", "returns-other.png"]
     _check_png(tmp_path / "figures" / "copycat-map.png")
     assert "![The copycat map: % of expert per frame skip](figures/copycat-map.png)" in out.read_text()
     text = (tmp_path / "docs" / "results" / "hopper-pos.md").read_text()
-    assert "![Hopper (fca, frame skip 2) grid search](../../figures/grid-hopper-fca-fs2.png)" in text
+    assert "![Hopper (mujoco-state, frame skip 2) grid search](../../figures/grid-hopper-mujoco-state-fs2.png)" in text
     assert "![Hopper (brax) grid search](../../figures/grid-hopper.png)" in text     # brax keeps its name
     fig = figures.copycat_map_figure(report.copycat_map(report.merge(files)))
     ax = fig.axes[0]
@@ -723,11 +725,11 @@ def test_the_weight_table_compares_raw_and_mean_normalised_ape(tmp_path):
     assert label == "softmax τ 0.1" and raw[0] < np.exp(0.2) / 128 and by_mean[0] > 0.1 and by_mean[12] > 0.5
     assert np.array_equal(w.series[1][1], w.series[1][2])             # the step weights depend on ranks only
     text = report.report([spread])
-    row = (f"| Hopper (fca) | softmax τ 0.1 | 1% | {100 * raw[12]:.0f}% | {100 * by_mean[0]:.0f}% | "
+    row = (f"| Hopper (mujoco-state) | softmax τ 0.1 | 1% | {100 * raw[12]:.0f}% | {100 * by_mean[0]:.0f}% | "
            f"{100 * by_mean[12]:.0f}% |")
     assert row in text
     raw_ape = report.analysis.APE_SCALES["none"]
-    assert f"| Hopper (fca) | `normalization: none`, the {raw_ape} | 0.01 (estimated) |" in text
+    assert f"| Hopper (mujoco-state) | `normalization: none`, the {raw_ape} | 0.01 (estimated) |" in text
     # the same raw APE recorded as a mean-normalised run records it (÷ its mean 0.01): the same weights
     by_scale = _loaded(tmp_path, _ape_file(np.linspace(0, 2, 101), "mean", 0.01), "mean.json")
     (m,) = report.weight_shares(report.merge([by_scale]))
@@ -744,7 +746,7 @@ def test_the_numbers_of_the_fca_reading_follow_the_verdicts(tmp_path):
     from experiments.report.analysis import Key, history_difference, ours_differences, verdict
 
     def fca_group(files):
-        return report.merge(files)[Key("hopper", "pos", "fca")]
+        return report.merge(files)[Key("hopper", "pos", "mujoco-state")]
 
     # BC-OH ≈ BC-SO under fca: the return signature of copycat; Ours well above BC-OH
     m = fca_group(_map_files(tmp_path))
@@ -802,15 +804,15 @@ def test_a_longer_run_is_its_own_group_compared_configuration_by_configuration(t
     long["config"] = {**long["config"], "iterations": 100_000}
     files.append(_loaded(tmp_path, _schema2(long, protocol=_fca(1)), "long.json"))
     merged = report.merge(files)
-    key = ("hopper", "pos", "fca", 100_000)
-    assert key in merged and merged[key].title == "Hopper (fca, 100,000 iterations)"
+    key = ("hopper", "pos", "mujoco-state", 100_000)
+    assert key in merged and merged[key].title == "Hopper (mujoco-state, 100,000 iterations)"
     text = _index(files, tmp_path / "figures")
     section = text[text.index("## Training longer"):]
-    assert ("| Hopper (fca, 100,000 iterations): configuration | 30,000 iterations | seeds | "
+    assert ("| Hopper (mujoco-state, 100,000 iterations): configuration | 30,000 iterations | seeds | "
             "100,000 iterations |") in section
     assert "| BC-OH | 610 ± 10 (30%) | 3 | 700 ± 14 (35%) | 2 |" in section
     assert "| Ours (step), THR 10% W 5 | 1,000 ± 10 (50%) | 3 | 1,300 ± 14 (65%) | 2 |" in section
-    assert (tmp_path / "figures" / "grid-hopper-fca-100000it.png").exists()
+    assert (tmp_path / "figures" / "grid-hopper-mujoco-state-100000it.png").exists()
     assert "| BC-OH | 610 ± 10 (30%) |" in text[text.index("## MuJoCo-State, the paper's protocol"):]
 
 
@@ -826,15 +828,15 @@ def test_the_copycat_map_adds_training_set_sizes_at_frame_skip_1(tmp_path):
     (cm,) = report.copycat_map(report.merge(files))
     assert [r.frame_skip for r in cm.rows] == [1, 2, 4]                      # the frame-skip rows are unchanged
     assert [(r.train_transitions, r.protocol) for r in cm.data_rows] == [
-        (5_000, "fca-train5k"), (20_000, "fca"), (80_000, "fca-train80k")]
+        (5_000, "mujoco-state-train5k"), (20_000, "mujoco-state"), (80_000, "mujoco-state-train80k")]
     assert [r.history for r in cm.data_rows] == [-1.0, 0.5, 40.0]
     assert [r.cells[1].mean for r in cm.data_rows] == pytest.approx([24.0, 30.5, 75.0])   # BC-OH per size
     text = _index(files, tmp_path / "figures")
-    assert "| Hopper | 1 | 80,000 | fca-train80k | 35.0 ± 0.7 | 75.0 ± 0.7 | 80.0 ± 0.7 |" in text
-    assert text.count("| Hopper | 1 | 20,000 | fca |") == 1                   # fca's row once
+    assert "| Hopper | 1 | 80,000 | mujoco-state-train80k | 35.0 ± 0.7 | 75.0 ± 0.7 | 80.0 ± 0.7 |" in text
+    assert text.count("| Hopper | 1 | 20,000 | mujoco-state |") == 1          # its row once
     assert (tmp_path / "figures" / "copycat-map.png").exists()
-    assert "## Protocol fca, 80,000 training transitions\n" in report.report(files)
-    assert (tmp_path / "figures" / "grid-hopper-fca-train80k.png").exists()
+    assert "## Protocol mujoco-state, 80,000 training transitions\n" in report.report(files)
+    assert (tmp_path / "figures" / "grid-hopper-mujoco-state-train80k.png").exists()
 
 
 def test_no_grid_beside_the_papers_setting_selects_no_best_of_it(tmp_path):
@@ -843,7 +845,8 @@ def test_no_grid_beside_the_papers_setting_selects_no_best_of_it(tmp_path):
 
     only = _results("hopper", (("bc-so", {}, 600.0), ("bc-oh", {}, 610.0),
                                ("ours-step", {"thr": 0.1, "w": 5.0}, 1000.0)))
-    m = report.merge([_loaded(tmp_path, _schema2(only, protocol=_fca(1)), "only.json")])[Key("hopper", "pos", "fca")]
+    m = report.merge([_loaded(tmp_path, _schema2(only, protocol=_fca(1)), "only.json")])[
+        Key("hopper", "pos", "mujoco-state")]
     ours = ours_differences(m)
     assert ours[0][2].diff == pytest.approx(390.0) and all(row is ours[0][1] for _, row, _ in ours)
 
@@ -897,22 +900,22 @@ def test_the_recipe_table_compares_recipes_under_one_protocol_apart_from_the_who
     old = _schema2(_results(), protocol=_fca())   # the committed whole-episode fca results: the mlp recipe
     files = [_loaded(tmp_path, f, name) for f, name in ((mlp, "m.json"), (fca, "f.json"), (old, "o.json"))]
     merged = report.merge(files)
-    assert sorted(k.protocol for k in merged) == ["fca", "fca.rows.fca", "fca.rows.mlp"]
+    assert sorted(k.protocol for k in merged) == ["mujoco-state", "mujoco-state.rows.bn-mlp", "mujoco-state.rows.mlp"]
     groups = recipe_groups(merged)
-    assert list(groups) == [("hopper", "pos", "fca, split by rows")] and set(groups[next(iter(groups))]) == \
-        {"mlp", "fca"}
-    rows = {r.label: r for r in recipe_rows(groups[("hopper", "pos", "fca, split by rows")])}
+    assert list(groups) == [("hopper", "pos", "mujoco-state, split by rows")] and set(groups[next(iter(groups))]) == \
+        {"mlp", "bn-mlp"}
+    rows = {r.label: r for r in recipe_rows(groups[("hopper", "pos", "mujoco-state, split by rows")])}
     assert list(rows) == ["BC-SO", "BC-OH", "Ours, step THR 10% W 5", "FCA (TCA)"]
-    assert rows["BC-OH"].cells["mlp"].mean == pytest.approx(50.0) and rows["BC-OH"].cells["fca"].mean == \
+    assert rows["BC-OH"].cells["mlp"].mean == pytest.approx(50.0) and rows["BC-OH"].cells["bn-mlp"].mean == \
         pytest.approx(70.0)
     assert rows["BC-OH"].difference.diff == pytest.approx(20.0) and rows["BC-OH"].difference.low > 0
     assert rows["FCA (TCA)"].cells["mlp"].mean == pytest.approx(40.0)   # the task's α (Hopper: 2.0), not the best
     text = report.build(files).pages["index.md"].text
     assert "## The paper's recipe" in text and "| BC-OH | 50.0 [48.8, 51.2] | 70.0 [68.8, 71.2] | **+20.0" in text
-    assert "| fca | BC-OH − BC-SO | **+35.0" in text
+    assert "| bn-mlp | BC-OH − BC-SO | **+35.0" in text
     assert "| fca | alpha 0.1, adversary_lr 0.0004 | 55.0 [53.8, 56.2] | — | — |" in text   # recipe mlp
     assert "| fca | alpha 2, adversary_lr 0.0004 | 60.0 [58.8, 61.2] | 0.5 | 0.6 |" in text
-    assert "## MuJoCo-State, the paper's protocol (fca)" in text   # the whole-episode files keep their tables
+    assert "## MuJoCo-State, the paper's protocol (mujoco-state)" in text   # the whole-episode files keep their tables
 
 
 def test_a_rate_pools_every_episode_with_wilsons_interval():

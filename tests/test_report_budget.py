@@ -48,7 +48,8 @@ def _normalized(method: str) -> list[float]:
 
 def test_a_paper_preset_file_is_a_group_of_its_own_beside_the_default_one(tmp_path):
     merged = report.merge([_paper_file(tmp_path), report.load(FCA_BC)])   # the same configurations: never merged
-    assert set(merged) == {Key("hopper", "pos", "fca.rows.fca"), Key("hopper", "pos", "fca.rows.fca", 300_000)}
+    assert set(merged) == {Key("hopper", "pos", "mujoco-state.rows.bn-mlp"),
+                           Key("hopper", "pos", "mujoco-state.rows.bn-mlp", 300_000)}
     assert [m.budget for m in paper_budget_groups(merged)] == [300_000]
 
 
@@ -89,7 +90,7 @@ def test_the_report_shows_the_paper_budget_table_beside_table5_with_differences_
 
 def test_the_extended_map_has_the_budget_axis_and_names_where_copycat_was_judged(tmp_path):
     files = [_paper_file(tmp_path), report.load(FCA_BC)]
-    points = [q for q in extended_map(report.merge(files)) if q.setting == "recipe fca, split by rows"]
+    points = [q for q in extended_map(report.merge(files)) if q.setting == "recipe bn-mlp, split by rows"]
     assert [(q.run, q.iteration) for q in points] == [(30_000, 30_000), (300_000, 30_000), (300_000, 100_000),
                                                       (300_000, 300_000)]
     assert [q.diagnostics.copycats for q in points] == [0, 0, 0, 5]   # the committed file: read, none copycat
@@ -97,8 +98,9 @@ def test_the_extended_map_has_the_budget_axis_and_names_where_copycat_was_judged
     assert [(q.diagnostics.judged, q.diagnostics.controlled) for q in points] == [(5, 0), (0, 0), (0, 0), (0, 0)]
     text = report.build(files).pages["index.md"].text
     section = text[text.index("## Where copycat appears: the map, extended"):]
-    assert "| Hopper | fca, rows | 1 | 20,000 | 300k | 100k | " in section
-    assert "| Hopper | fca, rows | 1 | 20,000 | 300k | 300k | " in section and "| 5/5 (first verdict only) |" in section
+    assert "| Hopper | bn-mlp, rows | 1 | 20,000 | 300k | 100k | " in section
+    assert "| Hopper | bn-mlp, rows | 1 | 20,000 | 300k | 300k | " in section
+    assert "| 5/5 (first verdict only) |" in section
 
 
 def test_a_longer_history_is_a_setting_of_its_own_in_the_map_and_stays_out_of_the_recipe_table(tmp_path):
@@ -108,17 +110,17 @@ def test_a_longer_history_is_a_setting_of_its_own_in_the_map_and_stays_out_of_th
     path.write_text(json.dumps(obj))
     files = [report.load(path), report.load(FCA_BC), report.load(RESULTS / "hopper-pos-fca-rows-default-mlp-bc.json")]
     merged = report.merge(files)   # the same configurations as the history-2 file: a group of its own, not merged
-    assert Key("hopper", "pos", "fca.rows.fca.h7") in merged
+    assert Key("hopper", "pos", "mujoco-state.rows.bn-mlp.h7") in merged
     settings = [q.setting for q in extended_map(merged)]
-    assert settings == ["recipe mlp, split by rows", "recipe fca, split by rows",
-                        "recipe fca, split by rows, history 7"]
+    assert settings == ["recipe mlp, split by rows", "recipe bn-mlp, split by rows",
+                        "recipe bn-mlp, split by rows, history 7"]
     built = report.build(files)
     text = built.pages["index.md"].text
     recipe = text[text.index("## The paper's recipe"):]
     recipe = recipe[:recipe.index("\n## ")]
     assert "history 7" not in recipe   # the recipe table compares mlp with fca at the protocol's own history
-    assert "| Hopper | fca, rows, history 7 | 1 | 20,000 | 30k | 30k | " in text
-    assert "## Protocol fca, split by rows, recipe fca, history 7\n" in built.pages["hopper-pos.md"].text
+    assert "| Hopper | bn-mlp, rows, history 7 | 1 | 20,000 | 30k | 30k | " in text
+    assert "## Protocol mujoco-state, split by rows, recipe bn-mlp, history 7\n" in built.pages["hopper-pos.md"].text
 
 
 def test_another_expert_is_a_setting_of_its_own(tmp_path):
@@ -127,10 +129,10 @@ def test_another_expert_is_a_setting_of_its_own(tmp_path):
     path = tmp_path / "ppo.json"
     path.write_text(json.dumps(obj))
     merged = report.merge([report.load(path), report.load(FCA_BC)])
-    assert Key("hopper", "pos", "fca.rows.fca.ppo") in merged
-    assert [q.setting for q in extended_map(merged)] == ["recipe fca, split by rows",
-                                                         "recipe fca, split by rows, expert ppo"]
-    assert "| Hopper | fca, rows, expert ppo | 1 | 20,000 | 30k | 30k | " in report.build([report.load(path)]).text
+    assert Key("hopper", "pos", "mujoco-state.rows.bn-mlp.ppo") in merged
+    assert [q.setting for q in extended_map(merged)] == ["recipe bn-mlp, split by rows",
+                                                         "recipe bn-mlp, split by rows, expert ppo"]
+    assert "| Hopper | bn-mlp, rows, expert ppo | 1 | 20,000 | 30k | 30k | " in report.build([report.load(path)]).text
 
 
 def _with_iterations(tmp_path, name: str, preset: str, iterations: int, recorded: int | None):

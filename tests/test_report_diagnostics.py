@@ -117,19 +117,19 @@ def test_the_report_tabulates_each_configurations_diagnostics_and_states_the_thr
     # the recipe section: one table of task × recipe × configuration, only the recipe whose file has diagnostics
     recipe = text[text.index("## The paper's recipe"):]
     recipe = recipe[:recipe.index("\n## ")]
-    assert (f"| Hopper | fca | BC-OH | — | 5 | {_pct_of_expert(fca, 'bc-oh')} | 0.6 (0.1–0.9) | 0.1 | "
+    assert (f"| Hopper | bn-mlp | BC-OH | — | 5 | {_pct_of_expert(fca, 'bc-oh')} | 0.6 (0.1–0.9) | 0.1 | "
             "0.4 (0.2–1.1) | copycat 2/5 (first verdict only) |") in recipe
-    assert (f"| Hopper | fca | BC-SO | — | 5 | {_pct_of_expert(fca, 'bc-so')} | 1 (0.95–1.1) | — | "
+    assert (f"| Hopper | bn-mlp | BC-SO | — | 5 | {_pct_of_expert(fca, 'bc-so')} | 1 (0.95–1.1) | — | "
             "0.9 (0.7–1.2) | copycat 0/4 (first verdict only) |") in recipe
-    assert (f"| Hopper | fca | Ours (step) | thr 0.1, w 5 | 5 | {_pct_of_expert(fca, 'ours-step')} | "
+    assert (f"| Hopper | bn-mlp | Ours (step) | thr 0.1, w 5 | 5 | {_pct_of_expert(fca, 'ours-step')} | "
             "— | — | — | — |") in recipe
     assert "| Hopper | mlp |" not in recipe and recipe.count(rule) == 1
-    assert f"- Ours (step) (Hopper, recipe fca, thr 0.1, w 5): no diagnostics for 5 of 5 seeds: {NO_EMBEDDING}" \
+    assert f"- Ours (step) (Hopper, recipe bn-mlp, thr 0.1, w 5): no diagnostics for 5 of 5 seeds: {NO_EMBEDDING}" \
         in recipe
     # each group's section of its task's page: the group's own table, its columns explained in the notes
     sections = built.pages["hopper-pos.md"].text.split("\n## ")
-    fca_group = next(s for s in sections if s.startswith("Protocol fca, split by rows, recipe fca\n"))
-    mlp_group = next(s for s in sections if s.startswith("Protocol fca, split by rows, recipe mlp\n"))
+    fca_group = next(s for s in sections if s.startswith("Protocol mujoco-state, split by rows, recipe bn-mlp\n"))
+    mlp_group = next(s for s in sections if s.startswith("Protocol mujoco-state, split by rows, recipe mlp\n"))
     assert "| method | hparams | seeds | % of expert | embedding ratio | velocity 1 − R² | predictability ratio | " \
            "verdict |" in fca_group
     assert (f"| BC-OH | — | 5 | {_pct_of_expert(fca, 'bc-oh')} | 0.6 (0.1–0.9) | 0.1 | 0.4 (0.2–1.1) | "
@@ -206,10 +206,10 @@ def test_the_report_shows_the_controlled_verdict_with_the_first_beside_it(tmp_pa
     recipe = recipe[:recipe.index("\n## ")]
     assert ("| task | recipe | method | hparams | seeds | % of expert | embedding ratio | control ratio | "
             "velocity 1 − R² | predictability ratio | verdict |") in recipe
-    assert (f"| Hopper | fca | BC-OH | — | 5 | {_pct_of_expert(fca, 'bc-oh')} | 0.6 (0.1–0.9) | 0.8 (0.2–0.8) | 0.1 | "
-            "0.4 (0.2–1.1) | copycat 2/5 (first verdict 2/5) |") in recipe
+    assert (f"| Hopper | bn-mlp | BC-OH | — | 5 | {_pct_of_expert(fca, 'bc-oh')} | 0.6 (0.1–0.9) | 0.8 (0.2–0.8) | "
+            "0.1 | 0.4 (0.2–1.1) | copycat 2/5 (first verdict 2/5) |") in recipe
     # BC-SO against the median of its own seeds: 1 by construction; never a copycat
-    assert (f"| Hopper | fca | BC-SO | — | 5 | {_pct_of_expert(fca, 'bc-so')} | 1 (0.95–1.1) | 1 (1–1) | — | "
+    assert (f"| Hopper | bn-mlp | BC-SO | — | 5 | {_pct_of_expert(fca, 'bc-so')} | 1 (0.95–1.1) | 1 (1–1) | — | "
             "0.9 (0.7–1.2) | copycat 0/4 (first verdict 0/4) |") in recipe
     assert ("Copycat (the controlled verdict) = a policy that sees a past (a history of more than one observation, "
             "or the previous action in view) with control ratio ≤ 0.25 and predictability ratio ≤ 0.5, both, per "

@@ -82,7 +82,7 @@ def test_the_copycat_map_and_where_weighting_costs():
 def test_keyframe_weighting_lowers_the_loss_on_keyframes_and_the_step_weight_hardly_matters():
     """Claims 5-7: Hopper's changepoint losses (the paper's Table 3) under fca at 30k, and the sensitivity study on
     Walker2d under brax."""
-    m = _merged("hopper-pos-fca-default-*.json")[Key("hopper", "pos", "fca")]
+    m = _merged("hopper-pos-fca-default-*.json")[Key("hopper", "pos", "mujoco-state")]
     losses = {lab: [sum(r["losses"][s]["changepoint"] for r in runs) / len(runs) for s in ("train", "val")]
               for lab, runs in loss_rows(m)}
     assert [round(v, 4) for v in losses["BC-OH"] + losses["Ours, step THR 10% W 5"]] == [0.0214, 0.0458, 0.0134,
@@ -103,7 +103,7 @@ def test_the_driving_sandbox_reads_like_table_4_and_dagger_alone_beats_bc_oh_on_
     merged = _merged("*-pos-fca-default-*.json")
     above = {}
     for env in ("hopper", "halfcheetah", "walker2d"):
-        key = Key(env, "pos", "fca")
+        key = Key(env, "pos", "mujoco-state")
         for _, row, ci in versus_bcoh(merged[key], extra_methods({key: merged[key]})):
             if row is not None and ci is not None and ci.low > 0:
                 above[(env, row["method"])] = f"{ci.diff:+.0f} [{ci.low:+.0f}, {ci.high:+.0f}]"

@@ -54,10 +54,10 @@ def test_the_previous_action_in_view_is_a_setting_of_its_own_in_the_copycat_map(
         return obj
 
     plain, prev = (_loaded(tmp_path, fca_file(p, b), f"{p}.json") for p, b in ((False, 1000.0), (True, 300.0)))
-    assert variant_name(prev, prev.protocol) == "fca.rows.mlp.prev" and variant_name(plain, plain.protocol) == \
-        "fca.rows.mlp"
+    assert variant_name(prev, prev.protocol) == "mujoco-state.rows.mlp.prev"
+    assert variant_name(plain, plain.protocol) == "mujoco-state.rows.mlp"
     merged = merge([plain, prev])
-    assert set(k.protocol for k in merged) == {"fca.rows.mlp", "fca.rows.mlp.prev"}
+    assert set(k.protocol for k in merged) == {"mujoco-state.rows.mlp", "mujoco-state.rows.mlp.prev"}
     points = extended_map(merged)
     assert [q.prev_action for q in points] == [False, True]
     assert points[1].setting.endswith(", previous action in view") and "previous" not in points[0].setting

@@ -53,7 +53,7 @@ def regime_file(labels="raw", expert="fca", found=None, methods=METHODS, referen
     protocol = {**_fca(1), "split": "rows", **({"expert": expert} if expert else {}),
                 **({"labels": labels} if labels != "clipped" else {})}
     obj = _schema2(_results("hopper", methods, deltas=(-10.0, 0.0, 10.0)), protocol=protocol,
-                   command=["python", "-m", "experiments.sweep", "--protocol", "fca", "--recipe", "fca"])
+                   command=["python", "-m", "experiments.sweep", "--protocol", "mujoco-state", "--recipe", "bn-mlp"])
     obj["schema"] = 3
     obj["settings"] = {"protocol": dict(protocol), "budget": {"iterations": 30000, "seeds": 3},
                        "recipe": {"name": "fca"}}
@@ -83,23 +83,27 @@ def test_an_imported_expert_and_its_labels_make_groups_of_their_own(tmp_path):
              _load(tmp_path, regime_file("raw", expert="rough", found=SHIPPED), "rough.json")]
     merged = merge(files)   # the same configurations in every file: merged together, they would be refused
     assert set(merged) == {Key("hopper", "pos", name) for name in (
-        "fca.rows.fca.fca-ab12ab12.raw", "fca.rows.fca.fca-ab12ab12", "fca.rows.fca.fca-cd34cd34.raw",
-        "fca.rows.fca", "fca.rows.fca.rough.raw")}
-    raw = merged[Key("hopper", "pos", "fca.rows.fca.fca-ab12ab12.raw")]
-    assert expert_words(raw.protocol) == "fca (imported, SHA-256 ab12ab12…), labels raw"
-    assert raw.title == "Hopper (fca, split by rows, recipe fca, expert fca (imported, SHA-256 ab12ab12…), labels raw)"
-    assert merged[Key("hopper", "pos", "fca.rows.fca.rough.raw")].title.endswith("expert rough, labels raw)")
-    assert "expert" not in merged[Key("hopper", "pos", "fca.rows.fca")].title   # the task's own, clipped
+        "mujoco-state.rows.bn-mlp.cs294-ab12ab12.raw", "mujoco-state.rows.bn-mlp.cs294-ab12ab12",
+        "mujoco-state.rows.bn-mlp.cs294-cd34cd34.raw", "mujoco-state.rows.bn-mlp",
+        "mujoco-state.rows.bn-mlp.rough.raw")}
+    raw = merged[Key("hopper", "pos", "mujoco-state.rows.bn-mlp.cs294-ab12ab12.raw")]
+    assert expert_words(raw.protocol) == "cs294 (imported, SHA-256 ab12ab12…), labels raw"
+    assert raw.title == ("Hopper (mujoco-state, split by rows, recipe bn-mlp, expert cs294 (imported, SHA-256 "
+                         "ab12ab12…), labels raw)")
+    rough = merged[Key("hopper", "pos", "mujoco-state.rows.bn-mlp.rough.raw")]
+    assert rough.title.endswith("expert rough, labels raw)")
+    assert "expert" not in merged[Key("hopper", "pos", "mujoco-state.rows.bn-mlp")].title   # the task's own, clipped
     # the regime's groups: imported experts first, raw before clipped, then the shipped rough one; never the SAC one
     assert [m.protocol["name"] for m in regime_groups(merged)] == [
-        "fca.rows.fca.fca-ab12ab12.raw", "fca.rows.fca.fca-cd34cd34.raw", "fca.rows.fca.fca-ab12ab12",
-        "fca.rows.fca.rough.raw"]
+        "mujoco-state.rows.bn-mlp.cs294-ab12ab12.raw", "mujoco-state.rows.bn-mlp.cs294-cd34cd34.raw",
+        "mujoco-state.rows.bn-mlp.cs294-ab12ab12", "mujoco-state.rows.bn-mlp.rough.raw"]
     text = report.build(files).text
-    heading = "## Protocol fca, split by rows, recipe fca, expert fca (imported, SHA-256 ab12ab12…), labels raw\n"
+    heading = ("## Protocol mujoco-state, split by rows, recipe bn-mlp, expert cs294 (imported, SHA-256 ab12ab12…), "
+               "labels raw\n")
     assert heading in text
     provenance = text[text.index(heading):].splitlines()[2]
     assert f"imported from a cs294-pickle file (SHA-256 `{SHA}`), from {ORIGIN}; labels raw" in provenance
-    assert "| Hopper | fca, rows, expert fca (imported, SHA-256 ab12ab12…), labels raw | 1 |" in text   # the map
+    assert "| Hopper | bn-mlp, rows, expert cs294 (imported, SHA-256 ab12ab12…), labels raw | 1 |" in text   # the map
 
 
 def test_the_sections_numbers_against_bc_oh_beside_table5_with_the_diagnostics(tmp_path):
@@ -126,9 +130,9 @@ def test_the_sections_numbers_against_bc_oh_beside_table5_with_the_diagnostics(t
     section = text[text.index("## Table 5 with FCA's expert"):]
     section = section[:section.index("\n## ")]
     lines = section.splitlines()
-    assert "**Hopper, expert fca (imported, SHA-256 ab12ab12…), labels raw**: 30,000 iterations, 3 seeds per " \
+    assert "**Hopper, expert cs294 (imported, SHA-256 ab12ab12…), labels raw**: 30,000 iterations, 3 seeds per " \
            "configuration." in lines
-    assert any(line.startswith("- expert `hopper-fca`, imported from a cs294-pickle file") and SHA in line
+    assert any(line.startswith("- expert `hopper-cs294`, imported from a cs294-pickle file") and SHA in line
                and ORIGIN in line for line in lines)
     bcso = next(line for line in lines if line.startswith("| BC-SO | 3 |"))
     assert bcso.startswith("| BC-SO | 3 | 20.0 [18.8, 21.2]") and f"| 275 | {275 / 293:.2f}× | **-10.0 [" in bcso

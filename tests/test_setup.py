@@ -83,12 +83,14 @@ def test_the_expert_is_restored_once_per_sweep(monkeypatch, tmp_path):
 def test_a_protocol_joins_a_family_by_being_listed_there_never_by_its_name():
     from ape_jax import tasks
     from ape_jax.pipeline.presets import default_recipe
-    from experiments.report.analysis import in_fca_family
+    from experiments.report.analysis import in_state_family
 
     assert {name: p.family for name, p in tasks.PROTOCOLS.items()} == {
-        "fca": "fca", "fca-fs2": "fca", "fca-fs4": "fca", "fca-train5k": "fca", "fca-train80k": "fca",
+        "mujoco-state": "mujoco-state", "mujoco-state-fs2": "mujoco-state", "mujoco-state-fs4": "mujoco-state",
+        "mujoco-state-train5k": "mujoco-state", "mujoco-state-train80k": "mujoco-state",
         "brax": "brax", "palr-h2": "palr", "palr-h4": "palr", "nocrash": "nocrash", "nocrash-nospeed": "nocrash"}
     stranger = tasks.Protocol("fca-mine")          # named like the family, listed nowhere: a family of its own
-    assert stranger.family == "fca-mine" and not in_fca_family("fca-mine") and in_fca_family("fca-train5k")
-    assert default_recipe(stranger, "pos") == "mlp" and default_recipe(tasks.PROTOCOLS["fca-fs2"], "pos") == "fca"
+    assert stranger.family == "fca-mine" and not in_state_family("fca-mine") and in_state_family("mujoco-state-train5k")
+    assert default_recipe(stranger, "pos") == "mlp"
+    assert default_recipe(tasks.PROTOCOLS["mujoco-state-fs2"], "pos") == "bn-mlp"
     assert default_recipe(tasks.PROTOCOLS["palr-h4"], "pos") == "palr"

@@ -24,3 +24,11 @@ def test_methods_only_and_share_are_refused_together_in_one_line():
     proc = subprocess.run([sys.executable, "-m", "experiments.bench_train", "--methods-only", "--share"],
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2 and "give one" in proc.stderr and len(proc.stderr.strip().splitlines()) <= 2
+
+
+def test_the_profiles_chain_is_the_recipes_network_and_each_stage_trains():
+    cfg = _share.recipe_config("bn-mlp", 10)
+    assert _share.layer_widths(cfg) == [10, 300, 300, 300, 100, 300, 3]   # FCA's network on Hopper `pos`, H 2
+    assert _share.layer_widths(_share.recipe_config("mlp", 10))[0] == 10
+    rates = {stage: _share.stage_rate("bn-mlp", 2, 3, 1, stage) for stage in _share.PROFILE_STAGES}
+    assert all(r > 0 for r in rates.values())

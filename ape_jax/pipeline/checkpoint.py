@@ -178,8 +178,25 @@ def _with_defaults(fingerprint: Any) -> Any:
             settings = Settings.from_json(fingerprint["settings"]).to_json()
         except (SettingsError, TypeError, ValueError):  # not this code's settings: compared as they are
             return fingerprint
-        return {**fingerprint, "settings": json.loads(json.dumps(settings))}
+        settings["protocol"].pop("doc", None)   # the protocol's description, not a setting
+        return {**current_names(fingerprint), "settings": json.loads(json.dumps(settings))}
     return fingerprint
+
+
+def current_names(fingerprint: dict) -> dict:
+    """A fingerprint with the protocol and the expert called by their names now (`tasks.FORMER_PROTOCOLS`,
+    `FORMER_EXPERTS`), in its `protocol` block and in its data key's expert description: a sweep started before
+    the renaming resumes under the new names."""
+    from ape_jax import tasks
+
+    out = json.loads(json.dumps(fingerprint))
+    if isinstance(out.get("protocol"), dict):
+        p = out["protocol"]
+        p.update({k: v for k, v in tasks.current_names(p.get("name"), p.get("reference"), p.get("expert")).items()
+                  if k in p})
+    if isinstance(out.get("data"), dict) and isinstance(out["data"].get("expert"), dict):
+        out["data"]["expert"] = tasks.current_expert(out["data"]["expert"])
+    return out
 
 
 class SweepCheckpoint:

@@ -33,9 +33,6 @@ from ape_jax import methods as methods_lib
 from ape_jax.pipeline.results import Results
 
 CONTROL_FIELDS = ("control_ratio", "controlled_verdict")   # what judging adds to a run's `diagnostics`
-# The recipe's field that does not change how the control trains: how ours scales APE (the other methods' knobs are
-# their own records, `Settings.knobs`, not the recipe's)
-_OTHER_METHODS = ("ape_normalization",)
 
 
 class JudgeError(ValueError):
@@ -83,13 +80,13 @@ def control_errors(res: Results) -> dict[int, list[float]]:
 def control_key(res: Results) -> dict:
     """What must agree for one file's control to stand for another's: the task and observation mode, the
     demonstrations (`config.data` but their path), the protocol's fields (but `prev_action`: the control sees no
-    previous action), the recipe's fields that train the control (not the other methods' knobs, `_OTHER_METHODS`),
+    previous action), the recipe's fields (the learner's: the methods' knobs are their own records, `Settings.knobs`),
     the training length and the probe (fit steps and rows). The records as resolved (`Results.records`), so a
     file from before a field was recorded matches one with its default."""
     records = res.records()
     protocol = {k: v for k, v in dataclasses.asdict(records.protocol).items()
                 if k not in ("name", "doc", "prev_action")}
-    recipe = {k: v for k, v in dataclasses.asdict(records.recipe).items() if k not in ("name", *_OTHER_METHODS)}
+    recipe = {k: v for k, v in dataclasses.asdict(records.recipe).items() if k != "name"}
     diag = res.config.get("diagnostics") or {}
     return {"env": res.env, "obs": res.obs,
             "data": {k: v for k, v in (res.config.get("data") or {}).items() if k not in ("path", "sha256")},

@@ -119,6 +119,7 @@ def differences(records: Mapping[str, Any], base: Mapping[str, Any] = {}) -> Ite
 # the knob's name; whether an empty value meant the method's default rather than an empty grid)
 LEGACY: Mapping[str, tuple[Any, str, bool]] = {
     "step_grid": (StepKnobs, "grid", False), "softmax_grid": (SoftmaxKnobs, "taus", False),
+    "ape_normalization": (SoftmaxKnobs, "ape_normalization", False),
     "fca_alphas": (("fca", "fca-ib"), "alphas", False), "fca_adversary_lr": (("fca", "fca-ib"), "adversary_lr", False),
     "ib_weights": (("fca-ib",), "weights", True),
     "rap_weights": (("rap",), "weights", True), "rap_widths": (("rap",), "widths", True),

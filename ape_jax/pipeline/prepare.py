@@ -277,7 +277,7 @@ def fit_ape(prepared: Prepared, settings: Settings, hooks: Hooks = Hooks(),
             params, losses = run(jax.random.PRNGKey(0), jnp.asarray(train.demos.action), jnp.asarray(train.demos.t),
                                  rows)
             ape_train, ape_val = part_errors(params, train), part_errors(params, prepared.val)
-            ape_train, ape_val, scale = ape_lib.normalize(ape_train, ape_val, settings.recipe.ape_normalization)
+            ape_train, ape_val, scale = ape_lib.normalize(ape_train, ape_val, settings.ape_normalization)
             fit = ApeFit(params=params, train=np.asarray(ape_train), val=np.asarray(ape_val), scale=float(scale),
                          final_fit_mse=float(np.mean(np.asarray(losses)[-50:])))
             ckpt_lib.save_ape(checkpoint, fit)

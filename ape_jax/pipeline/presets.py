@@ -1,6 +1,6 @@
 """A sweep's settings as three records, and the one function that resolves them.
 
-    s = resolve("hopper", "pos", preset="default", recipe="fca", sets=["recipe.batch_size=32"])
+    s = resolve("hopper", "pos", preset="default", recipe="bn-mlp", sets=["recipe.batch_size=32"])
     s.protocol.split, s.budget.iterations, s.recipe.beta1      # "rows", 30_000, 0.5
 
 - `Protocol` (`ape_jax.tasks`): the task's setting — how demonstrations are collected and split and how
@@ -8,12 +8,12 @@
 - `Budget` (`--preset`, whose names it keeps: `quick`, `default`, `paper`): how much compute — iterations,
   seeds, evaluation episodes, APE fit steps, the chunk of iterations per compiled call.
 - `Recipe` (`--recipe`): how a policy is built and trained — the network and its initialisation, the
-  optimiser, batch size, the learning rate's schedule, the loss, the APE normalisation. The methods' own
+  optimiser, batch size, the learning rate's schedule, the loss. The methods' own
   settings (the weightings' grids, FCA's α, PALR's weights, ...) are not the recipe's: each method owns a record
   (`Method.knobs`, `--set METHOD.KNOB=VALUE`, `ape_jax.pipeline.method_knobs`), resolved into `Settings.knobs`.
-  `mlp` is the project's first recipe; `fca` is the FCA code's (BatchNorm network, Adam β1 0.5, batch 64), the
-  default under the fca protocols for state observations; `drq` is DrQ's pixel encoder at 84×84 with random
-  shifts, for images (`IMAGE_RECIPES`).
+  `mlp` is the project's first recipe; `bn-mlp` is the FCA code's (BatchNorm network, Adam β1 0.5, batch 64), the
+  default under the mujoco-state protocols for state observations (named `fca` before: `FORMER_RECIPES`); `drq`
+  is DrQ's pixel encoder at 84×84 with random shifts, for images (`IMAGE_RECIPES`).
 
 `resolve` starts from the named records, applies the image observations' budget (`IMAGE_PRESETS`) and an image
 recipe's own settings (`IMAGE_RECIPES`), the task's own overrides (`Task.presets`, e.g. ToyCar's), the smoke
@@ -26,12 +26,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import sys
 import typing
 from typing import Any
 from collections.abc import Iterable, Mapping
 
 from ape_jax import knobs, methods, models, tasks
-from ape_jax.ape import NORMALIZATIONS
 from ape_jax.learner import LearnerConfig, lr_boundaries
 from ape_jax.models import IMAGE_ENCODERS
 from ape_jax.tasks import Protocol
@@ -39,6 +39,7 @@ from ape_jax.pipeline.hints import SettingsError, check as _check, coerce as _co
 from ape_jax.pipeline.hints import format_value as _format, parse as _parse
 from ape_jax.pipeline import method_knobs
 
+from ape_jax.weighting import SoftmaxKnobs
 from ape_jax.weighting import SOFTMAX_GRID, STEP_GRID  # noqa: F401 - the paper's grids, where callers look for them
 
 
@@ -123,7 +124,6 @@ class Recipe:
       loss: `"l2"` or `"l1"`; None: the task's (L2 for MuJoCo, L1 for the driving tasks).
       loss_weights: each action dimension's share of the loss; empty: the task's (`Task.loss_weights`: CILRS's
         0.5 / 0.45 / 0.05 for ToyTown's steer, throttle and brake; else 1 each).
-      ape_normalization: `"none"` (the raw APE, as the official code) or `"mean"`.
     """
 
     name: str = "mlp"
@@ -144,15 +144,14 @@ class Recipe:
     bn_momentum: float = 0.1
     loss: str | None = None
     loss_weights: tuple[float, ...] = ()
-    ape_normalization: str = "none"
 
     def __post_init__(self):
+        object.__setattr__(self, "name", FORMER_RECIPES.get(self.name, self.name))  # a file's former name: today's
         # the knobs a LearnerConfig takes from the recipe: one rule each (`ape_jax.knobs`), the config's too
         knobs.check("recipe.", SettingsError, network=self.network, init=self.init, encoder=self.encoder,
                     encoder_norm=self.encoder_norm, augment_shift=self.augment_shift, loss=self.loss,
                     beta1=self.beta1, beta2=self.beta2, bn_momentum=self.bn_momentum, batch_size=self.batch_size,
                     lr_schedule=self.lr_schedule, lr_decay=self.lr_decay, dtype=self.dtype)
-        _one_of("recipe.ape_normalization", self.ape_normalization, NORMALIZATIONS)
         _check(all(0.0 <= v < math.inf for v in self.loss_weights)
                and (not self.loss_weights or max(self.loss_weights) > 0),
                f"recipe.loss_weights: finite numbers >= 0, not all 0 (empty: the task's), got {self.loss_weights!r}")
@@ -171,9 +170,12 @@ class Recipe:
 # `palr`: PALR's code's optimisation (KAIST-AILab/palr `train.py`: Adam(3e-4) with PyTorch's moments, batch 1,024,
 # a constant learning rate over 500,000 iterations: `--set budget.iterations=500000`), on the project's network and
 # loss (theirs: 128-64-128 units and a tanh-Gaussian likelihood); the default recipe of the `palr-h*` protocols.
+# The FCA code's recipe was named `fca` (as are FCA's algorithm and, before, the protocol): `--recipe fca` reads as
+# `bn-mlp`, with a notice; a file's or checkpoint's `fca` silently.
+FORMER_RECIPES: Mapping[str, str] = {"fca": "bn-mlp"}
 RECIPES: Mapping[str, Recipe] = {
     "mlp": Recipe("mlp"),
-    "fca": Recipe("fca", network="bn-mlp", init="xavier", beta1=0.5, batch_size=64),
+    "bn-mlp": Recipe("bn-mlp", network="bn-mlp", init="xavier", beta1=0.5, batch_size=64),
     "palr": Recipe("palr", lr=3e-4, batch_size=1024, lr_decay_at=()),
     "drq": Recipe("drq", encoder="drq", augment_shift=4),
 }
@@ -229,6 +231,17 @@ class Settings:
 
     def __post_init__(self):
         object.__setattr__(self, "knobs", method_knobs.without_defaults(self.knobs))
+        self.ape_normalization   # noqa: B018 - refuses softmax weightings that disagree, here rather than mid-sweep
+
+    @property
+    def ape_normalization(self) -> str:
+        """How the sweep's one APE fit is scaled (`SoftmaxKnobs.ape_normalization`): its softmax weightings'
+        shared setting; `SettingsError` where two differ."""
+        found = {m: self.knob(m).ape_normalization for m in methods.sharing(SoftmaxKnobs)}
+        if len(set(found.values())) > 1:
+            raise SettingsError("the softmax weightings' ape_normalization differ (" + ", ".join(
+                f"{m}: {v}" for m, v in found.items()) + "): the sweep fits one APE, scaled once")
+        return next(iter(found.values()), "none")
 
     def knob(self, method: str) -> Any:
         """Method `method`'s settings record in this sweep (`Method.knobs`): the sweep's, else its defaults."""
@@ -267,11 +280,11 @@ class Settings:
 
 
 def default_recipe(protocol: Protocol, obs: str) -> str:
-    """The recipe a sweep uses unless told: the FCA code's under the fca protocols for states, PALR's code's under
-    the palr protocols, else `mlp`."""
+    """The recipe a sweep uses unless told: the FCA code's (`bn-mlp`) under the mujoco-state protocols for states,
+    PALR's code's under the palr protocols, else `mlp`."""
     if protocol.family == "palr":
         return "palr"
-    return "fca" if protocol.family == "fca" and obs != "image" else "mlp"
+    return "bn-mlp" if protocol.family == tasks.STATE and obs != "image" else "mlp"
 
 
 def smoke_overrides(values: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
@@ -314,6 +327,12 @@ def resolve(env: str, obs: str, protocol: str | None = None, preset: str = "quic
       SettingsError: an unknown preset, recipe, protocol, section or field, or a value a field cannot take.
     """
     task = tasks.get(env)
+    renamed = [(kind, old, new) for kind, old, new in (
+        ("protocol", protocol, tasks.FORMER_PROTOCOLS.get(protocol or "")),
+        ("recipe", recipe, FORMER_RECIPES.get(recipe or "")),
+        *(("protocol.expert", item.partition("=")[2].strip(), tasks.FORMER_EXPERTS.get(item.partition("=")[2].strip()))
+          for item in sets if item.partition("=")[0].strip() == "protocol.expert")) if new]
+    recipe = FORMER_RECIPES.get(recipe, recipe) if recipe else recipe
     try:
         proto = task.protocol(protocol, obs)
     except ValueError as e:
@@ -359,7 +378,30 @@ def resolve(env: str, obs: str, protocol: str | None = None, preset: str = "quic
         raise SettingsError(f"recipe.dtype 'bfloat16': {problem}; use recipe.dtype=float32")
     for field in old_names:  # once the settings are good: a refusal stays one line
         method_knobs.notice(field)
+    for kind, old, new in renamed:
+        notice_renamed(kind, old, new)
     return settings
+
+
+_noticed: set[tuple[str, str]] = set()
+
+
+def current_protocol(name: str | None) -> str | None:
+    """A protocol named on the command line, as it is called now (`tasks.FORMER_PROTOCOLS`), with the notice."""
+    new = tasks.FORMER_PROTOCOLS.get(name or "")
+    if new:
+        notice_renamed("protocol", name, new)
+    return new or name
+
+
+def notice_renamed(kind: str, old: str, new: str) -> None:
+    """Says once per process, on stderr, that `kind` `old` is now called `new` (`docs/design.md`, "Words")."""
+    if (kind, old) not in _noticed:
+        _noticed.add((kind, old))
+        extra = "" if kind != "protocol.expert" else (
+            f" (an expert imported as {old!r} before is found as {new!r} once imported again: "
+            f"python -m experiments.import_expert PATH --env ENV --name {new})")
+        print(f"notice: {kind} {old!r} is now {new!r}; the old name keeps working{extra}", file=sys.stderr)
 
 
 def _check_image_recipe(recipe: Recipe, obs: str, image_size: tuple[int, int] | None) -> None:

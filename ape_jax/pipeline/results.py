@@ -51,7 +51,8 @@ import numpy as np
 
 from ape_jax import methods as methods_lib
 from ape_jax.pipeline.data import write_atomic
-from ape_jax.pipeline.presets import SECTIONS, Settings
+from ape_jax import tasks
+from ape_jax.pipeline.presets import FORMER_RECIPES, SECTIONS, Settings
 
 
 SCHEMA = 3
@@ -107,6 +108,7 @@ class Results:
             obj.update(schema=SCHEMA, settings=legacy_settings(obj))
             if obj["protocol"]:
                 obj["protocol"].setdefault("split", "episodes")
+        _current_names(obj)
         names = dict.fromkeys([*obj["config"].get("methods", []), *(r["method"] for r in obj["runs"])])
         known = {**{m: method_info(m) for m in names if m not in obj.get("methods", {})}, **obj.get("methods", {})}
         fields = {f.name for f in dataclasses.fields(cls)}
@@ -198,6 +200,24 @@ def legacy_settings(obj: dict) -> dict:
     for section, keys in _LEGACY.items():
         out[section].update({k: config[k] for k in keys if config.get(k) is not None})
     return out
+
+
+def _current_names(obj: dict) -> None:
+    """Renames in place what a file from before each thing had one name calls by a former name (the protocol,
+    its reference, the expert: `tasks.FORMER_PROTOCOLS`, `FORMER_EXPERTS`; the recipe: `presets.FORMER_RECIPES`),
+    so every reader sees one name for one thing; the file on disk is left as written."""
+    blocks = [b for b in (obj.get("protocol"), (obj.get("settings") or {}).get("protocol")) if isinstance(b, dict)]
+    for block in blocks:
+        block.update({k: v for k, v in tasks.current_names(block.get("name"), block.get("reference"),
+                                                           block.get("expert")).items() if k in block})
+    recipe = (obj.get("settings") or {}).get("recipe")
+    if isinstance(recipe, dict) and recipe.get("name") in FORMER_RECIPES:
+        recipe["name"] = FORMER_RECIPES[recipe["name"]]
+    data = obj["config"].get("data")
+    if isinstance(data, dict) and isinstance((data.get("settings") or {}).get("expert"), dict):
+        data["settings"]["expert"] = tasks.current_expert(data["settings"]["expert"])
+    if obj["config"].get("recipe") in FORMER_RECIPES:
+        obj["config"]["recipe"] = FORMER_RECIPES[obj["config"]["recipe"]]
 
 
 def method_info(name: str) -> dict:

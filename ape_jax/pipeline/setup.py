@@ -226,7 +226,13 @@ def reference_returns(env_name: str, protocol: tasks.Protocol) -> dict | None:
         return None
     from envs import experts
 
-    return experts.reference(protocol.expert_name(env_name), protocol.reference or protocol.name)
+    key, error = protocol.reference or protocol.name, None
+    for name in (key, *(old for old, new in tasks.FORMER_PROTOCOLS.items() if new == key)):  # measured before
+        try:                                                                                # the renaming
+            return experts.reference(protocol.expert_name(env_name), name)
+        except experts.ExpertError as e:
+            error = error or e
+    raise error
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -213,14 +213,14 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
                  if spec.settings.preset_iterations is not None else {}),
               "methods": list(spec.methods), "loss": spec.recipe.loss or task.loss, "metric": task.metric,
               "task_metrics": list(task.metrics),
-              "ape": {"normalization": spec.recipe.ape_normalization, "scale": ape.scale,
+              "ape": {"normalization": spec.settings.ape_normalization, "scale": ape.scale,
                       "final_fit_mse": ape.final_fit_mse,
                       # the validation split's mean, on the scale it trained on; × scale ÷ raw_mean it is the
                       # expert's reference for the policies' rollout_ape (÷ the raw training mean)
                       "val_mean": float(np.mean(ape.val)), "raw_mean": ape.raw_mean,
                       # the training split's normalised APE distribution, for the weights' histograms
                       "quantiles": np.quantile(np.asarray(ape.train), np.linspace(0, 1, 101)).tolist()},
-              "ape_normalization": spec.recipe.ape_normalization,
+              "ape_normalization": spec.settings.ape_normalization,
               "score_rows": list(score_rows(spec.methods)),
               "data": {"path": prepared.data_path, "train_transitions": len(prepared.train),
                        "val_transitions": len(prepared.val), "split": spec.protocol.split,

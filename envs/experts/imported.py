@@ -1,7 +1,7 @@
 """Experts imported from a file: read, checked, converted, and kept outside the repository.
 
-    python -m experiments.import_expert ~/Hopper-v1.pkl --env hopper --name fca
-    python -m experiments.sweep --set protocol.expert=fca --set protocol.labels=raw
+    python -m experiments.import_expert ~/Hopper-v1.pkl --env hopper --name cs294
+    python -m experiments.sweep --set protocol.expert=cs294 --set protocol.labels=raw
 
 An imported expert is the same deterministic MLP as a shipped one (`envs.experts`: `obs_mean`, `obs_std`,
 `kernels`, `biases`, the card's `network.activation` and `network.head`), kept in the user's expert directory

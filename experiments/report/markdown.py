@@ -42,7 +42,7 @@ LEAD: tuple[Callable[[Context], list[Section]], ...] = (
 # `index.md` after the list of task pages: the tables across tasks, in order.
 ACROSS: tuple[Callable[[Context], list[Section]], ...] = (
     state.state_sections,                 # MuJoCo-State per protocol, with Table 5
-    recipe.recipe_section,                # the paper's recipe: mlp against fca
+    recipe.recipe_section,                # the paper's recipe: mlp against bn-mlp
     regime.regime_section,                # Table 5 with FCA's expert (an expert of FCA's kind, labels raw or clipped)
     ranking.ranking_section,              # the later methods ranked with the paper's
     copycat.copycat_map_section,          # the copycat map per frame skip

@@ -1,12 +1,12 @@
 #!/usr/bin/env bash
 # Issue 59's ranking of the four remedies after the paper (channel-dropout, ptp, action-chunks, priming) beside the
 # other methods, in both families of the report's ranking, with each cell's rows, seeds, budget and recipe (the
-# `default` budget, the `fca` recipe; 5 seeds, 8 on FCA's expert): where copying is expected (the previous action
+# `default` budget, the `bn-mlp` recipe; 5 seeds, 8 on FCA's expert): where copying is expected (the previous action
 # in view; FCA's expert with raw and with clipped labels; the three rough experts) and the default tasks (the
 # shipped SAC experts). Priming reads the sweep's own BC-SO (priming.source=bc-so), so each file trains BC-SO too:
 # the same runs as the cell's committed BC-SO, and the file's own no-history control. ChannelDropout runs where a
 # leaking channel is in view (the previous action); elsewhere it has nothing to drop. Import FCA's expert first:
-#   python -m experiments.import_expert PATH/TO/fighting-copycat-agents/data/experts/Hopper-v1.pkl --env hopper --name fca
+#   python -m experiments.import_expert PATH/TO/fighting-copycat-agents/data/experts/Hopper-v1.pkl --env hopper --name cs294
 # Waits for any sweep already running on the machine; resumable (rerun to go on).
 set -uo pipefail
 WT=${WT:-$(cd "$(dirname "$0")/../.." && pwd)}
@@ -16,20 +16,20 @@ cd "$WT" || exit 2
 mkdir -p "$RUNS"
 source "$WT/results/queue/_lib.sh"
 while pgrep -f "experiments.sweep" > /dev/null; do sleep 120; done   # one queue at a time on the 2 cores
-FCA="--protocol fca --recipe fca --preset default"
+SETTING="--protocol mujoco-state --recipe bn-mlp --preset default"
 REMEDIES=bc-so,ptp,action-chunks,priming
 # the previous action in view (Hopper, the shipped SAC expert), 5 seeds: ChannelDropout drops it
-sweep hopper-pos-fca-rows-default-fca-prevaction-remedies --env hopper $FCA --seeds 5 \
+sweep hopper-pos-mujoco-state-rows-default-bn-mlp-prevaction-remedies --env hopper $SETTING --seeds 5 \
   --methods $REMEDIES,channel-dropout --set protocol.prev_action=true
-judge_by hopper-pos-fca-rows-default-fca-prevaction-remedies hopper-pos-fca-rows-default-fca-bc
+judge_by hopper-pos-mujoco-state-rows-default-bn-mlp-prevaction-remedies hopper-pos-fca-rows-default-fca-bc
 # FCA's expert, raw and clipped labels, 8 seeds
-sweep hopper-pos-fca-rows-default-fca-fcaexpert-raw-remedies --env hopper $FCA --seeds 8 --methods $REMEDIES \
-  --set protocol.expert=fca --set protocol.labels=raw
-sweep hopper-pos-fca-rows-default-fca-fcaexpert-clipped-remedies --env hopper $FCA --seeds 8 --methods $REMEDIES \
-  --set protocol.expert=fca
+sweep hopper-pos-mujoco-state-rows-default-bn-mlp-cs294-raw-remedies --env hopper $SETTING --seeds 8 --methods $REMEDIES \
+  --set protocol.expert=cs294 --set protocol.labels=raw
+sweep hopper-pos-mujoco-state-rows-default-bn-mlp-cs294-clipped-remedies --env hopper $SETTING --seeds 8 --methods $REMEDIES \
+  --set protocol.expert=cs294
 # the three rough experts (raw labels) and the default tasks, 5 seeds
 for env in hopper walker2d halfcheetah; do
-  sweep $env-pos-fca-rows-default-fca-rough-raw-remedies --env $env $FCA --seeds 5 --methods $REMEDIES \
+  sweep $env-pos-mujoco-state-rows-default-bn-mlp-rough-raw-remedies --env $env $SETTING --seeds 5 --methods $REMEDIES \
     --set protocol.expert=rough --set protocol.labels=raw
-  sweep $env-pos-fca-rows-default-fca-remedies --env $env $FCA --seeds 5 --methods $REMEDIES
+  sweep $env-pos-mujoco-state-rows-default-bn-mlp-remedies --env $env $SETTING --seeds 5 --methods $REMEDIES
 done

@@ -13,7 +13,7 @@ what these functions return. One module per concern, each re-exported here:
   (`difference_rows`); the paper's comparisons in a driving group (`driving_comparisons`);
 - `diagnostics`: copycat diagnostics per configuration, at the end and over training;
 - `copycat`: the copycat map (`copycat_map`) and the extended map (`extended_map`);
-- `recipe`: the recipe comparison (mlp against fca) and the paper's budget beside Table 5;
+- `recipe`: the recipe comparison (mlp against bn-mlp) and the paper's budget beside Table 5;
 - `ranking`: the later methods (`LATER`) ranked with the paper's per family of cells (where copying is
   expected, the default tasks): IQM, probability of improvement over BC-OH, per-cell differences and copycat counts;
 - `regime`: Table 5 with FCA's expert (an imported expert or raw labels under the paper's protocol and recipe):
@@ -35,11 +35,11 @@ from experiments.report.analysis.diagnostics import (DiagnosticsRow, PolicyDiagn
                                                      diagnostics_block, diagnostics_rows, diagnostics_thresholds,
                                                      has_diagnostics, policy_diagnostics, recipe_diagnostics, run_at,
                                                      spread, training_points)
-from experiments.report.analysis.groups import (BRAX, FCA, FCA_TRAIN, FIRST_IMAGE_PRESET, MUJOCO, Group, Key, Merged,
-                                                ReportError, Source, budget_of, check_references, config_key,
+from experiments.report.analysis.groups import (BRAX, STATE, STATE_TRAIN, FIRST_IMAGE_PRESET, MUJOCO, Group, Key,
+                                                Merged, ReportError, Source, budget_of, check_references, config_key,
                                                 demonstrator, expert_part, expert_words, file_stem,
                                                 former_preset, group_title, groups_of, raw_labels,
-                                                in_fca_family, is_rate, load, main_metric, merge, ordered,
+                                                in_state_family, is_rate, load, main_metric, merge, ordered,
                                                 other_history, other_setting, protocol_of, protocol_words, protocols_of,
                                                 variant_name)
 from experiments.report.analysis.rates import LEARNED, Estimate, RateReading, per_seed, rate_reading
@@ -71,7 +71,7 @@ __all__ = [
     "DRIVING_COMPARISONS", "DRIVING_ORDER", "Comparison", "DrivingRow", "DrivingTable", "driving_comparisons",
     "driving_rows", "driving_table", "setting_words",
     "APE_SCALES", "LEARNED", "Estimate", "RateReading", "per_seed", "rate_reading",
-    "BRAX", "BUDGET_METHODS", "FCA", "FCA_TRAIN", "FIRST_IMAGE_PRESET", "former_preset",
+    "BRAX", "BUDGET_METHODS", "STATE", "STATE_TRAIN", "FIRST_IMAGE_PRESET", "former_preset",
     "MAP_METHODS", "MUJOCO", "RECIPE_METHODS", "AlphaRow", "BudgetPoint", "BudgetRow", "Choice", "CopycatMap",
     "DiagnosticsRow", "Difference", "Gap", "Group", "Interval", "Key", "LongerRow", "MapCell", "MapPoint", "MapRow",
     "Merged", "PolicyDiagnostics", "RecipeCell", "RecipeRow", "ReportError", "Source", "Spread", "TrainingPoint",
@@ -80,7 +80,7 @@ __all__ = [
     "difference_unit", "budget_differences", "budget_of", "budget_rows", "choices", "comparisons", "config_key",
     "copycat_groups", "copycat_map", "diagnostics_block", "diagnostics_rows", "diagnostics_thresholds",
     "display_metric", "expert_ape", "extended_map", "extra_methods", "file_stem", "gap", "group_title",
-    "groups_of", "has_diagnostics", "headline", "history_difference", "hparams_suffix", "in_fca_family", "is_finite",
+    "groups_of", "has_diagnostics", "headline", "history_difference", "hparams_suffix", "in_state_family", "is_finite",
     "is_number", "is_rate", "known_methods", "label", "load", "longer_runs", "loss_rows", "main_metric", "mean_cell",
     "merge", "method_rows", "metric_value", "ok_runs", "ordered", "other_history", "other_setting",
     "ours_differences", "paper_budget_groups", "paper_step_row", "percent", "policy_diagnostics", "protocol_of",

@@ -1,8 +1,8 @@
 """Where copycat appears: the history's benefit per frame skip, training-set size, recipe and budget.
 
-- `copycat_map`: per task, BC-SO, BC-OH and Ours per frame skip of the fca family (and per training-set size at
+- `copycat_map`: per task, BC-SO, BC-OH and Ours per frame skip of the mujoco-state family (and per training-set size at
   frame skip 1), with the history's benefit at each;
-- `extended_map`: every fca-family state group as map points, along the recipe, split and budget axes too, with
+- `extended_map`: every mujoco-state-family state group as map points, along the recipe, split and budget axes too, with
   BC-OH's copycat diagnostics.
 """
 
@@ -16,8 +16,8 @@ import numpy as np
 
 from experiments.report.analysis.differences import Interval, Share, mean_difference, gap_share
 from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics, run_at
-from experiments.report.analysis.groups import (FCA, FCA_TRAIN, MUJOCO, Group, Key, Merged, ReportError, expert_words,
-                                                group_title, in_fca_family, ordered, other_history)
+from experiments.report.analysis.groups import (STATE, STATE_TRAIN, MUJOCO, Group, Key, Merged, ReportError,
+                                                expert_words, group_title, in_state_family, ordered, other_history)
 from experiments.report.analysis.selection import CEILING, best_of, is_finite, method_rows, ok_runs, seed_values
 from experiments.report.paper import PAPER_STEP, PAPER_STEP_LABEL
 
@@ -56,9 +56,10 @@ class MapRow(NamedTuple):
 
 
 class CopycatMap(NamedTuple):
-    """One task's copycat map: `rows`, one per frame skip of the fca family at fca's training-set size, in
-    increasing order; `data_rows`, one per training-set size at frame skip 1 (fca's own size included) where the
-    files hold other sizes (`fca-train5k`, `fca-train80k`), in increasing order, else empty."""
+    """One task's copycat map: `rows`, one per frame skip of the mujoco-state family at mujoco-state's training-set
+    size, in increasing order; `data_rows`, one per training-set size at frame skip 1 (mujoco-state's own size included)
+    where the files hold other sizes (`mujoco-state-train5k`, `mujoco-state-train80k`), in increasing order, else
+    empty."""
 
     env: str
     obs: str
@@ -80,21 +81,22 @@ def _map_cell(m: Group, method: str, hparams: dict | None) -> MapCell | None:
 
 
 def copycat_map(merged: Merged) -> list[CopycatMap]:
-    """Where copycat appears: per task with fca-family results at ≥ 2 frame skips, BC-SO, BC-OH and Ours (step THR 10%
-    W 5) in % of expert per frame skip, with the history's benefit (BC-OH − BC-SO) and BC-OH's gap to the expert.
+    """Where copycat appears: per task with mujoco-state-family results at ≥ 2 frame skips, BC-SO, BC-OH and Ours (step
+    THR 10% W 5) in % of expert per frame skip, with the history's benefit (BC-OH − BC-SO) and BC-OH's gap to the
+    expert.
 
-    The fca family is one protocol at several frame skips (the same simulated horizon and training-set size),
+    The mujoco-state family is one protocol at several frame skips (the same simulated horizon and training-set size),
     so its rows differ only in how often the policy acts: copycat, a policy that repeats its last action
     because its history predicts it, should grow with the frame rate. A group that holds more methods
     or seeds than the map needs (the fca file's full grid) gives only the rows of those three methods.
 
     Raises:
-      ReportError: two protocols of the fca family at one frame skip for one task.
+      ReportError: two protocols of the mujoco-state family at one frame skip for one task.
     """
     by_task: dict[tuple[str, str], dict[tuple[int, int], dict]] = {}
     for key, m in ordered(merged):
-        skip, train = m.protocol.get("frame_skip"), m.protocol.get("train_transitions") or FCA_TRAIN
-        if (not in_fca_family(key.protocol) or m.protocol.get("variant_of") or skip is None
+        skip, train = m.protocol.get("frame_skip"), m.protocol.get("train_transitions") or STATE_TRAIN
+        if (not in_state_family(key.protocol) or m.protocol.get("variant_of") or skip is None
                 or key.budget is not None):  # the map of the first recipe; the extended map has the variants
             continue
         cells = by_task.setdefault((key.env, key.obs), {})
@@ -105,12 +107,12 @@ def copycat_map(merged: Merged) -> list[CopycatMap]:
         cells[skip, train] = m
     out = []
     for (env, obs), cells in by_task.items():
-        rows = [_map_row(cells[k], *k) for k in sorted(cells) if k[1] == FCA_TRAIN]
+        rows = [_map_row(cells[k], *k) for k in sorted(cells) if k[1] == STATE_TRAIN]
         data = [_map_row(cells[k], *k) for k in sorted(cells, key=lambda k: k[1]) if k[0] == 1]
-        data = data if any(r.train_transitions != FCA_TRAIN for r in data) else []
+        data = data if any(r.train_transitions != STATE_TRAIN for r in data) else []
         if len(rows) < 2 and not data:
             continue
-        title = group_title(Key(env, obs, FCA), {"name": FCA}, with_protocol=False)
+        title = group_title(Key(env, obs, STATE), {"name": STATE}, with_protocol=False)
         out.append(CopycatMap(env, obs, title, rows, data))
     return out
 
@@ -165,7 +167,7 @@ class MapPoint(NamedTuple):
 
     @property
     def setting(self) -> str:
-        """`"recipe fca, split by rows"` with its `variations`: what the recipe axis varies."""
+        """`"recipe bn-mlp, split by rows"` with its `variations`: what the recipe axis varies."""
         return f"recipe {self.recipe}, split by {self.split}" + self.variations
 
 
@@ -177,17 +179,17 @@ def _seed_cell(values: Sequence[float]) -> MapCell | None:
 
 
 def extended_map(merged: Merged) -> list[MapPoint]:
-    """Every state group of the fca family (the paper's protocol at each frame skip and training-set size, under
-    every recipe, split and budget) as map points: one per iteration its runs were evaluated at (`Budget.eval_at`,
+    """Every state group of the mujoco-state family (the paper's protocol at each frame skip and training-set size,
+    under every recipe, split and budget) as map points: one per iteration its runs were evaluated at (`Budget.eval_at`,
     then the end), with BC-SO, BC-OH and Ours (step THR 10% W 5) in % of expert, BC-OH − BC-SO with its 95%
     Welch t-interval over seeds, and BC-OH's copycat diagnostics; where BC-full ran, its % of expert and the
-    history's share of the gap between BC-SO and it. In task, setting (recipe mlp before fca,
+    history's share of the gap between BC-SO and it. In task, setting (recipe mlp before bn-mlp,
     whole episodes before rows), frame skip, size, run length and iteration order."""
     out = []
     for key, m in ordered(merged):
         p = m.protocol
         base = p.get("variant_of") or key.protocol
-        if key.obs != "pos" or key.env not in MUJOCO or not in_fca_family(base) or p.get("frame_skip") is None:
+        if key.obs != "pos" or key.env not in MUJOCO or not in_state_family(base) or p.get("frame_skip") is None:
             continue
         end = int(m.sources[0].config["iterations"])
         chosen = [_map_row_of(m, method, hp) for _, method, hp in (*MAP_METHODS, ("", CEILING, None))]
@@ -202,10 +204,10 @@ def extended_map(merged: Merged) -> list[MapPoint]:
             history = mean_difference(bcoh.seeds, bcso.seeds) if bcso and bcoh else None
             share = gap_share(bcoh.seeds, bcso.seeds, ceiling.seeds) if bcso and bcoh and ceiling else None
             out.append(MapPoint(key.env, p.get("recipe") or "mlp", p.get("split") or "episodes", int(p["frame_skip"]),
-                                int(p.get("train_transitions") or FCA_TRAIN), end, iteration, tuple(cells), history,
+                                int(p.get("train_transitions") or STATE_TRAIN), end, iteration, tuple(cells), history,
                                 policy_diagnostics(at[1]) if at[1] else None, other_history(p), expert_words(p),
                                 bool(p.get("prev_action")), ceiling, share))
-    rank = {"mlp": 0, "fca": 1}
+    rank = {"mlp": 0, "bn-mlp": 1}
     return sorted(out, key=lambda q: (MUJOCO.index(q.env), rank.get(q.recipe, 2), q.recipe, q.split != "episodes",
                                       q.observations or 0, q.expert or "", q.prev_action, q.frame_skip,
                                       q.train_transitions, q.run, q.iteration))

@@ -133,11 +133,11 @@ def diagnostics_thresholds(sources: Sequence[results_lib.Results]) -> list[dict]
 def recipe_diagnostics(groups: dict[tuple[str, str, str], dict[str, Group]]
                        ) -> list[tuple[str, str, DiagnosticsRow]]:
     """The recipe section's diagnostics (`recipe_groups`' groups): `(task title, recipe, row)` per configuration
-    with diagnostics, by task, then recipe (mlp, fca, others), then summary order."""
+    with diagnostics, by task, then recipe (mlp, bn-mlp, others), then summary order."""
     out = []
     for (env, obs, _), recipes in groups.items():
         title = tasks.get(env).title + ("" if obs == "pos" else f" ({obs})")
-        names = [r for r in ("mlp", "fca") if r in recipes] + [r for r in recipes if r not in ("mlp", "fca")]
+        names = [r for r in ("mlp", "bn-mlp") if r in recipes] + [r for r in recipes if r not in ("mlp", "bn-mlp")]
         out += [(title, n, row) for n in names for row in diagnostics_rows(recipes[n])]
     return out
 

@@ -2,14 +2,14 @@
 
 - `load` reads one results file (`ape_jax.pipeline.results.load`, the one validator), refusing `--smoke` runs;
 - `merge` joins them per `Key(env, obs, protocol, budget)`: results of one task under two protocols (the paper's
-  `fca`, Brax's own `brax`) are different experiments, on different scales, and never mix;
+  `mujoco-state`, Brax's own `brax`) are different experiments, on different scales, and never mix;
 - `ordered`, `group_title`, `file_stem`, `groups_of`, `protocols_of`: the groups in report order, and how
   tables and figure files name them.
 
 Protocols: a file's `protocol["name"]`; schema 1 files record none and ran Brax's own settings, so they are
-`brax`. The *fca family* is `fca` (the paper's MuJoCo-State setting, frame skip 1) and every protocol named
-`fca-...` (the same setting at another frame skip or training-set size, e.g. `fca-fs4`), told apart by the
-`frame_skip` and `train_transitions` they record.
+`brax`. The *mujoco-state family* is `mujoco-state` (the paper's MuJoCo-State setting, frame skip 1) and every protocol
+named `mujoco-state-...` (the same setting at another frame skip or training-set size, e.g. `mujoco-state-fs4`), told
+apart by the `frame_skip` and `train_transitions` they record.
 
 Experts and labels: a file whose demonstrations came from another expert than the task's own, or stored the
 expert's labels raw (`protocol.labels`), is a group of its own (`variant_name`): a shipped variant by its name
@@ -85,11 +85,11 @@ def main_metric(res: results_lib.Results) -> str:
     return res.main_metric if "metric" in res.config else tasks.get(res.env).metric
 
 
-BRAX, FCA = "brax", "fca"  # the protocol of files that record none; the paper's MuJoCo-State protocol
+BRAX, STATE = "brax", tasks.STATE  # the protocol of files that record none; the paper's MuJoCo-State protocol
 
 
-# fca's training transitions (its protocol record's): the frame-skip rows of the map all have it.
-FCA_TRAIN = tasks.PROTOCOLS[FCA].train_transitions
+# mujoco-state's training transitions (its protocol record's): the frame-skip rows of the map all have it.
+STATE_TRAIN = tasks.PROTOCOLS[STATE].train_transitions
 
 
 class Key(NamedTuple):
@@ -181,13 +181,13 @@ def budget_of(res: results_lib.Results) -> int | None:
     return None if trained_its_preset(res) else iterations
 
 
-def in_fca_family(name: str) -> bool:
+def in_state_family(name: str) -> bool:
     """Whether group `name` (`Key.protocol`, a protocol's name or a variant's, `variant_name`) reads with the paper's
-    protocol family: `fca` itself, or any group of another member of `ape_jax.tasks.FAMILIES["fca"]` (other frame
-    skips, other training-set sizes), whatever its split or recipe. The paper's own protocol under another split or
-    recipe (`fca.rows.fca`) is a group of its own, which the recipe section compares."""
+    protocol family: `mujoco-state` itself, or any group of another member of `ape_jax.tasks.FAMILIES["mujoco-state"]`
+    (other frame skips, other training-set sizes), whatever its split or recipe. The paper's own protocol under another
+    split or recipe (`mujoco-state.rows.bn-mlp`) is a group of its own, which the recipe section compares."""
     base = name.split(".", 1)[0]
-    return name == FCA or (base != FCA and tasks.protocol_family(base) == FCA)
+    return name == STATE or (base != STATE and tasks.protocol_family(base) == STATE)
 
 
 def protocol_of(res: results_lib.Results, where: str = "") -> dict:
@@ -235,7 +235,7 @@ def demonstrator(res: results_lib.Results) -> dict | None:
 def expert_part(res: results_lib.Results, protocol: dict) -> str | None:
     """How a group name names a file's expert where it is not the task's own (None where it is): a shipped variant
     by its name (`protocol.expert`: `ppo`, `rough`), an imported one (`experiments.import_expert`) by its name and
-    the first 8 hex digits of its file's SHA-256 (`fca-56145a42`), so two files imported under one name never
+    the first 8 hex digits of its file's SHA-256 (`cs294-56145a42`), so two files imported under one name never
     share a group."""
     found, name = demonstrator(res) or {}, protocol.get("expert")
     if found.get("kind") != "imported":
@@ -253,9 +253,9 @@ def raw_labels(protocol: dict) -> bool:
 
 def variant_name(res: results_lib.Results, protocol: dict) -> str:
     """The group name of a file's setting: its protocol's name for files split by episode with the `mlp` recipe (every
-    file before results schema 3), else `NAME.SPLIT.RECIPE` (e.g. `fca.rows.fca`; `.h<H>` for another history,
-    `.<expert>` for another expert (`expert_part`: `.ppo`, `.fca-56145a42`), `.raw` for raw labels, `.prev` with the
-    previous action in view), a group of its own: the recipe section (`recipe_groups`, `recipe_rows`) compares
+    file before results schema 3), else `NAME.SPLIT.RECIPE` (e.g. `mujoco-state.rows.bn-mlp`; `.h<H>` for another
+    history, `.<expert>` for another expert (`expert_part`: `.ppo`, `.cs294-56145a42`), `.raw` for raw labels, `.prev`
+    with the previous action in view), a group of its own: the recipe section (`recipe_groups`, `recipe_rows`) compares
     them, and they never join the copycat map or the whole-episode tables. A retired preset's files
     (`former_preset`) are `NAME.first`, a group of their own too."""
     if former_preset(res) is not None:
@@ -286,9 +286,9 @@ def other_history(protocol: dict) -> int | None:
 
 
 def protocol_words(p: dict) -> str:
-    """How titles name a protocol: `"fca"`, `"fca, frame skip 2"`, `"fca, 80,000 training transitions"` (the rest
-    of the fca family, by what differs from fca), `"fca, split by rows, recipe fca"` (a variant, `variant_name`),
-    else its name."""
+    """How titles name a protocol: `"mujoco-state"`, `"mujoco-state, frame skip 2"`, `"mujoco-state, 80,000 training
+    transitions"` (the rest of the mujoco-state family, by what differs from it), `"mujoco-state, split by rows, recipe
+    bn-mlp"` (a variant, `variant_name`), else its name."""
     name = p["name"]
     if p.get("preset"):
         return f"{p['variant_of']}, {p['preset']}"
@@ -298,17 +298,17 @@ def protocol_words(p: dict) -> str:
                 + ("" if history is None else f", history {history}")
                 + ("" if (words := expert_words(p)) is None else f", expert {words}")
                 + (", previous action in view" if p.get("prev_action") else ""))
-    if not in_fca_family(name) or name == FCA:
+    if not in_state_family(name) or name == STATE:
         return name
     differs = ([f"frame skip {p['frame_skip']}"] if p.get("frame_skip") not in (None, 1) else []) + \
         ([f"{p['train_transitions']:,} training transitions"]
-         if p.get("train_transitions") not in (None, FCA_TRAIN) else [])
-    return ", ".join([FCA, *differs]) if differs else name
+         if p.get("train_transitions") not in (None, STATE_TRAIN) else [])
+    return ", ".join([STATE, *differs]) if differs else name
 
 
 def expert_words(p: dict) -> str | None:
     """How titles name a group's expert and labels where either is not the default: `"ppo"` (a shipped variant),
-    `"fca (imported, SHA-256 56145a42…)"`, with `", labels raw"` where the labels are the expert's own output; None
+    `"cs294 (imported, SHA-256 56145a42…)"`, with `", labels raw"` where the labels are the expert's own output; None
     for the task's own expert with clipped labels. `p` is a group's protocol (`Group.protocol`, which carries an
     imported expert's `expert_sha256`)."""
     name = p.get("expert")
@@ -418,8 +418,9 @@ def is_rate(m: Group) -> bool:
 # -- groups: order, titles, file names -----------------------------------------------------------------------------
 
 def _protocol_rank(p: dict) -> tuple:
-    """Protocols in report order: the fca family by frame skip (the paper's first), then `brax`, then others."""
-    if in_fca_family(p["name"]):
+    """Protocols in report order: the mujoco-state family by frame skip (the paper's first), then `brax`, then
+    others."""
+    if in_state_family(p["name"]):
         return 0, p.get("frame_skip") or 0, p["name"]
     return (1, 0, "") if p["name"] == BRAX else (2, 0, p["name"])
 
@@ -433,8 +434,8 @@ def ordered(merged: Merged) -> list[tuple[Key, Group]]:
 
 
 def group_title(key: Key, protocol: dict, with_protocol: bool, with_obs: bool | None = None) -> str:
-    """A group's title: `"Hopper"`, `"Hopper (image)"`, `"Hopper (fca, frame skip 2)"`, `"Hopper (image, brax)"`;
-    the observation mode unless `with_obs` is False (default: unless a state task's `pos`)."""
+    """A group's title: `"Hopper"`, `"Hopper (image)"`, `"Hopper (mujoco-state, frame skip 2)"`, `"Hopper (image,
+    brax)"`; the observation mode unless `with_obs` is False (default: unless a state task's `pos`)."""
     with_obs = not (key.obs == "pos" and key.env in MUJOCO) if with_obs is None else with_obs
     parts = [key.obs] if with_obs else []
     parts += [protocol_words(protocol)] if with_protocol else []
@@ -442,7 +443,7 @@ def group_title(key: Key, protocol: dict, with_protocol: bool, with_obs: bool | 
 
 
 def file_stem(m: Group) -> str:
-    """A group's part of figure file names, unique per group: `hopper`, `hopper-image`, `hopper-fca-fs2`.
+    """A group's part of figure file names, unique per group: `hopper`, `hopper-image`, `hopper-mujoco-state-fs2`.
 
     `brax` groups keep the names they had before protocols existed; other protocols append their name.
     """

@@ -1,8 +1,8 @@
-"""The paper's recipe and budget: mlp against fca under one protocol, and the 300k runs beside Table 5.
+"""The paper's recipe and budget: mlp against bn-mlp under one protocol, and the 300k runs beside Table 5.
 
 - `recipe_groups`, `recipe_rows`, `alpha_rows`: per task, every method under each recipe of one protocol, and
   every FCA setting (the α sensitivity);
-- `paper_budget_groups`, `budget_rows`, `budget_differences`: the paper's protocol under the fca recipe for the
+- `paper_budget_groups`, `budget_rows`, `budget_differences`: the paper's protocol under the bn-mlp recipe for the
   `paper` preset's iterations, each method at every iteration it was evaluated at, beside the supplement's
   Table 5.
 """
@@ -18,12 +18,12 @@ from ape_jax import tasks
 from experiments.report.analysis.differences import (Interval, RecipeCell, mean_difference, mean_estimate,
                                                    mean_cell)
 from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics, run_at
-from experiments.report.analysis.groups import FCA, MUJOCO, Group, Merged, ordered, other_setting, trained_its_preset
+from experiments.report.analysis.groups import STATE, MUJOCO, Group, Merged, ordered, other_setting, trained_its_preset
 from experiments.report.analysis.selection import CEILING, CEILING_LABEL, is_finite, method_rows, ok_runs, seed_values
 from experiments.report.paper import PAPER_STEP, PAPER_STEP_LABEL, PAPER_TABLE5, PAPER_TAU
 
 
-# -- the paper's recipe: mlp against fca under one protocol --------------------------------------------------------
+# -- the paper's recipe: mlp against bn-mlp under one protocol --------------------------------------------------------
 
 # The recipe table's methods, (label, method, hparams: None for the task's default FCA setting).
 RECIPE_METHODS = (("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), (PAPER_STEP_LABEL, "ours-step", PAPER_STEP),
@@ -31,7 +31,7 @@ RECIPE_METHODS = (("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), (PAPER_STEP_LA
 
 
 class RecipeRow(NamedTuple):
-    """One task and method: a cell per recipe (None: not run), and fca − mlp with its interval (None: not both)."""
+    """One task and method: a cell per recipe (None: not run), and bn-mlp − mlp with its interval (None: not both)."""
 
     env: str
     label: str
@@ -60,9 +60,9 @@ def recipe_groups(merged: Merged) -> dict[tuple[str, str, str], dict[str, Group]
     return {k: v for k, v in out.items() if len(v) > 1}
 
 
-def recipe_rows(recipes: dict[str, Group], order: Sequence[str] = ("mlp", "fca")) -> list[RecipeRow]:
+def recipe_rows(recipes: dict[str, Group], order: Sequence[str] = ("mlp", "bn-mlp")) -> list[RecipeRow]:
     """Per method of `RECIPE_METHODS` that ran under some recipe: its % of expert per recipe (with its t-interval) and
-    fca − mlp (difference of means over seeds with Welch's t-interval, in points of % of expert)."""
+    bn-mlp − mlp (difference of means over seeds with Welch's t-interval, in points of % of expert)."""
     names = [r for r in order if r in recipes] + [r for r in recipes if r not in order]
     out = []
     for lab, method, hparams in RECIPE_METHODS:
@@ -146,12 +146,12 @@ class BudgetRow(NamedTuple):
 
 
 def paper_budget_groups(merged: Merged) -> list[Group]:
-    """The groups of the paper's protocol (fca, any split) under the `fca` recipe trained for the `paper` preset's
-    iterations: the issue's 300k table, one group per state task, in task order."""
+    """The groups of the paper's protocol (mujoco-state, any split) under the `bn-mlp` recipe trained for the `paper`
+    preset's iterations: the issue's 300k table, one group per state task, in task order."""
     return [m for key, m in ordered(merged) if key.env in MUJOCO and key.obs == "pos"
             and all(src.preset == "paper" and trained_its_preset(src) for src in m.sources)
-            and m.protocol.get("variant_of") == FCA
-            and m.protocol.get("recipe") == "fca" and not other_setting(m.protocol)]
+            and m.protocol.get("variant_of") == STATE
+            and m.protocol.get("recipe") == "bn-mlp" and not other_setting(m.protocol)]
 
 
 def budget_rows(m: Group) -> list[BudgetRow]:

@@ -2,7 +2,7 @@
 
 - `regime_groups`: the groups whose demonstrations came from an imported expert (`experiments.import_expert`: FCA's
   own CS294 Hopper policy is the reference one) or stored the expert's labels raw (as FCA stored them: the rough
-  experts' runs), under the fca protocol (split by rows) and the fca recipe, at any budget;
+  experts' runs), under the mujoco-state protocol (split by rows) and the bn-mlp recipe, at any budget;
 - `regime_table`: per such group, every configuration in % of expert and return over seeds (t-intervals),
   the supplement's Table 5 beside it, its difference against BC-OH (Welch t-interval, in points of % of expert),
   its copycat diagnostics (both verdicts' counts, the control and predictability ratios), and the history's share
@@ -19,7 +19,7 @@ from typing import NamedTuple
 from experiments.report.analysis.differences import (Interval, RecipeCell, Share, mean_difference, history_share,
                                                    mean_cell)
 from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics
-from experiments.report.analysis.groups import FCA, MUJOCO, Group, Merged, ordered, other_history, raw_labels
+from experiments.report.analysis.groups import STATE, MUJOCO, Group, Merged, ordered, other_history, raw_labels
 from experiments.report.analysis.selection import (CEILING, CEILING_LABEL, LATER, is_finite, label, method_rows,
                                                    ok_runs)
 from experiments.report.paper import PAPER_STEP, PAPER_TABLE5
@@ -67,11 +67,11 @@ class RegimeTable(NamedTuple):
 
 
 def is_regime(m: Group) -> bool:
-    """Whether group `m` is one of Table 5 with FCA's expert: MuJoCo-State under the fca protocol split by rows with
-    the fca recipe (the FCA code's), the protocol's own history and no previous action in view, and demonstrations
-    from an imported expert (`Group.protocol["expert_sha256"]`) or with raw labels."""
+    """Whether group `m` is one of Table 5 with FCA's expert: MuJoCo-State under the mujoco-state protocol split by rows
+    with the bn-mlp recipe (the FCA code's), the protocol's own history and no previous action in view, and
+    demonstrations from an imported expert (`Group.protocol["expert_sha256"]`) or with raw labels."""
     p = m.protocol
-    return (m.env in MUJOCO and m.obs == "pos" and p.get("variant_of") == FCA and p.get("recipe") == "fca"
+    return (m.env in MUJOCO and m.obs == "pos" and p.get("variant_of") == STATE and p.get("recipe") == "bn-mlp"
             and p.get("split") == "rows" and other_history(p) is None and not p.get("prev_action")
             and "preset" not in p and (bool(p.get("expert_sha256")) or raw_labels(p)))
 

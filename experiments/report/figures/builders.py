@@ -16,8 +16,8 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 from matplotlib.figure import Figure
 
-from experiments.report.analysis import (CEILING, FCA, Group, Merged, WeightShares, best_of, config_key,
-                                         display_metric, extra_methods, hparams_suffix, in_fca_family, known_methods,
+from experiments.report.analysis import (CEILING, STATE, Group, Merged, WeightShares, best_of, config_key,
+                                         display_metric, extra_methods, hparams_suffix, in_state_family, known_methods,
                                          label,
                                          method_rows, metric_value, ordered, paper_step_row, percent, seed_values)
 from experiments.report.analysis.ranking import Family as CellFamily
@@ -68,9 +68,9 @@ def _grid_panel(title, row_label, col_label, rows, cols, cells, prefix, marked) 
 
 
 def returns_groups(merged: Merged) -> list[Group]:
-    """The groups the returns figures draw, in report order: all but the fca family's other frame skips and
+    """The groups the returns figures draw, in report order: all but the mujoco-state family's other frame skips and
     training-set sizes, which the copycat map draws (`copycat.copycat_map_figure`)."""
-    return [m for k, m in ordered(merged) if k.protocol == FCA or not in_fca_family(k.protocol)]
+    return [m for k, m in ordered(merged) if k.protocol == STATE or not in_state_family(k.protocol)]
 
 
 def returns_figure(family: Family, merged: Merged) -> Figure | None:

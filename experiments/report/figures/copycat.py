@@ -21,7 +21,7 @@ from matplotlib.figure import Figure
 
 from ape_jax import tasks
 from ape_jax.diagnostics import THRESHOLDS
-from experiments.report.analysis import FCA_TRAIN, MAP_METHODS, BudgetRow, CopycatMap, MapPoint, thousands
+from experiments.report.analysis import STATE_TRAIN, MAP_METHODS, BudgetRow, CopycatMap, MapPoint, thousands
 from experiments.report.figures.primitives import COLUMNS, DPI, Lines, grid_axes, lines
 
 # The extended map's axes, grouped into figures: {figure: (axis, ...)}; an axis is the part after the task in a
@@ -162,14 +162,14 @@ def _map_columns(points: Sequence[MapPoint], axes: Sequence[str]) -> list[tuple[
     for env in dict.fromkeys(q.env for q in points):
         mine = [q for q in points if q.env == env]
         final = [q for q in mine if q.iteration == q.run]
-        every = (("frame skip", "frame skip", [q for q in final if q.train_transitions == FCA_TRAIN
+        every = (("frame skip", "frame skip", [q for q in final if q.train_transitions == STATE_TRAIN
                                                and q.run == min_run(final)],
                   lambda q: q.frame_skip, lambda q: q.setting),
                  ("training transitions (frame skip 1)", "data", [q for q in final if q.frame_skip == 1
                                                                   and q.run == min_run(final)],
                   lambda q: q.train_transitions, lambda q: q.setting),
                  ("iteration evaluated at (frame skip 1, 20k transitions)", "training",
-                  [q for q in mine if q.frame_skip == 1 and q.train_transitions == FCA_TRAIN],
+                  [q for q in mine if q.frame_skip == 1 and q.train_transitions == STATE_TRAIN],
                   lambda q: q.iteration, lambda q: f"{q.setting}, {thousands(q.run)} runs"))
         for xlabel, axis, qs, x_of, line_of in every:
             if axis not in axes:

@@ -23,7 +23,7 @@ from collections.abc import Iterable
 from typing import NamedTuple
 
 from ape_jax import tasks
-from experiments.report.analysis import FCA, MUJOCO, Group, in_fca_family
+from experiments.report.analysis import STATE, MUJOCO, Group, in_state_family
 from experiments.report.analysis.groups import other_setting
 from experiments.report.analysis.ranking import cell_title, is_copycat_cell
 
@@ -54,10 +54,10 @@ def family_of(m: Group) -> str:
         return "copycat"
     if m.env not in MUJOCO or m.obs != "pos":
         return "images"
-    if (p.get("variant_of") == FCA and p.get("recipe") == "fca" and p.get("split") == "rows"
+    if (p.get("variant_of") == STATE and p.get("recipe") == "bn-mlp" and p.get("split") == "rows"
             and not other_setting(p)):
         return "default"
-    if in_fca_family(p.get("variant_of") or p["name"]):
+    if in_state_family(p.get("variant_of") or p["name"]):
         return "variants" if p.get("variant_of") else "first"
     return "other"
 

@@ -156,7 +156,7 @@ SETTING_WORDS = {"step": lambda hp: f"THR {percent(hp['thr'])} W {hp['w']:g}",
 
 
 def expert_text(found: dict | None, protocol: dict) -> str:
-    """Who demonstrated and what the labels are, for a provenance line: `"expert `hopper-fca`, imported from a
+    """Who demonstrated and what the labels are, for a provenance line: `"expert `hopper-cs294`, imported from a
     cs294-pickle file (SHA-256 `…`), from ORIGIN; labels raw"`, a shipped one by its folder and card's SHA-256.
 
     Args:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from ape_jax import tasks
 from experiments.report import figures
-from experiments.report.analysis import (FCA, MAP_METHODS, CopycatMap, MapPoint, copycat_map, diagnostics_thresholds,
+from experiments.report.analysis import (STATE, MAP_METHODS, CopycatMap, MapPoint, copycat_map, diagnostics_thresholds,
                                          extended_map, ordered, thousands)
 from experiments.report.sections.common import Context, Section, copycat_count, diff_cell, ratio_text, table
 from experiments.report.sections.diagnostics import thresholds_line
@@ -49,7 +49,7 @@ def _point(q: MapPoint, field: str) -> str:
 
 
 def extended_map_section(ctx: Context) -> list[Section]:
-    """"Where copycat appears: the map, extended": every fca-family state group (`analysis.extended_map`), per
+    """"Where copycat appears: the map, extended": every mujoco-state-family state group (`analysis.extended_map`), per
     setting (recipe, split), frame skip, training-set size, run length and evaluation point, the three map methods
     in % of expert and BC-OH − BC-SO with its interval; the cells where BC-full ran with the history's share of the
     gap to it; and BC-OH's copycat diagnostics where the files record them. Nothing where the map has no axis beyond
@@ -86,19 +86,19 @@ def extended_map_section(ctx: Context) -> list[Section]:
                        for q in diagnosed], 2),
                 thresholds_line(diagnostics_thresholds([src for _, m in ordered(ctx.merged) for src in m.sources])), ""]
     return [Section("Where copycat appears: the map, extended",
-                    f"Every result of the paper's protocol ({FCA}) and its variants, by recipe and split, frame skip, "
-                    "training-set size and budget; % of expert, mean ± sd over seeds.", out)]
+                    f"Every result of the paper's protocol ({STATE}) and its variants, by recipe and split, frame "
+                    "skip, training-set size and budget; % of expert, mean ± sd over seeds.", out)]
 
 
 def copycat_map_section(ctx: Context) -> list[Section]:
-    """"The copycat map": per task with fca-family results at several frame skips (`analysis.copycat_map`), its
+    """"The copycat map": per task with mujoco-state-family results at several frame skips (`analysis.copycat_map`), its
     figure and its table; nothing without a map."""
     maps = copycat_map(ctx.merged)
     if not maps:
         return []
     skips = sorted({r.frame_skip for cm in maps for r in cm.rows})
     return [Section("The copycat map: the history's benefit per frame skip",
-                    f"Protocol {FCA} at frame skips {', '.join(map(str, skips))}, the same simulated time and data; "
+                    f"Protocol {STATE} at frame skips {', '.join(map(str, skips))}, the same simulated time and data; "
                     "% of expert, mean ± sd over seeds; BC-OH − BC-SO with its 95% Welch t-interval.",
                     [*ctx.figure("copycat-map.png", "The copycat map: % of expert per frame skip",
                                  lambda: figures.copycat_map_figure(maps)), copycat_map_table(maps)])]

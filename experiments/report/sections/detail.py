@@ -230,7 +230,8 @@ def provenance(r: results_lib.Results) -> str:
 # -- the sections ------------------------------------------------------------------------------------------------
 
 def group_title(m: Group) -> str:
-    """A group's heading on its task's page: `"Protocol fca, split by rows, recipe fca, 300,000 iterations"`."""
+    """A group's heading on its task's page: `"Protocol mujoco-state, split by rows, recipe bn-mlp, 300,000
+    iterations"`."""
     return f"Protocol {protocol_words(m.protocol)}" + (f", {m.budget:,} iterations" if m.budget else "")
 
 

@@ -27,7 +27,7 @@ def diagnostics_table(rows: list[tuple[tuple[str, ...], DiagnosticsRow]], heads:
     verdict counts (the controlled verdict's and the first's).
 
     Args:
-      rows: `(leading cells, row)`, the leading cells one per `heads` (`("Hopper", "fca", "BC-OH")`).
+      rows: `(leading cells, row)`, the leading cells one per `heads` (`("Hopper", "bn-mlp", "BC-OH")`).
       heads: the leading columns' headings (the method, and in the recipe table the task and recipe first).
       unit: the heading of the % of expert column (a task judged by a rate: that rate in %).
     """
@@ -70,7 +70,7 @@ def thresholds_line(thresholds: list[dict]) -> str:
 
 def _absent_lines(rows: list[tuple[tuple[str, ...], DiagnosticsRow]], heads: tuple[str, ...]) -> list[str]:
     """One bullet per configuration with seeds the diagnostics could not read (shown "—" in the table), with the
-    recorded reason: `"- BC-SO (Hopper, recipe fca): no diagnostics for 1 of 5 seeds: …"`."""
+    recorded reason: `"- BC-SO (Hopper, recipe bn-mlp): no diagnostics for 1 of 5 seeds: …"`."""
     out = []
     for lead, row in rows:
         where = [f"recipe {v}" if h == "recipe" else v for h, v in zip(heads, lead) if h != "method"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from ape_jax import tasks
 from experiments.report import figures
-from experiments.report.analysis import (FCA, BudgetRow, alpha_rows, mean_difference, budget_differences,
+from experiments.report.analysis import (STATE, BudgetRow, alpha_rows, mean_difference, budget_differences,
                                          budget_rows, diagnostics_thresholds, paper_budget_groups, recipe_diagnostics,
                                          recipe_groups, recipe_rows, thousands, verdict)
 from experiments.report.paper import PAPER_STEP_LABEL, PAPER_TABLE5
@@ -18,7 +18,7 @@ COMPARISONS = (("BC-OH", "BC-SO"), (PAPER_STEP_LABEL, "BC-OH"), ("FCA (TCA)", "B
 
 
 def recipe_section(ctx: Context) -> list[Section]:
-    """"The paper's recipe": per task, every method under each recipe of one protocol with fca − mlp, the
+    """"The paper's recipe": per task, every method under each recipe of one protocol with bn-mlp − mlp, the
     within-recipe differences the paper's question turns on, every FCA setting that ran (the α sensitivity) with its
     adversary's loss beside the reference predictor's, and the diagnostics per task, recipe and configuration."""
     groups = recipe_groups(ctx.merged)
@@ -27,10 +27,10 @@ def recipe_section(ctx: Context) -> list[Section]:
     out = []
     for (env, obs, setting), recipes in groups.items():
         rows = recipe_rows(recipes)
-        names = [r for r in ("mlp", "fca") if r in recipes] + [r for r in recipes if r not in ("mlp", "fca")]
+        names = [r for r in ("mlp", "bn-mlp") if r in recipes] + [r for r in recipes if r not in ("mlp", "bn-mlp")]
         title = tasks.get(env).title + ("" if obs == "pos" else f" ({obs})")
         out += [f"**{title}**, protocol {setting}:", "",
-                table(["method", *(f"recipe {n}" for n in names), "fca − mlp"],
+                table(["method", *(f"recipe {n}" for n in names), "bn-mlp − mlp"],
                       [[r.label, *(pct_cell(r.cells.get(n)) for n in names), diff_cell(r.difference)] for r in rows])]
         within = []
         for n in names:
@@ -53,7 +53,7 @@ def recipe_section(ctx: Context) -> list[Section]:
                              diagnostics_thresholds(sources), "Copycat diagnostics per task, recipe and configuration:",
                              heads=("task", "recipe", "method"))
     return [Section("The paper's recipe against the project's first",
-                    "Same protocol, data, budget and seeds; `mlp` the project's first recipe, `fca` the FCA code's. "
+                    "Same protocol, data, budget and seeds; `mlp` the project's first recipe, `bn-mlp` the FCA code's. "
                     "% of expert [95% t-interval].", out)]
 
 
@@ -122,8 +122,8 @@ def paper_budget_section(ctx: Context) -> list[Section]:
                    "copycat", *(["embedding ÷ state"] if state else [])], diagnostics, 2),
             thresholds_line(diagnostics_thresholds([src for m in groups for src in m.sources])), ""]
     return [Section("The paper's budget with the paper's recipe",
-                    f"Protocol {FCA}, split by {groups[0].protocol.get('split')}, recipe fca, learning rate × 0.1 at a "
-                    f"third and two thirds; each run evaluated at {', '.join(f'{i:,}' for i in its)} iterations.",
+                    f"Protocol {STATE}, split by {groups[0].protocol.get('split')}, recipe bn-mlp, learning rate × 0.1 "
+                    f"at a third and two thirds; each run evaluated at {', '.join(f'{i:,}' for i in its)} iterations.",
                     body)]
 
 

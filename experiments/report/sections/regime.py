@@ -86,8 +86,8 @@ def regime_section(ctx: Context) -> list[Section]:
     """"Table 5 with FCA's expert" (`regime_lines`); nothing where no group of the regime exists."""
     lines = regime_lines(ctx)
     return [Section("Table 5 with FCA's expert",
-                    "An expert of FCA's kind, labels raw or clipped; protocol fca, split by rows, recipe fca; % of "
-                    "expert and return [95% t-interval]; − BC-OH bold where its interval excludes 0.",
+                    "An expert of FCA's kind, labels raw or clipped; protocol mujoco-state, split by rows, recipe "
+                    "bn-mlp; % of expert and return [95% t-interval]; − BC-OH bold where its interval excludes 0.",
                     lines)] if lines else []
 
 

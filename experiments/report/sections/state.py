@@ -4,9 +4,9 @@ them) and MuJoCo-Image."""
 from __future__ import annotations
 
 from ape_jax import tasks
-from experiments.report.analysis import (BRAX, CEILING, CEILING_LABEL, FCA, Group, Key, Merged, best_of,
+from experiments.report.analysis import (BRAX, CEILING, CEILING_LABEL, STATE, Group, Key, Merged, best_of,
                                          difference_unit, extra_methods, groups_of, has_ceiling, headline,
-                                         history_share, hparams_suffix, in_fca_family, known_methods, label,
+                                         history_share, hparams_suffix, in_state_family, known_methods, label,
                                          method_rows, paper_step_row, protocols_of, versus_bcoh)
 from experiments.report.paper import PAPER_STEP_LABEL, PAPER_TABLE5
 from experiments.report.sections.common import Context, Section, diff_cell, return_cell, table
@@ -116,7 +116,7 @@ def protocol_heading(groups: list[Group]) -> str:
 def paper_table(merged: Merged, protocol: str = BRAX) -> str:
     """Ours under `protocol` next to the supplement's Table 5 (BC-SO, BC-OH, FCA, Ours at step THR 10% W 5).
 
-    Under the fca family our returns are on the paper's scale (rewards summed over the same simulated time, in
+    Under the mujoco-state family our returns are on the paper's scale (rewards summed over the same simulated time, in
     standard control steps), so each cell is the absolute mean return, ours ± sd over seeds, with the ratio
     to BC-OH of the same source in brackets, and a row for the experts (the paper does not publish its expert's
     return). Under other protocols the returns are on another scale, and only the ratios to BC-OH compare.
@@ -124,7 +124,7 @@ def paper_table(merged: Merged, protocol: str = BRAX) -> str:
     groups = groups_of(merged, "pos", protocol)
     if not groups:
         return ""
-    same_scale = in_fca_family(protocol)
+    same_scale = in_state_family(protocol)
     known = known_methods(merged)
     # the paper's FCA is the FCA paper's adversary with its information bottleneck: ours with it where it ran
     # (`fca-ib`), else the adversary alone as the FCA code ships it (`fca`); the row names which
@@ -168,26 +168,26 @@ def _state_body(merged: Merged, protocol: str) -> list[str]:
     if ceiling := ceiling_table(merged, "pos", protocol):
         body += ["The history's share of the gap to BC-full (the full state), 95% percentile bootstrap interval.", "",
                  ceiling]
-    if protocol in (FCA, BRAX):
+    if protocol in (STATE, BRAX):
         body += ["The supplement's Table 5 beside ours: mean return (" + (
-            "the paper's scale" if in_fca_family(protocol) else "other scales: compare the ratios") + ") and its ratio "
-            "to BC-OH.", "", paper_table(merged, protocol)]
+            "the paper's scale" if in_state_family(protocol) else "other scales: compare the ratios")
+            + ") and its ratio to BC-OH.", "", paper_table(merged, protocol)]
     return body
 
 
 def state_sections(ctx: Context) -> list[Section]:
-    """MuJoCo-State per protocol, in report order: the paper's (`fca`) with Table 5 on the same scale, Brax's own
-    (`brax`) with Table 5 by ratios, then other protocols. The fca family's other frame skips feed the copycat map
-    instead, and the recipe variants (`analysis.variant_name`) the recipe section."""
+    """MuJoCo-State per protocol, in report order: the paper's (`mujoco-state`) with Table 5 on the same scale, Brax's
+    own (`brax`) with Table 5 by ratios, then other protocols. The mujoco-state family's other frame skips feed the
+    copycat map instead, and the recipe variants (`analysis.variant_name`) the recipe section."""
     out = []
     for protocol in protocols_of(ctx.merged, "pos"):
         groups = groups_of(ctx.merged, "pos", protocol)
         heading = protocol_heading(groups)
-        if protocol == FCA:
-            title = f"MuJoCo-State, the paper's protocol ({FCA})"
+        if protocol == STATE:
+            title = f"MuJoCo-State, the paper's protocol ({STATE})"
         elif protocol == BRAX:
             title = "MuJoCo-State, Brax's frame skip (the project's first results)"
-        elif not in_fca_family(protocol) and not any(m.protocol.get("variant_of") for m in groups):
+        elif not in_state_family(protocol) and not any(m.protocol.get("variant_of") for m in groups):
             title = f"MuJoCo-State, protocol {protocol}"
         else:
             continue
