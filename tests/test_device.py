@@ -133,18 +133,18 @@ def test_run_sh_fcaexpert_plan_smoke_trains_every_program_on_the_imported_expert
     pkl = _write_pickle(tmp_path / "Hopper-v1.pkl", _cs294(np.random.default_rng(0)))
     sha256 = hashlib.sha256(pkl.read_bytes()).hexdigest()
     imported = subprocess.run([sys.executable, "-m", "experiments.import_expert", str(pkl), "--env", "hopper",
-                               "--name", "fca", "--protocols", "fca"], capture_output=True, text=True,
+                               "--name", "cs294", "--protocols", "mujoco-state"], capture_output=True, text=True,
                               timeout=900, env=_plan_env(tmp_path), cwd=ROOT)
     assert imported.returncode == 0, imported.stderr[-3000:]
     names = _smoke_plan(tmp_path, "fcaexpert")
-    name = "hopper-pos-fca-rows-paper-fca-fcaexpert-raw"
+    name = "hopper-pos-mujoco-state-rows-paper-bn-mlp-cs294-raw"
     for stage, expected in (("bc-so", {"bc-so"}), ("bc-oh", {"bc-oh", "ours-step", "ours-softmax"}),
                             ("bc-full", {"bc-full"}), ("fca", {"fca"})):
         assert f"./{name}-{stage}/results.json" in names
         results = json.loads((tmp_path / "out" / f"{name}-{stage}" / "results.json").read_text())
         assert {r["method"] for r in results["runs"]} == expected
         assert all(r["status"] == "ok" for r in results["runs"])
-        assert results["protocol"]["labels"] == "raw" and results["protocol"]["expert"] == "fca"
+        assert results["protocol"]["labels"] == "raw" and results["protocol"]["expert"] == "cs294"
         assert results["config"]["data"]["settings"]["expert"]["sha256"] == sha256
     log = (tmp_path / "out" / f"{name}-fca" / "log.txt").read_text()
     assert "(cached: " in log  # the first sweep collected the rows; the others found them

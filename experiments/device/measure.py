@@ -14,7 +14,7 @@ The first step of `experiments/device/run.sh`. It prints and writes
   Hopper `pos` shapes) as one `jit(vmap(scan))`: model-updates/s and the FLOP/s
   achieved (6 · batch · dense weights per update, as `experiments.bench_train`
   counts), against both peaks;
-- MJX Hopper `pos` under the `fca` protocol (frame skip 1): control steps/s of a
+- MJX Hopper `pos` under the `mujoco-state` protocol (frame skip 1): control steps/s of a
   random-policy rollout at batches up to one that fills the card.
 
 Every rate is the median of `--repeats` timed runs after a separate compiling call;
@@ -74,17 +74,17 @@ def grid_throughput(iters: int, seeds: int, repeats: int) -> dict:
 
 
 def mjx_throughput(batches, steps: int, repeats: int) -> list[dict]:
-    """Random-policy control steps/s of Hopper `pos` under `fca` (frame skip 1), per batch size."""
+    """Random-policy control steps/s of Hopper `pos` under `mujoco-state` (frame skip 1), per batch size."""
     import envs
     from ape_jax.pipeline.collect import protocol_setup
 
-    setup = protocol_setup("hopper", "pos", "fca")
+    setup = protocol_setup("hopper", "pos", "mujoco-state")
     env = envs.make("hopper", obs="pos", terminate_when_unhealthy=False, **setup.env_overrides)
     out = []
     for batch in batches:
         r = rollout_throughput(env, batch, steps, repeats)
         out.append({"batch": batch, "steps": steps, "compile_s": r["compile_s"], "steps_s": r["steps_per_s"]})
-        print(f"  MJX hopper pos (fca, frame skip 1), batch {batch:,}: {r['steps_per_s']:,.0f} steps/s "
+        print(f"  MJX hopper pos (mujoco-state, frame skip 1), batch {batch:,}: {r['steps_per_s']:,.0f} steps/s "
               f"(compile {r['compile_s']:.1f} s)", flush=True)
     return out
 

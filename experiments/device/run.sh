@@ -22,13 +22,13 @@
 # (`--dry-run` prints the commands): APE_JAX_CACHE=.devdata python -m experiments.collect --env hopper --obs pos
 # --protocol brax --episodes 100 (and walker2d, halfcheetah); the frames are rendered there. To fit the device
 # tool's 64 MiB: experiments/device/fetch_wheels.sh --lean, then carry [".whl", ".devdata"] (55 MB).
-# `fcaexpert`: Table 5 with FCA's own expert (raw labels) under `--preset paper --protocol fca --recipe fca`, Hopper,
+# `fcaexpert`: Table 5 with FCA's own expert (raw labels) under `--preset paper --protocol mujoco-state --recipe bn-mlp`, Hopper,
 # 8 seeds, one sweep per program side by side (BC-SO; BC-OH and ours; BC-full; FCA at alpha 0.1 and 2), each
 # program's configurations as one block. Import the expert and collect its rows here first, into .devdata (the
 # expert lives under .devdata/experts: git-ignored, it travels to the device and is never committed):
-#   APE_JAX_CACHE=.devdata python -m experiments.import_expert PATH/TO/Hopper-v1.pkl --env hopper --name fca
-#   APE_JAX_CACHE=.devdata python -m experiments.collect --env hopper --obs pos --protocol fca \
-#     --set protocol.expert=fca --set protocol.labels=raw
+#   APE_JAX_CACHE=.devdata python -m experiments.import_expert PATH/TO/Hopper-v1.pkl --env hopper --name cs294
+#   APE_JAX_CACHE=.devdata python -m experiments.collect --env hopper --obs pos --protocol mujoco-state \
+#     --set protocol.expert=cs294 --set protocol.labels=raw
 #
 # Everything it keeps goes under $OUT (default: runs/device, or runs/device-smoke): measure.json
 # (versions, devices, matmul peak, grid FLOP/s, MJX steps/s), nvidia-smi.txt, and per sweep its
@@ -111,7 +111,7 @@ stage() {
 if [ "$PLAN" = paper-fca ]; then
   # FCA's two variants share one program: 16 (Hopper) and 6 (HalfCheetah) configurations, each trained as one block.
   export XLA_PYTHON_CLIENT_MEM_FRACTION=${XLA_PYTHON_CLIENT_MEM_FRACTION:-0.4}  # two processes share the card
-  fca=(--obs pos --recipe fca --methods fca,fca-ib --step-grid 0.1:5)
+  fca=(--obs pos --recipe bn-mlp --methods fca,fca-ib --step-grid 0.1:5)
   if [ "$SMOKE" = 1 ]; then fca+=(--smoke); else fca+=(--preset paper); fi
   stage hopper-pos-paper-fca "$(( $(left) - 60 ))" --env hopper "${fca[@]}" --seeds 8 --softmax-grid 0.2 \
     --set budget.width=16 &
@@ -128,19 +128,19 @@ if [ "$PLAN" = paper-fca ]; then
   fi
 elif [ "$PLAN" = fcaexpert ]; then
   # Refused before anything compiles where the expert was not imported into the carried cache.
-  [ -f "${APE_JAX_EXPERTS:-${APE_JAX_CACHE:-.devdata}/experts}/hopper-fca/card.json" ] || {
+  [ -f "${APE_JAX_EXPERTS:-${APE_JAX_CACHE:-.devdata}/experts}/hopper-cs294/card.json" ] || {
     echo "run.sh: error: FCA's expert is not imported into ${APE_JAX_CACHE:-.devdata}/experts (see this script's header)" >&2
     exit 2; }
   # One process per program, side by side: on the GPU a small MLP's update is bound by launch latency, not by
   # its width, so the programs should overlap (unmeasured for four; paper-fca's two took 383 s and 328 s together,
   # 16 FCA models at 300k training in 219 s). A stage out of time stops and says so.
   export XLA_PYTHON_CLIENT_MEM_FRACTION=${XLA_PYTHON_CLIENT_MEM_FRACTION:-0.2}
-  common=(--env hopper --obs pos --protocol fca --recipe fca --seeds 8 --set protocol.expert=fca
+  common=(--env hopper --obs pos --protocol mujoco-state --recipe bn-mlp --seeds 8 --set protocol.expert=cs294
           --set protocol.labels=raw --step-grid 0.1:5 --softmax-grid 0.2 --set fca.alphas=0.1,2
           --set budget.width=24)
   # --smoke: enough episodes for the smoke's split whatever the expert (one that falls early too)
   if [ "$SMOKE" = 1 ]; then common+=(--smoke --set protocol.collect_transitions=2000); else common+=(--preset paper); fi
-  name=hopper-pos-fca-rows-paper-fca-fcaexpert-raw
+  name=hopper-pos-mujoco-state-rows-paper-bn-mlp-cs294-raw
   # The first sweep finds (or collects) the demonstrations before the others start, so no two collect them at once.
   stage "$name-bc-so" "$(( $(left) - 30 ))" "${common[@]}" --methods bc-so &
   first=$!
@@ -176,7 +176,7 @@ elif [ "$SMOKE" = 1 ]; then
     --eval-episodes 1 --methods bc-oh
 else
   $PY -m experiments.device.measure --out "$OUT" || exit $?
-  # 3. The paper preset on Hopper pos under the fca protocol: the default grid (14 configurations) x 5 seeds,
+  # 3. The paper preset on Hopper pos under the mujoco-state protocol: the default grid (14 configurations) x 5 seeds,
   #    300k iterations, 100 evaluation episodes.
   paper=$(left); [ "$paper" -gt "$PAPER_S" ] && paper=$PAPER_S
   stage hopper-pos-paper "$paper" --env hopper --obs pos --preset paper
