@@ -6,6 +6,8 @@ The fixtures are synthetic results files of the ToyTown sweeps' shape (schema 3,
 methods of the sweeps with the hparams their grids record), built on `test_report._results`; no policy is trained.
 """
 
+import pathlib
+
 import numpy as np
 import pytest
 from PIL import Image
@@ -292,3 +294,18 @@ def test_a_group_outside_the_driving_family_keeps_table_4(tmp_path):
     assert [lab for lab, _ in loss_rows(b)] == ["BC-SO", "BC-OH", "Ours, step THR 10% W 5"]
     text = report.build([_load(tmp_path, brax, "brax.json")]).text
     assert "(the supplement's Table 4 protocol)" in text and "The paper's comparisons" not in text
+
+
+def test_pieces_written_before_and_after_the_methods_owned_their_knobs_merge_as_one_sweep():
+    """Table 1's seed 0 records the weightings' grids as recipe fields, seed 4 as `settings.knobs`: the same
+    settings as resolved, so the report merges them as one sweep split by seeds (and still refuses other settings)."""
+    results = pathlib.Path(__file__).resolve().parents[1] / "results"
+    old, new = (report.load(results / f"toytown-image-nocrash-default-seeds{k}.json") for k in (0, 4))
+    assert "step_grid" in old.settings["recipe"] and "knobs" in new.settings
+    assert "step_grid" not in new.settings["recipe"]
+    group = report.merge([old, new])[Key("toytown", "image", "nocrash")]
+    assert sorted({r["seed"] for r in group.runs if r["method"] == "bc-oh"}) == [0, 4]
+    other = report.load(results / "toytown-image-nocrash-default-seeds4.json")
+    other.settings["recipe"]["lr"] = 0.5
+    with pytest.raises(report.ReportError, match="with other settings"):
+        report.merge([old, other])

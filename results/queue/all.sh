@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Every queue, one after another, in the issues' order (one sweep at a time on the 2 cores): the driving Tables 1
-# and 2 (issue 57), Table 5 with FCA's expert at 300k (issue 58), the on-policy check in the copycat cells (issue
-# 59). Each queue skips what has landed and resumes what was started, so rerunning this goes on where it stopped:
+# and 2 (issue 57), Table 5 with FCA's expert at 300k (issue 58), the on-policy check in the copycat cells and the
+# remedies ranked (issue 59); a queue that fails stops the ones after it. Each queue skips what has landed and
+# resumes what was started, so rerunning this goes on where it stopped:
 #   nohup results/queue/all.sh > /tmp/queues.log 2>&1 &
 set -uo pipefail
 Q=$(cd "$(dirname "$0")" && pwd)
-"$Q/toytown-tables.sh" && "$Q/table5-300k.sh" && "$Q/onpolicy-check.sh"
-"$Q/remedies.sh"   # issue 59: the remedies ranked (appended while all.sh ran: it runs after the chain above)
+"$Q/toytown-tables.sh" && "$Q/table5-300k.sh" && "$Q/onpolicy-check.sh" && "$Q/remedies.sh"

@@ -384,10 +384,13 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
 
 
 def _settings_but_seeds(res: results_lib.Results) -> dict:
-    """What decides a file's runs beside their seeds: its settings with `budget.seeds` and `budget.first_seed`
-    left out, and its data."""
-    budget = {k: v for k, v in (res.settings.get("budget") or {}).items() if k not in ("seeds", "first_seed")}
-    return {**res.settings, "budget": budget, "data": res.config.get("data", {}).get("settings")}
+    """What decides a file's runs beside their seeds: its settings as resolved (`Results.records`: a file recording
+    the methods' knobs as recipe fields, or a former name, reads as today's), with `budget.seeds`,
+    `budget.first_seed` and the protocol's description left out, and its data."""
+    blocks = res.records().to_json()
+    blocks["budget"] = {k: v for k, v in blocks["budget"].items() if k not in ("seeds", "first_seed")}
+    blocks["protocol"] = {k: v for k, v in blocks["protocol"].items() if k != "doc"}
+    return {**blocks, "data": res.config.get("data", {}).get("settings")}
 
 
 def _check_seed_split(res: results_lib.Results, row: dict, m: dict, where: str, group: str) -> None:
