@@ -7,8 +7,9 @@ import pathlib
 import pytest
 
 from experiments import report
-from experiments.report.analysis import (Key, budget_differences, budget_rows, copycat_map, extra_methods, loss_rows,
-                                         merge, paper_budget_groups, rate_reading, sensitivity, verdict, versus_bcoh)
+from experiments.report.analysis import (Key, budget_differences, budget_rows, copycat_map, driving_comparisons,
+                                         extra_methods, loss_rows, merge, paper_budget_groups, rate_reading,
+                                         sensitivity, verdict, versus_bcoh)
 
 RESULTS = pathlib.Path(__file__).resolve().parents[1] / "results"
 
@@ -315,3 +316,36 @@ def test_the_later_methods_ranked_over_both_families(later_ranking):
     assert palr_above == ["Hopper (FCA's expert, clipped labels)", "Hopper (FCA's expert, raw labels)"]
     assert by["default"]["bc-full"].improvement.low > 0.5
     assert all(by[name][m].improvement.high < 0.5 for name in by for m in ("rap", "mine"))
+
+
+def test_toytown_table_1_image_policies_fail_before_any_of_the_papers_comparisons_can_show():
+    """The brief's and the README's driving paragraph, claims 13-15 (Table 1, the speed in view): BC-full's success, the image policies' success and collisions, the
+    paper's comparisons (none shows a difference at 5 seeds), route completion, no copycat, no inertia in BC-OH."""
+    import numpy as np
+
+    from experiments.report.analysis import driving_rows
+
+    m = _merged("toytown-image-nocrash-default-seeds*.json")[Key("toytown", "image", "nocrash")]
+    per = {r.method: {k: np.array([run["eval"][k] for run in r.runs]) for k in
+                      ("success", "collisions", "route_completion", "stuck")} for r in driving_rows(m)}
+    assert all(len(v["success"]) == 5 for v in per.values())
+    assert round(100 * per["bc-full"]["success"].mean(), 1) == 94.4
+    assert [round(100 * per[k]["success"].mean(), 1) for k in ("bc-so", "bc-oh", "ours-step")] == [4.8, 3.2, 1.6]
+    images = {k: v for k, v in per.items() if k != "bc-full"}
+    assert max(round(100 * v["success"].mean(), 1) for v in images.values()) == 10.4          # HistoryDropout
+    moving = {k: v for k, v in images.items() if k not in ("fca", "mine")}
+    assert min(round(v["collisions"].mean(), 2) for v in moving.values()) == 0.90             # a crash in 90%+
+    assert {k: round(100 * per[k]["stuck"].mean()) for k in ("fca", "mine", "bc-oh")} == \
+        {"fca": 86, "mine": 93, "bc-oh": 0}                                                 # they stand still
+    assert (round(per["bc-so"]["route_completion"].mean(), 2), round(per["bc-oh"]["route_completion"].mean(), 2)) \
+        == (0.44, 0.32)
+    said = {(c.a, c.b, c.metric): f"{c.ci.diff:+.1f} [{c.ci.low:+.1f}, {c.ci.high:+.1f}]" if c.metric == "success"
+            else f"{c.ci.diff:+.2f} [{c.ci.low:+.2f}, {c.ci.high:+.2f}]" for c in driving_comparisons(m)}
+    assert said == {("BC-OH", "BC-SO", "success"): "-1.6 [-5.7, +2.5]",
+                    ("Ours", "BC-SO", "success"): "-3.2 [-7.6, +1.2]",
+                    ("Ours", "BC-OH", "success"): "-1.6 [-6.7, +3.5]",
+                    ("Ours", "DAgger", "success"): "-3.2 [-7.6, +1.2]",
+                    ("Ours", "BC-OH", "collisions"): "+0.02 [-0.03, +0.07]"}
+    verdicts = [(r["diagnostics"]["verdict"], r["diagnostics"]["controlled_verdict"]) for r in m.runs
+                if r.get("diagnostics") and r["diagnostics"].get("verdict")]
+    assert len(verdicts) >= 50 and {v for pair in verdicts for v in pair} == {"not copycat"}   # both verdicts, all
