@@ -21,12 +21,14 @@ expert references cannot be normalised, and is refused (`check_references`).
 from __future__ import annotations
 
 import dataclasses
+import json
 import pathlib
 from typing import NamedTuple
 from collections.abc import Mapping, Sequence
 
 from ape_jax import tasks
 from ape_jax.pipeline import results as results_lib
+from ape_jax.pipeline.presets import SettingsError
 
 
 # The state tables' tasks: those with an expert that are judged by their return (the MuJoCo tasks).
@@ -387,9 +389,12 @@ def _settings_but_seeds(res: results_lib.Results) -> dict:
     """What decides a file's runs beside their seeds: its settings as resolved (`Results.records`: a file recording
     the methods' knobs as recipe fields, or a former name, reads as today's), with `budget.seeds`,
     `budget.first_seed` and the protocol's description left out, and its data."""
-    blocks = res.records().to_json()
-    blocks["budget"] = {k: v for k, v in blocks["budget"].items() if k not in ("seeds", "first_seed")}
-    blocks["protocol"] = {k: v for k, v in blocks["protocol"].items() if k != "doc"}
+    try:
+        blocks = res.records().to_json()
+    except (SettingsError, TypeError, ValueError):   # settings this code cannot resolve: compared as recorded
+        blocks = json.loads(json.dumps(res.settings))
+    blocks["budget"] = {k: v for k, v in (blocks.get("budget") or {}).items() if k not in ("seeds", "first_seed")}
+    blocks["protocol"] = {k: v for k, v in (blocks.get("protocol") or {}).items() if k != "doc"}
     return {**blocks, "data": res.config.get("data", {}).get("settings")}
 
 
