@@ -41,12 +41,11 @@ def protocol_name(name: str) -> str:
     return FORMER_PROTOCOLS.get(name, name)
 
 
-def current_names(name: Any, reference: Any = None, expert: Any = None) -> dict[str, Any]:
-    """A protocol record's `name`, `reference` and `expert` as they are called now (each as given where it was not
-    renamed): what a protocol record or block of a file from before the renaming means."""
-    return {"name": FORMER_PROTOCOLS.get(name, name) if isinstance(name, str) else name,
-            "reference": FORMER_PROTOCOLS.get(reference, reference) if isinstance(reference, str) else reference,
-            "expert": FORMER_EXPERTS.get(expert, expert) if isinstance(expert, str) else expert}
+def current_names(block: Mapping[str, Any]) -> dict[str, Any]:
+    """A protocol record's fields or block (a file's, a fingerprint's) with its `name`, `reference` and `expert`
+    as they are called now (each as given where it was not renamed, or is absent)."""
+    former = {"name": FORMER_PROTOCOLS, "reference": FORMER_PROTOCOLS, "expert": FORMER_EXPERTS}
+    return {k: former[k].get(v, v) if k in former and isinstance(v, str) else v for k, v in block.items()}
 
 
 def current_expert(description: dict) -> dict:
@@ -139,8 +138,9 @@ class Protocol:
     noise_std: float = 0.0
 
     def __post_init__(self):
-        for field, value in current_names(self.name, self.reference, self.expert).items():
-            object.__setattr__(self, field, value)   # a former name (a file's, an old command's) reads as today's
+        names = current_names({"name": self.name, "reference": self.reference, "expert": self.expert})
+        for field, value in names.items():   # a former name (a file's, an old command's) reads as today's
+            object.__setattr__(self, field, value)
         if self.split not in SPLITS:
             raise ValueError(f"protocol.split {self.split!r} is not one of {', '.join(SPLITS)}")
         if self.split == "rows" and (self.train_transitions is None or self.val_transitions is None):

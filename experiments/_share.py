@@ -23,7 +23,7 @@ import optax
 from ape_jax import methods
 from ape_jax.learner import make_train, stack_hparams
 from ape_jax.models import Head
-from ape_jax.pipeline.presets import FORMER_RECIPES, RECIPES
+from ape_jax.pipeline.presets import RECIPES
 from experiments._timing import machine, time_jitted
 from experiments._bench_common import BATCH, OBS, H, _data, macs_per_sample, matmul_peak, recipe_config
 
@@ -36,7 +36,6 @@ def grid_rate(recipe: str, models: int, iters: int, repeats: int) -> dict:
     """BC-OH × `models` as one `jit(vmap(scan))` of recipe `recipe` (the `palr` recipe's batch of 1,024 runs
     `iters · 128 / 1024` iterations per call): model-updates/s (steady state), compile s, and GFLOP/s by
     6 · batch · dense weights per update."""
-    recipe = FORMER_RECIPES.get(recipe, recipe)
     cfg = recipe_config(recipe, max(10, iters * BATCH // RECIPES[recipe].batch_size))
     n, learner, data = cfg.iterations, make_train(cfg), _data()
     hps = stack_hparams([methods.get("bc-oh").hparams({}, 2e-4, 0)] * models)

@@ -4,12 +4,13 @@ fails here and the hand-written text is rewritten with it. Numbers are compared 
 
 import pathlib
 
+import numpy as np
 import pytest
 
 from experiments import report
 from experiments.report.analysis import (Key, budget_differences, budget_rows, copycat_map, driving_comparisons,
-                                         extra_methods, loss_rows, merge, paper_budget_groups, rate_reading,
-                                         sensitivity, verdict, versus_bcoh)
+                                         driving_rows, extra_methods, loss_rows, merge, paper_budget_groups,
+                                         rate_reading, sensitivity, verdict, versus_bcoh)
 
 RESULTS = pathlib.Path(__file__).resolve().parents[1] / "results"
 
@@ -319,12 +320,9 @@ def test_the_later_methods_ranked_over_both_families(later_ranking):
 
 
 def test_toytown_table_1_image_policies_fail_before_any_of_the_papers_comparisons_can_show():
-    """The brief's and the README's driving paragraph, claims 13-15 (Table 1, the speed in view): BC-full's success, the image policies' success and collisions, the
-    paper's comparisons (none shows a difference at 5 seeds), route completion, no copycat, no inertia in BC-OH."""
-    import numpy as np
-
-    from experiments.report.analysis import driving_rows
-
+    """The brief's and the README's driving paragraph, claims 13-15 (Table 1, the speed in view): BC-full's
+    success, the image policies' success and collisions, the paper's comparisons (none shows a difference at 5
+    seeds), route completion, no copycat, no inertia in BC-OH."""
     m = _merged("toytown-image-nocrash-default-seeds*.json")[Key("toytown", "image", "nocrash")]
     per = {r.method: {k: np.array([run["eval"][k] for run in r.runs]) for k in
                       ("success", "collisions", "route_completion", "stuck")} for r in driving_rows(m)}

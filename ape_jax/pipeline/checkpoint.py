@@ -191,9 +191,7 @@ def current_names(fingerprint: dict) -> dict:
 
     out = json.loads(json.dumps(fingerprint))
     if isinstance(out.get("protocol"), dict):
-        p = out["protocol"]
-        p.update({k: v for k, v in tasks.current_names(p.get("name"), p.get("reference"), p.get("expert")).items()
-                  if k in p})
+        out["protocol"] = tasks.current_names(out["protocol"])
     if isinstance(out.get("data"), dict) and isinstance(out["data"].get("expert"), dict):
         out["data"]["expert"] = tasks.current_expert(out["data"]["expert"])
     return out

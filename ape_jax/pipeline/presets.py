@@ -39,8 +39,7 @@ from ape_jax.pipeline.hints import SettingsError, check as _check, coerce as _co
 from ape_jax.pipeline.hints import format_value as _format, parse as _parse
 from ape_jax.pipeline import method_knobs
 
-from ape_jax.weighting import SoftmaxKnobs
-from ape_jax.weighting import SOFTMAX_GRID, STEP_GRID  # noqa: F401 - the paper's grids, where callers look for them
+from ape_jax.weighting import SOFTMAX_GRID, STEP_GRID, SoftmaxKnobs  # noqa: F401 - the paper's grids, where callers look
 
 
 # the most any budget count may be: the device counts steps, seeds and episodes in 32-bit integers (a larger

@@ -50,9 +50,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from ape_jax import methods as methods_lib
+from ape_jax.pipeline import older_files as older
 from ape_jax.pipeline.data import write_atomic
-from ape_jax import tasks
-from ape_jax.pipeline.presets import FORMER_RECIPES, SECTIONS, Settings
+from ape_jax.pipeline.presets import SECTIONS, Settings
 
 
 SCHEMA = 3
@@ -105,10 +105,10 @@ class Results:
         if obj["schema"] == 1:  # before protocols: Brax's own frame skip and episodes, the protocol `brax`
             obj.update(command=None, protocol={"name": "brax"}, methods={})
         if obj["schema"] < 3:
-            obj.update(schema=SCHEMA, settings=legacy_settings(obj))
+            obj.update(schema=SCHEMA, settings=older.legacy_settings(obj))
             if obj["protocol"]:
                 obj["protocol"].setdefault("split", "episodes")
-        _current_names(obj)
+        older.current_names(obj)
         names = dict.fromkeys([*obj["config"].get("methods", []), *(r["method"] for r in obj["runs"])])
         known = {**{m: method_info(m) for m in names if m not in obj.get("methods", {})}, **obj.get("methods", {})}
         fields = {f.name for f in dataclasses.fields(cls)}
@@ -182,43 +182,6 @@ def fingerprint(env: str, obs: str, preset: str, settings: dict, methods: Sequen
 
 
 _REQUIRED = ("schema", "env", "obs", "preset", "config", "expert", "runs", "summary", "system")
-
-# A schema 1/2 `config`'s fields, by the record they belong to now.
-_LEGACY = {"budget": ("iterations", "seeds", "eval_episodes", "ape_steps", "chunk"),
-           "recipe": ("lr", "batch_size", "ape_normalization", "step_grid", "softmax_grid", "encoder"),
-           "protocol": ("history", "eval_steps", "val_frac", "image_size", "episodes")}
-
-
-def legacy_settings(obj: dict) -> dict:
-    """The three records of a schema 1/2 file, from its flat `config`: the `mlp` recipe (with the file's own
-    learning rate, batch and grids) and its protocol split by episode, as every sweep before schema 3 ran."""
-    from ape_jax import tasks
-
-    config, name = obj["config"], (obj.get("protocol") or {}).get("name") or "brax"
-    base = dataclasses.asdict(tasks.PROTOCOLS[name]) if name in tasks.PROTOCOLS else {"name": name}
-    out = {"protocol": {**base, "split": "episodes"}, "budget": {}, "recipe": {"name": "mlp"}}
-    for section, keys in _LEGACY.items():
-        out[section].update({k: config[k] for k in keys if config.get(k) is not None})
-    return out
-
-
-def _current_names(obj: dict) -> None:
-    """Renames in place what a file from before each thing had one name calls by a former name (the protocol,
-    its reference, the expert: `tasks.FORMER_PROTOCOLS`, `FORMER_EXPERTS`; the recipe: `presets.FORMER_RECIPES`),
-    so every reader sees one name for one thing; the file on disk is left as written."""
-    blocks = [b for b in (obj.get("protocol"), (obj.get("settings") or {}).get("protocol")) if isinstance(b, dict)]
-    for block in blocks:
-        block.update({k: v for k, v in tasks.current_names(block.get("name"), block.get("reference"),
-                                                           block.get("expert")).items() if k in block})
-    recipe = (obj.get("settings") or {}).get("recipe")
-    if isinstance(recipe, dict) and recipe.get("name") in FORMER_RECIPES:
-        recipe["name"] = FORMER_RECIPES[recipe["name"]]
-    data = obj["config"].get("data")
-    if isinstance(data, dict) and isinstance((data.get("settings") or {}).get("expert"), dict):
-        data["settings"]["expert"] = tasks.current_expert(data["settings"]["expert"])
-    if obj["config"].get("recipe") in FORMER_RECIPES:
-        obj["config"]["recipe"] = FORMER_RECIPES[obj["config"]["recipe"]]
-
 
 def method_info(name: str) -> dict:
     """What `results.json` records of a method: label, role, program, online (from the registry if it knows it)."""
