@@ -219,7 +219,9 @@ whether it is current._
 Every JSON file under `results/`, one row each: what it holds, read from the file, and the command that runs it
 again into a new folder. `python -m experiments.report results/*.json` builds [BENCHMARKS.md](../BENCHMARKS.md)
 from the first table's files; the folders' files are quoted by hand ([exploratory/README.md](exploratory/README.md)
-says where). `queue/` and `retrained/queue.sh` hold the shell queues that wrote the later files.
+says where). `queue/` and `retrained/queue.sh` hold the shell queues that wrote the later files; since Dec 6 a
+queue runs each sweep from a snapshot of the committed code (a git worktree, `queue/_lib.sh`), so the commit a file
+records is the code that ran, whatever was edited in the checkout meanwhile.
 
 **Names.** A name is a reader's shorthand, not a record: the file holds every setting, and the table reads the file.
 Names are built as `TASK-OBS[-PROTOCOL][-SPLIT]-PRESET[-RECIPE][-VARIANT][-LABELS][-SUFFIX][-seedsK].json`:

@@ -1,6 +1,23 @@
 # Shared by the queues (sourced): `sweep NAME ARGS...` runs one resumable sweep into $RUNS/NAME and copies its
 # results to results/NAME.json; `judge_by NAME SIBLING` gives a file without a no-history control of its own the
 # controlled verdict from SIBLING's BC-SO. Both expect WT (the checkout, the working directory), RUNS and PY.
+# Sweeps run the committed code of the moment they start, from a snapshot (`snapshot`): edits to the checkout while a
+# sweep runs never reach it (a sweep imports some modules late, at its end), and its results record the commit
+# that ran. Results land in the checkout (WT), which regenerates the index and report with its own code.
+
+snapshot() {  # prints the snapshot of HEAD's committed code to run sweeps from, made once per commit in $RUNS/.code
+  # (a detached git worktree, ~40 MB; snapshots over two days old are removed)
+  local rev dir
+  rev=$(git -C "$WT" rev-parse --short HEAD) || return 1
+  dir=$RUNS/.code/$rev
+  if [ ! -d "$dir" ]; then
+    mkdir -p "$RUNS/.code"
+    find "$RUNS/.code" -mindepth 1 -maxdepth 1 -type d -mtime +2 -exec git -C "$WT" worktree remove --force {} \; \
+      2> /dev/null
+    git -C "$WT" worktree add --detach "$dir" HEAD > /dev/null 2>&1 || return 1
+  fi
+  echo "$dir"
+}
 
 sweep() {  # sweep NAME ARGS...: one sweep into $RUNS/NAME, its results to results/NAME.json
   local name=$1; shift
@@ -9,7 +26,8 @@ sweep() {  # sweep NAME ARGS...: one sweep into $RUNS/NAME, its results to resul
     echo "start $name $(date -u +%FT%TZ)"
     # --resume where a sweep was started (a folder without one is refused with it), else a fresh start
     local resume=(); [ -f "$RUNS/$name/checkpoints/sweep.json" ] && resume=(--resume)
-    "$PY" -m experiments.sweep "$@" --out "$RUNS/$name" "${resume[@]}" > "$RUNS/$name.log" 2>&1 \
+    local src; src=$(snapshot) || { echo "FAILED $name (no code snapshot of $WT)"; return; }
+    (cd "$src" && "$PY" -m experiments.sweep "$@" --out "$RUNS/$name" "${resume[@]}") > "$RUNS/$name.log" 2>&1 \
       || { echo "FAILED $name (exit $?; $RUNS/$name.log)"; return; }
   fi
   cp "$RUNS/$name/results.json" "results/$name.json" && PY="$PY" "$WT/results/queue/land.sh" \
@@ -31,17 +49,21 @@ piece() {  # piece NAME CORES ARGS...: one resumable sweep into $RUNS/NAME at th
   if [ -f "results/$name.json" ]; then echo "skip $name (results/$name.json exists)"; return 0; fi
   local out=$RUNS/$name rc=0
   if [ ! -f "$out/results.json" ]; then
-    echo "start $name (cores $cores) $(date -u +%FT%TZ)"
+    local src; src=$(snapshot) || { echo "FAILED $name (no code snapshot of $WT)"; return 1; }
+    echo "start $name (cores $cores, code $(basename "$src")) $(date -u +%FT%TZ)"
     local resume=(); [ -f "$out/checkpoints/sweep.json" ] && resume=(--resume)
     local one=(env XLA_FLAGS="--xla_cpu_multi_thread_eigen=false" "$PY" -m experiments.sweep "$@" --out "$out")
     case $cores in
-      all) nice -n 19 "$PY" -m experiments.sweep "$@" --out "$out" "${resume[@]}" > "$RUNS/$name.log" 2>&1; rc=$? ;;
-      0|1) taskset -c "$cores" nice -n 19 "${one[@]}" "${resume[@]}" > "$RUNS/$name.log" 2>&1; rc=$? ;;
+      all) (cd "$src" && nice -n 19 "$PY" -m experiments.sweep "$@" --out "$out" "${resume[@]}") > "$RUNS/$name.log" 2>&1
+           rc=$? ;;
+      0|1) (cd "$src" && taskset -c "$cores" nice -n 19 "${one[@]}" "${resume[@]}") > "$RUNS/$name.log" 2>&1; rc=$? ;;
       0,1)
         local multi=(--coordinator "localhost:$PORT" --num-processes 2)
         # process 1 in the background; process 0 (which writes) in the foreground
-        taskset -c 1 nice -n 19 "${one[@]}" "${resume[@]}" "${multi[@]}" --process-id 1 > "$RUNS/$name.p1.log" 2>&1 &
-        taskset -c 0 nice -n 19 "${one[@]}" "${resume[@]}" "${multi[@]}" --process-id 0 > "$RUNS/$name.log" 2>&1
+        (cd "$src" && taskset -c 1 nice -n 19 "${one[@]}" "${resume[@]}" "${multi[@]}" --process-id 1) \
+          > "$RUNS/$name.p1.log" 2>&1 &
+        (cd "$src" && taskset -c 0 nice -n 19 "${one[@]}" "${resume[@]}" "${multi[@]}" --process-id 0) \
+          > "$RUNS/$name.log" 2>&1
         rc=$?; wait ;;
       *) echo "piece: cores must be all, 0, 1 or 0,1 (got $cores)"; return 2 ;;
     esac

@@ -16,6 +16,8 @@ PY=${PY:-$WT/.venv/bin/python}
 SEEDS_PER=${SEEDS_PER:-2}
 PORT=${PORT:-12391}
 NAME=hopper-pos-mujoco-state-rows-paper-bn-mlp-cs294-raw
+# the knobs by their former recipe names (a notice each), as the first piece started: recipe.fca_alphas also sets
+# fca-ib's, which the settings record, so fca.alphas alone would not resume that piece's checkpoints
 cd "$WT" || exit 2
 mkdir -p "$RUNS"
 source "$WT/results/queue/_lib.sh"
