@@ -260,14 +260,14 @@ def _palr(history: int) -> Protocol:
     positions (`obs="pos"`, `qpos[1:]`), where PALR's mask (`[0:4] + [8:13]`) keeps 4 positions and 5
     velocities (the root's x, z and pitch velocities and two joints'): with those velocities in view the past adds
     little and the copycat question is a different one, so every task here is positions only, as FCA's setting
-    is. Their batch (1,024), learning rate (3e-4, constant) and 500,000 iterations are the `palr` recipe's and
+    is. Their batch (1,024), learning rate (3e-4, constant) and 500,000 iterations are the `mlp-b1024` recipe's and
     `--set budget.iterations=500000`.
     """
     return Protocol(f"palr-h{history}", collect_transitions=40_000, train_transitions=30_000, val_transitions=2_000,
                     history=history, split="episodes", reference="brax",
                     doc=f"PALR's setting (Seo et al. 2023) at history {history}: Brax's frame skip and 1,000-step "
                         f"episodes, 30,000 training and 2,000 validation transitions of whole episodes, positions "
-                        f"only (HalfCheetah's 8, not PALR's mask with 5 velocities); the palr recipe")
+                        f"only (HalfCheetah's 8, not PALR's mask with 5 velocities); the mlp-b1024 recipe")
 
 
 def _nocrash(speed_input: bool) -> Protocol:

@@ -27,13 +27,13 @@ from ape_jax.pipeline.presets import RECIPES
 from experiments._timing import machine, time_jitted
 from experiments._bench_common import BATCH, OBS, H, _data, macs_per_sample, matmul_peak, recipe_config
 
-SHARE_RECIPES = ("bn-mlp", "mlp", "palr")
+SHARE_RECIPES = ("bn-mlp", "mlp", "mlp-b1024")
 SHARE_MODELS = (13, 32, 64)
 ONE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"   # a pinned worker's XLA
 
 
 def grid_rate(recipe: str, models: int, iters: int, repeats: int) -> dict:
-    """BC-OH × `models` as one `jit(vmap(scan))` of recipe `recipe` (the `palr` recipe's batch of 1,024 runs
+    """BC-OH × `models` as one `jit(vmap(scan))` of recipe `recipe` (the `mlp-b1024` recipe's batch of 1,024 runs
     `iters · 128 / 1024` iterations per call): model-updates/s (steady state), compile s, and GFLOP/s by
     6 · batch · dense weights per update."""
     cfg = recipe_config(recipe, max(10, iters * BATCH // RECIPES[recipe].batch_size))

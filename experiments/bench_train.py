@@ -21,13 +21,13 @@ hopper `pos` demonstrations shapes: input 2 × 5, action 3, batch 128):
 5. end-to-end wall time of the sweeps whose `results.json` are given;
 6. the methods after the paper (`rap`, `palr`, `mine`, and the fixes after them: `channel-dropout`, `ptp`,
    `action-chunks`, `priming`; `ape_jax.baselines`) against BC-OH: model-updates/s of
-   13 configurations of each as one `jit(vmap(scan))` under the recipes `bn-mlp`, `mlp` and `palr` (batch 1,024,
+   13 configurations of each as one `jit(vmap(scan))` under the recipes `bn-mlp`, `mlp` and `mlp-b1024` (batch 1,024,
    fewer iterations per timed call), the timed calls interleaved (BC-OH, RAP, PALR, MINE, BC-OH, ...) so a
    machine under shifting load slows all alike; and PALR's HSCIC estimator (value and gradient, a 100-unit
    embedding) against one BC-OH step at batches of 64 to 1,024 (`--methods-only`: this part alone, written to
    its own section);
 7. the share of the float32 matmul peak (measured in the same run) that BC-OH grids of 13, 32 and 64 models
-   reach under each recipe (`bn-mlp`, `mlp`, `palr`), in one process of every thread and as one process per core,
+   reach under each recipe (`bn-mlp`, `mlp`, `mlp-b1024`), in one process of every thread and as one process per core,
    each pinned (`taskset`) and single-threaded, side by side, each with its share of the models (`--share`:
    this part alone, written to its own section), with where one core's time goes under `bn-mlp` and `mlp`: the
    network's dense products alone, then BatchNorm, then Adam, beside the learner's own step.
@@ -145,12 +145,12 @@ def _method_program(name: str, cfg: LearnerConfig, iters: int, data: Data, confi
 
 
 def methods_throughput(iters: int, repeats: int, configs: int = 13) -> dict[str, dict]:
-    """Per recipe (`bn-mlp`, `mlp`, `palr`): model-updates/s of `configs` configurations of BC-OH, RAP, PALR, MINE
+    """Per recipe (`bn-mlp`, `mlp`, `mlp-b1024`): model-updates/s of `configs` configurations of BC-OH, RAP, PALR, MINE
     (and MINE at the authors' 5 estimator steps) in one `jit(vmap(scan))` each, timed calls interleaved; the
-    `palr` recipe's batch of 1,024 runs `iters · 128 / 1024` iterations per call."""
+    `mlp-b1024` recipe's batch of 1,024 runs `iters · 128 / 1024` iterations per call."""
     out = {}
     rows = [("bc-oh", {}), *((m, {}) for m in NEW_METHODS), ("mine", {"inner_steps": 5})]
-    for recipe in ("bn-mlp", "mlp", "palr"):
+    for recipe in ("bn-mlp", "mlp", "mlp-b1024"):
         cfg = recipe_config(recipe, iters)
         n = max(10, iters * BATCH // cfg.batch_size)
         cfg = recipe_config(recipe, n)

@@ -1,11 +1,13 @@
 """One name per thing (`docs/design.md`, "Words"): the MuJoCo-State protocol is `mujoco-state`, the FCA code's recipe
-`bn-mlp`, FCA's imported expert `cs294`; "fca" is FCA's algorithm only. The former names read as the new ones: on
+`bn-mlp`, PALR's code's recipe `mlp-b1024`, FCA's imported expert `cs294`; "fca" and "palr" are the algorithms
+only. The former names read as the new ones: on
 the command line with a notice, in results files and checkpoints silently, so they keep their settings,
 fingerprints and replays. And the APE's normalisation, the softmax weightings' own setting."""
 
 import copy
 import dataclasses
 import json
+import pathlib
 
 import pytest
 
@@ -22,6 +24,27 @@ def test_fca_names_only_the_method_in_the_cli():
     assert resolve("hopper", "pos").protocol.name == "mujoco-state"
     assert resolve("hopper", "pos").recipe.name == "bn-mlp"
     assert all(new in tasks.PROTOCOLS for new in tasks.FORMER_PROTOCOLS.values())
+
+
+def test_no_protocol_recipe_method_or_shipped_expert_shares_a_name():
+    shipped = (pathlib.Path(tasks.__file__).parents[1] / "envs" / "experts").iterdir()
+    experts = {d.name.partition("-")[2] for d in shipped if d.is_dir() and "-" in d.name}
+    experts |= set(tasks.FORMER_EXPERTS.values())
+    kinds = {"protocol": set(tasks.PROTOCOLS), "recipe": set(presets.RECIPES), "method": set(methods.names()),
+             "expert": experts}
+    assert experts >= {"rough", "ppo", "cs294"}
+    for a in kinds:
+        for b in kinds:
+            assert a == b or not kinds[a] & kinds[b], (a, b, kinds[a] & kinds[b])
+
+
+def test_palr_s_recipe_is_mlp_b1024_and_its_former_name_reads_as_it(capsys):
+    presets._noticed.clear()
+    assert resolve("halfcheetah", "pos", protocol="palr-h2").recipe.name == "mlp-b1024"
+    old = resolve("halfcheetah", "pos", protocol="palr-h2", recipe="palr")
+    assert "notice: recipe 'palr' is now 'mlp-b1024'" in capsys.readouterr().err
+    assert old == resolve("halfcheetah", "pos", protocol="palr-h2", recipe="mlp-b1024")
+    assert presets.Recipe("palr", lr=3e-4, batch_size=1024, lr_decay_at=()) == presets.RECIPES["mlp-b1024"]
 
 
 def test_the_former_names_resolve_to_the_same_settings_with_one_notice_each(capsys):

@@ -134,5 +134,5 @@ def test_palr_s_protocol_is_a_record_with_its_recipe(history):
     assert (p.history, p.train_transitions, p.val_transitions, p.split) == (history, 30_000, 2_000, "episodes")
     assert p.frame_skip is None and p.horizon is None and p.reference == "brax"   # gym's frame skip, 1,000 steps
     assert "positions only" in p.doc and "velocities" in p.doc                       # the HalfCheetah mask, declined
-    assert (r.name, r.batch_size, r.lr, r.lr_decay_at) == ("palr", 1024, 3e-4, ())
+    assert (r.name, r.batch_size, r.lr, r.lr_decay_at) == ("mlp-b1024", 1024, 3e-4, ())
     assert settings.learner_config((8,), 6, history, "l2").lr_boundaries == ()

@@ -93,4 +93,4 @@ def test_a_protocol_joins_a_family_by_being_listed_there_never_by_its_name():
     assert stranger.family == "fca-mine" and not in_state_family("fca-mine") and in_state_family("mujoco-state-train5k")
     assert default_recipe(stranger, "pos") == "mlp"
     assert default_recipe(tasks.PROTOCOLS["mujoco-state-fs2"], "pos") == "bn-mlp"
-    assert default_recipe(tasks.PROTOCOLS["palr-h4"], "pos") == "palr"
+    assert default_recipe(tasks.PROTOCOLS["palr-h4"], "pos") == "mlp-b1024"

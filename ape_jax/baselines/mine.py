@@ -47,7 +47,7 @@ Our readings:
 - **Cost**: the bound reads at most `rows` rows of each minibatch (`mine.rows`, default `ESTIMATOR_ROWS`
   = 256; 0: the whole batch), as PALR's estimator does (`palr.rows`): the rows are drawn uniformly with
   replacement, so the first `rows` are a uniform subsample. Every recipe's batch up to 256 (`fca` 64, `mlp` 128)
-  is read whole, so those trainings are as they were before the cap; under PALR's batch of 1,024 (`recipe palr`)
+  is read whole, so those trainings are as they were before the cap; under PALR's batch of 1,024 (recipe `mlp-b1024`)
   `T` on all 2,048 joint and marginal rows made MINE 1.5× BC-OH's time per update (docs/speed.md).
 
 Metrics (`[n]` float32 per `run` of `n` iterations): `"loss"` (the policy's objective), `"unweighted_loss"` (the

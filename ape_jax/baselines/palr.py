@@ -33,7 +33,7 @@ Our readings:
   at most `rows` rows of each minibatch (`palr.rows`, default `HSCIC_ROWS` = 256; 0: the whole batch, for
   GPUs): the rows are drawn uniformly with replacement, so the first `rows` are a uniform subsample and the
   penalty is the same estimator at a smaller `n`. Every recipe's batch up to 256 (`fca` 64, `mlp` 128) is
-  estimated whole; PALR's own batch of 1,024 (`recipe palr`) is subsampled on a CPU. Random Fourier features
+  estimated whole; PALR's own batch of 1,024 (recipe `mlp-b1024`) is subsampled on a CPU. Random Fourier features
   were measured first and rejected: features of `a_t` alone for the regression leave the `n × n` products (still
   ~4× a BC step at 1,024) and give a gradient at cosine 0.5–0.8 to the exact one; features of all three kernels
   (`O(n D³)`) give gradients at cosine below 0.1 with D ≤ 48.

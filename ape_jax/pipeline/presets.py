@@ -12,8 +12,10 @@
   settings (the weightings' grids, FCA's α, PALR's weights, ...) are not the recipe's: each method owns a record
   (`Method.knobs`, `--set METHOD.KNOB=VALUE`, `ape_jax.pipeline.method_knobs`), resolved into `Settings.knobs`.
   `mlp` is the project's first recipe; `bn-mlp` is the FCA code's (BatchNorm network, Adam β1 0.5, batch 64), the
-  default under the mujoco-state protocols for state observations (named `fca` before: `FORMER_RECIPES`); `drq`
-  is DrQ's pixel encoder at 84×84 with random shifts, for images (`IMAGE_RECIPES`).
+  default under the mujoco-state protocols for state observations (named `fca` before: `FORMER_RECIPES`);
+  `mlp-b1024` is PALR's code's optimisation on the project's network (batch 1,024, constant Adam 3e-4), the default
+  under the palr protocols (named `palr` before, as the method is); `drq` is DrQ's pixel encoder at 84×84 with
+  random shifts, for images (`IMAGE_RECIPES`).
 
 `resolve` starts from the named records, applies the image observations' budget (`IMAGE_PRESETS`) and an image
 recipe's own settings (`IMAGE_RECIPES`), the task's own overrides (`Task.presets`, e.g. ToyCar's), the smoke
@@ -166,16 +168,17 @@ class Recipe:
 # The project's first recipe, and the FCA code's (AlvinWen428/fighting-copycat-agents: `gan_mlp.py`,
 # `factory.py`, `utils/misc.py`): its network, xavier-uniform init, Adam(2e-4, β1 0.5, β2 0.999) and batch 64;
 # both drop the learning rate ×0.1 at a third and two thirds of the run (the FCA code: 100k and 200k of 300k).
-# `palr`: PALR's code's optimisation (KAIST-AILab/palr `train.py`: Adam(3e-4) with PyTorch's moments, batch 1,024,
-# a constant learning rate over 500,000 iterations: `--set budget.iterations=500000`), on the project's network and
-# loss (theirs: 128-64-128 units and a tanh-Gaussian likelihood); the default recipe of the `palr-h*` protocols.
-# The FCA code's recipe was named `fca` (as are FCA's algorithm and, before, the protocol): `--recipe fca` reads as
-# `bn-mlp`, with a notice; a file's or checkpoint's `fca` silently.
-FORMER_RECIPES: Mapping[str, str] = {"fca": "bn-mlp"}
+# `mlp-b1024`: PALR's code's optimisation (KAIST-AILab/palr `train.py`: Adam(3e-4) with PyTorch's moments, batch
+# 1,024, a constant learning rate over 500,000 iterations: `--set budget.iterations=500000`), on the project's
+# network and loss (theirs: 128-64-128 units and a tanh-Gaussian likelihood); the default recipe of the `palr-h*`
+# protocols. The FCA code's recipe was named `fca` and PALR's `palr`, as the methods are (one name per thing):
+# `--recipe fca` reads as `bn-mlp` and `--recipe palr` as `mlp-b1024`, with a notice; a file's or checkpoint's
+# former name silently.
+FORMER_RECIPES: Mapping[str, str] = {"fca": "bn-mlp", "palr": "mlp-b1024"}
 RECIPES: Mapping[str, Recipe] = {
     "mlp": Recipe("mlp"),
     "bn-mlp": Recipe("bn-mlp", network="bn-mlp", init="xavier", beta1=0.5, batch_size=64),
-    "palr": Recipe("palr", lr=3e-4, batch_size=1024, lr_decay_at=()),
+    "mlp-b1024": Recipe("mlp-b1024", lr=3e-4, batch_size=1024, lr_decay_at=()),
     "drq": Recipe("drq", encoder="drq", augment_shift=4),
 }
 # Image recipes: the settings an image recipe brings whatever the preset's (`IMAGE_PRESETS`), applied after it.
@@ -280,9 +283,9 @@ class Settings:
 
 def default_recipe(protocol: Protocol, obs: str) -> str:
     """The recipe a sweep uses unless told: the FCA code's (`bn-mlp`) under the mujoco-state protocols for states,
-    PALR's code's under the palr protocols, else `mlp`."""
+    PALR's code's (`mlp-b1024`) under the palr protocols, else `mlp`."""
     if protocol.family == "palr":
-        return "palr"
+        return "mlp-b1024"
     return "bn-mlp" if protocol.family == tasks.STATE and obs != "image" else "mlp"
 
 
