@@ -178,6 +178,17 @@ def test_a_sweep_over_two_processes_is_written_by_process_zero_alone(tmp_path):
     assert not (tmp_path / "out1").exists()
 
 
+def test_a_method_that_reads_another_s_policies_is_refused_over_two_processes_before_any_work(tmp_path):
+    port = free_port()
+    done = run_processes([[sys.executable, "-m", "experiments.sweep", "--env", "toycar", "--obs", "full", "--smoke",
+                           "--methods", "bc-so,priming", "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2",
+                           "--process-id", str(i), "--out", str(tmp_path / "out"), "--data-dir", str(tmp_path / "data")]
+                          for i in range(2)], env_with(1))
+    assert [d.returncode for d in done] == [2, 2], done[0].stderr[-2000:]
+    assert "priming reads bc-so's trained policies, which a multi-process sweep does not gather" in done[0].stderr
+    assert not (tmp_path / "out").exists() and not (tmp_path / "data").exists()   # nothing collected or written
+
+
 @pytest.mark.parametrize("flags, message", [
     (["--num-processes", "0", "--process-id", "0", "--coordinator", "127.0.0.1:1234"], "--num-processes must be >= 1"),
     (["--num-processes", "2", "--process-id", "2", "--coordinator", "127.0.0.1:1234"], "must be in [0, 2), got 2"),

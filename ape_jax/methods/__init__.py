@@ -356,11 +356,17 @@ def sharing(record: type) -> list[str]:
             if _registry[n].knobs is not None and issubclass(_registry[n].knobs, record)]
 
 
+def read_by(name: str, knobs: Mapping[str, Any]) -> str | None:
+    """The method whose trained policies method `name`'s runs read under the methods' settings `knobs`
+    (`Method.reads`), or None."""
+    method = get(name)
+    return method.reads(GridContext(task=None, n_train=0, knobs=knobs)) if method.reads is not None else None
+
+
 def unread(name: str, knobs: Mapping[str, Any], names: Sequence[str]) -> str | None:
     """Why method `name` cannot train among the methods `names` under the methods' settings `knobs`: it reads the
     trained policies of a method not among them (`Method.reads`); None where it can."""
-    method = get(name)
-    read = method.reads(GridContext(task=None, n_train=0, knobs=knobs)) if method.reads is not None else None
+    read = read_by(name, knobs)
     if read is None or read in names:
         return None
     return f"{name} reads the trained policies of {read}: add {read} to --methods, or change {name}'s settings"

@@ -84,6 +84,10 @@ class SweepSpec:
             why = method.refuses(self.settings, self.obs) if method.refuses is not None else None
             if why or (why := methods_lib.unread(m, self.settings.knobs, self.methods)):
                 raise ValueError(why)
+            if jax.process_count() > 1 and (read := methods_lib.read_by(m, self.settings.knobs)):
+                # the policies read are sharded over the processes' devices
+                raise ValueError(f"{m} reads {read}'s trained policies, which a multi-process sweep does not "
+                                 "gather: run it in one process")
         resolved = {"task": tasks.get(self.env), "protocol": self.settings.protocol, "budget": self.settings.budget,
                     "recipe": self.settings.recipe, "preset_name": self.settings.preset,
                     # the task, observation mode and protocol (`setup.Setup`): how the protocol applies to the

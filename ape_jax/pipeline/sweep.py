@@ -165,10 +165,8 @@ def train(programs: Sequence[Program], spec: SweepSpec, prepared: Prepared, data
             view = program.view
             own = data if program.observation is None else data.replace(obs=view.normalizer(view.train.demos.obs))
             hparams = traced_hparams(program.runs, spec.recipe.lr, rows)
-            if read := program.reads:   # e.g. Priming's prime: each run its own seed's BC-SO policy
-                if jax.process_count() > 1:   # the policies read are sharded over the processes' devices
-                    raise ValueError(f"{program.name} reads {read}'s trained policies, which a multi-process sweep "
-                                     "does not gather: run it in one process")
+            if read := program.reads:   # e.g. Priming's prime: each run its own seed's BC-SO policy (one process:
+                # `SweepSpec` refuses a reading method in a multi-process sweep)
                 source = next(t for t in out if any(r.method == read for r in t.program.runs))
                 hparams = methods_lib.read_trained(hparams, program.runs, read, source.program.runs, source.params)
             params, metrics, snapshots = train_program(
