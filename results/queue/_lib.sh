@@ -19,9 +19,15 @@ snapshot() {  # prints the snapshot of HEAD's committed code to run sweeps from,
   echo "$dir"
 }
 
+wait_for() {  # wait_for OUT: a sweep running in OUT (started by an earlier queue, its folder locked) finishes first
+  [ -f "$1/sweep.lock" ] || return 0
+  flock -n "$1/sweep.lock" true || { echo "wait for the sweep running in $1"; flock "$1/sweep.lock" true; }
+}
+
 sweep() {  # sweep NAME ARGS...: one sweep into $RUNS/NAME, its results to results/NAME.json
   local name=$1; shift
   if [ -f "results/$name.json" ]; then echo "skip $name (results/$name.json exists)"; return; fi
+  wait_for "$RUNS/$name"
   if [ ! -f "$RUNS/$name/results.json" ]; then
     echo "start $name $(date -u +%FT%TZ)"
     # --resume where a sweep was started (a folder without one is refused with it), else a fresh start
@@ -48,6 +54,7 @@ piece() {  # piece NAME CORES ARGS...: one resumable sweep into $RUNS/NAME at th
   local name=$1 cores=$2; shift 2
   if [ -f "results/$name.json" ]; then echo "skip $name (results/$name.json exists)"; return 0; fi
   local out=$RUNS/$name rc=0
+  wait_for "$out"
   if [ ! -f "$out/results.json" ]; then
     local src; src=$(snapshot) || { echo "FAILED $name (no code snapshot of $WT)"; return 1; }
     echo "start $name (cores $cores, code $(basename "$src")) $(date -u +%FT%TZ)"

@@ -6,7 +6,5 @@
 #   nohup results/queue/all.sh > /tmp/queues.log 2>&1 &
 set -uo pipefail
 Q=$(cd "$(dirname "$0")" && pwd)
-# a sweep an earlier queue started (and was stopped beside) finishes first: its folder is locked while it runs, and
-# the queue below lands its results when it finds them
-while pgrep -f "experiments.sweep" > /dev/null; do sleep 60; done
+# A sweep an earlier queue started and left running is waited for, then landed (`wait_for` in _lib.sh).
 "$Q/toytown-tables.sh" && "$Q/table5-300k.sh" && "$Q/onpolicy-check.sh" && "$Q/remedies.sh"
