@@ -10,12 +10,14 @@ snapshot() {  # prints the snapshot of HEAD's committed code to run sweeps from,
   local rev dir
   rev=$(git -C "$WT" rev-parse --short HEAD) || return 1
   dir=$RUNS/.code/$rev
-  if [ ! -d "$dir" ]; then
-    mkdir -p "$RUNS/.code"
+  mkdir -p "$RUNS/.code"
+  (  # one at a time: two pieces started together make the snapshot once
+    flock 9
+    [ -d "$dir" ] && exit 0
     find "$RUNS/.code" -mindepth 1 -maxdepth 1 -type d -mtime +2 -exec git -C "$WT" worktree remove --force {} \; \
       2> /dev/null
-    git -C "$WT" worktree add --detach "$dir" HEAD > /dev/null 2>&1 || return 1
-  fi
+    git -C "$WT" worktree add --detach "$dir" HEAD > /dev/null 2>&1
+  ) 9> "$RUNS/.code/.lock" || return 1
   echo "$dir"
 }
 
