@@ -2,12 +2,13 @@
 what the camera shows, and the refusals.
 
 The default run shrinks the route (180 m, two intersections) so an expert episode is a few hundred steps; the
-task's own defaults are measured by the integration test at the end, which is also a script:
+task's own defaults are measured by the integration test at the end, with `experiments.toytown_soundness` (the
+soundness table of docs/tasks.md):
 
-    python tests/test_toytown.py --episodes 100      # the soundness table of docs/tasks.md
+    python -m experiments.toytown_soundness --episodes 100 --out results/exploratory/toytown-soundness.json
 """
 
-import sys
+import json
 
 import jax
 import jax.numpy as jnp
@@ -19,6 +20,8 @@ from envs import toytown_render as render_lib
 from envs import toytown_world as world
 from envs.toytown import ToyTownConfig
 from envs.toytown_expert import FEATURES
+from experiments import toytown_soundness
+from experiments.toytown_soundness import expert_metrics as _expert_metrics, soundness
 
 SHORT = dict(route_length=180.0, intersections=2, episode_length=700)  # three 60 m blocks: ~300 expert steps
 GREEN_FOREVER = dict(green_range=(1000.0, 1000.0))
@@ -27,18 +30,6 @@ PALETTE = render_lib.PALETTES["train"]
 
 def _colour_mask(img, cls):
     return np.all(np.asarray(img) == PALETTE[cls], axis=-1)
-
-
-def _expert_metrics(env, episodes, key=0):
-    policy = envs.from_observation(env.expert, expert=True, env=env)
-
-    @jax.jit
-    def run(k):
-        traj = envs.rollout(env, policy, None, k, num_episodes=episodes, record=env.sim_state)
-        return traj, jax.vmap(env.episode_metrics)(traj.extra, traj.final, traj.valid)
-
-    traj, metrics = run(jax.random.PRNGKey(key))
-    return traj, {k: np.asarray(v) for k, v in metrics.items()}
 
 
 # -- shapes, determinism -------------------------------------------------------------------------------------
@@ -350,41 +341,6 @@ def test_burst_noise_perturbs_the_asked_share_in_whole_triangular_bursts():
 
 # -- soundness (the defaults, measured) ------------------------------------------------------------------------
 
-def soundness(episodes: int = 100, seed: int = 0, ape_steps: int = 2_000) -> dict:
-    """The task's soundness checks at its defaults, per traffic condition: the expert's success and metrics over
-    `episodes` episodes, the copy-previous ratio (mean Σ_d (a_t − a_{t−1})² within episodes ÷ Σ_d Var(a_d)), and
-    where APE's top 10% falls: the share of those samples within a step of the expert's starts (the throttle
-    jumping by > 0.3 at < 1 m/s) and stops (the brake coming on), against the share of all samples there."""
-    from ape_jax import ape
-    from ape_jax.experts import stats
-
-    out = {}
-    for traffic in ("empty", "regular", "dense"):
-        env = envs.make("toytown", obs="full", traffic=traffic)
-        traj, m = _expert_metrics(env, episodes, key=seed)
-        valid = np.asarray(traj.valid) > 0
-        actions = np.asarray(traj.action)[valid]
-        episode = np.broadcast_to(np.arange(episodes)[:, None], valid.shape)[valid]
-        t = np.broadcast_to(np.arange(valid.shape[1])[None, :], valid.shape)[valid]
-        speed = np.asarray(traj.obs[..., FEATURES.index("speed")])[valid]
-        first = t == 0
-        prev = np.where(first[:, None], actions, np.roll(actions, 1, axis=0))
-        start = (actions[:, 1] - prev[:, 1] > 0.3) & (speed < 1.0) & ~first
-        stop = (actions[:, 2] > 0) & (prev[:, 2] <= 0) & ~first
-        event = start | stop
-        near = event | np.roll(event, -1) | np.roll(event, 1)  # within a step of one
-        errors = np.asarray(ape.fit_all(actions, t, ape_steps, seed))
-        top = errors >= np.quantile(errors, 0.9)
-        out[traffic] = {
-            "episodes": episodes, **{k: float(v.mean()) for k, v in m.items()},
-            "episode_steps": float(valid.sum(1).mean()),
-            "copy_previous_ratio": stats.copy_previous_error(actions, episode, t) / stats.action_variance(actions),
-            "starts_per_episode": float(start.sum() / episodes), "stops_per_episode": float(stop.sum() / episodes),
-            "top10_at_events": float(near[top].mean()), "all_at_events": float(near.mean()),
-        }
-    return out
-
-
 @pytest.mark.integration
 def test_the_defaults_are_sound_the_expert_succeeds_and_ape_finds_its_starts_and_stops():
     result = soundness(episodes=100)
@@ -394,19 +350,23 @@ def test_the_defaults_are_sound_the_expert_succeeds_and_ape_finds_its_starts_and
         assert r["top10_at_events"] > 2 * r["all_at_events"], (traffic, r)
 
 
-if __name__ == "__main__":
-    import argparse
+def test_the_soundness_tool_writes_its_table_with_provenance_and_refuses_bad_input(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(toytown_soundness, "soundness", lambda episodes, seed: {
+        c: {k: 0.5 for k in toytown_soundness.COLUMNS} | {"episodes": episodes} for c in toytown_soundness.CONDITIONS})
+    out = tmp_path / "sound.json"
+    assert toytown_soundness.main(["--episodes", "3", "--out", str(out)]) == 0
+    written = json.loads(out.read_text())
+    assert written["episodes"] == 3 and set(written["conditions"]) == {"empty", "regular", "dense"}
+    assert written["command"][:3] == ["python", "-m", "experiments.toytown_soundness"] and "commit" in written["system"]
+    assert "| dense | 0.500 |" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as e:
+        toytown_soundness.main(["--episodes", "0"])
+    assert e.value.code == 2 and "--episodes must be >= 1" in capsys.readouterr().err
 
-    parser = argparse.ArgumentParser(description="ToyTown's soundness checks at its defaults (docs/tasks.md)")
-    parser.add_argument("--episodes", type=int, default=100)
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args()
-    rows = soundness(args.episodes, args.seed)
-    keys = ("success", "collisions", "red_light_violations", "timeout", "stuck", "route_completion", "avg_speed",
-            "episode_steps", "copy_previous_ratio", "starts_per_episode", "stops_per_episode", "top10_at_events",
-            "all_at_events")
-    print("| traffic | " + " | ".join(keys) + " |")
-    print("|---|" + "---:|" * len(keys))
-    for traffic, r in rows.items():
-        print(f"| {traffic} | " + " | ".join(f"{r[k]:.3f}" for k in keys) + " |")
-    sys.exit(0)
+
+def test_soundness_on_a_short_route_gives_every_column_in_range():
+    rows = soundness(episodes=2, ape_steps=20, **SHORT)
+    assert list(rows) == ["empty", "regular", "dense"]
+    for r in rows.values():
+        assert set(toytown_soundness.COLUMNS) <= set(r) and 0 <= r["success"] <= 1 and r["episode_steps"] > 0
+        assert 0 <= r["top10_at_events"] <= 1 and r["copy_previous_ratio"] > 0
