@@ -110,7 +110,7 @@ def main(argv=None) -> int:
     print(table(rows))
     if args.out is not None:
         command = ["python", "-m", "experiments.toytown_soundness", *(sys.argv[1:] if argv is None else argv)]
-        record = {"task": "toytown", "what": "soundness at the defaults (experiments.toytown_soundness)",
+        record = {"env": "toytown", "what": "soundness at the defaults (experiments.toytown_soundness)",
                   "command": command, "episodes": args.episodes, "seed": args.seed, "conditions": rows,
                   "seconds": round(time.perf_counter() - t0, 1), "system": system()}
         args.out.parent.mkdir(parents=True, exist_ok=True)
