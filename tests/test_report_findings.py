@@ -9,8 +9,8 @@ import pytest
 
 from experiments import report
 from experiments.report.analysis import (Key, budget_differences, budget_rows, copycat_map, driving_comparisons,
-                                         driving_rows, extra_methods, loss_rows, merge, paper_budget_groups,
-                                         rate_reading, sensitivity, verdict, versus_bcoh)
+                                         driving_rows, extra_methods, loss_rows, mean_difference, merge,
+                                         paper_budget_groups, rate_reading, sensitivity, verdict, versus_bcoh)
 
 RESULTS = pathlib.Path(__file__).resolve().parents[1] / "results"
 
@@ -347,3 +347,66 @@ def test_toytown_table_1_image_policies_fail_before_any_of_the_papers_comparison
     verdicts = [(r["diagnostics"]["verdict"], r["diagnostics"]["controlled_verdict"]) for r in m.runs
                 if r.get("diagnostics") and r["diagnostics"].get("verdict")]
     assert len(verdicts) >= 50 and {v for pair in verdicts for v in pair} == {"not copycat"}   # both verdicts, all
+
+
+def _driving(protocol: str):
+    m = _merged(f"toytown-image-{protocol}-default-seeds*.json")[Key("toytown", "image", protocol)]
+    per = {r.method: {k: np.array([run["eval"][k] for run in r.runs]) for k in
+                      ("success", "collisions", "route_completion", "stuck")} for r in driving_rows(m)}
+    return m, per
+
+
+def test_toytown_table_2_without_the_speed_reads_as_table_1_and_the_speed_matters_to_bc_so_alone():
+    """The brief's and the README's driving paragraph, claims 15-17 (Table 2, the speed not in view): the same
+    floor as Table 1, none of the paper's comparisons shows a difference, no copycat; and, read after the fact,
+    taking the speed away costs BC-SO route completion and not BC-OH (the premise of the supplement's Table 2)."""
+    m, per = _driving("nocrash-nospeed")
+    assert all(len(v["success"]) == 5 for v in per.values()) and len(per) == 11
+    assert round(100 * per["bc-full"]["success"].mean(), 1) == 94.4
+    assert [round(100 * per[k]["success"].mean(), 1) for k in ("bc-so", "bc-oh", "ours-step")] == [1.6, 2.4, 0.0]
+    images = {k: v for k, v in per.items() if k != "bc-full"}
+    assert max(round(100 * v["success"].mean(), 1) for v in images.values()) == 4.8            # HistoryDropout
+    moving = {k: v for k, v in images.items() if k not in ("fca", "mine")}
+    assert min(round(v["collisions"].mean(), 2) for v in moving.values()) == 0.95
+    assert {k: round(100 * per[k]["stuck"].mean()) for k in ("fca", "mine", "bc-so", "bc-oh")} == \
+        {"fca": 92, "mine": 94, "bc-so": 4, "bc-oh": 3}
+    said = {(c.a, c.b, c.metric): f"{c.ci.diff:+.1f} [{c.ci.low:+.1f}, {c.ci.high:+.1f}]" if c.metric == "success"
+            else f"{c.ci.diff:+.2f} [{c.ci.low:+.2f}, {c.ci.high:+.2f}]" for c in driving_comparisons(m)}
+    assert said == {("BC-OH", "BC-SO", "success"): "+0.8 [-4.4, +6.0]",
+                    ("Ours", "BC-SO", "success"): "-1.6 [-6.0, +2.8]",
+                    ("Ours", "BC-OH", "success"): "-2.4 [-6.8, +2.0]",
+                    ("Ours", "DAgger", "success"): "-0.8 [-3.0, +1.4]",
+                    ("Ours", "BC-OH", "collisions"): "+0.02 [-0.02, +0.07]"}
+    verdicts = [(r["diagnostics"]["verdict"], r["diagnostics"]["controlled_verdict"]) for r in m.runs
+                if r.get("diagnostics") and r["diagnostics"].get("verdict")]
+    assert len(verdicts) >= 50 and {v for pair in verdicts for v in pair} == {"not copycat"}
+    # across the tables (post hoc): route completion with the speed (Table 1) minus without it (Table 2)
+    _, with_speed = _driving("nocrash")
+    lost = {k: mean_difference(with_speed[k]["route_completion"], per[k]["route_completion"])
+            for k in ("bc-so", "bc-oh", "bc-full")}
+    assert {k: f"{c.diff:+.2f} [{c.low:+.2f}, {c.high:+.2f}]" for k, c in lost.items()} == {
+        "bc-so": "+0.08 [+0.03, +0.12]", "bc-oh": "-0.03 [-0.09, +0.04]", "bc-full": "+0.00 [-0.02, +0.02]"}
+
+
+def test_toytown_with_the_speed_in_view_the_history_halves_the_offline_loss_and_drives_faster_and_less_far():
+    """The driving paragraph's Table 3 reading (post hoc): with the speed strip in view, two frames give the car's
+    acceleration, its previous pedal: BC-OH's validation loss is half BC-SO's, mostly away from the keyframes, and
+    it drives faster and completes less of the route; without the speed its history changes nothing."""
+    said = {}
+    for protocol in ("nocrash", "nocrash-nospeed"):
+        m, _ = _driving(protocol)
+        rows = dict(loss_rows(m))
+        so, oh = rows["BC-SO"], rows["BC-OH"]
+        for part in ("unweighted", "changepoint", "copycat"):
+            said[protocol, part] = round(sum(r["losses"]["val"][part] for r in oh)
+                                         / sum(r["losses"]["val"][part] for r in so), 2)
+        for key in ("avg_speed", "route_completion"):
+            ci = mean_difference([r["eval"][key] for r in oh], [r["eval"][key] for r in so])
+            said[protocol, key] = f"{ci.diff:+.2f} [{ci.low:+.2f}, {ci.high:+.2f}]"
+    assert said == {("nocrash", "unweighted"): 0.53, ("nocrash", "changepoint"): 0.84, ("nocrash", "copycat"): 0.47,
+                    ("nocrash", "avg_speed"): "+0.77 [+0.32, +1.22]",
+                    ("nocrash", "route_completion"): "-0.11 [-0.17, -0.05]",
+                    ("nocrash-nospeed", "unweighted"): 0.99, ("nocrash-nospeed", "changepoint"): 1.0,
+                    ("nocrash-nospeed", "copycat"): 0.99,
+                    ("nocrash-nospeed", "avg_speed"): "+0.06 [-0.13, +0.26]",
+                    ("nocrash-nospeed", "route_completion"): "-0.01 [-0.06, +0.04]"}
