@@ -93,7 +93,8 @@ def table(rows: dict) -> str:
     return "\n".join(lines)
 
 
-def main(argv=None) -> int:
+def parse(argv=None):
+    """The command line, checked (one line and exit status 2 for a bad value)."""
     p = Parser(prog="python -m experiments.toytown_soundness", description=__doc__.splitlines()[0])
     p.add_argument("--episodes", type=int, default=100, help="expert episodes per condition (default 100)")
     p.add_argument("--seed", type=int, default=0)
@@ -103,6 +104,11 @@ def main(argv=None) -> int:
         fail(p, f"--episodes must be >= 1, got {args.episodes}")
     if args.out is not None and (why := unwritable_file(args.out)):
         fail(p, why)
+    return args
+
+
+def main(argv=None) -> int:
+    args = parse(argv)
     from experiments._provenance import system
 
     t0 = time.perf_counter()
