@@ -79,13 +79,13 @@ class SweepSpec:
     setup: Setup = dataclasses.field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
+        several = jax.process_count() > 1   # the policies a method reads are sharded over the processes' devices
         for m in self.methods:
             method = methods_lib.get(m)  # MethodError for an unknown name
             why = method.refuses(self.settings, self.obs) if method.refuses is not None else None
             if why or (why := methods_lib.unread(m, self.settings.knobs, self.methods)):
                 raise ValueError(why)
-            if jax.process_count() > 1 and (read := methods_lib.read_by(m, self.settings.knobs)):
-                # the policies read are sharded over the processes' devices
+            if several and (read := methods_lib.read_by(m, self.settings.knobs)):
                 raise ValueError(f"{m} reads {read}'s trained policies, which a multi-process sweep does not "
                                  "gather: run it in one process")
         resolved = {"task": tasks.get(self.env), "protocol": self.settings.protocol, "budget": self.settings.budget,

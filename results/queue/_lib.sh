@@ -61,21 +61,21 @@ piece() {  # piece NAME CORES ARGS...: one resumable sweep into $RUNS/NAME at th
     local src; src=$(snapshot) || { echo "FAILED $name (no code snapshot of $WT)"; return 1; }
     echo "start $name (cores $cores, code $(basename "$src")) $(date -u +%FT%TZ)"
     local resume=(); [ -f "$out/checkpoints/sweep.json" ] && resume=(--resume)
-    local one=(env XLA_FLAGS="--xla_cpu_multi_thread_eigen=false" "$PY" -m experiments.sweep "$@" --out "$out")
+    local run=(nice -n 19 "$PY" -m experiments.sweep "$@" --out "$out" "${resume[@]}")
+    local one=(env XLA_FLAGS="--xla_cpu_multi_thread_eigen=false" "${run[@]}")
+    pushd "$src" > /dev/null || return 1
     case $cores in
-      all) (cd "$src" && nice -n 19 "$PY" -m experiments.sweep "$@" --out "$out" "${resume[@]}") > "$RUNS/$name.log" 2>&1
-           rc=$? ;;
-      0|1) (cd "$src" && taskset -c "$cores" nice -n 19 "${one[@]}" "${resume[@]}") > "$RUNS/$name.log" 2>&1; rc=$? ;;
+      all) "${run[@]}" > "$RUNS/$name.log" 2>&1; rc=$? ;;
+      0|1) taskset -c "$cores" "${one[@]}" > "$RUNS/$name.log" 2>&1; rc=$? ;;
       0,1)
         local multi=(--coordinator "localhost:$PORT" --num-processes 2)
         # process 1 in the background; process 0 (which writes) in the foreground
-        (cd "$src" && taskset -c 1 nice -n 19 "${one[@]}" "${resume[@]}" "${multi[@]}" --process-id 1) \
-          > "$RUNS/$name.p1.log" 2>&1 &
-        (cd "$src" && taskset -c 0 nice -n 19 "${one[@]}" "${resume[@]}" "${multi[@]}" --process-id 0) \
-          > "$RUNS/$name.log" 2>&1
+        taskset -c 1 "${one[@]}" "${multi[@]}" --process-id 1 > "$RUNS/$name.p1.log" 2>&1 &
+        taskset -c 0 "${one[@]}" "${multi[@]}" --process-id 0 > "$RUNS/$name.log" 2>&1
         rc=$?; wait ;;
-      *) echo "piece: cores must be all, 0, 1 or 0,1 (got $cores)"; return 2 ;;
+      *) popd > /dev/null; echo "piece: cores must be all, 0, 1 or 0,1 (got $cores)"; return 2 ;;
     esac
+    popd > /dev/null || return 1
     [ "$rc" -eq 0 ] || { echo "FAILED $name (exit $rc; $RUNS/$name.log)"; return 1; }
   fi
   cp "$out/results.json" "results/$name.json" \
