@@ -25,6 +25,10 @@ from experiments._cli import Parser, fail
 # The other processes wait for process 0 at JAX's shutdown barrier while it evaluates and writes (they train
 # only); JAX's default of 5 minutes would abort them all in the middle of a long evaluation.
 SHUTDOWN_TIMEOUT_S = 24 * 3600
+# A process whose heartbeats miss this long counts as dead and aborts them all. JAX's 100 s killed a 300k sweep
+# in its evaluation (exit 134, "Task 1 heartbeat timeout") when its processes ran at nice 19 beside a busy
+# test suite: starved, not dead. Half an hour still ends a run whose peer truly died.
+HEARTBEAT_TIMEOUT_S = 30 * 60
 GO = 255  # a verdict: nothing to stop for (exit codes are below it)
 
 
@@ -124,7 +128,8 @@ def _initialize(p: argparse.ArgumentParser, **where) -> Processes:
     import jax
 
     try:
-        jax.distributed.initialize(shutdown_timeout_seconds=SHUTDOWN_TIMEOUT_S, **where)
+        jax.distributed.initialize(shutdown_timeout_seconds=SHUTDOWN_TIMEOUT_S,
+                                   heartbeat_timeout_seconds=HEARTBEAT_TIMEOUT_S, **where)
     except (ValueError, TypeError, RuntimeError) as e:  # e.g. JAX_COORDINATOR_ADDRESS outside a cluster JAX knows
         hint = ("" if where else " (JAX_COORDINATOR_ADDRESS is set: outside SLURM, Open MPI or Kubernetes, give "
                 "--coordinator, --num-processes and --process-id instead)")
