@@ -106,3 +106,42 @@ def test_the_remedies_are_later_methods_ranked_against_bc_oh(tmp_path):
     assert "\n| PTP | 40.0 [" in section and "\n| ActionChunks | 25.0 [" in section
     both = report.build([*_pair(tmp_path, "fca"), _load(tmp_path, regime_file(methods=REMEDIES), "fca-remedies.json")])
     assert "## The methods that came after: RAP, PALR, MINE, PTP, ActionChunks, ranked" in both.text
+
+
+def _at(obj, protocol=None, preset=None, iterations=None):
+    """`obj` (a `regime_file`) under another protocol, or trained to another budget by its preset."""
+    if protocol is not None:
+        obj["protocol"] = obj["settings"]["protocol"] = {**obj["protocol"], **protocol}
+    if preset is not None:
+        obj["preset"] = preset
+        obj["config"]["iterations"] = obj["config"]["preset_iterations"] = iterations
+        obj["settings"]["budget"]["iterations"] = iterations
+    return obj
+
+
+def test_a_longer_run_of_a_later_method_stays_out_of_the_families(tmp_path):
+    """The paper's 300k run of Table 5 with PALR in it is a group of its own; in the family it would leave out every
+    method it lacks (RAP, MINE here), so the ranking reads the preset's budget only, as without it."""
+    files = _pair(tmp_path, "fca")
+    longer = _load(tmp_path, _at(regime_file(methods=(*PAPER, LATER[2])), preset="paper", iterations=300_000),
+                   "fca-paper.json")
+    assert [len(v) for v in ranking_cells(merge([*files, longer])).values()] == [1]
+    (alone,), (beside,) = ranking(merge(files), reps=50), ranking(merge([*files, longer]), reps=50)
+    assert beside.cells == alone.cells and [r.method for r in beside.ranked] == [r.method for r in alone.ranked]
+
+
+def test_two_cells_of_one_setting_are_titled_in_full_alike_in_every_row(tmp_path):
+    """Two cells that `cell_title` cannot tell apart (one setting, two protocols) take the groups' full titles, in
+    the family's cells and in every method's results, so the probability of improvement pairs them."""
+    sac = {"labels": "clipped", "expert": None, "found": {"kind": "checkpoint"}}
+    other = {"name": "fca-train10k", "train_transitions": 10_000}
+    files = _pair(tmp_path, "sac", **sac) + [
+        _load(tmp_path, _at(regime_file(methods=m, **sac), protocol=other), f"sac10k-{i}.json")
+        for i, m in enumerate((PAPER, LATER))]
+    (default,) = ranking(merge(files), reps=50)
+    assert default.name == "default"
+    assert len(default.cells) == 2 and len(set(default.cells)) == 2 and "Hopper" not in default.cells
+    for r in default.ranked:
+        assert tuple(c.cell for c in r.cells) == default.cells
+    rap = next(r for r in default.ranked if r.method == "rap")
+    assert rap.improvement.value == pytest.approx(1.0)

@@ -1,8 +1,9 @@
 """The methods that came after the paper (`LATER`: RAP, PALR, MINE, ChannelDropout, PTP, ActionChunks, Priming)
 ranked with the paper's, per family of cells.
 
-A *cell* is a merged group (one task, protocol, expert and budget) in which at least one of `LATER` ran. Cells fall
-into two families, by their setting (never by their results):
+A *cell* is a merged group (one task, protocol, expert and budget) in which at least one of `LATER` ran, trained at
+its preset's budget (a run trained longer, such as the paper's 300k, reads in its own section: in a family it would
+leave out every method it did not run). Cells fall into two families, by their setting (never by their results):
 
 - where copying is expected (`is_copycat_cell`): an expert of FCA's kind (`regime.is_regime`: FCA's imported expert or
   raw labels) or the previous action in view (`protocol.prev_action`), the settings where BC-OH is expected to copy;
@@ -85,11 +86,12 @@ def cell_title(m: Group) -> str:
 
 
 def ranking_cells(merged: Merged) -> dict[str, list[Group]]:
-    """The groups in which one of `LATER` ran with seeds, in report order, by family: `{"copycat": [...],
-    "default": [...]}` (a family without cells is left out)."""
+    """The groups at their preset's budget in which one of `LATER` ran with seeds, in report order, by family:
+    `{"copycat": [...], "default": [...]}` (a family without cells is left out)."""
     out: dict[str, list[Group]] = {}
     for _, m in ordered(merged):
-        if any(method_rows(m, name) for name in LATER) and m.expert.get("return_mean") is not None:
+        if (m.budget is None and any(method_rows(m, name) for name in LATER)
+                and m.expert.get("return_mean") is not None):
             out.setdefault("copycat" if is_copycat_cell(m) else "default", []).append(m)
     return out
 
@@ -99,13 +101,13 @@ def _seeds(m: Group, row: dict) -> tuple[float, ...]:
     return tuple(float(r["eval"]["normalized"]) for r in runs if is_finite(r["eval"].get("normalized")))
 
 
-def _cell_result(m: Group, method: str, reference: tuple[float, ...]) -> CellResult | None:
+def _cell_result(m: Group, title: str, method: str, reference: tuple[float, ...]) -> CellResult | None:
     row = best_of([r for r in method_rows(m, method) if r.get("normalized_mean") is not None])
     seeds = () if row is None else _seeds(m, row)
     if not seeds:
         return None
     versus = mean_difference(seeds, reference) if method != REFERENCE and reference else None
-    return CellResult(cell_title(m), dict(row["hparams"]), seeds, versus,
+    return CellResult(title, dict(row["hparams"]), seeds, versus,
                       policy_diagnostics(ok_runs(m, method, row["hparams"])))
 
 
@@ -116,10 +118,10 @@ def family(name: str, cells: Sequence[Group], reps: int = RESAMPLES) -> Family:
     titles = tuple(cell_title(m) for m in cells)
     if len(set(titles)) < len(titles):   # two cells of one task and setting (other budgets, protocols): full titles
         titles = tuple(m.title for m in cells)
-    reference = {t: (r.seeds if (r := _cell_result(m, REFERENCE, ())) else ()) for t, m in zip(titles, cells)}
+    reference = {t: (r.seeds if (r := _cell_result(m, t, REFERENCE, ())) else ()) for t, m in zip(titles, cells)}
     ranked = []
     for method in RANKED:
-        results = [_cell_result(m, method, reference[t]) for t, m in zip(titles, cells)]
+        results = [_cell_result(m, t, method, reference[t]) for t, m in zip(titles, cells)]
         if any(r is None for r in results):
             continue
         scores = {r.cell: np.asarray(r.seeds) for r in results}
