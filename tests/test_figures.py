@@ -75,8 +75,10 @@ def test_the_returns_figures_are_one_per_family_and_the_budget_figure_draws_the_
         f"returns-{name}.png" for name, _ in figures.FAMILIES)   # the committed results have a group in each
     fig = committed[ROOT / "figures" / "paper-budget.png"]
     ylabels = [ax.get_ylabel() for ax in fig.axes]
+    columns = list(dict.fromkeys(ax.get_title() for ax in fig.axes))   # the three tasks, then FCA's expert's
+    assert columns[:3] == ["Hopper", "HalfCheetah", "Walker2d"] and "Hopper (FCA's expert, raw labels)" in columns
     for measure in ("% of expert", "embedding ratio", "control ratio", "predictability ratio"):
-        assert sum(label.startswith(measure) for label in ylabels) == 3, (measure, ylabels)   # one per task
+        assert sum(label.startswith(measure) for label in ylabels) == len(columns), (measure, ylabels)   # a column each
     t = figures.verdict_thresholds()
     for ax in fig.axes:
         ref = {line.get_ydata()[0] for line in ax.get_lines() if line.get_linestyle() == "--"}

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from experiments import report
-from experiments.report.analysis import (Key, budget_differences, budget_rows, mean_difference, extended_map,
-                                         paper_budget_groups)
+from experiments.report.analysis import (Key, budget_differences, budget_rows, cell_title, mean_difference,
+                                         extended_map, paper_budget_groups, regime_budget_groups)
 
 RESULTS = pathlib.Path(__file__).resolve().parents[1] / "results"
 FCA_BC = RESULTS / "hopper-pos-fca-rows-default-fca-bc.json"   # recipe fca: BC-SO, BC-OH, Ours (10% × 5), 5 seeds
@@ -167,3 +167,30 @@ def test_the_sweep_records_the_iterations_its_preset_gave_before_overrides():
     base = resolve("hopper", "pos", preset="default")
     over = resolve("hopper", "pos", preset="default", sets=["budget.iterations=777"])
     assert over.budget.iterations == 777 and over.preset_iterations == base.budget.iterations == base.preset_iterations
+
+
+FCA_EXPERT_300K = RESULTS / "hopper-pos-mujoco-state-rows-paper-bn-mlp-cs294-raw-seeds0.json"   # 2 seeds
+
+
+def test_table5_with_fcas_expert_at_the_papers_budget_reads_beside_the_shipped_experts(tmp_path):
+    """The 300k run with FCA's imported expert (raw labels) is a row block of the paper-budget table, named by its
+    setting, with PALR's row and every point it was evaluated at; the shipped experts' blocks keep their titles."""
+    files = [report.load(FCA_EXPERT_300K), _paper_file(tmp_path)]
+    merged = report.merge(files)
+    assert [m.budget for m in paper_budget_groups(merged)] == [300_000]          # the shipped expert's only
+    (m,) = regime_budget_groups(merged)
+    rows = {r.method: r for r in budget_rows(m, cell_title(m))}
+    assert list(rows) == ["bc-so", "bc-oh", "ours-step", "fca", "palr"]
+    assert {r.task for r in rows.values()} == {"Hopper (FCA's expert, raw labels)"}
+    assert [p.iteration for p in rows["palr"].points] == [30_000, 100_000, 300_000]
+    runs = json.loads(FCA_EXPERT_300K.read_text())["runs"]
+    palr = [r["eval"]["normalized"] for r in runs if r["method"] == "palr"]
+    assert rows["palr"].at(300_000).normalized.mean == pytest.approx(np.mean(palr))
+    assert rows["palr"].paper is None and rows["bc-oh"].paper == 293
+
+    text = report.build(files, figure_dir=tmp_path / "figures").text
+    table5 = text[text.index("### Table 5 at the paper's budget"):]
+    lines = [line for line in table5[:table5.index("\n### ")].splitlines() if line.startswith("| ")]
+    assert any(line.startswith("| Hopper | BC-OH | 5 | ") for line in lines)
+    assert any(line.startswith("| Hopper (FCA's expert, raw labels) | PALR | 2 | ") for line in lines)
+    assert any(line.startswith("| Hopper (FCA's expert, raw labels) | PALR − BC-OH | ") for line in lines)

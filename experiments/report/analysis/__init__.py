@@ -48,8 +48,8 @@ from experiments.report.analysis.recipe import (BUDGET_METHODS, RECIPE_METHODS, 
                                                 paper_budget_groups, recipe_groups, recipe_rows)
 from experiments.report.analysis.ranking import (LATER, RANKED, CellResult, Family, Ranked, is_copycat_cell,
                                                  ranking, ranking_cells)
-from experiments.report.analysis.regime import (REGIME_METHODS, RegimeRow, RegimeTable, is_regime, regime_groups,
-                                                regime_table)
+from experiments.report.analysis.regime import (REGIME_METHODS, RegimeRow, RegimeTable, cell_title, is_regime,
+                                                regime_budget_groups, regime_groups, regime_table)
 from experiments.report.analysis.selection import (CEILING, CEILING_LABEL, DRIVING_ORDER, Choice, DrivingRow,
                                                    DrivingTable, Gap, LongerRow, Shift, best_of, choices, comparisons,
                                                    copycat_groups, display_metric, driving_rows, driving_table,
@@ -65,7 +65,8 @@ from experiments.report.analysis.weights import (APE_SCALES, WeightShares, ape_m
 
 __all__ = [
     "LATER", "RANKED", "CellResult", "Family", "Ranked", "is_copycat_cell", "ranking", "ranking_cells",
-    "REGIME_METHODS", "RegimeRow", "RegimeTable", "is_regime", "regime_groups", "regime_table",
+    "REGIME_METHODS", "RegimeRow", "RegimeTable", "cell_title", "is_regime", "regime_budget_groups",
+    "regime_groups", "regime_table",
     "check_references", "demonstrator", "expert_part", "expert_words", "raw_labels",
     "CEILING", "CEILING_LABEL", "Share", "gap_share", "has_ceiling", "history_share",
     "DRIVING_COMPARISONS", "DRIVING_ORDER", "Comparison", "DrivingRow", "DrivingTable", "driving_comparisons",

@@ -24,12 +24,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ape_jax import tasks
 from experiments import stats
 from experiments.report.analysis.differences import Interval, mean_difference
 from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics
-from experiments.report.analysis.groups import Group, Merged, ordered, raw_labels
-from experiments.report.analysis.regime import is_regime
+from experiments.report.analysis.groups import Group, Merged, ordered
+from experiments.report.analysis.regime import cell_title, is_regime
 from experiments.report.analysis.selection import LATER, best_of, is_finite, method_rows, ok_runs
 
 RANKED = ("bc-so", "bc-oh", "bc-full", "ours-step", "ours-softmax", "fca", *LATER)  # the ranking's methods, in order
@@ -70,19 +69,6 @@ def is_copycat_cell(m: Group) -> bool:
     """Whether group `m` is set where BC-OH is expected to copy: an expert of FCA's kind or the previous action in
     view."""
     return is_regime(m) or bool(m.protocol.get("prev_action"))
-
-
-def cell_title(m: Group) -> str:
-    """A cell's short name in the tables: the task and what sets it apart (`"Hopper (FCA's expert, raw labels)"`,
-    `"Hopper (FCA's expert, clipped labels)"`, `"Walker2d (rough expert, raw labels)"`, `"Hopper"`). Labels are named
-    where they matter: raw ones always, clipped ones beside an expert of FCA's kind (the shipped experts' actions
-    are in range either way)."""
-    p = m.protocol
-    why = ("FCA's expert" if p.get("expert_sha256") else f"{p['expert']} expert" if p.get("expert") else "")
-    labels = "raw labels" if raw_labels(p) else "clipped labels" if why else ""
-    why = ", ".join(w for w in (why, labels, "previous action in view" if p.get("prev_action") else "") if w)
-    title = tasks.get(m.env).title
-    return f"{title} ({why})" if why else title
 
 
 def ranking_cells(merged: Merged) -> dict[str, list[Group]]:

@@ -41,7 +41,7 @@ class RecipeRow(NamedTuple):
 
 def _recipe_row(m: Group, method: str, hparams: dict | None) -> dict | None:
     rows = method_rows(m, method)
-    if hparams is None:  # FCA: the task's own α (the FCA code's), the first setting otherwise
+    if hparams is None:  # FCA: the task's own α (the FCA code's); the first setting otherwise (and for PALR)
         alpha = tasks.get(m.env).fca_alpha
         rows = [r for r in rows if r["hparams"].get("alpha") == alpha] or rows[:1]
     else:
@@ -113,11 +113,12 @@ def alpha_rows(m: Group) -> list[AlphaRow]:
 
 # -- the paper's budget with the paper's recipe: the same policies over training, beside Table 5 -------------------
 
-# The methods of the issue's 300k table, (label, method, hparams): None for FCA's task default (`_recipe_row`),
-# "tau" for the softmax at the paper's τ of the task (`PAPER_TAU`).
+# The methods of the issue's 300k table, (label, method, hparams): None for FCA's task default (`_recipe_row`; a
+# method without α, PALR, its first configuration), "tau" for the softmax at the paper's τ of the task (`PAPER_TAU`).
+# PALR: issue 58's one method that cleared BC-OH at 30k with FCA's expert.
 BUDGET_METHODS = (("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), (PAPER_STEP_LABEL, "ours-step", PAPER_STEP),
                   ("Ours, softmax at the paper's τ", "ours-softmax", "tau"), ("FCA (TCA)", "fca", None),
-                  ("FCA (TCA + IB)", "fca-ib", None), (CEILING_LABEL, CEILING, {}))
+                  ("FCA (TCA + IB)", "fca-ib", None), ("PALR", "palr", None), (CEILING_LABEL, CEILING, {}))
 
 
 class BudgetPoint(NamedTuple):
@@ -131,10 +132,12 @@ class BudgetPoint(NamedTuple):
 
 
 class BudgetRow(NamedTuple):
-    """One method of one task's paper-budget group: its points in iteration order, the supplement's Table 5 return
-    for it (None: Table 5 has no such row), and which hyperparameters ran."""
+    """One method of one task's paper-budget group: the group's name in tables (`task`: the task's title, or the
+    task and its setting, "Hopper (FCA's expert, raw labels)"), its points in iteration order, the supplement's Table
+    5 return for it (None: Table 5 has no such row), and which hyperparameters ran."""
 
     env: str
+    task: str
     label: str
     method: str
     hparams: dict
@@ -154,10 +157,11 @@ def paper_budget_groups(merged: Merged) -> list[Group]:
             and m.protocol.get("recipe") == "bn-mlp" and not other_setting(m.protocol)]
 
 
-def budget_rows(m: Group) -> list[BudgetRow]:
+def budget_rows(m: Group, task: str | None = None) -> list[BudgetRow]:
     """`BUDGET_METHODS` that ran in group `m`, each at every iteration its runs were evaluated at (`Budget.eval_at`,
     then the end), with Table 5's return beside BC-SO, BC-OH, Ours (step THR 10% W 5) and FCA (the paper's FCA
-    has the information bottleneck: beside TCA + IB, or beside TCA where IB did not run)."""
+    has the information bottleneck: beside TCA + IB, or beside TCA where IB did not run). `task` names the group in
+    tables (default: the task's title)."""
     end = int(m.sources[0].config["iterations"])
     ib = bool(method_rows(m, "fca-ib"))
     table5 = {"bc-so": "bc-so", "bc-oh": "bc-oh", "fca-ib": "fca", **({} if ib else {"fca": "fca"})}
@@ -182,7 +186,7 @@ def budget_rows(m: Group) -> list[BudgetRow]:
                                              if is_finite(a["eval"].get("return_mean"))]),
                                       policy_diagnostics(at)))
         key = "ours" if method == "ours-step" and row["hparams"] == PAPER_STEP else table5.get(method)
-        out.append(BudgetRow(m.env, lab, method, dict(row["hparams"]), tuple(points),
+        out.append(BudgetRow(m.env, task or tasks.get(m.env).title, lab, method, dict(row["hparams"]), tuple(points),
                              None if key is None else float(PAPER_TABLE5[key][m.env])))
     return out
 

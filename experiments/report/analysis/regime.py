@@ -16,10 +16,12 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+from ape_jax import tasks
 from experiments.report.analysis.differences import (Interval, RecipeCell, Share, mean_difference, history_share,
                                                    mean_cell)
 from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics
-from experiments.report.analysis.groups import STATE, MUJOCO, Group, Merged, ordered, other_history, raw_labels
+from experiments.report.analysis.groups import (STATE, MUJOCO, Group, Merged, ordered, other_history, raw_labels,
+                                               trained_its_preset)
 from experiments.report.analysis.selection import (CEILING, CEILING_LABEL, LATER, is_finite, label, method_rows,
                                                    ok_runs)
 from experiments.report.paper import PAPER_STEP, PAPER_TABLE5
@@ -83,6 +85,26 @@ def regime_groups(merged: Merged) -> list[Group]:
     found = [m for _, m in ordered(merged) if is_regime(m)]
     return sorted(found, key=lambda m: (rank[m.env], not m.protocol.get("expert_sha256"),
                                         not raw_labels(m.protocol), m.protocol["name"], m.budget or 0))
+
+
+def cell_title(m: Group) -> str:
+    """A cell's short name in the tables: the task and what sets it apart (`"Hopper (FCA's expert, raw labels)"`,
+    `"Hopper (FCA's expert, clipped labels)"`, `"Walker2d (rough expert, raw labels)"`, `"Hopper"`). Labels are named
+    where they matter: raw ones always, clipped ones beside an expert of FCA's kind (the shipped experts' actions
+    are in range either way)."""
+    p = m.protocol
+    why = ("FCA's expert" if p.get("expert_sha256") else f"{p['expert']} expert" if p.get("expert") else "")
+    labels = "raw labels" if raw_labels(p) else "clipped labels" if why else ""
+    why = ", ".join(w for w in (why, labels, "previous action in view" if p.get("prev_action") else "") if w)
+    title = tasks.get(m.env).title
+    return f"{title} ({why})" if why else title
+
+
+def regime_budget_groups(merged: Merged) -> list[Group]:
+    """The groups of `regime_groups` trained for the `paper` preset's iterations (Table 5 with FCA's expert at the
+    paper's budget, evaluated over training), in its order."""
+    return [m for m in regime_groups(merged)
+            if all(src.preset == "paper" and trained_its_preset(src) for src in m.sources)]
 
 
 # How labels name the paper's hyperparameters; any other is named only where it varies (FCA's adversary lr).

@@ -129,7 +129,7 @@ def budget_figure(rows: Sequence[Sequence[BudgetRow]], thresholds: Mapping[str, 
                  "predictability": t["predictability_ratio"]}
     panels: list[list[Lines]] = [[]]
     for task in tasks_rows:
-        title = tasks.get(task[0].env).title
+        title = task[0].task
         ticks = sorted({p.iteration for r in task for p in r.points})
         series = []
         for r in task:
@@ -139,7 +139,7 @@ def budget_figure(rows: Sequence[Sequence[BudgetRow]], thresholds: Mapping[str, 
                                ([p.normalized.low for p in pts], [p.normalized.high for p in pts]), style[r.method]))
         panels[0].append(Lines(title, "iterations", "% of expert (95% t-interval)", series, log_x=True, xticks=ticks))
     for field, ylabel, ref in measures:
-        row = [Lines(tasks.get(task[0].env).title, "iterations", ylabel, _ratio_series(task, field, names, style),
+        row = [Lines(task[0].task, "iterations", ylabel, _ratio_series(task, field, names, style),
                      log_x=True,
                      log_y=True, xticks=sorted({p.iteration for r in task for p in r.points}),
                      empty="not recorded", refs=((threshold[field], ref),)) for task in tasks_rows]

@@ -25,7 +25,8 @@ from typing import NamedTuple
 from ape_jax import tasks
 from experiments.report.analysis import STATE, MUJOCO, Group, in_state_family
 from experiments.report.analysis.groups import other_setting
-from experiments.report.analysis.ranking import cell_title, is_copycat_cell
+from experiments.report.analysis.ranking import is_copycat_cell
+from experiments.report.analysis.regime import cell_title
 
 # (name, heading) per family, in the order the report shows them.
 FAMILIES = (("default", "The default tasks: the shipped experts under the paper's protocol and recipe"),

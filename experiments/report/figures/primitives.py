@@ -255,7 +255,9 @@ def lines(panels: Sequence[Lines], title: str = "", columns: int | None = None, 
     for ax, p in zip(grid_axes(fig, len(panels), cols), panels):
         for label, x, y, band, *style in p.series:
             x, y = np.asarray(x, float), np.asarray(y, float)
-            (line,) = ax.plot(x, y, lw=1.3, label=label or "_nolegend_", **(style[0] if style else {}))
+            # a panel's own legend wraps a long name to the panel (a setting's full name ran off the figure)
+            shown = label if shared_legend or not label else wrap(label, 0.8 * size[0], 7)
+            (line,) = ax.plot(x, y, lw=1.3, label=shown or "_nolegend_", **(style[0] if style else {}))
             if label:
                 handles.setdefault(label, line)
             if isinstance(band, tuple):  # (lower, upper): an interval that need not be symmetric

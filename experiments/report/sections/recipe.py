@@ -5,9 +5,10 @@ from __future__ import annotations
 
 from ape_jax import tasks
 from experiments.report import figures
-from experiments.report.analysis import (STATE, BudgetRow, alpha_rows, mean_difference, budget_differences,
-                                         budget_rows, diagnostics_thresholds, paper_budget_groups, recipe_diagnostics,
-                                         recipe_groups, recipe_rows, thousands, verdict)
+from experiments.report.analysis import (STATE, BudgetRow, Group, alpha_rows, budget_differences, budget_rows,
+                                         cell_title, diagnostics_thresholds, mean_difference, paper_budget_groups,
+                                         recipe_diagnostics, recipe_groups, recipe_rows, regime_budget_groups,
+                                         thousands, verdict)
 from experiments.report.paper import PAPER_STEP_LABEL, PAPER_TABLE5
 from experiments.report.sections.common import (Context, Section, copycat_count, diff_cell, hparams_text, pct_cell,
                                                 ratio_text, table)
@@ -74,7 +75,7 @@ def budget_table(rows: list[list[BudgetRow]]) -> str:
     its = sorted({p.iteration for task in rows for r in task for p in r.points})
     end, out = its[-1], []
     for task in rows:
-        title, paper_bcoh = tasks.get(task[0].env).title, PAPER_TABLE5["bc-oh"][task[0].env]
+        title, paper_bcoh = task[0].task, PAPER_TABLE5["bc-oh"][task[0].env]
         for r in task:
             ret = None if (last := r.at(end)) is None else last.returns
             bcoh = _bcoh_at(task, end)
@@ -92,22 +93,29 @@ def budget_differences_table(rows: list[list[BudgetRow]]) -> str:
     Welch t-intervals (`analysis.budget_differences`), bold where the interval is above 0."""
     its = sorted({p.iteration for task in rows for r in task for p in r.points})
     return table(["task", "difference", *(f"at {i:,}" for i in its)],
-                 [[tasks.get(task[0].env).title, lab, *(diff_cell(ci.get(i)) for i in its)]
+                 [[task[0].task, lab, *(diff_cell(ci.get(i)) for i in its)]
                   for task in rows for lab, ci in budget_differences(task)], 2)
 
 
+def _budget_groups(ctx: Context) -> list[tuple[Group, list[BudgetRow]]]:
+    """The paper-budget groups with their rows: the shipped experts' per task (`analysis.paper_budget_groups`), then
+    Table 5 with FCA's expert at the paper's budget (`analysis.regime_budget_groups`), named by task and setting."""
+    return ([(m, budget_rows(m)) for m in paper_budget_groups(ctx.merged)]
+            + [(m, budget_rows(m, cell_title(m))) for m in regime_budget_groups(ctx.merged)])
+
+
 def paper_budget_section(ctx: Context) -> list[Section]:
-    """"The paper's budget with the paper's recipe": per task (`analysis.paper_budget_groups`), `budget_table`, the
-    section's figure (% of expert and both halves of the copycat verdicts, with their thresholds),
-    `budget_differences_table` and the copycat diagnostics at each point."""
-    groups = paper_budget_groups(ctx.merged)
-    if not groups:
+    """"The paper's budget with the paper's recipe": per group of `_budget_groups`, `budget_table`, the section's
+    figure (% of expert and both halves of the copycat verdicts, with their thresholds), `budget_differences_table`
+    and the copycat diagnostics at each point."""
+    found = _budget_groups(ctx)
+    if not found:
         return []
-    rows = [budget_rows(m) for m in groups]
+    groups, rows = [m for m, _ in found], [r for _, r in found]
     its = sorted({p.iteration for task in rows for r in task for p in r.points})
     control = any(p.diagnostics.control is not None for task in rows for r in task for p in r.points)
     state = any(p.diagnostics.state is not None for task in rows for r in task for p in r.points)
-    diagnostics = [[tasks.get(task[0].env).title, r.label, _ratios(r, its, "embedding"),
+    diagnostics = [[task[0].task, r.label, _ratios(r, its, "embedding"),
                     *([_ratios(r, its, "control")] if control else []), _ratios(r, its, "predictability"),
                     " → ".join("—" if (q := r.at(i)) is None else copycat_count(q.diagnostics) for i in its),
                     *([_ratios(r, its, "state")] if state else [])] for task in rows for r in task]
@@ -123,16 +131,16 @@ def paper_budget_section(ctx: Context) -> list[Section]:
             thresholds_line(diagnostics_thresholds([src for m in groups for src in m.sources])), ""]
     return [Section("The paper's budget with the paper's recipe",
                     f"Protocol {STATE}, split by {groups[0].protocol.get('split')}, recipe bn-mlp, learning rate × 0.1 "
-                    f"at a third and two thirds; each run evaluated at {', '.join(f'{i:,}' for i in its)} iterations.",
+                    f"at a third and two thirds; the shipped experts per task, then any expert of FCA's kind (named "
+                    f"with its labels); each run evaluated at {', '.join(f'{i:,}' for i in its)} iterations.",
                     body)]
 
 
 def budget_summary(ctx: Context) -> list[Section]:
     """The paper-budget tables alone (`budget_table`, `budget_differences_table`), for the findings page."""
-    groups = paper_budget_groups(ctx.merged)
-    if not groups:
+    rows = [r for _, r in _budget_groups(ctx)]
+    if not rows:
         return []
-    rows = [budget_rows(m) for m in groups]
     return [Section("Table 5 at the paper's budget", "% of expert [95% t-interval]; return on the paper's "
                     "scale beside the supplement's Table 5.",
                     [budget_table(rows), "Differences in points of % of expert, 95% Welch t-interval "
