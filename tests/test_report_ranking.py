@@ -12,7 +12,7 @@ import pytest
 
 from experiments import report
 from experiments import stats
-from experiments.report.analysis import is_copycat_cell, merge, ranking, ranking_cells
+from experiments.report.analysis import is_copycat_cell, merge, onpolicy_check, ranking, ranking_cells
 from test_report_regime import SHIPPED, _load, regime_file
 
 # the later methods' returns: RAP 50% (two settings, the better one ranked), PALR 32%, MINE 10% (BC-OH 30%)
@@ -145,3 +145,37 @@ def test_two_cells_of_one_setting_are_titled_in_full_alike_in_every_row(tmp_path
         assert tuple(c.cell for c in r.cells) == default.cells
     rap = next(r for r in default.ranked if r.method == "rap")
     assert rap.improvement.value == pytest.approx(1.0)
+
+
+# the on-policy check's files, as results/queue/onpolicy-check.sh writes them: DAgger and HistoryDropout alone
+ONLINE_CLEARS = (("dagger", {}, 1200.0), ("history-dropout", {"p": 0.5}, 610.0))    # DAgger 60%, HD 30.5%
+ONLINE_FAILS = (("dagger", {}, 560.0), ("history-dropout", {"p": 0.5}, 500.0))      # DAgger 28%, HD 25%
+
+
+def test_the_on_policy_check_reads_each_copycat_cell_sound_or_not(tmp_path):
+    """DAgger above BC-OH's interval: the cell is sound; DAgger within it: not; the default tasks are not checked;
+    the section's table names each cell, BC-OH − BC-SO, both methods against BC-OH and the reading."""
+    sac = {"labels": "clipped", "expert": None, "found": {"kind": "checkpoint"}}
+    files = [*_pair(tmp_path, "raw"), _load(tmp_path, regime_file(methods=ONLINE_CLEARS), "raw-onpolicy.json"),
+             *_pair(tmp_path, "clipped", labels="clipped"),
+             _load(tmp_path, regime_file(methods=ONLINE_FAILS, labels="clipped"), "clipped-onpolicy.json"),
+             *_pair(tmp_path, "sac", **sac), _load(tmp_path, regime_file(methods=ONLINE_CLEARS, **sac), "sac-on.json")]
+    checks = {c.cell: c for c in onpolicy_check(merge(files))}
+    assert set(checks) == {"Hopper (FCA's expert, raw labels)", "Hopper (FCA's expert, clipped labels)"}
+    raw, clipped = checks["Hopper (FCA's expert, raw labels)"], checks["Hopper (FCA's expert, clipped labels)"]
+    assert raw.sound is True and clipped.sound is False
+    assert raw.history.diff == pytest.approx(10)                        # BC-OH 30% − BC-SO 20%
+    assert raw.methods["dagger"].versus.diff == pytest.approx(30) and raw.methods["dagger"].versus.low > 0
+    assert clipped.methods["dagger"].versus.high < 0                    # 28% against 30%, seeds at ±0.5
+    assert raw.methods["history-dropout"].versus.diff == pytest.approx(0.5)
+
+    text = report.build(files).text
+    section = text[text.index("## The on-policy check where copying is expected"):]
+    rows = [line for line in section[:section.index("\n## ")].splitlines() if line.startswith("| ")]
+    assert rows[0] == ("| cell | BC-OH, % of expert; copycat | BC-OH − BC-SO | DAgger (online) − BC-OH; copycat | "
+                       "HistoryDropout − BC-OH; copycat | reading |")
+    raw_row = next(r for r in rows if r.startswith("| Hopper (FCA's expert, raw labels) | 30.0; "))
+    assert "| **+30.0 [" in raw_row and raw_row.endswith("| sound: DAgger clears BC-OH, so copying holds BC-OH back "
+                                                         "here |")
+    assert any(r.endswith("something besides copying holds this cell down |") for r in rows)
+    assert onpolicy_check(merge(_pair(tmp_path, "plain"))) == []        # no DAgger, no HistoryDropout: no check

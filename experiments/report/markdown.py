@@ -30,6 +30,7 @@ SUMMARY: tuple[Callable[[Context], list[Section]], ...] = (
     recipe.budget_summary,                # the paper's budget beside Table 5, with the differences
     regime.regime_summary,                # Table 5 with FCA's expert, returns only
     ranking.ranking_section,              # the later methods ranked with the paper's
+    ranking.onpolicy_section,             # the on-policy check where copying is expected
     copycat.copycat_map_section,          # the copycat map per frame skip
 )
 
@@ -45,6 +46,7 @@ ACROSS: tuple[Callable[[Context], list[Section]], ...] = (
     recipe.recipe_section,                # the paper's recipe: mlp against bn-mlp
     regime.regime_section,                # Table 5 with FCA's expert (an expert of FCA's kind, labels raw or clipped)
     ranking.ranking_section,              # the later methods ranked with the paper's
+    ranking.onpolicy_section,             # the on-policy check where copying is expected
     copycat.copycat_map_section,          # the copycat map per frame skip
     copycat.extended_map_section,         # where copycat appears: the map, extended
     state.image_sections,                 # MuJoCo-Image

@@ -16,6 +16,7 @@ what these functions return. One module per concern, each re-exported here:
 - `recipe`: the recipe comparison (mlp against bn-mlp) and the paper's budget beside Table 5;
 - `ranking`: the later methods (`LATER`) ranked with the paper's per family of cells (where copying is
   expected, the default tasks): IQM, probability of improvement over BC-OH, per-cell differences and copycat counts;
+  and the on-policy check (`onpolicy_check`: DAgger and HistoryDropout against BC-OH where copying is expected);
 - `regime`: Table 5 with FCA's expert (an imported expert or raw labels under the paper's protocol and recipe):
   every configuration against BC-OH and beside Table 5, with its copycat diagnostics (`regime_table`);
 - `rates`: the numbers of a rate-judged task's reading (`rate_reading`);
@@ -46,8 +47,8 @@ from experiments.report.analysis.rates import LEARNED, Estimate, RateReading, pe
 from experiments.report.analysis.recipe import (BUDGET_METHODS, RECIPE_METHODS, AlphaRow, BudgetPoint, BudgetRow,
                                                 RecipeRow, alpha_rows, budget_differences, budget_rows,
                                                 paper_budget_groups, recipe_groups, recipe_rows)
-from experiments.report.analysis.ranking import (LATER, RANKED, CellResult, Family, Ranked, is_copycat_cell,
-                                                 ranking, ranking_cells)
+from experiments.report.analysis.ranking import (LATER, ONPOLICY, RANKED, CellResult, Check, Family, Ranked,
+                                                 is_copycat_cell, onpolicy_check, ranking, ranking_cells)
 from experiments.report.analysis.regime import (REGIME_METHODS, RegimeRow, RegimeTable, cell_title, is_regime,
                                                 regime_budget_groups, regime_groups, regime_table)
 from experiments.report.analysis.selection import (CEILING, CEILING_LABEL, DRIVING_ORDER, Choice, DrivingRow,
@@ -64,7 +65,8 @@ from experiments.report.analysis.weights import (APE_SCALES, WeightShares, ape_m
                                                  weight_shares)
 
 __all__ = [
-    "LATER", "RANKED", "CellResult", "Family", "Ranked", "is_copycat_cell", "ranking", "ranking_cells",
+    "LATER", "ONPOLICY", "RANKED", "CellResult", "Check", "Family", "Ranked", "is_copycat_cell", "onpolicy_check",
+    "ranking", "ranking_cells",
     "REGIME_METHODS", "RegimeRow", "RegimeTable", "cell_title", "is_regime", "regime_budget_groups",
     "regime_groups", "regime_table",
     "check_references", "demonstrator", "expert_part", "expert_words", "raw_labels",

@@ -15,6 +15,12 @@ that one of its runs beats one of BC-OH's (`stats.probability_of_improvement`), 
 BC-OH in points with Welch's t-interval (`differences.mean_difference`) and its controlled copycat
 counts. A method with several configurations in a cell is represented by its best one there (by mean % of expert,
 as `experiments.compare` and the report's best rows choose: optimistic for methods with many configurations).
+
+`onpolicy_check` is the trap's test beside the ranking (issue 59): in every cell where copying is expected and DAgger
+or HistoryDropout ran, each against BC-OH. On-policy imitation is the field's known answer to copying, so where
+DAgger clears BC-OH the cell is sound (copying is what holds BC-OH back, and an offline remedy that does not clear
+it fails there); where DAgger does not, something other than copying holds the cell down, to be found before
+its ranking is read.
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ from experiments.report.analysis.selection import LATER, best_of, is_finite, met
 RANKED = ("bc-so", "bc-oh", "bc-full", "ours-step", "ours-softmax", "fca", *LATER)  # the ranking's methods, in order
 REFERENCE = "bc-oh"  # what every method is measured against
 RESAMPLES = 2000  # bootstrap resamples of the across-cell estimates (`stats`' default)
+ONPOLICY = ("dagger", "history-dropout")   # the on-policy check's methods (`onpolicy_check`), the oracle first
 
 
 class CellResult(NamedTuple):
@@ -97,13 +104,18 @@ def _cell_result(m: Group, title: str, method: str, reference: tuple[float, ...]
                       policy_diagnostics(ok_runs(m, method, row["hparams"])))
 
 
+def _titles(cells: Sequence[Group]) -> tuple[str, ...]:
+    titles = tuple(cell_title(m) for m in cells)
+    if len(set(titles)) < len(titles):   # two cells of one task and setting (other budgets, protocols): full titles
+        titles = tuple(m.title for m in cells)
+    return titles
+
+
 def family(name: str, cells: Sequence[Group], reps: int = RESAMPLES) -> Family:
     """Family `name`'s ranking over `cells`: every method of `RANKED` that ran in every cell (BC-OH first where it
     did not), best IQM first. Cells without BC-OH give no differences; a family without BC-OH in every cell gives
     no probability of improvement."""
-    titles = tuple(cell_title(m) for m in cells)
-    if len(set(titles)) < len(titles):   # two cells of one task and setting (other budgets, protocols): full titles
-        titles = tuple(m.title for m in cells)
+    titles = _titles(cells)
     reference = {t: (r.seeds if (r := _cell_result(m, t, REFERENCE, ())) else ()) for t, m in zip(titles, cells)}
     ranked = []
     for method in RANKED:
@@ -123,3 +135,34 @@ def ranking(merged: Merged, reps: int = RESAMPLES) -> list[Family]:
     """Both families' rankings (`family`), where copying is expected first; empty where no file holds one of `LATER`."""
     cells = ranking_cells(merged)
     return [family(name, cells[name], reps) for name in ("copycat", "default") if name in cells]
+
+
+class Check(NamedTuple):
+    """The on-policy check in one cell where copying is expected: BC-OH − BC-SO (what the history adds; None without
+    BC-SO), BC-OH's result, each of `ONPOLICY` that ran against it (`{method: CellResult}`), and whether the cell is
+    sound: DAgger's interval against BC-OH above 0 (None where DAgger did not run)."""
+
+    cell: str
+    history: Interval | None
+    bcoh: CellResult
+    methods: dict[str, CellResult]
+    sound: bool | None
+
+
+def onpolicy_check(merged: Merged) -> list[Check]:
+    """Per cell where copying is expected (`is_copycat_cell`) at its preset's budget, with BC-OH and one of
+    `ONPOLICY`: the check (`Check`), in report order."""
+    cells = [m for _, m in ordered(merged)
+             if m.budget is None and is_copycat_cell(m) and m.expert.get("return_mean") is not None
+             and method_rows(m, REFERENCE) and any(method_rows(m, name) for name in ONPOLICY)]
+    out = []
+    for title, m in zip(_titles(cells), cells):
+        bcoh = _cell_result(m, title, REFERENCE, ())
+        if bcoh is None:
+            continue
+        bcso = _cell_result(m, title, "bc-so", ())
+        found = {name: r for name in ONPOLICY if (r := _cell_result(m, title, name, bcoh.seeds))}
+        oracle = found.get(ONPOLICY[0])
+        out.append(Check(title, None if bcso is None else mean_difference(bcoh.seeds, bcso.seeds), bcoh, found,
+                         None if oracle is None else bool(oracle.versus.low > 0)))
+    return out

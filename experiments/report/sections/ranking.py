@@ -1,9 +1,11 @@
 """The methods that came after (`analysis.LATER`) ranked with the paper's: per family of cells (`analysis.ranking`),
-one table and one interval figure."""
+one table and one interval figure; and the on-policy check where copying is expected (`analysis.onpolicy_check`)."""
 
 from __future__ import annotations
 
-from experiments.report.analysis import Family, known_methods, label, ranking
+import numpy as np
+
+from experiments.report.analysis import ONPOLICY, Check, Family, known_methods, label, onpolicy_check, ranking
 from experiments.report.analysis.ranking import LATER
 from experiments.report.figures.builders import ranking_figure
 from experiments.report.sections.common import Context, Section, copycat_count, diff_cell, table
@@ -40,3 +42,36 @@ def ranking_section(ctx: Context) -> list[Section]:
     return [Section(f"The methods that came after{': ' + later if later else ''}, ranked",
                     "Per method: IQM over every cell's seeds and P(> BC-OH), stratified bootstrap; per cell its best "
                     "configuration − BC-OH (bold: above 0) and copycat count.", body)]
+
+
+def _reading(c: Check) -> str:
+    if c.sound is None:
+        return "DAgger not run"
+    return ("sound: DAgger clears BC-OH, so copying holds BC-OH back here" if c.sound
+            else "DAgger does not clear BC-OH: something besides copying holds this cell down")
+
+
+def onpolicy_section(ctx: Context) -> list[Section]:
+    """"The on-policy check where copying is expected": per cell, BC-OH (% of expert and copycat count), what the
+    history adds (BC-OH − BC-SO), each of `ONPOLICY` against BC-OH with its copycat count, and the cell's reading;
+    nothing where neither ran in such a cell."""
+    checks = onpolicy_check(ctx.merged)
+    if not checks:
+        return []
+    names = {n: label(known_methods(ctx.merged), n) for n in ONPOLICY}
+    ran = [n for n in ONPOLICY if any(n in c.methods for c in checks)]
+
+    def cell(c: Check, name: str) -> str:
+        r = c.methods.get(name)
+        return "—" if r is None else f"{diff_cell(r.versus)}; {copycat_count(r.diagnostics)}"
+
+    rows = [[c.cell, f"{float(np.mean(c.bcoh.seeds)):.1f}; {copycat_count(c.bcoh.diagnostics)}",
+             diff_cell(c.history), *(cell(c, n) for n in ran), _reading(c)] for c in checks]
+    return [Section("The on-policy check where copying is expected",
+                    "DAgger (on-policy: the expert labels the policy's own states) and HistoryDropout against BC-OH in "
+                    "each cell where copying is expected, on the cell's rows, seeds and budget: where DAgger clears "
+                    "BC-OH the cell is sound, and an offline remedy that does not clear BC-OH fails there. Points of "
+                    "% of expert, 95% Welch t-interval (bold: above 0); copycat counts as in the ranking.",
+                    [table(["cell", "BC-OH, % of expert; copycat", "BC-OH − BC-SO",
+                            *(f"{names[n]} − BC-OH; copycat" for n in ran), "reading"], rows,
+                          "l" + "r" * (2 + len(ran)) + "l")])]
