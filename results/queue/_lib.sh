@@ -1,6 +1,8 @@
 # Shared by the queues (sourced): `sweep NAME ARGS...` runs one resumable sweep into $RUNS/NAME and copies its
-# results to results/NAME.json; `judge_by NAME SIBLING` gives a file without a no-history control of its own the
-# controlled verdict from SIBLING's BC-SO. Both expect WT (the checkout, the working directory), RUNS and PY.
+# results to results/NAME.json; `piece NAME CORES ARGS...` the same at the lowest priority on chosen cores; `pool
+# SPEC...` runs pieces two at a time, one per core; `judge_by NAME SIBLING` gives a file without a no-history
+# control of its own the controlled verdict from SIBLING's BC-SO. All expect WT (the checkout, the working
+# directory), RUNS and PY.
 # Sweeps run the committed code of the moment they start, from a snapshot (`snapshot`): edits to the checkout while a
 # sweep runs never reach it (a sweep imports some modules late, at its end), and its results record the commit
 # that ran. Results land in the checkout (WT), which regenerates the index and report with its own code.
@@ -85,4 +87,34 @@ piece() {  # piece NAME CORES ARGS...: one resumable sweep into $RUNS/NAME at th
   else
     echo "done $name $(date -u +%FT%TZ), but regenerating the report FAILED ($RUNS/$name.land.log): fix, rerun land.sh"
   fi
+}
+
+pool() {  # pool SPEC...: the pieces, each SPEC "NAME ARG..." (split on spaces), on two workers each pinned to one
+  # core (one process, XLA single-threaded: 1.5x one process of two threads, docs/speed.md), the next piece going
+  # to whichever core frees first; PARALLEL=1: one after another on every core. Every piece is tried; returns 1
+  # if any failed. For sweeps that cannot share one seed's policies between processes (priming reads BC-SO's).
+  if [ "${PARALLEL:-2}" != 2 ]; then
+    local spec words failed=0
+    for spec in "$@"; do read -ra words <<< "$spec"; piece "${words[0]}" all "${words[@]:1}" || failed=1; done
+    return "$failed"
+  fi
+  local next=$RUNS/.pool-next
+  echo 0 > "$next"
+  _pool_worker 1 "$next" "$@" & local other=$!
+  _pool_worker 0 "$next" "$@"; local rc=$?
+  wait "$other" || rc=1
+  return "$rc"
+}
+
+_pool_worker() {  # _pool_worker CORE NEXT SPEC...: claims the next unclaimed SPEC (the index in file NEXT, under a
+  # lock) and runs it pinned to CORE, until none is left
+  local core=$1 next=$2; shift 2
+  local specs=("$@") i words failed=0
+  while :; do
+    i=$( (flock 9; read -r i < "$next"; echo $((i + 1)) > "$next"; echo "$i") 9> "$next.lock")
+    [ "$i" -lt "${#specs[@]}" ] || break
+    read -ra words <<< "${specs[$i]}"
+    piece "${words[0]}" "$core" "${words[@]:1}" || failed=1
+  done
+  return "$failed"
 }
