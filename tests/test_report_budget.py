@@ -187,6 +187,11 @@ def test_table5_with_fcas_expert_at_the_papers_budget_reads_beside_the_shipped_e
     palr = [r["eval"]["normalized"] for r in runs if r["method"] == "palr"]
     assert rows["palr"].at(300_000).normalized.mean == pytest.approx(np.mean(palr))
     assert rows["palr"].paper is None and rows["bc-oh"].paper == 293
+    bcoh = [r for r in runs if r["method"] == "bc-oh"]   # the validation loss at every point, the end's from the run
+    assert rows["bc-oh"].at(30_000).val_loss.median == pytest.approx(
+        np.median([a["losses"]["val"]["unweighted"] for r in bcoh for a in r["at"] if a["iteration"] == 30_000]))
+    assert rows["bc-oh"].at(300_000).val_loss.median == pytest.approx(
+        np.median([r["losses"]["val"]["unweighted"] for r in bcoh]))
 
     text = report.build(files, figure_dir=tmp_path / "figures").text
     table5 = text[text.index("### Table 5 at the paper's budget"):]

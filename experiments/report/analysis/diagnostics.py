@@ -161,7 +161,7 @@ def run_at(run: dict, iteration: int, end: int) -> dict | None:
     """A run's record at `iteration`: its `at` entry, or the run itself at the end (`end`); None if neither."""
     if iteration == end:
         return {"eval": run["eval"], "diagnostics": run.get("diagnostics"), "train_loss": run.get("train_loss_final"),
-                "status": run["status"]}
+                "losses": run.get("losses"), "status": run["status"]}
     snap = next((a for a in run.get("at") or () if a["iteration"] == iteration), None)
     return None if snap is None else {**snap, "status": run["status"]}
 

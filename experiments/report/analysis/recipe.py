@@ -17,7 +17,7 @@ import numpy as np
 from ape_jax import tasks
 from experiments.report.analysis.differences import (Interval, RecipeCell, mean_difference, mean_estimate,
                                                    mean_cell)
-from experiments.report.analysis.diagnostics import PolicyDiagnostics, policy_diagnostics, run_at
+from experiments.report.analysis.diagnostics import PolicyDiagnostics, Spread, policy_diagnostics, run_at, spread
 from experiments.report.analysis.groups import STATE, MUJOCO, Group, Merged, ordered, other_setting, trained_its_preset
 from experiments.report.analysis.selection import CEILING, CEILING_LABEL, is_finite, method_rows, ok_runs, seed_values
 from experiments.report.paper import PAPER_STEP, PAPER_STEP_LABEL, PAPER_TABLE5, PAPER_TAU
@@ -123,12 +123,15 @@ BUDGET_METHODS = (("BC-SO", "bc-so", {}), ("BC-OH", "bc-oh", {}), (PAPER_STEP_LA
 
 class BudgetPoint(NamedTuple):
     """One configuration at one iteration of its runs (an `eval_at` point or the end): % of expert and mean return
-    over seeds, each with its 95% t-interval (None where no seed recorded it), and the diagnostics there."""
+    over seeds, each with its 95% t-interval (None where no seed recorded it), the diagnostics there, and the
+    validation loss (BC's unweighted loss on the held-out rows; median and range over seeds, None where no seed
+    recorded it): what the policy fits offline beside how it drives."""
 
     iteration: int
     normalized: RecipeCell | None
     returns: RecipeCell | None
     diagnostics: PolicyDiagnostics
+    val_loss: Spread | None = None
 
 
 class BudgetRow(NamedTuple):
@@ -184,7 +187,9 @@ def budget_rows(m: Group, task: str | None = None) -> list[BudgetRow]:
                                              if is_finite(a["eval"].get("normalized"))]),
                                       mean_cell([a["eval"]["return_mean"] for a in at
                                              if is_finite(a["eval"].get("return_mean"))]),
-                                      policy_diagnostics(at)))
+                                      policy_diagnostics(at),
+                                      spread([((a.get("losses") or {}).get("val") or {}).get("unweighted")
+                                              for a in at])))
         key = "ours" if method == "ours-step" and row["hparams"] == PAPER_STEP else table5.get(method)
         out.append(BudgetRow(m.env, task or tasks.get(m.env).title, lab, method, dict(row["hparams"]), tuple(points),
                              None if key is None else float(PAPER_TABLE5[key][m.env])))

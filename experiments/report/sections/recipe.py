@@ -69,6 +69,11 @@ def _ratios(r: BudgetRow, its: list[int], field: str) -> str:
                       for i in its)
 
 
+def _losses(r: BudgetRow, its: list[int]) -> str:
+    return " → ".join("—" if (p := r.at(i)) is None or p.val_loss is None else f"{p.val_loss.median:.2g}"
+                      for i in its)
+
+
 def budget_table(rows: list[list[BudgetRow]]) -> str:
     """Per task and method of the paper-budget groups, % of expert at each iteration its runs were evaluated at, the
     return at the end with its interval and ratio to BC-OH, and the supplement's Table 5 beside it."""
@@ -118,16 +123,17 @@ def paper_budget_section(ctx: Context) -> list[Section]:
     diagnostics = [[task[0].task, r.label, _ratios(r, its, "embedding"),
                     *([_ratios(r, its, "control")] if control else []), _ratios(r, its, "predictability"),
                     " → ".join("—" if (q := r.at(i)) is None else copycat_count(q.diagnostics) for i in its),
-                    *([_ratios(r, its, "state")] if state else [])] for task in rows for r in task]
+                    *([_ratios(r, its, "state")] if state else []), _losses(r, its)] for task in rows for r in task]
     thresholds = figures.verdict_thresholds(diagnostics_thresholds([src for m in groups for src in m.sources]))
     body = [budget_table(rows),   # the headline table first: the results page opens with this section
             *ctx.figure("paper-budget.png", "The paper's budget: % of expert and both halves of the copycat "
                         "verdicts against iterations", lambda: figures.budget_figure(rows, thresholds)),
             "Differences in points of % of expert, 95% Welch t-interval (bold: above 0).", "",
             budget_differences_table(rows),
-            f"Copycat diagnostics, medians over seeds at {' → '.join(thousands(i) for i in its)}.", "",
+            f"Copycat diagnostics and the validation loss (BC's, on the held-out rows), medians over seeds at "
+            f"{' → '.join(thousands(i) for i in its)}.", "",
             table(["task", "method", "embedding ratio", *(["control ratio"] if control else []), "predictability ratio",
-                   "copycat", *(["embedding ÷ state"] if state else [])], diagnostics, 2),
+                   "copycat", *(["embedding ÷ state"] if state else []), "validation loss"], diagnostics, 2),
             thresholds_line(diagnostics_thresholds([src for m in groups for src in m.sources])), ""]
     return [Section("The paper's budget with the paper's recipe",
                     f"Protocol {STATE}, split by {groups[0].protocol.get('split')}, recipe bn-mlp, learning rate × 0.1 "
