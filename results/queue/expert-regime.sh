@@ -53,8 +53,5 @@ done
 sweep hopper-pos-fca-rows-default-fca-fcaexpert-clipped-after --env hopper $FCA --methods $AFTER --seeds 8 \
   --set protocol.expert=fca
 judge_by hopper-pos-fca-rows-default-fca-fcaexpert-clipped-after hopper-pos-fca-rows-default-fca-fcaexpert-clipped
-# The paper's budget (300k iterations, evaluated at 30k and 100k too) with FCA's expert, raw labels, 8 seeds: about
-# ten times a default sweep, days on 2 CPU cores (resumable; on a lent GPU, experiments/device/run.sh)
-sweep hopper-pos-fca-rows-paper-fca-fcaexpert-raw --env hopper --protocol fca --recipe fca --preset paper --seeds 8 \
-  --methods bc-so,bc-oh,bc-full,ours-step,ours-softmax,fca $GRIDS \
-  --set protocol.expert=fca --set protocol.labels=raw --set recipe.fca_alphas=0.1,2
+# The paper's budget (300k) with FCA's expert runs in its own queue, in pieces of seeds over two pinned processes:
+# results/queue/table5-300k.sh (issue 58).
