@@ -151,3 +151,12 @@ def test_a_results_file_of_one_seed_per_configuration_gives_a_report_with_its_fi
         assert _height(fig) <= figures.MAX_HEIGHT and layout_faults(fig) == [], p.name
     grid = next(f for p, f in built.figures.items() if p.name.startswith("grid-"))
     assert "1 seed: no sd" in grid.texts[0].get_text() and "nan" not in grid.texts[0].get_text()
+
+
+def test_a_legend_entry_names_a_method_once_with_what_differs_per_task():
+    from experiments.report.figures.copycat import _one_label
+
+    tau = ["Ours, softmax τ 0.2", "Ours, softmax τ 0.1", "Ours, softmax τ 0.2"]
+    assert _one_label(tau) == "Ours, softmax τ 0.2 / 0.1"
+    assert _one_label(["FCA (TCA)", "FCA (TCA)", "FCA (TCA), α 0.1"]) == "FCA (TCA) / α 0.1"
+    assert _one_label(["BC-OH", "BC-OH"]) == "BC-OH"

@@ -178,6 +178,9 @@ def budget_rows(m: Group, task: str | None = None) -> list[BudgetRow]:
         row = _recipe_row(m, method, hparams)
         if row is None:
             continue
+        alpha = row["hparams"].get("alpha")
+        if alpha is not None and alpha != tasks.get(m.env).fca_alpha:   # FCA at another α than the task's own
+            lab = f"{lab}, α {alpha:g}"
         runs = sorted(ok_runs(m, row["method"], row["hparams"]), key=lambda r: r.get("seed", 0))
         points = []
         for iteration in sorted({a["iteration"] for r in runs for a in r.get("at") or ()} | {end}):

@@ -75,10 +75,14 @@ def copycat_map_figure(maps: list[CopycatMap]) -> Figure | None:
 
 
 def _one_label(labels: Sequence[str]) -> str:
-    """One legend entry for a method whose label differs per task (the paper's τ): `"Ours, softmax τ 0.2 / 0.1"`."""
+    """One legend entry for a method whose label differs per task (the paper's τ): `"Ours, softmax τ 0.2 / 0.1"`; a
+    setting some tasks name after the plain label: `"FCA (TCA) / α 0.1"`."""
     labels = list(dict.fromkeys(labels))
     if len(labels) == 1:
         return labels[0]
+    base = min(labels, key=len)   # a setting named in some tasks only: `"FCA (TCA) / α 0.1"`
+    if all(lab == base or lab.startswith(base + ", ") for lab in labels):
+        return " / ".join([base, *(lab[len(base) + 2:] for lab in labels if lab != base)])
     prefix = os.path.commonprefix(labels)
     prefix = prefix[:prefix.rfind(" ") + 1]
     return prefix + " / ".join(lab[len(prefix):] for lab in labels)
