@@ -1,8 +1,8 @@
-# Shared by the queues (sourced): `sweep NAME ARGS...` runs one resumable sweep into $RUNS/NAME and copies its
-# results to results/NAME.json; `piece NAME CORES ARGS...` the same at the lowest priority on chosen cores; `pool
-# SPEC...` runs pieces two at a time, one per core; `judge_by NAME SIBLING` gives a file without a no-history
-# control of its own the controlled verdict from SIBLING's BC-SO. All expect WT (the checkout, the working
-# directory), RUNS and PY.
+# Shared by the queues (sourced): `piece NAME CORES ARGS...` runs one resumable sweep into $RUNS/NAME at the lowest
+# priority on chosen cores and copies its results to results/NAME.json; `sweep NAME ARGS...` is a piece on every
+# core whose failure does not stop the queue; `pool SPEC...` runs pieces two at a time, one per core; `judge_by NAME
+# SIBLING` gives a file without a no-history control of its own the controlled verdict from SIBLING's BC-SO. All
+# expect WT (the checkout, the working directory), RUNS and PY.
 # Sweeps run the committed code of the moment they start, from a snapshot (`snapshot`): edits to the checkout while a
 # sweep runs never reach it (a sweep imports some modules late, at its end), and its results record the commit
 # that ran. Results land in the checkout (WT), which regenerates the index and report with its own code.
@@ -28,20 +28,9 @@ wait_for() {  # wait_for OUT: a sweep running in OUT (started by an earlier queu
   flock -n "$1/sweep.lock" true || { echo "wait for the sweep running in $1"; flock "$1/sweep.lock" true; }
 }
 
-sweep() {  # sweep NAME ARGS...: one sweep into $RUNS/NAME, its results to results/NAME.json
-  local name=$1; shift
-  if [ -f "results/$name.json" ]; then echo "skip $name (results/$name.json exists)"; return; fi
-  wait_for "$RUNS/$name"
-  if [ ! -f "$RUNS/$name/results.json" ]; then
-    echo "start $name $(date -u +%FT%TZ)"
-    # --resume where a sweep was started (a folder without one is refused with it), else a fresh start
-    local resume=(); [ -f "$RUNS/$name/checkpoints/sweep.json" ] && resume=(--resume)
-    local src; src=$(snapshot) || { echo "FAILED $name (no code snapshot of $WT)"; return; }
-    (cd "$src" && "$PY" -m experiments.sweep "$@" --out "$RUNS/$name" "${resume[@]}") > "$RUNS/$name.log" 2>&1 \
-      || { echo "FAILED $name (exit $?; $RUNS/$name.log)"; return; }
-  fi
-  cp "$RUNS/$name/results.json" "results/$name.json" && PY="$PY" "$WT/results/queue/land.sh" \
-    && echo "done $name $(date -u +%FT%TZ)"
+sweep() {  # sweep NAME ARGS...: one sweep into $RUNS/NAME on every core, its results to results/NAME.json (`piece`
+  # with cores "all"); a failure is reported and the queue goes on
+  piece "$1" all "${@:2}" || true
 }
 
 judge_by() {  # judge_by NAME SIBLING: results/NAME.json's controlled verdict from SIBLING's BC-SO, for a file with
