@@ -18,16 +18,20 @@ import argparse
 import dataclasses
 import json
 import os
+import sys
 import zlib
 
 from experiments._cli import Parser, fail
 
-# The other processes wait for process 0 at JAX's shutdown barrier while it evaluates and writes (they train
-# only); JAX's default of 5 minutes would abort them all in the middle of a long evaluation.
+# The other processes train only, then wait for process 0 to evaluate and write (`Processes.wait_for_writer`) before
+# JAX's shutdown barrier: the barrier's call gives up after 5 minutes whatever the service allows, which aborted them
+# in the middle of a long evaluation. The wait and the service's barrier are both bounded by a day.
 SHUTDOWN_TIMEOUT_S = 24 * 3600
-# A process whose heartbeats miss this long counts as dead and aborts them all. JAX's 100 s killed a 300k sweep
-# in its evaluation (exit 134, "Task 1 heartbeat timeout") when its processes ran at nice 19 beside a busy
-# test suite: starved, not dead. Half an hour still ends a run whose peer truly died.
+WRITTEN_KEY = "ape_jax/sweep/written"   # the coordination service's key process 0 sets when it ends (`release`)
+# A process whose heartbeats miss this long counts as dead and aborts them all. JAX's 100 s killed a 300k sweep in
+# its evaluation (exit 134, "Task 1 heartbeat timeout": process 1, aborted at the shutdown barrier, had stopped
+# beating). Half an hour lets a starved process (nice 19 beside a busy machine) live and still ends a run whose peer
+# truly died.
 HEARTBEAT_TIMEOUT_S = 30 * 60
 GO = 255  # a verdict: nothing to stop for (exit codes are below it)
 
@@ -89,6 +93,34 @@ class Processes:
             fail(None, f"process {self.index}: process(es) {', '.join(map(str, differ))} were started with other "
                        "settings than process 0; start every process with the same command (but --process-id)")
         return None
+
+
+    def release(self) -> None:
+        """Process 0, ending (written, refused or failed): lets the others end (`wait_for_writer`). Once."""
+        if self.count > 1 and self.writes:
+            _client().key_value_set(WRITTEN_KEY, "1")
+
+    def wait_for_writer(self) -> int:
+        """Another process, its share trained: waits, its heartbeats going on, until process 0 ends (`release`),
+        so every process reaches JAX's shutdown barrier together. 0, or 1 with a line where the wait fails (a day
+        passed). Where process 0 dies without releasing it, its coordination service goes with it and JAX's client
+        aborts this process (process 0's output says why)."""
+        if self.count == 1 or self.writes:
+            return 0
+        try:
+            _client().blocking_key_value_get(WRITTEN_KEY, SHUTDOWN_TIMEOUT_S * 1000)
+        except Exception as e:   # the service's errors come as XlaRuntimeError
+            print(f"process {self.index}: waiting for process 0 failed ({str(e).splitlines()[0][:200]}); its output "
+                  "says why", file=sys.stderr)
+            return 1
+        return 0
+
+
+def _client():
+    """JAX's coordination-service client of this process (set up by `jax.distributed.initialize`)."""
+    from jax._src import distributed
+
+    return distributed.global_state.client
 
 
 def start(prog: str, argv: list[str] | None) -> Processes:

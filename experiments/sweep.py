@@ -305,8 +305,11 @@ def _main(argv, state: dict) -> int:
     if code is not None:
         return code
     if not procs.writes:
-        return _train_share(spec, procs)
-    return _run(args, spec, opened)
+        return _train_share(spec, procs) or procs.wait_for_writer()
+    try:
+        return _run(args, spec, opened)
+    finally:
+        procs.release()   # the others wait for it before JAX's shutdown barrier
 
 
 def _prog() -> str:

@@ -254,3 +254,44 @@ def test_an_mjx_task_steps_in_every_process_of_a_multi_process_run_as_in_one_pro
                            capture_output=True, text=True, timeout=300)
     assert alone.returncode == 0, alone.stderr[-3000:]
     assert done[0].stdout.split()[-1] == done[1].stdout.split()[-1] == alone.stdout.split()[-1]
+
+
+# Process 0 "evaluates" for DELAY seconds before it releases the others (or dies without releasing them); process 1
+# waits for it as the sweep's other processes do, then both end through JAX's shutdown barrier
+WAIT_WORKER = """
+import os, sys, time
+import jax
+pid, port, mode = int(sys.argv[1]), sys.argv[2], sys.argv[3]
+from experiments import _distributed
+procs = _distributed.start("test", ["--coordinator", f"127.0.0.1:{port}", "--num-processes", "2",
+                                    "--process-id", str(pid)])
+t0 = time.monotonic()
+if procs.writes:
+    time.sleep(3)
+    if mode == "dies":
+        os._exit(3)
+    procs.release()
+    print("released")
+else:
+    code = procs.wait_for_writer()
+    print(f"waited {time.monotonic() - t0:.1f} s, code {code}")
+    sys.exit(code)
+"""
+
+
+def test_the_other_processes_wait_for_process_zero_to_release_them_and_end_with_it():
+    port = free_port()
+    done = run_processes([[sys.executable, "-c", WAIT_WORKER, str(i), str(port), "releases"] for i in range(2)],
+                         env_with(1), timeout=120)
+    assert [d.returncode for d in done] == [0, 0], [d.stderr[-2000:] for d in done]
+    waited = float(done[1].stdout.split()[1])
+    assert waited >= 2.5 and done[1].stdout.strip().endswith("code 0") and "released" in done[0].stdout
+
+
+def test_a_process_whose_writer_dies_ends_too_instead_of_waiting_its_day():
+    """Process 0 dies without releasing the other: the coordination service goes with it, and JAX's client ends the
+    waiting process (an abort) within the test's minutes, not after the wait's day."""
+    port = free_port()
+    done = run_processes([[sys.executable, "-c", WAIT_WORKER, str(i), str(port), "dies"] for i in range(2)],
+                         env_with(1), timeout=400)
+    assert done[0].returncode == 3 and done[1].returncode != 0 and "waited" not in done[1].stdout
