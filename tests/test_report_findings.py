@@ -160,6 +160,36 @@ def test_with_fcas_expert_and_clipped_labels_the_answer_is_the_same():
     assert sum(r.diagnostics.controlled for r in history) == 0
 
 
+def test_with_fcas_expert_at_300k_the_history_stops_helping_and_palr_alone_clears_bc_oh():
+    """Claim 12 at the paper's budget (issue 58), the seeds landed so far: Hopper on FCA's expert's demonstrations,
+    raw labels, 300k iterations, evaluated at 30k, 100k and 300k: BC-OH against BC-SO (points and the ratio of
+    returns), each remedy against BC-OH, BC-OH's validation loss against BC-SO's, and BC-OH's verdicts at each
+    point."""
+    from experiments.report.analysis import cell_title, regime_budget_groups
+
+    (m,) = regime_budget_groups(_merged("hopper-pos-mujoco-state-rows-paper-bn-mlp-cs294-raw-seeds*.json"))
+    rows = {r.method: r for r in budget_rows(m, cell_title(m))}
+    differences = dict(budget_differences(list(rows.values())))
+    end = {k: r.at(300_000) for k, r in rows.items()}
+    assert {len(p.normalized.seeds) for p in end.values()} == {4}
+    assert {k: round(p.normalized.mean, 1) for k, p in end.items()} == {
+        "bc-so": 17.2, "bc-oh": 20.5, "ours-step": 32.5, "fca": 34.8, "palr": 84.3}
+    assert {lab: _text(ci[300_000]) for lab, ci in differences.items()} == {
+        "BC-OH − BC-SO": "+3.3 [-9.8, +16.4]", "Ours, step THR 10% W 5 − BC-OH": "+12.0 [-12.1, +36.1]",
+        "FCA (TCA), α 0.1 − BC-OH": "+14.3 [-15.5, +44.2]", "PALR − BC-OH": "+63.9 [+44.0, +83.7]"}
+    returns = {k: p.returns.mean for k, p in end.items()}
+    assert round(returns["bc-oh"] / returns["bc-so"], 2) == 1.17
+    assert [round(returns[k] / returns["bc-oh"], 2) for k in ("ours-step", "fca", "palr")] == [1.54, 1.64, 3.87]
+    assert [round(p.normalized.mean, 1) for p in rows["bc-oh"].points] == [21.0, 19.1, 20.5]
+    assert [round(p.normalized.mean, 1) for p in rows["bc-so"].points] == [18.5, 16.2, 17.2]
+    assert round(end["bc-oh"].val_loss.median / end["bc-so"].val_loss.median, 2) == 0.29
+    bcoh = [p.diagnostics for p in rows["bc-oh"].points]
+    assert [(d.controlled, d.judged) for d in bcoh] == [(0, 4)] * 3
+    assert [d.copycats for d in bcoh] == [3, 2, 3]
+    controls = [d.control.median for d in bcoh]
+    assert (round(min(controls), 2), round(max(controls), 2)) == (0.39, 0.42)
+
+
 # PALR's paragraph per labels: PALR's % of expert and its difference from BC-OH, RAP's and MINE's differences, and
 # the embedding's error on a_{t−1} ÷ BC-SO's and the predictability ratio, PALR's then BC-OH's (medians)
 PALR_ON_FCA = {"raw": (70.6, "+31.0 [+2.7, +59.3]", ["-13.6", "-14.6"], (0.55, 0.58), (0.82, 0.59)),
