@@ -6,13 +6,15 @@ published one (Hopper: BC-OH below BC-SO at 3k, far above it at 30k and 300k), a
 `reference_lines` finds the committed files of the same task, observation, protocol, expert, labels and recipe
 (any budget, seeds or weighting grid: `experiments.compare`'s comparable fields with the budget left free),
 and prints their BC-SO, BC-OH and Ours (step, THR 10% W 5) per budget, in % of expert with 95% t-intervals,
-beside this run's, with one line on what this budget can and cannot show.
+beside this run's, with one line on what this budget can and cannot show. `next_steps` are the commands that end
+a sweep's output: the report of its folder, and `experiments.compare` where a shipped file lets it rank the sweep.
 """
 
 from __future__ import annotations
 
 import functools
 import pathlib
+import shlex
 
 ARMS = (("bc-so", "BC-SO"), ("bc-oh", "BC-OH"), ("ours-step", "Ours (step, THR 10% W 5)"))
 
@@ -147,3 +149,21 @@ def _reading(iterations: int, here: dict, rows: list[tuple[int, dict]]) -> str:
                     f"{longest:,} iterations it is {'above' if mean['oh_ref'] > mean['so_ref'] else 'below'}")
         return words + f"; BC-OH against BC-SO goes the same way as at {longest:,} iterations"
     return words
+
+
+def next_steps(out: pathlib.Path, smoke: bool = False) -> list[str]:
+    """The lines that end a sweep: the commands that report what it wrote in `out`, and compare it where a shipped
+    file of the same setting and budget lets `experiments.compare` rank it (else why not, as a comment)."""
+    if smoke:
+        return ["next: the same command without --smoke (a smoke run's numbers mean nothing, and the report and "
+                "compare refuse them)"]
+    from ape_jax.pipeline.rundir import RunDir
+
+    q = shlex.quote
+    report = (f"  python -m experiments.report {q(str(RunDir(out).results))} --out {q(str(out / 'report.md'))}"
+              f"   # tables and figures ({out / 'figures'}/)")
+    if comparable(RunDir(out).results):
+        return ["next:", report, f"  python -m experiments.compare {q(str(out))}   # against the shipped results/ "
+                                 "of the same task, protocol, recipe and budget"]
+    return ["next:", report, "  # experiments.compare ranks a sweep against a shipped file of its setting and budget "
+                             "(e.g. --preset default) with a method of its own beside the references; none here"]

@@ -381,7 +381,8 @@ def _open_out(args: argparse.Namespace, fp: dict):
                        f"{'; '.join(diff[:4])}; use another --out, or pass --fresh to replace it")
         print(f"{results_path} already holds this sweep; not rerunning (--fresh to train it again).\n")
         print(table(old))
-        print("\n".join(_reference.reference_lines(results_path) + next_steps(args.out, bool(old.config.get("smoke")))))
+        smoke = bool(old.config.get("smoke"))
+        print("\n".join(_reference.reference_lines(results_path) + _reference.next_steps(args.out, smoke)))
         return 0
     checkpoint = SweepCheckpoint(out.checkpoints, fp, args.checkpoint_every)
     try:
@@ -477,26 +478,8 @@ def _run(args: argparse.Namespace, spec, checkpoint) -> int:
           f"(compile ~{t['compile_s']:.0f} s, train {t['train_s']:.0f} s, evaluate {t['eval_s']:.0f} s"
           + (f"; peak device memory {t['peak_device_mb'] / 1024:.1f} GB" if t.get("peak_device_mb") else "") + ")\n"
           f"wrote {out.results}, {out.csv}, {out.params}/, training curves in {out.curves}/ and {out.tensorboard}/")
-    print("\n".join(_reference.reference_lines(out.results) + next_steps(args.out, spec.settings.smoke)))
+    print("\n".join(_reference.reference_lines(out.results) + _reference.next_steps(args.out, spec.settings.smoke)))
     return 0
-
-
-def next_steps(out: pathlib.Path, smoke: bool = False) -> list[str]:
-    """The lines that end a sweep: the commands that report what it wrote in `out`, and compare it where a shipped
-    file of the same setting and budget lets `experiments.compare` rank it (else why not, as a comment)."""
-    if smoke:
-        return ["next: the same command without --smoke (a smoke run's numbers mean nothing, and the report and "
-                "compare refuse them)"]
-    from ape_jax.pipeline.rundir import RunDir
-
-    q = shlex.quote
-    report = (f"  python -m experiments.report {q(str(RunDir(out).results))} --out {q(str(out / 'report.md'))}"
-              f"   # tables and figures ({out / 'figures'}/)")
-    if _reference.comparable(RunDir(out).results):
-        return ["next:", report, f"  python -m experiments.compare {q(str(out))}   # against the shipped results/ "
-                                 "of the same task, protocol, recipe and budget"]
-    return ["next:", report, "  # experiments.compare ranks a sweep against a shipped file of its setting and budget "
-                             "(e.g. --preset default) with a method of its own beside the references; none here"]
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ import pytest
 
 from ape_jax.pipeline import results
 from ape_jax.pipeline.checkpoint import LOCK, LockHeld, OutLock
-from experiments import sweep
+from experiments import _reference, sweep
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 FCA_BC = ROOT / "results" / "hopper-pos-fca-rows-default-fca-bc.json"  # BC-SO, BC-OH, Ours (10% x 5), 5 seeds
@@ -81,15 +81,15 @@ def test_the_sweep_ends_with_the_commands_that_report_its_folder_and_compare_it_
     out = tmp_path / "my run"
     out.mkdir()
     shutil.copy(shipped / "hopper-pos-fca-rows-default-fca-after.json", out / "results.json")   # RAP, PALR, MINE
-    lines = sweep.next_steps(out)
+    lines = _reference.next_steps(out)
     assert lines[0] == "next:"
     assert shlex.split(lines[1].split("#")[0]) == ["python", "-m", "experiments.report", f"{out}/results.json",
                                                    "--out", f"{out}/report.md"]
     assert shlex.split(lines[2].split("#")[0]) == ["python", "-m", "experiments.compare", str(out)]
     shutil.copy(shipped / "hopper-pos-fca-rows-default-fca-bc.json", out / "results.json")   # references only
-    lines = sweep.next_steps(out)
+    lines = _reference.next_steps(out)
     assert len(lines) == 3 and lines[2].lstrip().startswith("# experiments.compare") and "none here" in lines[2]
-    assert "without --smoke" in sweep.next_steps(out, smoke=True)[0]
+    assert "without --smoke" in _reference.next_steps(out, smoke=True)[0]
 
 
 # -- 2. ranges, 4. --resume, 5. cost: refused while parsing, before anything runs --------------------------------
