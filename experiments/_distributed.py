@@ -94,9 +94,8 @@ class Processes:
                        "settings than process 0; start every process with the same command (but --process-id)")
         return None
 
-
     def release(self) -> None:
-        """Process 0, ending (written, refused or failed): lets the others end (`wait_for_writer`). Once."""
+        """Process 0, ending (written, refused or failed): lets the others end (`wait_for_writer`)."""
         if self.count > 1 and self.writes:
             _client().key_value_set(WRITTEN_KEY, "1")
 
