@@ -160,8 +160,8 @@ def test_with_fcas_expert_and_clipped_labels_the_answer_is_the_same():
     assert sum(r.diagnostics.controlled for r in history) == 0
 
 
-def test_with_fcas_expert_at_300k_the_historys_gain_shrinks_and_palr_alone_clears_bc_oh():
-    """Claim 12 at the paper's budget (issue 58), the seeds landed so far: Hopper on FCA's expert's demonstrations,
+def test_with_fcas_expert_at_300k_the_history_helps_less_and_palr_alone_clears_bc_oh():
+    """Claim 12 at the paper's budget (issue 58), 8 seeds: Hopper on FCA's expert's demonstrations,
     raw labels, 300k iterations, evaluated at 30k, 100k and 300k: BC-OH against BC-SO (points and the ratio of
     returns), each remedy against BC-OH, BC-OH's validation loss against BC-SO's, and BC-OH's verdicts at each
     point."""
@@ -171,23 +171,24 @@ def test_with_fcas_expert_at_300k_the_historys_gain_shrinks_and_palr_alone_clear
     rows = {r.method: r for r in budget_rows(m, cell_title(m))}
     differences = dict(budget_differences(list(rows.values())))
     end = {k: r.at(300_000) for k, r in rows.items()}
-    assert {len(p.normalized.seeds) for p in end.values()} == {6}
+    assert {len(p.normalized.seeds) for p in end.values()} == {8}
     assert {k: round(p.normalized.mean, 1) for k, p in end.items()} == {
-        "bc-so": 17.3, "bc-oh": 23.2, "ours-step": 36.6, "fca": 33.0, "palr": 85.6}
+        "bc-so": 18.8, "bc-oh": 27.8, "ours-step": 35.2, "fca": 34.5, "palr": 88.6}
     assert {lab: _text(ci[300_000]) for lab, ci in differences.items()} == {
-        "BC-OH − BC-SO": "+5.9 [-2.9, +14.7]", "Ours, step THR 10% W 5 − BC-OH": "+13.4 [-4.0, +30.8]",
-        "FCA (TCA), α 0.1 − BC-OH": "+9.7 [-7.6, +27.0]", "PALR − BC-OH": "+62.4 [+48.9, +75.9]"}
+        "BC-OH − BC-SO": "+9.0 [-0.5, +18.5]", "Ours, step THR 10% W 5 − BC-OH": "+7.3 [-8.0, +22.7]",
+        "FCA (TCA), α 0.1 − BC-OH": "+6.7 [-7.0, +20.3]", "PALR − BC-OH": "+60.8 [+48.7, +72.9]"}
+    assert all(ci.low > 0 for ci in differences["PALR − BC-OH"].values())   # above BC-OH at every point
     returns = {k: p.returns.mean for k, p in end.items()}
-    assert round(returns["bc-oh"] / returns["bc-so"], 2) == 1.31
-    assert [round(returns[k] / returns["bc-oh"], 2) for k in ("ours-step", "fca", "palr")] == [1.54, 1.39, 3.49]
-    assert [round(p.normalized.mean, 1) for p in rows["bc-oh"].points] == [21.9, 25.6, 23.2]
-    assert [round(p.normalized.mean, 1) for p in rows["bc-so"].points] == [19.2, 15.2, 17.3]
-    assert round(end["bc-oh"].val_loss.median / end["bc-so"].val_loss.median, 2) == 0.33
+    assert round(returns["bc-oh"] / returns["bc-so"], 2) == 1.44
+    assert [round(returns[k] / returns["bc-oh"], 2) for k in ("ours-step", "fca", "palr")] == [1.25, 1.23, 3.05]
+    assert [round(p.normalized.mean, 1) for p in rows["bc-oh"].points] == [20.9, 21.1, 27.8]
+    assert [round(p.normalized.mean, 1) for p in rows["bc-so"].points] == [17.1, 15.6, 18.8]
+    assert round(end["bc-oh"].val_loss.median / end["bc-so"].val_loss.median, 2) == 0.35
     bcoh = [p.diagnostics for p in rows["bc-oh"].points]
-    assert [(d.controlled, d.judged) for d in bcoh] == [(0, 6)] * 3
-    assert [d.copycats for d in bcoh] == [4, 3, 4]
+    assert [(d.controlled, d.judged) for d in bcoh] == [(0, 8)] * 3
+    assert [d.copycats for d in bcoh] == [6, 5, 4]
     controls = [d.control.median for d in bcoh]
-    assert (round(min(controls), 2), round(max(controls), 2)) == (0.41, 0.44)
+    assert (round(min(controls), 2), round(max(controls), 2)) == (0.42, 0.47)
 
 
 # PALR's paragraph per labels: PALR's % of expert and its difference from BC-OH, RAP's and MINE's differences, and
