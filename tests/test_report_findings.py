@@ -177,6 +177,7 @@ def test_with_fcas_expert_at_300k_the_history_helps_less_and_palr_alone_clears_b
     assert {lab: _text(ci[300_000]) for lab, ci in differences.items()} == {
         "BC-OH − BC-SO": "+9.0 [-0.5, +18.5]", "Ours, step THR 10% W 5 − BC-OH": "+7.3 [-8.0, +22.7]",
         "FCA (TCA), α 0.1 − BC-OH": "+6.7 [-7.0, +20.3]", "PALR − BC-OH": "+60.8 [+48.7, +72.9]"}
+    assert [f"{ci.diff:+.1f}" for ci in differences["BC-OH − BC-SO"].values()] == ["+3.8", "+5.5", "+9.0"]
     assert all(ci.low > 0 for ci in differences["PALR − BC-OH"].values())   # above BC-OH at every point
     returns = {k: p.returns.mean for k, p in end.items()}
     assert round(returns["bc-oh"] / returns["bc-so"], 2) == 1.44
