@@ -30,7 +30,10 @@ copycat verdict from its recorded diagnostics (no policies needed;
 control, BC-SO on the same rows with the same probe, from FILE itself where its
 sweep trained BC-SO, else from a sibling: `--control SIBLING`, or a results file
 beside FILE with the same demonstrations, protocol, recipe, training length and
-probe. Each run's first verdict (`verdict`) stays beside the new
+probe (`--resampled` also accepts a named control whose demonstrations were
+collected with the same settings but differ in their bytes, as another CPU's
+float rounding makes them; the file records both SHA-256). Each run's first
+verdict (`verdict`) stays beside the new
 `controlled_verdict`. A file without diagnostics is skipped (said so); one
 without a control is refused (exit 2), and then nothing is written. The files
 are replaced atomically; judging a judged file again changes nothing.
@@ -70,14 +73,19 @@ def main(argv=None) -> int:
                         "instead (no policies needed; each file replaced)")
     p.add_argument("--control", type=pathlib.Path, nargs="+", default=None, metavar="SIBLING",
                    help="with --rejudge: take the no-history control (BC-SO) from these files where a FILE has none")
+    p.add_argument("--resampled", action="store_true",
+                   help="with --control: accept a control whose demonstrations were collected with the same settings "
+                        "but differ in their bytes (another CPU's float rounding); recorded in the file")
     add_compile_cache_flag(p)
     args = p.parse_args(argv)
     if args.rejudge is not None:
         if args.run is not None or args.out or args.replaces or args.video or args.video_out or args.episode:
             fail(p, "--rejudge takes results files and nothing else: no RUN, --out, --replaces or --video")
-        return _rejudge(p, args.rejudge, args.control or [])
-    if args.control is not None:
-        fail(p, "--control goes with --rejudge FILE")
+        if args.resampled and not args.control:
+            fail(p, "--resampled goes with --control SIBLING")
+        return _rejudge(p, args.rejudge, args.control or [], args.resampled)
+    if args.control is not None or args.resampled:
+        fail(p, "--control and --resampled go with --rejudge FILE")
     if args.run is None:
         fail(p, "give RUN (a sweep's --out directory), or --rejudge FILE")
     if args.video is None and (args.video_out is not None or args.episode != 0):
@@ -159,8 +167,9 @@ def _before_and_after(new) -> str:
     return "\n".join(lines)
 
 
-def _rejudge(p, files: list[pathlib.Path], controls: list[pathlib.Path]) -> int:
-    """`--rejudge`: every file's controlled verdict (`ape_jax.pipeline.judge`), all found before any is written."""
+def _rejudge(p, files: list[pathlib.Path], controls: list[pathlib.Path], resampled: bool = False) -> int:
+    """`--rejudge`: every file's controlled verdict (`ape_jax.pipeline.judge`), all found before any is written;
+    `resampled`: a named control may stand on demonstrations of the same settings with other bytes."""
     from ape_jax.diagnostics import CONTROL
     from ape_jax.pipeline import judge
     from ape_jax.pipeline import results as results_lib
@@ -188,15 +197,16 @@ def _rejudge(p, files: list[pathlib.Path], controls: list[pathlib.Path]) -> int:
             if path.parent not in beside:
                 beside[path.parent] = [(q.name, r) for q in sorted(path.parent.glob("*.json"))
                                        if (r := _results_or_none(q)) is not None]
-            control = judge.find_control(res, given) or judge.find_control(
+            control = judge.find_control(res, given, resampled) or judge.find_control(
                 res, [(n, r) for n, r in beside[path.parent] if n != path.name])
             if control is None:
                 fail(p, f"{path}: no {CONTROL} control: neither the file nor "
                         + (", ".join(str(c) for c in controls) if controls else "a results file beside it")
                         + f" has {CONTROL} policies with diagnostics on the same demonstrations, protocol, recipe, "
-                        f"training length and probe; run {CONTROL} in such a sweep, or name its file with --control")
+                        f"training length and probe; run {CONTROL} in such a sweep, or name its file with --control"
+                        + ("" if resampled else " (--resampled where its demonstrations differ only in their bytes)"))
         try:
-            new = judge.judge(res, control)
+            new = judge.judge(res, control, resampled=resampled)
         except judge.JudgeError as e:
             fail(p, f"{path}: {e}")
         judged.append((path, new))

@@ -165,6 +165,30 @@ def test_rejudge_refuses_a_file_without_a_control_and_writes_nothing(tmp_path, c
     assert e.value.code == 2
 
 
+def test_a_control_on_resampled_demonstrations_is_taken_only_when_asked_and_recorded(tmp_path, capsys):
+    """One expert's demonstrations collected on another CPU differ in their bytes (float rounding diverges long
+    rollouts): such a control is refused by default, taken with `--resampled`, and the file records both hashes."""
+    lone, other = tmp_path / "lone" / FCA_FCA.name, tmp_path / FCA_BC.name
+    lone.parent.mkdir()
+    for source, path, sha in ((FCA_FCA, lone, "0" * 64), (FCA_BC, other, "1" * 64)):
+        obj = json.loads(source.read_text())
+        obj["config"]["data"]["sha256"] = sha
+        path.write_text(json.dumps(obj))
+    before = lone.read_text()
+    with pytest.raises(SystemExit) as e:
+        evaluate.main(["--rejudge", str(lone), "--control", str(other)])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "--resampled" in err and lone.read_text() == before
+    with pytest.raises(SystemExit) as e:
+        evaluate.main(["--rejudge", str(lone), "--resampled"])
+    assert e.value.code == 2 and "--resampled goes with --control" in capsys.readouterr().err
+    assert evaluate.main(["--rejudge", str(lone), "--control", str(other), "--resampled"]) == 0
+    control = results.load(lone).config["diagnostics"]["control"]
+    assert control["file"] == FCA_BC.name and control["demonstrations"]["file"] == "0" * 64
+    assert control["demonstrations"]["control"] == "1" * 64
+    assert all(judge.readable(r)["controlled_verdict"] in ("copycat", "not copycat") for r in results.load(lone).runs)
+
+
 def test_rejudge_skips_a_file_without_diagnostics(tmp_path, capsys):
     obj = json.loads(FCA_BC.read_text())
     for run in obj["runs"]:
@@ -191,6 +215,7 @@ def test_the_committed_verdicts_are_the_judge_s():
             unjudged.append(path.name)
             continue
         source = None if control["file"] is None else (control["file"], results.load(RESULTS / control["file"]))
-        assert judge.judge(res, source).to_json() == res.to_json(), path.name
+        resampled = "demonstrations" in control   # judged with `--resampled`: the same settings, other bytes
+        assert judge.judge(res, source, resampled=resampled).to_json() == res.to_json(), path.name
     assert unjudged == []
     assert dg.THRESHOLDS.control_ratio == 0.25

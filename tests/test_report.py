@@ -252,6 +252,20 @@ def test_one_sweep_split_by_seeds_merges_into_the_rows_of_all_its_seeds(tmp_path
         report.merge([parts[0], _loaded(tmp_path, _seeds_from(other, 2), "c.json")])
 
 
+def test_one_expert_measured_with_float_rounding_apart_merges_and_another_expert_is_refused(tmp_path):
+    """The same deterministic expert measured by other code or on another CPU differs in the last digits of its
+    return's sd (FCA's expert: 2.9826 against 2.9838); files that differ so are one group, other experts are not."""
+    a = _loaded(tmp_path, _results(deltas=(-10.0, 10.0)), "a.json")
+    b = _seeds_from(_results(deltas=(30.0, 70.0)), 2)
+    b["expert"] = {**b["expert"], "return_std": b["expert"]["return_std"] * (1 + 4e-4)}
+    (g,) = report.merge([a, _loaded(tmp_path, b, "b.json")]).values()
+    assert len(g.sources) == 2 and len(g.runs) == 20
+    other = _seeds_from(_results(deltas=(30.0, 70.0)), 2)
+    other["expert"] = {**other["expert"], "return_mean": other["expert"]["return_mean"] * 1.01}
+    with pytest.raises(report.ReportError, match="c.json: its expert differs from another"):
+        report.merge([a, _loaded(tmp_path, other, "c.json")])
+
+
 def test_the_bootstrap_ci_excludes_zero_for_a_clear_difference_and_contains_it_for_overlapping_seeds():
     ours, bcoh = [1000.0, 1012.0, 990.0], [500.0, 515.0, 480.0]
     ci = report.mean_difference(ours, bcoh)

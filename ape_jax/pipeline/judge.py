@@ -100,20 +100,22 @@ def same_demonstrations(a: Results, b: Results) -> bool:
     return None in sha or sha[0] == sha[1]
 
 
-def find_control(res: Results, candidates: Sequence[tuple[str, Results]]) -> tuple[str, Results] | None:
+def find_control(res: Results, candidates: Sequence[tuple[str, Results]],
+                 resampled: bool = False) -> tuple[str, Results] | None:
     """The sibling among `candidates` (`(name, Results)`) whose control stands for `res`'s: the same
-    `control_key`, the same demonstrations, a control at `res`'s end; of several, the one with the most control
-    seeds there, then the first name. None where there is none."""
+    `control_key`, the same demonstrations (with `resampled`, also ones collected with the same settings that
+    differ in their bytes), a control at `res`'s end; of several, the one with the most control seeds there, then
+    the first name. None where there is none."""
     key, end = control_key(res), int(res.config["iterations"])
     found = [(name, c) for name, c in candidates
-             if control_errors(c).get(end) and control_key(c) == key and same_demonstrations(res, c)]
+             if control_errors(c).get(end) and control_key(c) == key and (resampled or same_demonstrations(res, c))]
     if not found:
         return None
     return min(found, key=lambda nc: (-len(control_errors(nc[1])[end]), nc[0]))
 
 
 def judge(res: Results, control: tuple[str, Results] | None = None,
-          thresholds: diagnostics_lib.Thresholds = diagnostics_lib.THRESHOLDS) -> Results:
+          thresholds: diagnostics_lib.Thresholds = diagnostics_lib.THRESHOLDS, resampled: bool = False) -> Results:
     """`res` with the controlled verdict of every readable `diagnostics` (module docstring).
 
     Args:
@@ -121,6 +123,10 @@ def judge(res: Results, control: tuple[str, Results] | None = None,
       control: `(file name, Results)` of a sibling whose control stands for `res`'s (`find_control`); None: `res`'s
         own.
       thresholds: the criteria (default `diagnostics.THRESHOLDS`).
+      resampled: accept a `control` whose demonstrations were collected with the same settings (`control_key`) but
+        differ in their bytes: one deterministic expert's long rollouts diverge in float rounding from one CPU to
+        another, so the data is another sample of the same distribution. Recorded in `config.diagnostics.control`
+        (`demonstrations`: both SHA-256).
 
     Returns:
       A new `Results`; a record without a control at its iteration keeps no control fields.
@@ -130,7 +136,8 @@ def judge(res: Results, control: tuple[str, Results] | None = None,
     """
     end = int(res.config["iterations"])
     name, source = (None, res) if control is None else control
-    if control is not None and (control_key(source) != control_key(res) or not same_demonstrations(res, source)):
+    if control is not None and (control_key(source) != control_key(res)
+                                or not (resampled or same_demonstrations(res, source))):
         raise JudgeError(f"{name} does not share the demonstrations, protocol, recipe, training length and probe "
                          "of the file it would control")
     errors = control_errors(source)
@@ -164,6 +171,10 @@ def judge(res: Results, control: tuple[str, Results] | None = None,
         "rule": "control_ratio = the policy's prev_from_embedding / the median of the control's seeds' at the "
                 "same iteration; controlled_verdict: copycat when a policy that sees a past has control_ratio <= "
                 "thresholds.control_ratio and predictability_ratio <= thresholds.predictability_ratio"}
+    if control is not None and not same_demonstrations(res, source):
+        diag["control"]["demonstrations"] = {
+            "file": (res.config.get("data") or {}).get("sha256"), "control": source.config["data"]["sha256"],
+            "note": "collected with the same settings, other bytes (float rounding on another CPU): another sample"}
     return dataclasses.replace(res, runs=runs, config=config)
 
 

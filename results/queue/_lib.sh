@@ -34,9 +34,10 @@ sweep() {  # sweep NAME ARGS...: one sweep into $RUNS/NAME on every core, its re
 }
 
 judge_by() {  # judge_by NAME SIBLING: results/NAME.json's controlled verdict from SIBLING's BC-SO, for a file with
-  # none of its own (no BC-SO, or policies that see the previous action); idempotent, so rerun on every start
+  # none of its own (no BC-SO, or policies that see the previous action); idempotent, so rerun on every start.
+  # --resampled: the sibling's demonstrations may be the same settings collected on another CPU (other bytes)
   [ -f "results/$1.json" ] || return
-  "$PY" -m experiments.evaluate --rejudge "results/$1.json" --control "results/$2.json" > /dev/null \
+  "$PY" -m experiments.evaluate --rejudge "results/$1.json" --control "results/$2.json" --resampled > /dev/null \
     && echo "judged $1 against $2" || echo "FAILED judging $1 against $2"
 }
 

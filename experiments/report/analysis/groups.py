@@ -323,6 +323,17 @@ def expert_words(p: dict) -> str | None:
     return name
 
 
+def same_expert(a: object, b: object, rel: float = 1e-3) -> bool:
+    """Whether two files' `expert` records describe one expert: the same fields, text equal, numbers within `rel`
+    of their size (at least `rel` apart allowed: one deterministic expert measured by other code or on another CPU
+    differs in float rounding, e.g. a return sd of 2.9826 against 2.9838)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(same_expert(a[k], b[k], rel) for k in a)
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
+        return abs(a - b) <= rel * max(abs(a), abs(b), 1.0)
+    return a == b
+
+
 def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
     """Results per `Key(env, obs, protocol name, budget)`: summary rows and runs of all files, with the files they
     came from, as a `Group` each.
@@ -333,8 +344,8 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
 
     Raises:
       ReportError: the same configuration and seed in two files of one group, or the same configuration in two
-        files with other settings; files of one group with different experts or different protocol settings, or
-        a malformed protocol.
+        files with other settings; files of one group with different experts (`same_expert`, and the demonstrator
+        where both record it) or different protocol settings, or a malformed protocol.
     """
     merged: dict[Key, dict] = {}   # the groups' fields, gathered file by file
     for r in files:
@@ -353,7 +364,8 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
                                     "summary": [], "runs": [], "sources": [], "methods": {}, "metric": main_metric(r),
                                     "task_metrics": tuple(r.config.get("task_metrics", tasks.get(r.env).metrics))})
         group = f"{r.env} ({r.obs}, protocol {key.protocol}" + (f", {key.budget:,} iterations)" if key.budget else ")")
-        if m["expert"] != r.expert:
+        if not same_expert(m["expert"], r.expert) or (m["demonstrator"] and demonstrator(r)
+                                                       and m["demonstrator"] != demonstrator(r)):
             raise ReportError(f"{where}: its expert differs from another {group} results file's")
         differ = [k for k in protocol.keys() & m["protocol"].keys()
                   if protocol[k] is not None and m["protocol"][k] is not None and protocol[k] != m["protocol"][k]]
