@@ -252,6 +252,31 @@ def test_one_sweep_split_by_seeds_merges_into_the_rows_of_all_its_seeds(tmp_path
         report.merge([parts[0], _loaded(tmp_path, _seeds_from(other, 2), "c.json")])
 
 
+def test_a_method_trained_only_for_another_to_read_gives_way_to_the_groups_own_row(tmp_path):
+    """Priming reads its file's BC-SO (`Method.reads`): where another file of the group trained BC-SO for its own
+    sake on the same seeds, that one stands and the primed file's is set aside, said on its page; a BC-SO trained
+    for its own sake twice is still refused."""
+    def schema3(methods):   # a file as the sweep writes it, its settings whole (so its methods' knobs resolve)
+        obj = _schema2(_results(methods=methods), protocol=_fca(), methods={m: {} for m, _, _ in methods})
+        settings = resolve("hopper", "pos", "mujoco-state", "default", sets=["budget.seeds=2"])
+        return {**obj, "schema": 3, "preset": "default", "settings": settings.to_json(),
+                "config": {**obj["config"], "methods": [m for m, _, _ in methods]}}
+
+    cell = _loaded(tmp_path, schema3((("bc-so", {}, 300.0), ("bc-oh", {}, 1000.0))), "cell.json")
+    primed = schema3((("bc-so", {}, 320.0), ("priming", {"weight": 1.0}, 1100.0)))
+    files = [_loaded(tmp_path, primed, "primed.json"), cell]
+    (g,) = report.merge(files).values()
+    bc_so = [r for r in g.runs if r["method"] == "bc-so"]
+    assert [r["eval"]["return_mean"] for r in bc_so] == [290.0, 310.0]          # the cell's, not the primed file's
+    assert {r["method"] for r in g.summary} == {"bc-so", "bc-oh", "priming"}
+    assert g.set_aside == [(str(tmp_path / "primed.json"), "bc-so")]
+    page = report.build(files).pages["hopper-pos.md"].text
+    assert "Its bc-so, trained for another of its methods to read, is left out of the tables" in page
+    alone = schema3((("bc-so", {}, 320.0), ("bc-oh", {}, 1100.0)))
+    with pytest.raises(report.ReportError, match="bc-so {} is also in another results file"):
+        report.merge([cell, _loaded(tmp_path, alone, "alone.json")])
+
+
 def test_one_expert_measured_with_float_rounding_apart_merges_and_another_expert_is_refused(tmp_path):
     """The same deterministic expert measured by other code or on another CPU differs in the last digits of its
     return's sd (FCA's expert: 2.9826 against 2.9838); files that differ so are one group, other experts are not."""

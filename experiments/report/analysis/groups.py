@@ -122,7 +122,10 @@ class Group:
         it; None where it does not.
       summary: every file's summary rows (one per configuration), in file order.
       runs: every file's runs (one per configuration and seed), in file order.
-      sources: the files, in the order given.
+      sources: the files, in the order given (without the rows set aside).
+      set_aside: `(file, method)` of rows a file trained only for another of its methods to read (`read_only`:
+        priming's BC-SO) where another file of the group trained the same configuration as a row of its own: that
+        file's rows stand, these are left out (the same configuration trained again).
       methods: what the files record of their methods (label, role, online), the first file naming one wins.
       metric: the main metric (`"return"`, or a rate: `is_rate`).
       task_metrics: the task's own per-episode metrics (the task-metrics table's columns).
@@ -140,6 +143,7 @@ class Group:
     summary: list[dict]
     runs: list[dict]
     sources: list[Source]
+    set_aside: list[tuple[str, str]]
     methods: dict[str, dict]
     metric: str
     task_metrics: tuple[str, ...]
@@ -323,6 +327,34 @@ def expert_words(p: dict) -> str | None:
     return name
 
 
+def _key(r: results_lib.Results) -> tuple[dict, Key]:
+    """A file's protocol as its group records it (a variant's: named by `variant_name`, with `variant_of`, the
+    recipe, a former preset and an imported expert's SHA-256) and its group's `Key`."""
+    where = getattr(r, "path", "") or f"a {r.env} ({r.obs}) results file"
+    protocol = protocol_of(r, where)
+    name = variant_name(r, protocol)
+    found = demonstrator(r) or {}
+    if name != protocol["name"]:
+        protocol = {**protocol, "name": name, "variant_of": protocol["name"], "recipe": r.recipe_name,
+                    **({"preset": former} if (former := former_preset(r)) else {}),
+                    **({"expert_sha256": found["sha256"]} if found.get("kind") == "imported"
+                       and found.get("sha256") else {})}
+    return protocol, Key(r.env, r.obs, name, None if former_preset(r) else budget_of(r))
+
+
+def read_only(res: results_lib.Results) -> set[str]:
+    """The methods a file trained for another of its methods to read (`Method.reads`: priming's BC-SO, the prime
+    it reads), under the file's own settings; empty for files this code cannot resolve."""
+    from ape_jax import methods as methods_lib
+
+    try:
+        knobs = res.records().knobs
+    except (SettingsError, TypeError, ValueError):
+        return set()
+    names = {row["method"] for row in res.summary}
+    return {read for m in names if m in methods_lib.names() and (read := methods_lib.read_by(m, knobs))} & names
+
+
 def same_expert(a: object, b: object, rel: float = 1e-3) -> bool:
     """Whether two files' `expert` records describe one expert: the same fields, text equal, numbers within `rel`
     of their size (at least `rel` apart allowed: one deterministic expert measured by other code or on another CPU
@@ -348,20 +380,20 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
         where both record it) or different protocol settings, or a malformed protocol.
     """
     merged: dict[Key, dict] = {}   # the groups' fields, gathered file by file
-    for r in files:
+    keyed = [(r, *_key(r), read_only(r)) for r in files]
+    primary: dict[Key, set] = {}   # per group, the configurations some file trained for their own sake
+    for r, _, key, reads in keyed:
+        primary.setdefault(key, set()).update(config_key(row) for row in r.summary if row["method"] not in reads)
+    for r, protocol, key, reads in keyed:
         where = getattr(r, "path", "") or f"a {r.env} ({r.obs}) results file"
-        protocol = protocol_of(r, where)
-        name = variant_name(r, protocol)
-        found = demonstrator(r) or {}
-        if name != protocol["name"]:
-            protocol = {**protocol, "name": name, "variant_of": protocol["name"], "recipe": r.recipe_name,
-                        **({"preset": former} if (former := former_preset(r)) else {}),
-                        **({"expert_sha256": found["sha256"]} if found.get("kind") == "imported"
-                           and found.get("sha256") else {})}
-        key = Key(r.env, r.obs, name, None if former_preset(r) else budget_of(r))
+        aside = {config_key(row) for row in r.summary if row["method"] in reads} & primary[key]
+        if aside:   # another file of the group trained them as rows of their own: theirs stand
+            r = dataclasses.replace(r, summary=[row for row in r.summary if config_key(row) not in aside],
+                                    runs=[run for run in r.runs if config_key(run) not in aside])
         m = merged.setdefault(key, {"env": r.env, "obs": r.obs, "protocol": protocol, "budget": key.budget,
                                     "expert": r.expert, "demonstrator": demonstrator(r),
-                                    "summary": [], "runs": [], "sources": [], "methods": {}, "metric": main_metric(r),
+                                    "summary": [], "runs": [], "sources": [], "set_aside": [], "methods": {},
+                                    "metric": main_metric(r),
                                     "task_metrics": tuple(r.config.get("task_metrics", tasks.get(r.env).metrics))})
         group = f"{r.env} ({r.obs}, protocol {key.protocol}" + (f", {key.budget:,} iterations)" if key.budget else ")")
         if not same_expert(m["expert"], r.expert) or (m["demonstrator"] and demonstrator(r)
@@ -379,6 +411,7 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
         m["summary"] += [row for row in r.summary if config_key(row) not in seen]
         m["runs"] += r.runs
         m["sources"].append(r)
+        m["set_aside"] += [(where, method) for method, _ in sorted(aside)]
         m["methods"] = {**r.methods, **m["methods"]}
         m["protocol"] = {**protocol, **{k: v for k, v in m["protocol"].items() if v is not None}}
     groups = {}

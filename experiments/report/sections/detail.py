@@ -240,7 +240,13 @@ def group_sections(ctx: Context, key: Key) -> list[Section]:
     the grid figure, the paper's settings against the grid, the loss analysis (the paper's Table 3), and the copycat
     diagnostics."""
     m = ctx.merged[key]
-    body = [*(f"- [`{pathlib.Path(r.path).name}`]({ctx.link(r.path)}): {provenance(r)}" for r in m.sources), "",
+    aside = {}
+    for where, method in m.set_aside:
+        aside.setdefault(where, []).append(method)
+    body = [*(f"- [`{pathlib.Path(r.path).name}`]({ctx.link(r.path)}): {provenance(r)}"
+              + (f" Its {', '.join(aside[r.path])}, trained for another of its methods to read, is left out of the "
+                 "tables: another file of this group trained the same configuration as a row of its own."
+                 if r.path in aside else "") for r in m.sources), "",
             grid_table(m), *retrained_line(m),
             *ctx.figure(f"grid-{file_stem(m)}.png", f"{m.title} grid search", lambda: figures.grid_figure(m))]
     if found := choices_table(m):
