@@ -179,3 +179,22 @@ def test_the_on_policy_check_reads_each_copycat_cell_sound_or_not(tmp_path):
                                                          "here |")
     assert any(r.endswith("something besides copying holds this cell down |") for r in rows)
     assert onpolicy_check(merge(_pair(tmp_path, "plain"))) == []        # no DAgger, no HistoryDropout: no check
+
+
+def test_a_cell_without_copying_reads_so_where_dagger_does_not_clear_bc_oh(tmp_path):
+    """No BC-OH seed judged copycat by the controlled verdict and the history's interval above 0: the reading says
+    there is no copying to remedy, not that something besides copying holds the cell down."""
+    def honest(obj):
+        for run in obj["runs"]:
+            if run["method"] == "bc-oh":
+                run["diagnostics"] = {**run["diagnostics"], "control_ratio": 1.0, "predictability_ratio": 1.2,
+                                      "controlled_verdict": "not copycat"}
+        return obj
+
+    files = [_load(tmp_path, honest(regime_file(methods=PAPER, labels="clipped")), "c.json"),
+             _load(tmp_path, honest(regime_file(methods=ONLINE_FAILS, labels="clipped")), "c-onpolicy.json")]
+    (check,) = onpolicy_check(merge(files))
+    assert check.sound is False and check.history.low > 0 and check.bcoh.diagnostics.controlled == 0
+    text = report.build(files).text
+    assert ("| no copying to remedy: no BC-OH policy judged copycat and the history helps; DAgger does not clear "
+            "BC-OH either |") in text

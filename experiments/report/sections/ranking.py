@@ -45,10 +45,18 @@ def ranking_section(ctx: Context) -> list[Section]:
 
 
 def _reading(c: Check) -> str:
+    """The cell's reading: sound where DAgger clears BC-OH; where it does not, whether the cell shows copying at all
+    (BC-OH judged copycat by the controlled verdict in some seed, or no better than BC-SO) or not (no BC-OH seed
+    judged copycat and the history's interval above 0: nothing for a remedy of copying to lift)."""
     if c.sound is None:
         return "DAgger not run"
-    return ("sound: DAgger clears BC-OH, so copying holds BC-OH back here" if c.sound
-            else "DAgger does not clear BC-OH: something besides copying holds this cell down")
+    if c.sound:
+        return "sound: DAgger clears BC-OH, so copying holds BC-OH back here"
+    d = c.bcoh.diagnostics
+    if d.judged and not d.controlled and c.history is not None and c.history.low > 0:
+        return ("no copying to remedy: no BC-OH policy judged copycat and the history helps; DAgger does not clear "
+                "BC-OH either")
+    return "DAgger does not clear BC-OH: something besides copying holds this cell down"
 
 
 def onpolicy_section(ctx: Context) -> list[Section]:
