@@ -175,15 +175,15 @@ def test_the_on_policy_check_reads_each_copycat_cell_sound_or_not(tmp_path):
     assert rows[0] == ("| cell | BC-OH, % of expert; copycat | BC-OH − BC-SO | DAgger (online) − BC-OH; copycat | "
                        "HistoryDropout − BC-OH; copycat | reading |")
     raw_row = next(r for r in rows if r.startswith("| Hopper (FCA's expert, raw labels) | 30.0; "))
-    assert "| **+30.0 [" in raw_row and raw_row.endswith("| sound: DAgger clears BC-OH, so copying holds BC-OH back "
-                                                         "here |")
+    assert "| **+30.0 [" in raw_row and raw_row.endswith("| sound: DAgger clears BC-OH, and BC-OH copies (2/3): "
+                                                         "room for a remedy of copying |")
     assert any(r.endswith("something besides copying holds this cell down |") for r in rows)
     assert onpolicy_check(merge(_pair(tmp_path, "plain"))) == []        # no DAgger, no HistoryDropout: no check
 
 
-def test_a_cell_without_copying_reads_so_where_dagger_does_not_clear_bc_oh(tmp_path):
+def test_a_cell_without_copying_reads_so_whether_dagger_clears_bc_oh_or_not(tmp_path):
     """No BC-OH seed judged copycat by the controlled verdict and the history's interval above 0: the reading says
-    there is no copying to remedy, not that something besides copying holds the cell down."""
+    there is no copying to remedy (DAgger below BC-OH), or that DAgger lifts something besides copying (above)."""
     def honest(obj):
         for run in obj["runs"]:
             if run["method"] == "bc-oh":
@@ -198,3 +198,9 @@ def test_a_cell_without_copying_reads_so_where_dagger_does_not_clear_bc_oh(tmp_p
     text = report.build(files).text
     assert ("| no copying to remedy: no BC-OH policy judged copycat and the history helps; DAgger does not clear "
             "BC-OH either |") in text
+    # DAgger above BC-OH where BC-OH does not copy: what on-policy data lifts there is not copying
+    files[1] = _load(tmp_path, honest(regime_file(methods=ONLINE_CLEARS, labels="clipped")), "c-onpolicy.json")
+    (check,) = onpolicy_check(merge(files))
+    assert check.sound is True
+    assert ("| DAgger clears BC-OH, but no BC-OH policy copies and the history helps: on-policy data lifts something "
+            "besides copying |") in report.build(files).text

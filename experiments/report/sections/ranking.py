@@ -45,15 +45,23 @@ def ranking_section(ctx: Context) -> list[Section]:
 
 
 def _reading(c: Check) -> str:
-    """The cell's reading: sound where DAgger clears BC-OH; where it does not, whether the cell shows copying at all
-    (BC-OH judged copycat by the controlled verdict in some seed, or no better than BC-SO) or not (no BC-OH seed
-    judged copycat and the history's interval above 0: nothing for a remedy of copying to lift)."""
+    """The cell's reading. DAgger above BC-OH: the cell is sound (a policy can do better from these demonstrations'
+    task), and whether BC-OH copies there (judged copycat by the controlled verdict in some seed) says whether what
+    DAgger lifts is copying; a cell where no BC-OH policy copies and the history's interval is above 0 has no
+    copying to remedy, whether DAgger clears BC-OH or not."""
     if c.sound is None:
         return "DAgger not run"
-    if c.sound:
-        return "sound: DAgger clears BC-OH, so copying holds BC-OH back here"
     d = c.bcoh.diagnostics
-    if d.judged and not d.controlled and c.history is not None and c.history.low > 0:
+    copies = bool(d.judged and d.controlled)
+    honest = bool(d.judged and not d.controlled and c.history is not None and c.history.low > 0)
+    if c.sound and copies:
+        return f"sound: DAgger clears BC-OH, and BC-OH copies ({d.controlled}/{d.judged}): room for a remedy of copying"
+    if c.sound and honest:
+        return ("DAgger clears BC-OH, but no BC-OH policy copies and the history helps: on-policy data lifts "
+                "something besides copying")
+    if c.sound:
+        return "sound: DAgger clears BC-OH"
+    if honest:
         return ("no copying to remedy: no BC-OH policy judged copycat and the history helps; DAgger does not clear "
                 "BC-OH either")
     return "DAgger does not clear BC-OH: something besides copying holds this cell down"
