@@ -5,6 +5,7 @@ policy, probed through the history policy's embedding; each run reads its own se
 refuse what it cannot run, in one line."""
 
 import dataclasses
+import json
 import types
 
 import jax
@@ -23,6 +24,7 @@ from ape_jax.pipeline.presets import resolve
 from _compare import UPDATE_RTOL, update_mismatch
 from _planted import planted
 from _refusal import assert_sweep_refuses
+from experiments import sweep
 
 CFG = LearnerConfig(obs_shape=(4,), action_dim=2, history=2, iterations=30, batch_size=16, lr_boundaries=())
 
@@ -111,6 +113,22 @@ def test_a_grid_of_two_weights_by_two_seeds_trains_in_one_vmapped_program(grid):
     assert update_mismatch(prime(0), prime(2), init["params"]["prime"]) < UPDATE_RTOL
 
 
+def test_the_grid_s_stacked_state_gives_each_run_its_own_scaled_policy():
+    """The sweep reads the trained policies from the grid's state stacked over runs (`train_program`): the weight
+    `[R]` scales each run's own projection `[R, A, F]`, as one run's state alone gives it."""
+    learner = make_priming(CFG, "joint")
+    weights = (0.5, 2.0, 0.0)
+    keys = jax.random.split(jax.random.PRNGKey(3), len(weights))
+    hp = stack_hparams([PrimingHparams.make(w, lr=1e-3) for w in weights])
+    state = jax.vmap(learner.init, (0, 0, None))(keys, hp, planted())
+    stacked = learner.policy_params(state)
+    for j, w in enumerate(weights):
+        one = learner.policy_params(jax.tree.map(lambda x: x[j], state))
+        got = stacked["params"]["prime_input"]["kernel"][j]
+        np.testing.assert_array_equal(got, one["params"]["prime_input"]["kernel"])
+        np.testing.assert_array_equal(got, w * state.params["params"]["prime_input"]["kernel"][j])
+
+
 def test_the_composite_is_the_prime_network_feeding_the_history_policy(grid):
     params, _, _, _ = grid
     p = jax.tree.map(lambda x: x[0], params)
@@ -193,3 +211,17 @@ def test_the_method_s_grid_is_its_weights_knob():
 def test_the_sweep_refuses_what_priming_cannot_run_in_one_line_before_any_work(tmp_path, capsys, args, message):
     argv = ["--env", "toycar", "--obs", "full", "--quiet", "--methods", "priming", *args]
     assert_sweep_refuses(tmp_path, capsys, argv, message)
+
+
+@pytest.mark.integration
+def test_a_tiny_sweep_trains_priming_on_its_bc_so_and_records_both(tmp_path):
+    """ToyCar from the full state, 10 iterations: BC-SO first, then Priming at weights 0 and 1 reading it, through
+    the sweep's own training path (the grid's stacked state: `policy_params`), evaluated and recorded."""
+    out = tmp_path / "run"
+    assert sweep.main(["--env", "toycar", "--obs", "full", "--quiet", "--methods", "bc-so,priming",
+                       "--iterations", "10", "--eval-episodes", "1", "--set", "budget.probe_steps=0",
+                       "--set", "priming.weights=0,1", "--out", str(out), "--data-dir", str(tmp_path / "data")]) == 0
+    r = json.loads((out / "results.json").read_text())
+    assert [(x["method"], x["hparams"], x["status"]) for x in r["runs"]] == [
+        ("bc-so", {}, "ok"), ("priming", {"weight": 0.0}, "ok"), ("priming", {"weight": 1.0}, "ok")]
+    assert all(np.isfinite(x["train_loss_final"]) for x in r["runs"])

@@ -186,9 +186,11 @@ class PrimingState:
 
 def policy_params(state: PrimingState) -> Any:
     """The trained composite's variables: the prime's projection scaled by the run's weight, so `PrimedPolicy`
-    acts at weight 1 (the module docstring)."""
+    acts at weight 1 (the module docstring). `state` may be one run's or the grid's, stacked over runs (the weight
+    `[R]`, the kernel `[R, A, F]`): the weight scales each run's own kernel."""
     params = state.params["params"]
-    scaled = {"kernel": params["prime_input"]["kernel"] * state.weight}
+    kernel, weight = params["prime_input"]["kernel"], state.weight
+    scaled = {"kernel": kernel * weight.reshape(weight.shape + (1,) * (kernel.ndim - weight.ndim))}
     return {**state.params, "params": {**params, "prime_input": scaled}}
 
 
