@@ -481,3 +481,34 @@ def test_the_on_policy_check_finds_one_cell_where_copying_holds_bc_oh_back():
     for protocol, said in (("nocrash", "+1.6 [-2.5, +5.7]"), ("nocrash-nospeed", "-1.6 [-6.0, +2.8]")):
         _, per = _driving(protocol)
         assert _text(mean_difference(100 * per["dagger"]["success"], 100 * per["bc-oh"]["success"])) == said
+
+
+def _cell_rows(*patterns: str) -> dict:
+    """One cell's rows of the regime table (`regime_table`) by label, from the files matching `patterns` (the
+    cell's committed files and its later pieces: they merge as one group)."""
+    from experiments.report.analysis import regime_table
+
+    merged = merge([report.load(p) for pattern in patterns for p in sorted(RESULTS.glob(pattern))])
+    (m,) = [m for key, m in merged.items() if key.budget is None]
+    return {r.label: r for r in regime_table(m).rows}
+
+
+def test_where_the_previous_action_is_in_view_action_chunks_clears_bc_oh_and_so_far_only_there():
+    """The brief's and the README's remedies sentences (issue 59, the cells landed so far): with the previous
+    action in view (Hopper, 5 seeds, 30k) ActionChunks at ACT's defaults clears BC-OH as much as DAgger does, its
+    policies still judged copycats; ChannelDropout points above BC-OH without clearing it and is not a copycat; PTP
+    and Priming change nothing. On FCA's expert with raw labels (8 seeds), where nothing copies, ActionChunks and
+    Priming fall below BC-OH and PTP ties it."""
+    prev = _cell_rows("hopper-pos-fca-rows-default-fca-prevaction.json", "hopper-pos-*-prevaction-*.json")
+    said = {label: (round(r.normalized.mean, 1), _text(r.versus), r.diagnostics.controlled)
+            for label, r in prev.items() if label in ("ActionChunks", "ChannelDropout", "PTP", "Priming",
+                                                      "DAgger (online)")}
+    assert said == {"ActionChunks": (21.4, "+14.9 [+6.7, +23.1]", 5), "ChannelDropout": (13.9, "+7.3 [-1.4, +16.0]", 0),
+                    "PTP": (7.8, "+1.2 [-4.6, +7.1]", 5), "Priming": (5.7, "-0.8 [-6.1, +4.4]", 4),
+                    "DAgger (online)": (21.4, "+14.8 [+6.8, +22.8]", 5)}
+    assert (prev["ActionChunks"].hparams, prev["ChannelDropout"].hparams) == \
+        ({"k": 100, "m": 0.01}, {"rate": 0.75})                                 # the defaults: nothing selected
+    raw = _cell_rows("hopper-pos-fca-rows-default-fca-fcaexpert-raw*.json", "hopper-pos-*-cs294-raw-*.json")
+    assert {label: _text(raw[label].versus) for label in ("ActionChunks", "PTP", "Priming")} == {
+        "ActionChunks": "-30.3 [-49.4, -11.2]", "PTP": "+0.0 [-24.1, +24.2]", "Priming": "-21.3 [-41.1, -1.5]"}
+    assert not any(r.diagnostics.controlled for r in raw.values())
