@@ -57,6 +57,21 @@ def fail(parser: argparse.ArgumentParser | None, message: str) -> NoReturn:
     raise SystemExit(2)
 
 
+_OURS = tuple(str(pathlib.Path(__file__).resolve().parents[1] / d) + os.sep for d in ("ape_jax", "experiments", "envs"))
+
+
+def refused(e: ValueError) -> bool:
+    """Whether a `ValueError` is one of this project's refusals (raised by its own code: `ape_jax`, `experiments`,
+    `envs`), to be reported on one line, rather than a fault inside a library (a JAX shape error: a bug, whose
+    traceback must show). Reads where the innermost frame of its traceback lies."""
+    tb = e.__traceback__
+    if tb is None:
+        return True
+    while tb.tb_next is not None:
+        tb = tb.tb_next
+    return str(pathlib.Path(tb.tb_frame.f_code.co_filename).resolve()).startswith(_OURS)
+
+
 def unwritable(directory: str | os.PathLike) -> str | None:
     """Why files could not be created in `directory` (made if missing), or None if they can.
 

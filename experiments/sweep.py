@@ -38,7 +38,8 @@ import sys
 from experiments import _distributed, _reference
 from experiments._table import table
 from experiments._cli import (EPISODES_LIMIT, UPDATES_LIMIT, Parser, add_compile_cache_flag, checked_bar,
-                             data_directory, fail, interrupts, raise_if_interrupted, unwritable, use_compile_cache)
+                             data_directory, fail, interrupts, raise_if_interrupted, refused, unwritable,
+                             use_compile_cache)
 from experiments._sweep_checks import demonstrations_writable, grid, step_setting, temperature
 
 PROG = "python -m experiments.sweep"
@@ -404,6 +405,8 @@ def _train_share(spec, procs: _distributed.Processes) -> int:
     try:
         train_sweep(spec, Hooks(log=lambda message: None))
     except (ExpertError, CheckpointError, DataError, PluginError, ValueError) as e:  # as process 0 refuses them
+        if isinstance(e, ValueError) and not refused(e):
+            raise
         return fail(None, f"process {procs.index}: {e}")
     print(f"process {procs.index} of {procs.count}: trained its share of the grid; process 0 evaluates and writes "
           "the results")
@@ -464,6 +467,8 @@ def _run(args: argparse.Namespace, spec, checkpoint) -> int:
         res, policies = run_sweep(spec, hooks, checkpoint)
     except (ExpertError, CheckpointError, DataError, PluginError, ValueError) as e:
         checkpoint.discard_if_empty()  # a refusal leaves --out as it found it (`main` removes a folder made for it)
+        if isinstance(e, ValueError) and not refused(e):
+            raise   # a fault inside a library (a JAX shape error): a bug, shown with its traceback
         return fail(None, str(e))
     res.system = started
     raise_if_interrupted()   # a Ctrl-C whose exception was ignored: no results written

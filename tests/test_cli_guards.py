@@ -338,3 +338,26 @@ def test_drill_help_describes_every_option(capsys):
     text = capsys.readouterr().out
     for option in ("--env", "--preset", "--kills", "--kill-every", "--out", "SWEEP_FLAGS"):
         assert option in text
+
+
+def test_a_fault_inside_a_library_shows_its_traceback_and_a_refusal_of_ours_is_one_line(tmp_path, capsys,
+                                                                                       monkeypatch):
+    """`_cli.refused`: a `ValueError` raised inside a library (a JAX shape error: a bug, as Priming's stacked weight
+    once was) propagates with its traceback, where the project's own `ValueError` is a one-line refusal (exit 2);
+    the output folder a sweep made is left as it was found either way."""
+    import jax.numpy as jnp
+
+    from ape_jax.pipeline import sweep as pipeline
+    from experiments._cli import refused
+
+    def broken(*args, **kwargs):
+        return jnp.ones((2, 3)) * jnp.ones(2)
+
+    monkeypatch.setattr(pipeline, "run_sweep", broken)
+    argv = ["--env", "toycar", "--obs", "full", "--smoke", "--quiet", "--methods", "bc-so"]
+    with pytest.raises(ValueError, match="Incompatible shapes") as e:
+        sweep.main([*argv, "--out", str(tmp_path / "a"), "--data-dir", str(tmp_path / "data")])
+    assert not refused(e.value) and not (tmp_path / "a").exists()
+    with pytest.raises(ValueError) as ours:
+        pipeline.SweepSpec("toycar", "full", None, ("no-such-method",))
+    assert refused(ours.value)
