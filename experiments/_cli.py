@@ -63,7 +63,8 @@ _OURS = tuple(str(pathlib.Path(__file__).resolve().parents[1] / d) + os.sep for 
 def refused(e: ValueError) -> bool:
     """Whether a `ValueError` is one of this project's refusals (raised by its own code: `ape_jax`, `experiments`,
     `envs`), to be reported on one line, rather than a fault inside a library (a JAX shape error: a bug, whose
-    traceback must show). Reads where the innermost frame of its traceback lies."""
+    traceback must show). Reads where the innermost frame of its traceback lies; a fault whose library frames JAX's
+    traceback filtering hid still reads as a refusal (the heuristic errs towards the one line)."""
     tb = e.__traceback__
     if tb is None:
         return True

@@ -54,8 +54,8 @@ def expert_words(p: dict) -> str | None:
 
 def same_expert(a: object, b: object, rel: float = 1e-3) -> bool:
     """Whether two files' `expert` records describe one expert: the same fields, text equal, numbers within `rel`
-    of their size (at least `rel` apart allowed: one deterministic expert measured by other code or on another CPU
-    differs in float rounding, e.g. a return sd of 2.9826 against 2.9838)."""
+    of the larger's size (and within `rel` of each other near 0): one deterministic expert measured by other code
+    or on another CPU differs in float rounding, e.g. a return sd of 2.9826 against 2.9838."""
     if isinstance(a, dict) and isinstance(b, dict):
         return a.keys() == b.keys() and all(same_expert(a[k], b[k], rel) for k in a)
     if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
