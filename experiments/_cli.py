@@ -60,13 +60,14 @@ def fail(parser: argparse.ArgumentParser | None, message: str) -> NoReturn:
 _OURS = tuple(str(pathlib.Path(__file__).resolve().parents[1] / d) + os.sep for d in ("ape_jax", "experiments", "envs"))
 
 
-def refused(e: ValueError) -> bool:
-    """Whether a `ValueError` is one of this project's refusals (raised by its own code: `ape_jax`, `experiments`,
-    `envs`), to be reported on one line, rather than a fault inside a library (a JAX shape error: a bug, whose
-    traceback must show). Reads where the innermost frame of its traceback lies; a fault whose library frames JAX's
-    traceback filtering hid still reads as a refusal (the heuristic errs towards the one line)."""
+def refused(e: Exception) -> bool:
+    """Whether an error an entry point catches as a refusal is one, to be reported on one line: the project's own
+    error types always; a `ValueError` where this project's code raised it (`ape_jax`, `experiments`, `envs`), not
+    a library (a JAX shape error: a bug, whose traceback must show). Reads where the innermost frame of its
+    traceback lies; a fault whose library frames JAX's traceback filtering hid still reads as a refusal (the
+    heuristic errs towards the one line)."""
     tb = e.__traceback__
-    if tb is None:
+    if not isinstance(e, ValueError) or tb is None:
         return True
     while tb.tb_next is not None:
         tb = tb.tb_next

@@ -405,7 +405,7 @@ def _train_share(spec, procs: _distributed.Processes) -> int:
     try:
         train_sweep(spec, Hooks(log=lambda message: None))
     except (ExpertError, CheckpointError, DataError, PluginError, ValueError) as e:  # as process 0 refuses them
-        if isinstance(e, ValueError) and not refused(e):
+        if not refused(e):
             raise
         return fail(None, f"process {procs.index}: {e}")
     print(f"process {procs.index} of {procs.count}: trained its share of the grid; process 0 evaluates and writes "
@@ -467,7 +467,7 @@ def _run(args: argparse.Namespace, spec, checkpoint) -> int:
         res, policies = run_sweep(spec, hooks, checkpoint)
     except (ExpertError, CheckpointError, DataError, PluginError, ValueError) as e:
         checkpoint.discard_if_empty()  # a refusal leaves --out as it found it (`main` removes a folder made for it)
-        if isinstance(e, ValueError) and not refused(e):
+        if not refused(e):
             raise   # a fault inside a library (a JAX shape error): a bug, shown with its traceback
         return fail(None, str(e))
     res.system = started

@@ -285,11 +285,15 @@ def protocol_words(p: dict) -> str:
     return ", ".join([STATE, *differs]) if differs else name
 
 
+def _where(r: results_lib.Results) -> str:
+    """How messages name a file: its path, else its task."""
+    return getattr(r, "path", "") or f"a {r.env} ({r.obs}) results file"
+
+
 def _key(r: results_lib.Results) -> tuple[dict, Key]:
     """A file's protocol as its group records it (a variant's: named by `variant_name`, with `variant_of`, the
     recipe, a former preset and an imported expert's SHA-256) and its group's `Key`."""
-    where = getattr(r, "path", "") or f"a {r.env} ({r.obs}) results file"
-    protocol = protocol_of(r, where)
+    protocol = protocol_of(r, _where(r))
     name = variant_name(r, protocol)
     found = demonstrator(r) or {}
     if name != protocol["name"]:
@@ -332,7 +336,7 @@ def merge(files: Sequence[results_lib.Results]) -> dict[Key, Group]:
     for r, _, key, reads in keyed:
         primary.setdefault(key, set()).update(config_key(row) for row in r.summary if row["method"] not in reads)
     for r, protocol, key, reads in keyed:
-        where = getattr(r, "path", "") or f"a {r.env} ({r.obs}) results file"
+        where = _where(r)
         aside = {config_key(row) for row in r.summary if row["method"] in reads} & primary[key]
         if aside:   # another file of the group trained them as rows of their own: theirs stand
             r = dataclasses.replace(r, summary=[row for row in r.summary if config_key(row) not in aside],
