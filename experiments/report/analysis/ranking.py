@@ -65,11 +65,14 @@ class Ranked(NamedTuple):
 
 
 class Family(NamedTuple):
-    """A family of cells (`copycat` or `default`), its cells' titles in order, and its methods, best IQM first."""
+    """A family of cells (`copycat` or `default`), its cells' titles in order, and its methods, best IQM first;
+    `partial`: the methods of `RANKED` that ran in some of its cells but not all, with the titles of those they ran
+    in (left out of the ranking: an IQM over fewer cells would not compare)."""
 
     name: str
     cells: tuple[str, ...]
     ranked: tuple[Ranked, ...]
+    partial: tuple[tuple[str, tuple[str, ...]], ...] = ()
 
 
 def is_copycat_cell(m: Group) -> bool:
@@ -113,14 +116,16 @@ def _titles(cells: Sequence[Group]) -> tuple[str, ...]:
 
 def family(name: str, cells: Sequence[Group], reps: int = RESAMPLES) -> Family:
     """Family `name`'s ranking over `cells`: every method of `RANKED` that ran in every cell (BC-OH first where it
-    did not), best IQM first. Cells without BC-OH give no differences; a family without BC-OH in every cell gives
+    did not), best IQM first; those that ran in some cells only are named in `Family.partial`. Cells without BC-OH give no differences; a family without BC-OH in every cell gives
     no probability of improvement."""
     titles = _titles(cells)
     reference = {t: (r.seeds if (r := _cell_result(m, t, REFERENCE, ())) else ()) for t, m in zip(titles, cells)}
-    ranked = []
+    ranked, partial = [], []
     for method in RANKED:
         results = [_cell_result(m, t, method, reference[t]) for t, m in zip(titles, cells)]
         if any(r is None for r in results):
+            if ran := tuple(r.cell for r in results if r is not None):
+                partial.append((method, ran))
             continue
         scores = {r.cell: np.asarray(r.seeds) for r in results}
         improvement = (stats.probability_of_improvement(scores, {t: np.asarray(s) for t, s in reference.items()},
@@ -128,7 +133,7 @@ def family(name: str, cells: Sequence[Group], reps: int = RESAMPLES) -> Family:
                        if method != REFERENCE and all(reference.values()) else None)
         ranked.append(Ranked(method, tuple(results), stats.iqm_across_tasks(scores, reps=reps), improvement))
     ranked.sort(key=lambda r: -r.iqm.value)
-    return Family(name, titles, tuple(ranked))
+    return Family(name, titles, tuple(ranked), tuple(partial))
 
 
 def ranking(merged: Merged, reps: int = RESAMPLES) -> list[Family]:
