@@ -72,7 +72,7 @@ def test_a_method_missing_from_a_cell_is_left_out_of_its_family(tmp_path):
     fca = "Hopper (FCA's expert, raw labels)"
     assert copycat.partial == (("palr", (fca,)), ("mine", (fca,)))                    # named, not ranked
     text = report.build(files).text
-    assert f"Not ranked here, as they ran in some of these cells only: PALR ({fca}); MINE ({fca})." in text
+    assert f"\n\nNot ranked here, as they ran in some of these cells only: PALR, in {fca}; MINE, in {fca}.\n\n" in text
 
 
 def test_no_later_method_no_section_and_the_section_with_its_figure(tmp_path):

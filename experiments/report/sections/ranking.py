@@ -39,8 +39,8 @@ def ranking_section(ctx: Context) -> list[Section]:
     for f in families:
         body += [f"**In {FAMILIES[f.name]}**", "", _table(f, names)]
         if f.partial:
-            body += ["", "Not ranked here, as they ran in some of these cells only: " + "; ".join(
-                f"{label(known_methods(ctx.merged), m)} ({', '.join(cells)})" for m, cells in f.partial) + "."]
+            body += ["Not ranked here, as they ran in some of these cells only: " + "; ".join(
+                f"{label(known_methods(ctx.merged), m)}, in {' and '.join(cells)}" for m, cells in f.partial) + ".", ""]
     later = ", ".join(names[n] for n in LATER if n in names)   # `names`: every method some family ranks
     return [Section(f"The methods that came after{': ' + later if later else ''}, ranked",
                     "Per method: IQM over every cell's seeds and P(> BC-OH), stratified bootstrap; per cell its best "
