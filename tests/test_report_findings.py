@@ -306,7 +306,7 @@ def later_ranking():
     `{"copycat": Family, "default": Family}`."""
     from experiments.report.analysis import ranking
 
-    return {f.name: f for f in ranking(_merged("*-pos-fca-rows-default-fca-*.json"))}
+    return {f.name: f for f in ranking(_merged("*-pos-*-rows-default-*.json"))}
 
 
 def test_on_the_default_tasks_no_later_method_beats_bc_oh_and_the_ones_below_it(later_ranking):
@@ -332,7 +332,7 @@ def test_the_later_methods_ranked_over_both_families(later_ranking):
     iqm = {name: {r.method: round(r.iqm.value, 1) for r in f.ranked} for name, f in later_ranking.items()}
     assert iqm == {
         "copycat": {"bc-full": 98.4, "palr": 48.9, "ours-softmax": 34.4, "fca": 32.9, "ours-step": 32.8, "bc-oh": 31.5,
-                    "mine": 25.8, "rap": 21.3, "bc-so": 15.6},
+                    "ptp": 29.7, "mine": 25.8, "rap": 21.3, "priming": 19.4, "bc-so": 15.6, "action-chunks": 11.8},
         "default": {"bc-full": 97.6, "bc-oh": 74.9, "palr": 73.2, "fca": 68.0, "ours-step": 65.4, "rap": 52.1,
                     "mine": 43.6, "bc-so": 32.7}}
     assert [m for m in iqm["default"] if m != "bc-so"][:2] == ["bc-full", "bc-oh"]   # BC-OH leads every remedy
@@ -448,6 +448,9 @@ def test_toytown_with_the_speed_in_view_the_history_halves_the_offline_loss_and_
                     ("nocrash-nospeed", "route_completion"): "-0.01 [-0.06, +0.04]"}
 
 
+PREV = "Hopper (previous action in view)"
+
+
 def test_the_on_policy_check_finds_one_cell_where_copying_holds_bc_oh_back():
     """The brief's and the README's on-policy sentences (issue 59): DAgger and HistoryDropout (p 0.5) in every cell
     where copying is expected (FCA's expert, raw and clipped labels, 8 seeds; the rough experts, the previous action
@@ -493,13 +496,14 @@ def _cell_rows(*patterns: str) -> dict:
     return {r.label: r for r in regime_table(m).rows}
 
 
-def test_action_chunks_clear_bc_oh_where_the_previous_action_is_in_view_and_fall_below_it_where_nothing_copies():
-    """The brief's and the README's remedies sentences (issue 59, the cells landed so far): with the previous
-    action in view (Hopper, 5 seeds, 30k) ActionChunks at ACT's defaults clears BC-OH as much as DAgger does, its
-    policies still judged copycats; ChannelDropout points above BC-OH without clearing it and is not a copycat; PTP
-    and Priming change nothing. In the three cells where nothing copies and the history helps (FCA's expert, raw
-    and clipped labels, 8 seeds; the rough Hopper expert, 5), ActionChunks falls below BC-OH in each, Priming in two,
-    and PTP ties it in all."""
+def test_action_chunks_clear_bc_oh_where_the_previous_action_is_in_view_and_fall_below_it_where_nothing_copies(
+        later_ranking):
+    """The brief's and the README's remedies sentences (issue 59): with the previous action in view (Hopper, 5
+    seeds, 30k) ActionChunks at ACT's defaults clears BC-OH as much as DAgger does, its policies still judged
+    copycats; ChannelDropout points above BC-OH without clearing it and is not a copycat; PTP and Priming change
+    nothing. In the five cells where nothing copies and the history helps (FCA's expert, raw and clipped labels, 8
+    seeds; the three rough experts, 5), ActionChunks falls below BC-OH in each, Priming in three, and PTP ties it in
+    all; over the family ActionChunks' IQM is the lowest of all."""
     prev = _cell_rows("hopper-pos-fca-rows-default-fca-prevaction.json", "hopper-pos-*-prevaction-*.json")
     said = {label: (round(r.normalized.mean, 1), _text(r.versus), r.diagnostics.controlled)
             for label, r in prev.items() if label in ("ActionChunks", "ChannelDropout", "PTP", "Priming",
@@ -509,17 +513,39 @@ def test_action_chunks_clear_bc_oh_where_the_previous_action_is_in_view_and_fall
                     "DAgger (online)": (21.4, "+14.8 [+6.8, +22.8]", 5)}
     assert (prev["ActionChunks"].hparams, prev["ChannelDropout"].hparams) == \
         ({"k": 100, "m": 0.01}, {"rate": 0.75})                                 # the defaults: nothing selected
-    cells = {"raw": ("hopper-pos-fca-rows-default-fca-fcaexpert-raw*.json", "hopper-pos-*-cs294-raw-*.json"),
-             "clipped": ("hopper-pos-fca-rows-default-fca-fcaexpert-clipped*.json",
-                         "hopper-pos-*-cs294-clipped-*.json"),
-             "rough": ("hopper-pos-fca-rows-default-fca-rough-raw.json", "hopper-pos-*-rough-raw-*.json")}
-    said = {}
-    for cell, patterns in cells.items():
-        rows = _cell_rows(*patterns)
-        assert not any(r.diagnostics.controlled for r in rows.values()) and rows["BC-SO"].versus.high < 0
-        said[cell] = {label: rows[label].versus for label in ("ActionChunks", "PTP", "Priming")}
-    assert {cell: _text(v["ActionChunks"]) for cell, v in said.items()} == {
-        "raw": "-30.3 [-49.4, -11.2]", "clipped": "-13.7 [-22.8, -4.7]", "rough": "-36.4 [-57.1, -15.7]"}
-    assert {cell: f"{v['Priming'].diff:+.1f}" for cell, v in said.items() if v["Priming"].high < 0} == {
-        "raw": "-21.3", "rough": "-25.3"}
-    assert all(v["PTP"].low < 0 < v["PTP"].high for v in said.values())
+    copycat = later_ranking["copycat"]
+    assert copycat.partial == (("channel-dropout", (PREV,)),)                     # ranked nowhere: one cell
+    by = {r.method: {c.cell: c for c in r.cells} for r in copycat.ranked}
+    elsewhere = [cell for cell in copycat.cells if cell != PREV]
+    assert len(elsewhere) == 5 and not any(by["bc-oh"][cell].diagnostics.controlled for cell in elsewhere)
+    assert {cell: _text(by["action-chunks"][cell].versus) for cell in elsewhere} == {
+        "Hopper (FCA's expert, clipped labels)": "-13.7 [-22.8, -4.7]",
+        "Hopper (FCA's expert, raw labels)": "-30.3 [-49.4, -11.2]",
+        "Hopper (rough expert, raw labels)": "-36.4 [-57.1, -15.7]",
+        "HalfCheetah (rough expert, raw labels)": "-83.5 [-84.4, -82.7]",
+        "Walker2d (rough expert, raw labels)": "-22.2 [-27.6, -16.9]"}
+    assert {cell: f"{c.versus.diff:+.1f}" for cell, c in by["priming"].items() if c.versus.high < 0} == {
+        "Hopper (FCA's expert, raw labels)": "-21.3", "Hopper (rough expert, raw labels)": "-25.3",
+        "Walker2d (rough expert, raw labels)": "-6.5"}
+    assert all(c.versus.low < 0 < c.versus.high for c in by["ptp"].values())   # PTP ties BC-OH in all six
+    assert copycat.ranked[-1].method == "action-chunks"
+
+
+def test_ptps_under_used_history_does_not_show_bc_oh_already_reads_the_velocity(later_ranking):
+    """The brief's PTP sentence: the velocity probe (1 − R² of the stripped velocity from the policy's embedding,
+    median over seeds) is lower for BC-OH than for BC-SO in the five cells where the history helps, so BC-OH does
+    read the velocity from its history; PTP lowers it further in the three Hopper cells only, and its returns tie
+    BC-OH's everywhere. With the previous action in view all three sit alike."""
+    copycat = later_ranking["copycat"]
+    by = {r.method: {c.cell: c.diagnostics.velocity.median for c in r.cells} for r in copycat.ranked}
+    vel = {cell: tuple(round(by[m][cell], 4) for m in ("bc-so", "bc-oh", "ptp")) for cell in copycat.cells}
+    assert vel == {"Hopper (FCA's expert, clipped labels)": (0.0021, 0.0014, 0.0012),
+                   "Hopper (FCA's expert, raw labels)": (0.0019, 0.0014, 0.0011),
+                   PREV: (0.0187, 0.0172, 0.0192),
+                   "Hopper (rough expert, raw labels)": (0.0074, 0.0028, 0.0018),
+                   "HalfCheetah (rough expert, raw labels)": (0.0117, 0.0022, 0.0021),
+                   "Walker2d (rough expert, raw labels)": (0.0648, 0.0265, 0.0294)}
+    assert all(so > oh for cell, (so, oh, _) in vel.items() if cell != PREV)
+    assert {cell for cell, (_, oh, ptp) in vel.items() if ptp < 0.9 * oh} == {
+        "Hopper (FCA's expert, clipped labels)", "Hopper (FCA's expert, raw labels)",
+        "Hopper (rough expert, raw labels)"}
