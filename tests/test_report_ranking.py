@@ -73,6 +73,7 @@ def test_a_method_missing_from_a_cell_is_left_out_of_its_family(tmp_path):
     assert copycat.partial == (("palr", (fca,)), ("mine", (fca,)))                    # named, not ranked
     text = report.build(files).text
     assert f"\n\nNot ranked here, as they ran in some of these cells only: PALR, in {fca}; MINE, in {fca}.\n\n" in text
+    assert "## The methods that came after: RAP, ranked" in text                       # the title: ranked ones only
 
 
 def test_no_later_method_no_section_and_the_section_with_its_figure(tmp_path):

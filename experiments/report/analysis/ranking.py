@@ -116,8 +116,8 @@ def _titles(cells: Sequence[Group]) -> tuple[str, ...]:
 
 def family(name: str, cells: Sequence[Group], reps: int = RESAMPLES) -> Family:
     """Family `name`'s ranking over `cells`: every method of `RANKED` that ran in every cell (BC-OH first where it
-    did not), best IQM first; those that ran in some cells only are named in `Family.partial`. Cells without BC-OH give no differences; a family without BC-OH in every cell gives
-    no probability of improvement."""
+    did not), best IQM first; those that ran in some cells only are named in `Family.partial`. Cells without BC-OH
+    give no differences; a family without BC-OH in every cell gives no probability of improvement."""
     titles = _titles(cells)
     reference = {t: (r.seeds if (r := _cell_result(m, t, REFERENCE, ())) else ()) for t, m in zip(titles, cells)}
     ranked, partial = [], []

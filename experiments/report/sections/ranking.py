@@ -33,15 +33,17 @@ def ranking_section(ctx: Context) -> list[Section]:
     families = ranking(ctx.merged)
     if not families:
         return []
-    names = {r.method: label(known_methods(ctx.merged), r.method) for f in families for r in f.ranked}
+    known = known_methods(ctx.merged)
+    names = {m: label(known, m) for f in families for m in (*(r.method for r in f.ranked), *dict(f.partial))}
     body = ctx.figure("ranking.png", "IQM of % of expert per method, with 95% intervals",
                       lambda: ranking_figure(families, names))
     for f in families:
         body += [f"**In {FAMILIES[f.name]}**", "", _table(f, names)]
         if f.partial:
             body += ["Not ranked here, as they ran in some of these cells only: " + "; ".join(
-                f"{label(known_methods(ctx.merged), m)}, in {' and '.join(cells)}" for m, cells in f.partial) + ".", ""]
-    later = ", ".join(names[n] for n in LATER if n in names)   # `names`: every method some family ranks
+                f"{names[m]}, in {' and '.join(cells)}" for m, cells in f.partial) + ".", ""]
+    ranked = {r.method for f in families for r in f.ranked}
+    later = ", ".join(names[n] for n in LATER if n in ranked)
     return [Section(f"The methods that came after{': ' + later if later else ''}, ranked",
                     "Per method: IQM over every cell's seeds and P(> BC-OH), stratified bootstrap; per cell its best "
                     "configuration − BC-OH (bold: above 0) and copycat count.", body)]
