@@ -15,8 +15,9 @@ from experiments.report.analysis import (Key, budget_differences, budget_rows, c
 RESULTS = pathlib.Path(__file__).resolve().parents[1] / "results"
 
 
-def _merged(pattern: str):
-    return merge([report.load(p) for p in sorted(RESULTS.glob(pattern))])
+def _merged(*patterns: str):
+    """The committed results files matching any of `patterns`, merged into groups as the report merges them."""
+    return merge([report.load(p) for pattern in patterns for p in sorted(RESULTS.glob(pattern))])
 
 
 def _text(ci) -> str:
@@ -503,16 +504,28 @@ def _cell_rows(*patterns: str) -> dict:
     cell's committed files and its later pieces: they merge as one group)."""
     from experiments.report.analysis import regime_table
 
-    merged = merge([report.load(p) for pattern in patterns for p in sorted(RESULTS.glob(pattern))])
-    (m,) = [m for key, m in merged.items() if key.budget is None]
+    (m,) = [m for key, m in _merged(*patterns).items() if key.budget is None]
     return {r.label: r for r in regime_table(m).rows}
 
 
-def _val_loss(path: pathlib.Path, method: str) -> float:
-    """The median over seeds of `method`'s held-out loss on the current action in one results file (the loss
-    analysis' `val.unweighted`: ActionChunks' is its chunk's first action, `action_chunks.first_action`)."""
+def _val_loss_ratio(path: pathlib.Path, method: str, reference: str) -> float:
+    """`method`'s held-out loss on the current action ÷ `reference`'s, medians over seeds, in one results file (the
+    loss analysis' `val.unweighted`: ActionChunks' is its chunk's first action, `action_chunks.first_action`)."""
     runs = report.load(path).runs
-    return float(np.median([r["losses"]["val"]["unweighted"] for r in runs if r["method"] == method]))
+
+    def median(name: str) -> float:
+        return float(np.median([r["losses"]["val"]["unweighted"] for r in runs if r["method"] == name]))
+
+    return median(method) / median(reference)
+
+
+def _by_cell(families) -> dict:
+    """`{method: {cell: CellResult}}` over the ranking's `families`."""
+    out: dict = {}
+    for f in families:
+        for r in f.ranked:
+            out.setdefault(r.method, {}).update({c.cell: c for c in r.cells})
+    return out
 
 
 def test_action_chunks_clear_bc_oh_where_the_previous_action_is_in_view_and_nowhere_else(later_ranking):
@@ -535,9 +548,7 @@ def test_action_chunks_clear_bc_oh_where_the_previous_action_is_in_view_and_nowh
         ({"k": 100, "m": 0.01}, {"rate": 0.75})                                 # the defaults: nothing selected
     copycat, default = later_ranking["copycat"], later_ranking["default"]
     assert copycat.partial == (("channel-dropout", (PREV,)),) and default.partial == ()   # ranked nowhere: one cell
-    by: dict = {}   # method -> cell -> its result, over both families
-    for r in (*copycat.ranked, *default.ranked):
-        by.setdefault(r.method, {}).update({c.cell: c for c in r.cells})
+    by = _by_cell((copycat, default))
     elsewhere = [cell for cell in copycat.cells if cell != PREV]
     assert len(elsewhere) == 5 and not any(by["bc-oh"][cell].diagnostics.controlled for cell in elsewhere)
     assert {cell: _text(c.versus) for cell, c in by["action-chunks"].items() if cell != PREV} == {
@@ -553,7 +564,7 @@ def test_action_chunks_clear_bc_oh_where_the_previous_action_is_in_view_and_nowh
         "Walker2d (rough expert, raw labels)": "-6.5", "Hopper": "-51.5"}
     assert len(by["ptp"]) == 9 and all(c.versus.low < 0 < c.versus.high for c in by["ptp"].values())   # ties all
     assert copycat.ranked[-1].method == default.ranked[-1].method == "action-chunks"
-    ratios = sorted(_val_loss(path, "action-chunks") / _val_loss(path, "bc-so")
+    ratios = sorted(_val_loss_ratio(path, "action-chunks", "bc-so")
                     for path in RESULTS.glob("*-pos-mujoco-state-rows-default-bn-mlp-*remedies.json"))
     assert len(ratios) == 9 and f"{ratios[0]:.1f}–{ratios[-1]:.1f}" == "2.3–6.0"
 
@@ -565,10 +576,9 @@ def test_ptps_under_used_history_shows_only_where_copying_lives_and_ptp_does_not
     cell) BC-OH's probe is 2.7× its error without it, BC-SO's level: the history goes unread where copying lives.
     PTP lowers the error on the three FCA-kind Hopper cells and Hopper's default one, not with the previous action in
     view; its returns tie BC-OH's everywhere."""
-    vel = {}
-    for f in later_ranking.values():
-        by = {r.method: {c.cell: c.diagnostics.velocity.median for c in r.cells} for r in f.ranked}
-        vel.update({cell: tuple(round(by[m][cell], 4) for m in ("bc-so", "bc-oh", "ptp")) for cell in f.cells})
+    by = _by_cell(later_ranking.values())
+    vel = {cell: tuple(round(by[m][cell].diagnostics.velocity.median, 4) for m in ("bc-so", "bc-oh", "ptp"))
+           for cell in by["bc-oh"]}
     assert vel == {"Hopper (FCA's expert, clipped labels)": (0.0021, 0.0014, 0.0012),
                    "Hopper (FCA's expert, raw labels)": (0.0019, 0.0014, 0.0011),
                    PREV: (0.0187, 0.0172, 0.0192),
