@@ -52,6 +52,7 @@ from collections.abc import Callable
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 from flax import struct
 
@@ -68,7 +69,10 @@ class LearnerConfig:
 
     obs_shape: tuple[int, ...]   # one observation: (D,) for states, (height, width, 3) for images
     action_dim: int
-    history: int = 2             # H: 1 for BC-SO
+    history: int = 2             # H: the steps a history spans (data and rollouts keep them); 1 for BC-SO
+    # the policy sees every history_stride-th of those steps, ending at the current one (`frames` of them):
+    # `history - 1` must be a multiple of it (`Settings.learner_config` makes it so)
+    history_stride: int = 1
     iterations: int = 300_000
     batch_size: int = 128
     lr_boundaries: tuple[int, ...] = (100_000, 200_000)  # piecewise: steps at which the learning rate drops
@@ -109,9 +113,12 @@ class LearnerConfig:
         if self.encoder != "small" and not self.images:
             raise ValueError(f"encoder {self.encoder!r} is for image observations; state observations "
                              f"(obs_shape {self.obs_shape}) use the MLP StatePolicy: leave encoder='small'")
-        for name in ("action_dim", "history", "iterations"):
+        for name in ("action_dim", "history", "iterations", "history_stride"):
             if getattr(self, name) < 1:
                 raise ValueError(f"LearnerConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if (self.history - 1) % self.history_stride:
+            raise ValueError(f"LearnerConfig.history - 1 ({self.history - 1}) must be a multiple of history_stride "
+                             f"({self.history_stride})")
         if self.loss_weights and (len(self.loss_weights) != self.action_dim or min(self.loss_weights) < 0):
             raise ValueError(f"LearnerConfig.loss_weights must be {self.action_dim} numbers >= 0 (one per action "
                              f"dimension) or empty, got {self.loss_weights}")
@@ -138,6 +145,11 @@ class LearnerConfig:
     @property
     def images(self) -> bool:
         return len(self.obs_shape) == 3
+
+    @property
+    def frames(self) -> int:
+        """Observations the policy sees: the current one and every `history_stride`-th step before it."""
+        return (self.history - 1) // self.history_stride + 1
 
     def model(self) -> nn.Module:
         if self.images:
@@ -403,7 +415,11 @@ def make_train(cfg: LearnerConfig) -> Learner:
     adam = cfg.optimizer()
 
     def policy_input(history_obs: jax.Array) -> jax.Array:
-        """`[..., H, *obs_shape]` -> the model's input (flattened states, or frames on channels in [0, 1])."""
+        """`[..., H, *obs_shape]` -> the model's input (flattened states, or frames on channels in [0, 1]) of the
+        frames the policy sees (every `history_stride`-th)."""
+        if cfg.history_stride > 1:
+            history_obs = jnp.take(history_obs, np.arange(0, cfg.history, cfg.history_stride),
+                                   axis=-1 - len(cfg.obs_shape))
         if not cfg.images:
             return history_obs.reshape(history_obs.shape[:-2] + (-1,)).astype(jnp.float32)
         x = jnp.moveaxis(history_obs, -4, -2)  # [..., h, w, H, 3]

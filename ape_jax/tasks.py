@@ -97,9 +97,14 @@ class Protocol:
         (`ape_jax.pipeline.collect.render_states`): a device renders what a CPU collected, and only the
         states travel. Hopper's and Walker2d's frames then show the body poses after the step's last physics
         substep, where the rollout's show them before it (`envs.brax_env.BraxEnv.observe_sim`).
-      traffic, speed_input: the task's own settings of that name for collection and evaluation (a driving
-        task's: ToyTown's NoCrash condition and its speed measurement); None: the task's default. A task without
-        the setting refuses it.
+      traffic, speed_input, task_version: the task's own settings of that name for collection and evaluation (a
+        driving task's: ToyTown's NoCrash condition, its speed measurement, what its camera shows); None: the task's
+        default. A task without the setting refuses it. `protocol_setup` records the task version in use.
+      reveal: the task's `reveal` setting: full-state features added to its one-frame state (`obs="pos"`), a
+        diagnostic of what one frame lacks (ToyTown's one-frame ceiling); (): none.
+      history_stride: control steps between the frames of a history (1: consecutive). A history of `history`
+        frames at stride `k` spans `(history - 1) · k + 1` steps: the policy sees the current frame and the ones
+        `k`, `2k`, ... steps before it (padded at an episode's start as any history is).
       eval_town, eval_weather: the task's `town` and `weather` in evaluation only (ToyTown's held-out layouts and
         palette, NoCrash's "new town" and "new weather"); None: as collected.
       noise_frac, noise_steps, noise_std: noise injected into the executed actions while demonstrating, the
@@ -131,6 +136,9 @@ class Protocol:
     frames: str = "rollout"
     traffic: str | None = None
     speed_input: bool | None = None
+    task_version: int | None = None
+    reveal: tuple[str, ...] = ()
+    history_stride: int = 1
     eval_town: str | None = None
     eval_weather: str | None = None
     noise_frac: float = 0.0
@@ -154,6 +162,9 @@ class Protocol:
                 raise ValueError(f"protocol.{name} must be >= 1 or none, got {value!r}")
         if self.history < 1:
             raise ValueError(f"protocol.history must be >= 1, got {self.history!r}")
+        if isinstance(self.history_stride, bool) or not isinstance(self.history_stride, int) or self.history_stride < 1:
+            raise ValueError(f"protocol.history_stride must be a whole number of steps >= 1, got "
+                             f"{self.history_stride!r}")
         if self.image_size is not None and min(self.image_size) < 1:
             raise ValueError(f"protocol.image_size must be positive, got {self.image_size!r}")
         if self.labels not in LABELS:
@@ -198,6 +209,8 @@ class Protocol:
             out["prev_action"] = True
         if self.frames != "rollout":
             out["frames"] = self.frames
+        if self.history_stride != 1:
+            out["history_stride"] = self.history_stride
         out.update({k: v for k, v in self.task_settings().items()})
         out.update({f"eval_{k}": v for k, v in self.eval_settings().items()})
         if self.noise_frac > 0:
@@ -220,7 +233,13 @@ class Protocol:
 
     def task_settings(self) -> dict[str, Any]:
         """The task's own settings this protocol fixes for collection and evaluation (`traffic`, `speed_input`)."""
-        return {k: getattr(self, k) for k in ("traffic", "speed_input") if getattr(self, k) is not None}
+        out = {k: getattr(self, k) for k in ("traffic", "speed_input", "task_version") if getattr(self, k) is not None}
+        return {**out, **({"reveal": tuple(self.reveal)} if self.reveal else {})}
+
+    @property
+    def history_span(self) -> int:
+        """Control steps a history of `history` frames at `history_stride` covers, the current one included."""
+        return (self.history - 1) * self.history_stride + 1
 
     def eval_settings(self) -> dict[str, Any]:
         """The task's settings evaluation changes (`town`, `weather`: held-out layouts and palette)."""
@@ -419,7 +438,18 @@ TASKS: Mapping[str, Task] = MappingProxyType({t.name: t for t in (
     Task("toytown", "ToyTown", loss="l1", loss_weights=CILRS_LOSS_WEIGHTS, episodes=40, fca_alpha=0.2,
          metric="success", metrics=_TOYTOWN_METRICS,
          default_obs="image", expert="rule-based", protocols=("nocrash", "nocrash-nospeed", "brax"),
-         default_protocols={"image": "nocrash", "full": "nocrash"}, presets={"image": {
+         default_protocols={"image": "nocrash", "pos": "nocrash", "full": "nocrash"}, presets={
+             # the one-frame state (`--obs pos`, the state row): the camera tables' demonstrations, updates, batch and
+             # learning rate, and 100 evaluation episodes per policy (the state is cheap to evaluate); fixed before any
+             # state table ran
+             "pos": {
+                 "quick": {"iterations": 2_000, "eval_episodes": 10, "chunk": 1_000, "episodes": 20, "lr": 1e-3,
+                           "batch_size": 64, "step_grid": ((0.1, 5.0),), "softmax_grid": ()},
+                 "default": {"iterations": 10_000, "seeds": 5, "eval_episodes": 100, "eval_at": (), "chunk": 2_000,
+                             "episodes": 100, "lr": 1e-3, "batch_size": 64, "step_grid": ((0.1, 5.0),),
+                             "softmax_grid": ()},
+                 "paper": {"seeds": 5, "episodes": 100, "step_grid": ((0.1, 5.0),), "softmax_grid": ()}},
+             "image": {
              # the task's own 64×64 camera in every preset (at 32×32 a pedestrian is under a pixel)
              "quick": {"image_size": (64, 64)},
              # Tables 1 and 2 on the 2-core CPU (results/queue/toytown-tables.sh: 11 methods × 5 seeds inside

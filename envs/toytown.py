@@ -18,10 +18,22 @@ Observations:
   * `image` (default): the ego-centric top-down camera (`envs.toytown_render`), `[H, W, 3] uint8`,
     64×64 by default, whose top rows are the measurement strip: the speed as a grey level with
     `speed_input=True` (CARLA's setting, "with speed"), black with `speed_input=False` ("w/o speed").
+    Cars show brake lights while they brake or stand.
+  * `pos`: the one-frame state (`toytown_expert.one_frame_names`): what one camera frame shows, as numbers,
+    the driving analog of MuJoCo's `pos` (the positions with the velocities stripped). The lane, the bend,
+    the stop line and its light, the gap to the car ahead and whether its brake lights are on, the pedestrian
+    in the way, a blocked junction, and the ego's speed only with `speed_input`; no other agent's speed, no
+    light's time left, no progress, so only a history reveals motion.
   * `full`: `[24] float32`, the state the rule-based expert acts on (`FEATURES`): speed, lane offset
     and heading error, the lane's centre 4-16 m ahead, the bend ahead, the next stop line and its
     light, the car ahead, the pedestrian in the way, whether the junction is blocked, progress.
     `bc-full` trains on it. The speed is part of it whatever `speed_input` says.
+
+Task versions (`task_version`, recorded in every data key, results file and fingerprint; results of two
+versions never merge): 1, the first tables': no brake lights, and the measurement strip drawn over the view's
+farthest rows (2.25 m at 64×64, where the expert still reacts); 2 (the default): brake lights, and the strip
+above the scene, which keeps its full `view_ahead`. The expert, the physics and the full state are the same in
+both; what the camera (and so `pos`) shows is not.
 
 The episode ends at the goal, or at the ego's first collision (with a car, a pedestrian, or leaving
 the road); the time limit is `episode_length`. Per-episode metrics (`episode_metrics`, NoCrash's):
@@ -46,11 +58,14 @@ from envs import toytown_render as render_lib
 from envs import toytown_traffic as traffic
 from envs import toytown_world as world
 from envs.base import ConfiguredEnv, State
-from envs.toytown_expert import FEATURES, METRICS, episode_metrics, expert_action, features, free_to_go  # noqa: F401
+from envs.toytown_expert import (FEATURES, METRICS, episode_metrics, expert_action, features, free_to_go,  # noqa: F401
+                                 one_frame, one_frame_names)
 
 # NoCrash's traffic conditions: (route cars per 100 m per lane, pedestrians per 100 m of route)
 TRAFFIC = {"empty": (0.0, 0.0), "regular": (1.0, 1.0), "dense": (2.5, 2.5)}
 SPLITS = ("train", "test")
+TASK_VERSION = 2  # what the camera shows (module docstring); VERSIONS lists those that can be made
+VERSIONS = (1, 2)
 START_S = 5.0  # the ego starts this far along the route, standing, in its lane
 
 
@@ -88,6 +103,9 @@ class ToyTownConfig:
       stuck_seconds: standing still this long while free to go is `stuck`.
       image_size: (height, width) of `image` observations, each >= 16.
       view_ahead, view_behind: metres of road shown ahead of and behind the car's centre.
+      task_version: what the camera shows (the module docstring): 2, or 1 for the first tables' camera.
+      reveal: full-state features (`FEATURES`) added to the one-frame state (`pos`), in this order: a diagnostic
+        of what one frame lacks (the one-frame ceiling gives `("lead_speed",)`); () everywhere else.
     """
 
     traffic: str = "dense"
@@ -125,6 +143,8 @@ class ToyTownConfig:
     image_size: tuple[int, int] = (64, 64)
     view_ahead: float = 28.0
     view_behind: float = 8.0
+    task_version: int = TASK_VERSION
+    reveal: tuple[str, ...] = ()
 
     def __post_init__(self):
         if self.traffic not in TRAFFIC:
@@ -145,6 +165,12 @@ class ToyTownConfig:
         h, w = self.image_size
         if min(h, w) < 16:
             raise ValueError(f"image_size must be at least 16x16, got {h}x{w}")
+        if self.task_version not in VERSIONS:
+            raise ValueError(f"task_version must be one of {', '.join(map(str, VERSIONS))}, got {self.task_version!r}")
+        hidden = [f for f in self.reveal if f not in FEATURES or f in one_frame_names(self, reveal=False)]
+        if hidden or len(set(self.reveal)) != len(self.reveal):
+            raise ValueError(f"reveal takes full-state features the one-frame state leaves out, each once, got "
+                             f"{list(self.reveal)}; valid: {', '.join(f for f in FEATURES if f not in one_frame_names(self, reveal=False))}")
         if not isinstance(self.speed_input, bool):
             raise ValueError(f"speed_input must be True or False, got {self.speed_input!r}")
         checks = {
@@ -199,7 +225,7 @@ class ToyTownSim:
     intersections' arc lengths `inter_s` `[n]`; their lights `light_green`, `light_red`, `light_offset` `[n]`.
     The ego: `x`, `y` (m), `yaw` (rad), `v` (m/s), and its route coordinates `s`, `d` (m), `[]` each.
     Route cars `car_*` `[N]`; cross-street cars `cross_*` `[n, 2]`; pedestrians `ped_*` `[P]`
-    (`toytown_traffic`). The episode's bookkeeping, `[]` each: `t` (int32 steps), `key`, the sticky
+    (`toytown_traffic`); `car_brake`, `cross_brake` the cars' brake lights (`toytown_traffic.braking`). The episode's bookkeeping, `[]` each: `t` (int32 steps), `key`, the sticky
     collision flags `hit_car`, `hit_pedestrian`, `off_road`, the count `red_lights`, `still` (int32 steps
     standing while free to go), the sticky `stuck` and `goal`.
     """
@@ -226,9 +252,11 @@ class ToyTownSim:
     car_v0: jax.Array
     car_stop: jax.Array
     car_active: jax.Array
+    car_brake: jax.Array
     cross_u: jax.Array
     cross_v: jax.Array
     cross_wait: jax.Array
+    cross_brake: jax.Array
     ped_s: jax.Array
     ped_d: jax.Array
     ped_dir: jax.Array
@@ -264,12 +292,15 @@ class ToyTown(ConfiguredEnv):
 
     name = "toytown"
     config_class = ToyTownConfig
+    obs_modes = ("full", "pos", "image")
     episode_metric_names = METRICS
     action_names = ("steer", "throttle", "brake")
 
     @property
     def observation_shape(self) -> tuple[int, ...]:
-        return (*self.config.image_size, 3) if self.obs_mode == "image" else (len(FEATURES),)
+        if self.obs_mode == "image":
+            return (*self.config.image_size, 3)
+        return (len(one_frame_names(self.config) if self.obs_mode == "pos" else FEATURES),)
 
     @property
     def action_size(self) -> int:
@@ -282,6 +313,8 @@ class ToyTown(ConfiguredEnv):
     def _observe(self, sim: ToyTownSim) -> jax.Array:
         if self.obs_mode == "image":
             return render_lib.render(sim, self.config)
+        if self.obs_mode == "pos":
+            return one_frame(sim, self.config)
         return features(sim, self.config)
 
     def _reset(self, key: jax.Array) -> State:
@@ -368,8 +401,9 @@ def initial_sim(key: jax.Array, cfg: ToyTownConfig) -> ToyTownSim:
         light_offset=lights.offset,
         x=x - d0 * jnp.sin(h), y=y + d0 * jnp.cos(h), yaw=h, v=zero, s=f32(START_S), d=f32(d0),
         car_s=jnp.where(active, car_s, traffic.NOWHERE), car_v=v0 * jax.random.uniform(k_v, slot.shape) * active,
-        car_lane=lane, car_v0=v0, car_stop=zeros, car_active=active.astype(jnp.float32),
+        car_lane=lane, car_v0=v0, car_stop=zeros, car_active=active.astype(jnp.float32), car_brake=zeros,
         cross_u=cross_u, cross_v=jnp.full((n, 2), cfg.cross_speed), cross_wait=cross_wait,
+        cross_brake=jnp.zeros((n, 2), jnp.float32),
         ped_s=jnp.where(p_on, traffic.crossing_place(jax.random.uniform(k_ps, (count,), minval=START_S + 25.0,
                                                                          maxval=cfg.route_length), inter_s, w),
                         traffic.NOWHERE),
@@ -378,6 +412,7 @@ def initial_sim(key: jax.Array, cfg: ToyTownConfig) -> ToyTownSim:
         ped_wait=jax.random.uniform(k_pwait, (count,), maxval=cfg.ped_wait[1]), ped_active=p_on.astype(jnp.float32),
         t=jnp.zeros((), jnp.int32), key=k_next, hit_car=zero, hit_pedestrian=zero, off_road=zero,
         red_lights=zero, still=jnp.zeros((), jnp.int32), stuck=zero, goal=zero)
+    sim = sim.replace(car_brake=(sim.car_v < traffic.STANDING) * sim.car_active)
     return sim.replace(still=jnp.where(free_to_go(sim, cfg) & (sim.v < 0.1), 1, 0).astype(jnp.int32))
 
 
@@ -412,6 +447,8 @@ def step_sim(sim: ToyTownSim, action: jax.Array, cfg: ToyTownConfig) -> ToyTownS
     inside = (jnp.abs(all_s[None, :] - sim.inter_s[:, None]) < w + traffic.CAR_LENGTH / 2) & (jnp.abs(all_d) < w + 0.5)
     cross = traffic.step_cross(sim.fields("cross_"), cross_state, jnp.any(inside, axis=1), k_cross, cfg)
     peds = traffic.step_peds(sim.fields("ped_"), ego, cars, sim.inter_s, k_peds, cfg)
+    cars["car_brake"] = traffic.braking(sim.car_v, cars["car_v"], cfg.dt) * cars["car_active"]
+    cross["cross_brake"] = traffic.braking(sim.cross_v, cross["cross_v"], cfg.dt)
     hits = collisions(s, d, cars, cross, peds, sim.inter_s, w)
     # entering a junction on red: the car's front crosses a stop line while the light shows red
     line = sim.inter_s - w - 1.0

@@ -35,6 +35,14 @@ def perception(cfg) -> float:
     return cfg.view_ahead - traffic.CAR_LENGTH / 2
 
 
+def _lead(sim) -> tuple[jax.Array, jax.Array]:
+    """`([N] gaps, [] k)`: each route car's bumper gap ahead of the ego in its lane (`traffic.FAR` for the others),
+    and the nearest one's index."""
+    gaps = jnp.where((sim.car_lane == 0) & (sim.car_active > 0) & (sim.car_s > sim.s),
+                     sim.car_s - sim.s - traffic.CAR_LENGTH, traffic.FAR)
+    return gaps, jnp.argmin(gaps)
+
+
 def features(sim, cfg) -> jax.Array:
     """The full state (`FEATURES`), `[24] float32`, of simulator state `sim` (`envs.toytown.ToyTownSim`).
 
@@ -58,9 +66,7 @@ def features(sim, cfg) -> jax.Array:
     state, left = world.route_phase(sim.lights, sim.t * cfg.dt, cfg.amber_seconds)
     light = jax.nn.one_hot(state[j], 3) * visible
     blocked = traffic.junction_blocked(sim.cross_u, sim.cross_wait, w)[j] & visible
-    lead_gaps = jnp.where((sim.car_lane == 0) & (sim.car_active > 0) & (sim.car_s > sim.s),
-                          sim.car_s - sim.s - L, far)
-    k = jnp.argmin(lead_gaps)
+    lead_gaps, k = _lead(sim)
     lead_seen = lead_gaps[k] < seen
     peds = {n: getattr(sim, n) for n in ("ped_s", "ped_d", "ped_dir", "ped_walking", "ped_active")}
     ped_gap, i = traffic.pedestrian_gaps(peds, front[None], one[None], w)
@@ -75,6 +81,32 @@ def features(sim, cfg) -> jax.Array:
         jnp.where(ped_seen, sim.ped_dir[i] * sim.ped_speed[i] * sim.ped_walking[i], 0.0),
         blocked.astype(jnp.float32), sim.s / cfg.route_length])
     return out.astype(jnp.float32)
+
+
+# The one-frame state (`obs="pos"`): the full state without what no single frame shows. Every other agent's speed,
+# a light's time left and the route's progress are never in it; the ego's speed only where the measurement strip
+# shows it; whether the car ahead brakes or stands where the camera draws brake lights (task version 2).
+HIDDEN = ("lead_speed", "ped_speed", "light_left", "progress")
+LEAD_BRAKES = "lead_brakes"  # 1 while the car ahead (within `perception`) shows its brake lights
+
+
+def one_frame_names(cfg, reveal: bool = True) -> tuple[str, ...]:
+    """The one-frame state's features under settings `cfg` (a `ToyTownConfig`), in order: `FEATURES` less `HIDDEN`
+    (and less `speed` without the speed input), then `lead_brakes` from task version 2, then `cfg.reveal` (with
+    `reveal`). The perception stage reads exactly these from a frame."""
+    names = tuple(f for f in FEATURES if f not in HIDDEN and (f != "speed" or cfg.speed_input))
+    names += (LEAD_BRAKES,) * (cfg.task_version >= 2)
+    return names + (tuple(cfg.reveal) if reveal else ())
+
+
+def one_frame(sim, cfg) -> jax.Array:
+    """The one-frame state (`one_frame_names(cfg)`) of simulator state `sim`: `[D] float32`, its values as
+    `features` gives them (a gap with nothing seen is `traffic.FAR`), `lead_brakes` 0/1."""
+    full = features(sim, cfg)
+    _, k = _lead(sim)
+    brakes = jnp.where(full[_I["lead_gap"]] < traffic.FAR, sim.car_brake[k], 0.0)
+    values = {**{name: full[i] for name, i in _I.items()}, LEAD_BRAKES: brakes}
+    return jnp.stack([values[name] for name in one_frame_names(cfg)]).astype(jnp.float32)
 
 
 def _stop_needed(obs: jax.Array) -> jax.Array:

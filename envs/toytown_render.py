@@ -20,6 +20,12 @@ The measurement strip (`speed_input`): the top `strip_rows(h)` rows show the car
 level (`255 · v / SPEED_SCALE`, clipped); without the speed input they are black, so the frames of the
 two settings differ only there. A policy reads the speed from the frame itself: the learner takes one
 array per observation.
+
+What the camera shows depends on the task version (`task_version`, `envs.toytown`). Version 2: cars show
+brake lights (the last `brake_length` metres of a car, its rear, in their own colour) while they brake or
+stand, so one frame tells a queue from moving traffic; and the strip sits above the scene, which spans the
+rows below it, so the whole `view_ahead` the expert reacts to is in view. Version 1 (the first tables'): no
+brake lights, and the strip drawn over the scene's farthest rows.
 """
 
 from __future__ import annotations
@@ -39,22 +45,35 @@ CARS_DRAWN, PEDS_DRAWN = 8, 4  # the route cars and pedestrians nearest the view
 COARSE_METRES = 4.5  # the (s, d) grid's cells, m
 LANE_SHIFT = 1e5  # lane 1's cars and pixels are drawn at s + this (an s no route reaches)
 
-GRASS, SIDEWALK, ROAD, MARK, LAMP_RED, LAMP_AMBER, LAMP_GREEN, CAR, PEDESTRIAN, EGO = range(10)
-CLASS_NAMES = ("grass", "sidewalk", "road", "marking", "red", "amber", "green", "car", "pedestrian", "ego")
+GRASS, SIDEWALK, ROAD, MARK, LAMP_RED, LAMP_AMBER, LAMP_GREEN, CAR, PEDESTRIAN, EGO, BRAKE_LIGHT = range(11)
+CLASS_NAMES = ("grass", "sidewalk", "road", "marking", "red", "amber", "green", "car", "pedestrian", "ego",
+               "brake light")
 # one colour per class (rows in the order above), 0-255
 PALETTES = {
     # a clear day
     "train": np.array([[92, 140, 71], [158, 153, 143], [84, 84, 89], [242, 242, 242], [230, 26, 26],
-                       [250, 191, 13], [26, 217, 51], [38, 89, 217], [230, 64, 200], [0, 230, 230]], np.uint8),
+                       [250, 191, 13], [26, 217, 51], [38, 89, 217], [230, 64, 200], [0, 230, 230],
+                       [170, 0, 40]], np.uint8),
     # held out ("new weather"): a wet dusk, darker ground and asphalt, warmer lamps, other paint
     "test": np.array([[58, 78, 52], [112, 104, 100], [46, 48, 58], [205, 205, 178], [255, 60, 40],
-                      [255, 160, 30], [60, 240, 120], [110, 70, 200], [255, 120, 120], [0, 230, 230]], np.uint8),
+                      [255, 160, 30], [60, 240, 120], [110, 70, 200], [255, 120, 120], [0, 230, 230],
+                      [255, 20, 90]], np.uint8),
 }
 
 
 def strip_rows(height: int) -> int:
     """Rows of the measurement strip at the top of a frame `height` pixels high (2 at 16-32 px, 4 at 64)."""
     return max(2, height // 16)
+
+
+def scene_top(cfg) -> int:
+    """The first row of the scene: `strip_rows` from task version 2 (the strip above it), 0 before (over it)."""
+    return strip_rows(cfg.image_size[0]) if cfg.task_version >= 2 else 0
+
+
+def brake_length(mpp: float) -> float:
+    """Metres of a car's rear drawn as its brake lights: at least two pixels, at most a third of the car."""
+    return float(min(max(1.0, 2 * mpp), CAR_LENGTH / 3))
 
 
 def coarse_factor(mpp: float) -> int:
@@ -75,15 +94,16 @@ def _upsample(coarse: jax.Array, axis: int, n: int, factor: int) -> jax.Array:
 def camera(cfg):
     """The static parts of the camera: metres per pixel, pixels per coarse cell, the coarse grid's forward and
     left offsets from the car (`[ceil(H / factor) + 1]`, `[ceil(W / factor) + 1]`), and the ego car's pixel
-    mask `[H, W] bool`."""
+    mask `[H, W] bool`. The scene spans rows `scene_top(cfg)` to `H`: `view_ahead + view_behind` metres."""
     h, w = cfg.image_size
-    mpp = (cfg.view_ahead + cfg.view_behind) / h
+    top = scene_top(cfg)
+    mpp = (cfg.view_ahead + cfg.view_behind) / (h - top)
     factor = coarse_factor(mpp)
     rows = factor * np.arange(-(-h // factor) + 1) - 0.5  # coarse points' pixel coordinates
     cols = factor * np.arange(-(-w // factor) + 1) - 0.5
-    forward = (cfg.view_ahead - (rows + 0.5) * mpp).astype(np.float32)  # row coordinate -> metres ahead
+    forward = (cfg.view_ahead - (rows - top + 0.5) * mpp).astype(np.float32)  # row coordinate -> metres ahead
     left = (mpp * w / 2 - (cols + 0.5) * mpp).astype(np.float32)  # column coordinate -> metres to the left
-    f_px = cfg.view_ahead - (np.arange(h) + 0.5) * mpp
+    f_px = cfg.view_ahead - (np.arange(h) - top + 0.5) * mpp
     l_px = mpp * w / 2 - (np.arange(w) + 0.5) * mpp
     ego = ((np.abs(f_px)[:, None] <= max(CAR_LENGTH / 2, mpp / 2))
            & (np.abs(l_px)[None, :] <= max(CAR_WIDTH / 2, mpp / 2)))
@@ -143,11 +163,23 @@ def render(sim, cfg) -> jax.Array:
     along = jnp.abs(S_lane - key[0]) < CAR_LENGTH / 2
     for k in range(1, n_cars):
         along |= jnp.abs(S_lane - key[k]) < CAR_LENGTH / 2
-    car &= along
     xs, xd = cross_position(sim.cross_u[j][None], sim.inter_s[j][None], w)
+    cross = jnp.zeros(S.shape, bool)
     for k in range(2):
-        car |= (jnp.abs(S - xs[0, k]) < CAR_WIDTH / 2) & (jnp.abs(D - xd[0, k]) < CAR_LENGTH / 2)
-    code = jnp.where(car, colour[CAR], code)
+        cross |= (jnp.abs(S - xs[0, k]) < CAR_WIDTH / 2) & (jnp.abs(D - xd[0, k]) < CAR_LENGTH / 2)
+    code = jnp.where((car & along) | cross, colour[CAR], code)
+    if cfg.task_version >= 2:  # brake lights: each braking or standing car's rear (a lane-1 car drives towards -s)
+        half = brake_length(mpp) / 2
+        rear = key - (1.0 - 2.0 * sim.car_lane[near]) * (CAR_LENGTH / 2 - half)
+        lit = jnp.zeros(S.shape, bool)
+        for k in range(n_cars):
+            lit |= (jnp.abs(S_lane - rear[k]) < half) & (sim.car_brake[near[k]] > 0)
+        lit &= car
+        side = np.array([1.0, -1.0])  # cross slot 0 drives towards +d, slot 1 towards -d
+        for k in range(2):
+            lit |= ((jnp.abs(S - xs[0, k]) < CAR_WIDTH / 2) & (sim.cross_brake[j, k] > 0)
+                    & (jnp.abs(D - (xd[0, k] - side[k] * (CAR_LENGTH / 2 - half))) < half))
+        code = jnp.where(lit, colour[BRAKE_LIGHT], code)
     ped_half = max(PED_HALF, 0.75 * mpp)  # at least a pixel whatever the angle
     n_peds = min(PEDS_DRAWN, sim.ped_s.shape[0])
     _, near = jax.lax.top_k(-jnp.abs(sim.ped_s - middle), n_peds)
@@ -166,5 +198,5 @@ def render(sim, cfg) -> jax.Array:
     level = (jnp.round(255.0 * jnp.clip(sim.v / SPEED_SCALE, 0.0, 1.0)).astype(jnp.uint32) if cfg.speed_input
              else jnp.zeros((), jnp.uint32))
     grey = jnp.asarray(_packed(np.zeros(3))) + level * jnp.asarray(_packed(np.ones(3)) - _packed(np.zeros(3)))
-    code = jnp.where((np.arange(h) < strip_rows(h))[:, None], grey, code)
+    code = jnp.where((np.arange(h) < strip_rows(h))[:, None], grey, code)  # over the scene's top (version 1)
     return jax.lax.bitcast_convert_type(code, jnp.uint8)[..., :3]

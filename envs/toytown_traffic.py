@@ -30,6 +30,8 @@ GAP_CAR, GAP_LINE, GAP_PED = 3.0, 1.0, 2.5  # IDM standstill gaps to a car, a st
 FAR = 40.0  # the gap reported when there is no obstacle, m
 NEVER = 1e9  # the wait of a cross-street car that never comes (no cross traffic), s
 NOWHERE = -1e4  # where inactive route cars and pedestrians are kept, m of route
+BRAKE_DECEL = 0.5  # a car whose speed falls faster than this (m/s²) shows its brake lights
+STANDING = 0.1  # a car slower than this (m/s) stands, and shows its brake lights too
 
 
 def idm(v, v0, gaps, v_obstacles, s0, active):
@@ -58,6 +60,12 @@ def stop_line_ahead(inter_s, q_front, direction, lane_width):
     j = jnp.argmin(jnp.where(ahead, gap, jnp.inf), axis=-1)
     g = jnp.take_along_axis(gap, j[..., None], -1)[..., 0]
     return jnp.where(jnp.any(ahead, axis=-1), g, FAR), j
+
+
+def braking(v_before, v_after, dt) -> jax.Array:
+    """Brake lights, `[...] float32` 0/1: on while a car brakes (its speed falls faster than `BRAKE_DECEL`) or
+    stands (slower than `STANDING`), as real cars and CARLA's show them. Speeds `[...]` a step `dt` apart."""
+    return ((v_after < v_before - BRAKE_DECEL * dt) | (v_after < STANDING)).astype(jnp.float32)
 
 
 def lane_d(lane, lane_width):

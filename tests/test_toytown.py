@@ -57,7 +57,7 @@ def test_reset_and_step_under_jit_give_finite_observations_of_the_declared_shape
 
 
 def test_the_registry_knows_toytown_and_its_defaults():
-    assert "toytown" in envs.names() and envs.obs_modes("toytown") == ("full", "image")
+    assert "toytown" in envs.names() and envs.obs_modes("toytown") == ("full", "pos", "image")
     assert envs.default_obs("toytown") == "image"
     assert envs.default_episode_length("toytown") == ToyTownConfig().episode_length
     env = envs.make("toytown")

@@ -252,7 +252,7 @@ def rap_loss(cfg: LearnerConfig, variables: Any, residual: Any, batch: Batch, we
       the variables carry BatchNorm's updated running statistics.
     """
     model = cfg.model()
-    masked = {**variables, "params": apply_masks(variables["params"], branch_masks(variables["params"], cfg.history,
+    masked = {**variables, "params": apply_masks(variables["params"], branch_masks(variables["params"], cfg.frames,
                                                                                     width))}
     memory = memory_units(width, variables["params"]["Head_0"]["embedding"]["kernel"].shape[1]).astype(jnp.float32)
 
@@ -313,7 +313,7 @@ def make_rap(cfg: LearnerConfig) -> Learner:
         key_policy, key_residual = jax.random.split(key)
         key_init, key_run = jax.random.split(key_policy)  # make_train's init of key_policy
         variables = base.init_policy(key_init, data)
-        params = _rescaled(variables["params"], branch_masks(variables["params"], cfg.history, hp.memory_width))
+        params = _rescaled(variables["params"], branch_masks(variables["params"], cfg.frames, hp.memory_width))
         variables = {**variables, "params": params}
         embed = params["Head_0"]["embedding"]["kernel"].shape[1]
         residual = head.init(key_residual, jnp.zeros((1, embed), jnp.float32))

@@ -251,11 +251,13 @@ class Settings:
 
     def learner_config(self, obs_shape, action_dim: int, history: int, task_loss: str,
                        unroll: bool = False, task_loss_weights: tuple[float, ...] = ()) -> LearnerConfig:
-        """The static learner settings of a program whose policies see `history` observations (the task's loss and
-        its action weights where the recipe names none)."""
+        """The static learner settings of a program whose policies see `history` observations, `protocol.history_stride`
+        steps apart (the task's loss and its action weights where the recipe names none)."""
         r, iterations = self.recipe, self.budget.iterations
         images = len(obs_shape) == 3
-        return LearnerConfig(obs_shape=tuple(obs_shape), action_dim=action_dim, history=history,
+        stride = self.protocol.history_stride if history > 1 else 1
+        return LearnerConfig(obs_shape=tuple(obs_shape), action_dim=action_dim, history=(history - 1) * stride + 1,
+                             history_stride=stride,
                              iterations=iterations, batch_size=r.batch_size,
                              lr_schedule=r.lr_schedule, lr_decay=r.lr_decay, warmup_steps=round(r.warmup * iterations),
                              lr_boundaries=(lr_boundaries(iterations, r.lr_decay_at) if r.lr_schedule == "piecewise"
@@ -357,6 +359,10 @@ def resolve(env: str, obs: str, protocol: str | None = None, preset: str = "quic
                 values[_section_of(key)][key] = value
     for key, value in (smoke_overrides(values) if smoke else {}).items():
         values[_section_of(key)][key] = value
+    if values["protocol"].get("task_version") is None:  # recorded as a number, so a replay makes the same task
+        from ape_jax.pipeline.setup import current_task_version
+
+        values["protocol"]["task_version"] = current_task_version(env)
     preset_iterations = values["budget"]["iterations"]
     explicit, old_names = set(), []
     for item in sets:

@@ -58,6 +58,7 @@ def protocol_setup(env_name: str, obs: str, protocol: str | tasks.Protocol | Non
     else:
         proto = tasks.get(env_name).protocol(protocol, obs)
     _check_task_settings(env_name, proto)
+    proto = with_task_version(env_name, proto)
     brax = env_name in envs.brax_env.brax_names()
     standard = envs.brax_env.default_frame_skip(env_name) if brax else None
     settings = proto.settings(standard)
@@ -66,6 +67,21 @@ def protocol_setup(env_name: str, obs: str, protocol: str | tasks.Protocol | Non
     episodes = (-(-proto.collect_transitions // settings["episode_length"]) if proto.collect_transitions is not None
                 else proto.episodes or tasks.get(env_name).episodes)
     return ProtocolSetup(proto.name, settings, proto.env_overrides(standard), episodes, proto.expert, proto.labels)
+
+
+def with_task_version(env_name: str, proto: tasks.Protocol) -> tasks.Protocol:
+    """`proto` with the task version it runs (`tasks.Protocol.task_version`) made explicit: the task's current one
+    where it has versions (ToyTown's `task_version`) and `proto` names none; `proto` itself otherwise. So data keys,
+    results and fingerprints record the version, and a replay rebuilds the same task after the default moves."""
+    version = current_task_version(env_name)
+    return proto if proto.task_version is not None or version is None else dataclasses.replace(proto,
+                                                                                               task_version=version)
+
+
+def current_task_version(env_name: str) -> int | None:
+    """The version a registered task with versions (a `task_version` setting) is made at by default; else None."""
+    spec = envs.registry.get(env_name)
+    return spec.default_config().task_version if spec is not None and "task_version" in spec.settings() else None
 
 
 def _check_task_settings(env_name: str, proto: tasks.Protocol) -> None:

@@ -97,8 +97,10 @@ class SweepSpec:
         for name, value in resolved.items():
             object.__setattr__(self, name, value)
         length, history = self.setup.applied.settings.get("episode_length"), self.protocol.history
-        if isinstance(length, int) and history > length:
-            raise ValueError(f"protocol.history {history} is longer than an episode ({length:,} steps): a history "
+        if isinstance(length, int) and self.protocol.history_span > length:
+            stride = self.protocol.history_stride
+            span = f" at stride {stride} ({self.protocol.history_span:,} steps)" if stride > 1 else ""
+            raise ValueError(f"protocol.history {history}{span} is longer than an episode ({length:,} steps): a history "
                              f"can hold at most the frames one episode stores")
         if self.protocol.prev_action and self.obs == "image":
             raise ValueError("protocol.prev_action needs vector observations (--obs pos or full): a frame has no "

@@ -48,6 +48,7 @@ piece() {  # piece NAME CORES ARGS...: one resumable sweep into $RUNS/NAME at th
   local name=$1 cores=$2; shift 2
   if [ -f "results/$name.json" ]; then echo "skip $name (results/$name.json exists)"; return 0; fi
   local out=$RUNS/$name rc=0
+  mkdir -p "$(dirname "$out")" "$(dirname "results/$name")"  # a NAME may hold a folder (exploratory/...)
   wait_for "$out"
   if [ ! -f "$out/results.json" ]; then
     local src; src=$(snapshot) || { echo "FAILED $name (no code snapshot of $WT)"; return 1; }
