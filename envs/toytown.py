@@ -169,8 +169,9 @@ class ToyTownConfig:
             raise ValueError(f"task_version must be one of {', '.join(map(str, VERSIONS))}, got {self.task_version!r}")
         hidden = [f for f in self.reveal if f not in FEATURES or f in one_frame_names(self, reveal=False)]
         if hidden or len(set(self.reveal)) != len(self.reveal):
+            valid = ", ".join(f for f in FEATURES if f not in one_frame_names(self, reveal=False))
             raise ValueError(f"reveal takes full-state features the one-frame state leaves out, each once, got "
-                             f"{list(self.reveal)}; valid: {', '.join(f for f in FEATURES if f not in one_frame_names(self, reveal=False))}")
+                             f"{list(self.reveal)}; valid: {valid}")
         if not isinstance(self.speed_input, bool):
             raise ValueError(f"speed_input must be True or False, got {self.speed_input!r}")
         checks = {
@@ -225,8 +226,8 @@ class ToyTownSim:
     intersections' arc lengths `inter_s` `[n]`; their lights `light_green`, `light_red`, `light_offset` `[n]`.
     The ego: `x`, `y` (m), `yaw` (rad), `v` (m/s), and its route coordinates `s`, `d` (m), `[]` each.
     Route cars `car_*` `[N]`; cross-street cars `cross_*` `[n, 2]`; pedestrians `ped_*` `[P]`
-    (`toytown_traffic`); `car_brake`, `cross_brake` the cars' brake lights (`toytown_traffic.braking`). The episode's bookkeeping, `[]` each: `t` (int32 steps), `key`, the sticky
-    collision flags `hit_car`, `hit_pedestrian`, `off_road`, the count `red_lights`, `still` (int32 steps
+    (`toytown_traffic`); `car_brake`, `cross_brake`: their brake lights (`toytown_traffic.braking`). The
+    episode's bookkeeping, `[]` each: `t` (int32 steps), `key`, the sticky collision flags `hit_car`, `hit_pedestrian`, `off_road`, the count `red_lights`, `still` (int32 steps
     standing while free to go), the sticky `stuck` and `goal`.
     """
 

@@ -100,8 +100,8 @@ class SweepSpec:
         if isinstance(length, int) and self.protocol.history_span > length:
             stride = self.protocol.history_stride
             span = f" at stride {stride} ({self.protocol.history_span:,} steps)" if stride > 1 else ""
-            raise ValueError(f"protocol.history {history}{span} is longer than an episode ({length:,} steps): a history "
-                             f"can hold at most the frames one episode stores")
+            raise ValueError(f"protocol.history {history}{span} is longer than an episode ({length:,} steps): a "
+                             f"history can hold at most the frames one episode stores")
         if self.protocol.prev_action and self.obs == "image":
             raise ValueError("protocol.prev_action needs vector observations (--obs pos or full): a frame has no "
                              "place for the previous action")
