@@ -222,12 +222,12 @@ class ToyTownConfig:
 class ToyTownSim:
     """ToyTown's simulator state: flat named arrays (a dataset stores each as `sim/<name>`).
 
-    Per episode: `layout` `[] int32`; the route's pieces `route_*` `[R]` (`toytown_world.Route`); the
-    intersections' arc lengths `inter_s` `[n]`; their lights `light_green`, `light_red`, `light_offset` `[n]`.
-    The ego: `x`, `y` (m), `yaw` (rad), `v` (m/s), and its route coordinates `s`, `d` (m), `[]` each.
-    Route cars `car_*` `[N]`; cross-street cars `cross_*` `[n, 2]`; pedestrians `ped_*` `[P]`
-    (`toytown_traffic`); `car_brake`, `cross_brake`: their brake lights (`toytown_traffic.braking`). The
-    episode's bookkeeping, `[]` each: `t` (int32 steps), `key`, the sticky collision flags `hit_car`, `hit_pedestrian`, `off_road`, the count `red_lights`, `still` (int32 steps
+    Per episode: `layout` `[] int32`; the route's pieces `route_*` `[R]` (`toytown_world.Route`); the intersections'
+    arc lengths `inter_s` `[n]`; their lights `light_green`, `light_red`, `light_offset` `[n]`. The ego: `x`, `y`
+    (m), `yaw` (rad), `v` (m/s), and its route coordinates `s`, `d` (m), `[]` each. Route cars `car_*` `[N]`; cross-
+    street cars `cross_*` `[n, 2]`; pedestrians `ped_*` `[P]` (`toytown_traffic`); `car_brake`, `cross_brake`: their
+    brake lights (`toytown_traffic.braking`). The episode's bookkeeping, `[]` each: `t` (int32 steps), `key`, the
+    sticky collision flags `hit_car`, `hit_pedestrian`, `off_road`, the count `red_lights`, `still` (int32 steps
     standing while free to go), the sticky `stuck` and `goal`.
     """
 
