@@ -42,3 +42,16 @@ def current_names(obj: dict) -> None:
         data["settings"]["expert"] = tasks.current_expert(data["settings"]["expert"])
     if obj["config"].get("recipe") in FORMER_RECIPES:
         obj["config"]["recipe"] = FORMER_RECIPES[obj["config"]["recipe"]]
+
+
+def task_versions(obj: dict) -> None:
+    """A file of a task with versions (ToyTown's `task_version`) that records none was written before versions were
+    recorded, so it ran the first: its `protocol` and `settings.protocol` say so (1), in place, and a replay or a
+    re-evaluation rebuilds that task, never today's. Files of other tasks are left as they are."""
+    from ape_jax.pipeline.setup import current_task_version
+
+    if current_task_version(obj.get("env", "")) is None:
+        return
+    for holder in (obj, obj.get("settings") or {}):
+        if isinstance(holder.get("protocol"), dict) and holder["protocol"].get("task_version") is None:
+            holder["protocol"]["task_version"] = 1

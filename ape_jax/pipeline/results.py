@@ -109,6 +109,7 @@ class Results:
             if obj["protocol"]:
                 obj["protocol"].setdefault("split", "episodes")
         older.current_names(obj)
+        older.task_versions(obj)
         names = dict.fromkeys([*obj["config"].get("methods", []), *(r["method"] for r in obj["runs"])])
         known = {**{m: method_info(m) for m in names if m not in obj.get("methods", {})}, **obj.get("methods", {})}
         fields = {f.name for f in dataclasses.fields(cls)}
