@@ -19,7 +19,7 @@ def test_nocrash_collects_in_the_training_layouts_and_evaluates_in_the_held_out_
     setup = _setup(None)                                   # ToyTown's default protocol
     assert setup.protocol.name == "nocrash"
     collection = {k: v for k, v in setup.collection.items() if k != "image_size"}   # the preset's
-    assert collection == {"traffic": "dense", "speed_input": True}
+    assert collection == {"traffic": "dense", "speed_input": True, "task_version": 2}  # the version recorded
     assert setup.evaluation == {**setup.collection, "town": "test"}
     key = setup.data_key
     assert (key["noise_frac"], key["noise_std"], key["noise_steps"]) == (0.1, 0.3, 10)

@@ -14,6 +14,7 @@ from PIL import Image
 
 from ape_jax import tasks
 from ape_jax.pipeline.presets import resolve
+from ape_jax.pipeline.setup import protocol_setup
 from experiments import report, stats
 from experiments.report.analysis import (DRIVING_ORDER, Key, driving_comparisons, driving_rows, driving_table,
                                          loss_rows, merge)
@@ -66,7 +67,7 @@ def toytown_file(protocol: str = "nocrash", methods=METHODS, seeds: int = SEEDS)
     metrics plausible), copycat diagnostics (`_diagnostics`) and losses that differ per method."""
     settings = resolve("toytown", "image", protocol=protocol, preset="default").to_json()
     obj = _schema2(_results("toytown", tuple((m, hp, 0.0) for m, hp in methods), deltas=(0.0,) * seeds),
-                   protocol=tasks.PROTOCOLS[protocol].settings(None),
+                   protocol=protocol_setup("toytown", "image", protocol).settings,  # the task version recorded
                    command=["python", "-m", "experiments.sweep", "--env", "toytown", "--protocol", protocol,
                             "--methods", ",".join(m for m, _ in methods)])
     iterations = settings["budget"]["iterations"]
@@ -147,7 +148,7 @@ def test_the_remedies_after_the_paper_follow_mine_in_their_order(tmp_path):
     remedies = (("priming", {"weight": 1.0}), ("action-chunks", {"k": 100.0, "m": 0.01}), ("ptp", {"weight": 1.0}),
                 ("channel-dropout", {"rate": 0.5}))
     obj = toytown_file(methods=METHODS + remedies)
-    rows = driving_rows(merge([_load(tmp_path, obj, "remedies.json")])[Key("toytown", "image", "nocrash")])
+    rows = driving_rows(merge([_load(tmp_path, obj, "remedies.json")])[Key("toytown", "image", "nocrash", version=2)])
     assert [r.method for r in rows][-6:] == ["mine", "channel-dropout", "ptp", "action-chunks", "priming", "bc-full"]
     table = _section(report.build([_load(tmp_path, obj, "remedies.json")]).text, "## ToyTown (nocrash)")
     lines = [x.split(" | ")[0][2:] for x in table.splitlines() if x.startswith("| ") and not x.startswith("| method")]
@@ -162,7 +163,7 @@ def test_ours_is_shown_at_the_papers_setting_and_a_baselines_settings_each_get_a
     for run in obj["runs"]:
         if run["hparams"] in ({"thr": 0.2, "w": 3.0}, {"alpha": 0.5, "adversary_lr": 2e-4}):
             run["eval"].update(success=0.6, normalized=60.0)
-    m = merge([_load(tmp_path, obj, "extra.json")])[Key("toytown", "image", "nocrash")]
+    m = merge([_load(tmp_path, obj, "extra.json")])[Key("toytown", "image", "nocrash", version=2)]
     rows = driving_rows(m)
     assert [(r.method, r.hparams) for r in rows if r.method == "ours-step"] == [("ours-step", {"thr": 0.1, "w": 5.0})]
     assert [r.label for r in rows if r.method == "fca"] == ["FCA (TCA), alpha 0.2, adversary_lr 0.0002",
@@ -173,7 +174,7 @@ def test_ours_is_shown_at_the_papers_setting_and_a_baselines_settings_each_get_a
     assert "THR 20%" not in _section(page, "## ToyTown (nocrash)")
     # a sweep without the paper's setting: its step settings are Ours' rows
     other = toytown_file(methods=tuple(x for x in METHODS if x[0] != "ours-step") + extra[:1])
-    m = merge([_load(tmp_path, other, "other.json")])[Key("toytown", "image", "nocrash")]
+    m = merge([_load(tmp_path, other, "other.json")])[Key("toytown", "image", "nocrash", version=2)]
     assert [(r.label, r.hparams) for r in driving_rows(m) if r.method == "ours-step"] == [
         ("Ours (step)", {"thr": 0.2, "w": 3.0})]
 
@@ -262,21 +263,21 @@ def test_the_figure_is_written_beside_the_others_and_linked_under_the_table(tmp_
     files = [_load(tmp_path, toytown_file(p), f"{p}.json") for p in ("nocrash", "nocrash-nospeed")]
     out = tmp_path / "out"
     built = report.build(files, out / "figures", out, out / "docs" / "results")
-    names = {"driving-toytown-image-nocrash.png", "driving-toytown-image-nocrash-nospeed.png"}
+    names = {"driving-toytown-image-nocrash-v2.png", "driving-toytown-image-nocrash-nospeed-v2.png"}  # from version 2
     assert names <= {p.name for p in built.figures}
     page = built.pages["toytown-image.md"].text
     for protocol, number in (("nocrash", 1), ("nocrash-nospeed", 2)):
         section = _section(page, f"## ToyTown ({protocol}): the supplement's Table {number}")
-        link = f"](../../figures/driving-toytown-image-{protocol}.png)"
+        link = f"](../../figures/driving-toytown-image-{protocol}-v2.png)"
         assert link in section and section.index(link) > section.index("| BC-full (full state: the ceiling) |")
-    path = out / "figures" / "driving-toytown-image-nocrash.png"
+    path = out / "figures" / "driving-toytown-image-nocrash-v2.png"
     save_png(built.figures[path], path)
     with Image.open(path) as im:
         assert 600 < im.size[0] and 300 < im.size[1] <= MAX_HEIGHT
-    fig = driving_figure(merge(files[:1])[Key("toytown", "image", "nocrash")])
+    fig = driving_figure(merge(files[:1])[Key("toytown", "image", "nocrash", version=2)])
     success, stuck = fig.axes[:2]
     labels = [t.get_text() for t in success.get_yticklabels()]
-    assert labels == [r.label for r in driving_rows(merge(files[:1])[Key("toytown", "image", "nocrash")])]
+    assert labels == [r.label for r in driving_rows(merge(files[:1])[Key("toytown", "image", "nocrash", version=2)])]
     assert "success" in success.get_title() and "stuck" in stuck.get_title()
     # the ceiling set apart: its bar hatched below a dashed line
     assert sum(bool(p.get_hatch()) for p in success.patches) == 1
@@ -303,7 +304,7 @@ def test_pieces_written_before_and_after_the_methods_owned_their_knobs_merge_as_
     old, new = (report.load(results / f"toytown-image-nocrash-default-seeds{k}.json") for k in (0, 4))
     assert "step_grid" in old.settings["recipe"] and "knobs" in new.settings
     assert "step_grid" not in new.settings["recipe"]
-    group = report.merge([old, new])[Key("toytown", "image", "nocrash")]
+    group = report.merge([old, new])[Key("toytown", "image", "nocrash", version=1)]  # before versions: the first
     assert sorted({r["seed"] for r in group.runs if r["method"] == "bc-oh"}) == [0, 4]
     other = report.load(results / "toytown-image-nocrash-default-seeds4.json")
     other.settings["recipe"]["lr"] = 0.5

@@ -366,7 +366,7 @@ def test_the_later_methods_ranked_over_both_families(later_ranking):
 
 def _driving(protocol: str):
     """A ToyTown table's merged group and, per method, its runs' success, collisions, route and stuck arrays."""
-    m = _merged(f"toytown-image-{protocol}-default-seeds*.json")[Key("toytown", "image", protocol)]
+    m = _merged(f"toytown-image-{protocol}-default-seeds*.json")[Key("toytown", "image", protocol, version=1)]
     per = {r.method: {k: np.array([run["eval"][k] for run in r.runs]) for k in
                       ("success", "collisions", "route_completion", "stuck")} for r in driving_rows(m)}
     return m, per

@@ -29,6 +29,7 @@ from collections.abc import Mapping, Sequence
 from ape_jax import tasks
 from ape_jax.pipeline import results as results_lib
 from ape_jax.pipeline.presets import SettingsError
+from ape_jax.pipeline.setup import current_task_version
 from experiments.report.analysis.experts import (demonstrator, expert_part, expert_words, raw_labels,
                                                 same_expert)
 
@@ -102,12 +103,15 @@ class Key(NamedTuple):
     `budget` is None for files that trained their preset's iterations, else their iterations (a run with
     `--iterations`, e.g. the long runs that ask whether more training changes a verdict): results at another
     budget are another experiment, shown apart and compared in "Training longer" (`longer_runs`).
+    `version` is the task version a task with versions ran (ToyTown's `task_version`; a file that records none ran
+    version 1), None for other tasks: two versions show other things, so their results are never merged.
     """
 
     env: str
     obs: str
     protocol: str
     budget: int | None = None
+    version: int | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -301,7 +305,7 @@ def _key(r: results_lib.Results) -> tuple[dict, Key]:
                     **({"preset": former} if (former := former_preset(r)) else {}),
                     **({"expert_sha256": found["sha256"]} if found.get("kind") == "imported"
                        and found.get("sha256") else {})}
-    return protocol, Key(r.env, r.obs, name, None if former_preset(r) else budget_of(r))
+    return protocol, Key(r.env, r.obs, name, None if former_preset(r) else budget_of(r), protocol.get("task_version"))
 
 
 def read_only(res: results_lib.Results) -> set[str]:
@@ -443,6 +447,8 @@ def group_title(key: Key, protocol: dict, with_protocol: bool, with_obs: bool | 
     with_obs = not (key.obs == "pos" and key.env in MUJOCO) if with_obs is None else with_obs
     parts = [key.obs] if with_obs else []
     parts += [protocol_words(protocol)] if with_protocol else []
+    if key.version is not None and key.version != current_task_version(key.env):  # the first tables' camera, ...
+        parts.append(f"task version {key.version}")
     return tasks.get(key.env).title + (f" ({', '.join(parts)})" if parts else "")
 
 
@@ -454,6 +460,8 @@ def file_stem(m: Group) -> str:
     parts = [m.env] + ([] if m.obs == "pos" else [m.obs])
     parts += [] if m.protocol["name"] == BRAX else [m.protocol["name"]]
     parts += [f"{m.budget}it"] if m.budget else []
+    version = m.protocol.get("task_version")  # from the second on: the first's names stay as they were
+    parts += [f"v{version}"] if version not in (None, 1) else []
     return "-".join(parts)
 
 

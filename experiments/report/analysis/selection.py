@@ -469,7 +469,7 @@ def longer_runs(merged: Merged) -> list[tuple[Group, Group, list[LongerRow]]]:
     are left out."""
     out = []
     for key, m in ordered(merged):
-        base = merged.get(Key(key.env, key.obs, key.protocol)) if key.budget else None
+        base = merged.get(key._replace(budget=None)) if key.budget else None
         if base is None:
             continue
         rows = {config_key(r): r for r in base.summary if r["n_seeds"]}
