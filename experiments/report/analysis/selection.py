@@ -24,7 +24,7 @@ from collections.abc import Mapping, Sequence
 
 from ape_jax import methods as methods_lib
 from ape_jax import tasks
-from experiments.report.analysis.groups import Group, Key, Merged, config_key, is_rate, ordered
+from experiments.report.analysis.groups import Group, Merged, config_key, is_rate, ordered
 from experiments.report.paper import (PAPER_DRIVING_TABLES, PAPER_SENSITIVITY_TAU, PAPER_SENSITIVITY_W, PAPER_STEP,
                                       PAPER_STEP_LABEL, PAPER_TAU)
 
