@@ -1,4 +1,4 @@
-"""ToyTown's one-frame ceiling: `python -m experiments.toytown_ceiling FILE.json ... --out results/exploratory/toytown-ceiling.json`.
+"""ToyTown's one-frame ceiling: `python -m experiments.toytown_ceiling FILE.json ... --out OUT.json`.
 
 How well can a policy drive from what one frame shows? Each FILE is a sweep of BC-SO on the one-frame state
 (`--obs pos`), at one task version (1: no brake lights; 2: brake lights in view) and, where the sweep set

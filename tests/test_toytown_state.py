@@ -67,7 +67,8 @@ def test_a_braking_car_shows_its_lights_at_its_rear_and_version_1_draws_none():
     assert light.sum() >= 4 and car.sum() >= 8
     rows = lambda m: np.nonzero(m)[0]  # noqa: E731
     assert rows(light).min() > rows(car).min() and rows(light).max() >= rows(car).max()  # the rear faces the ego
-    assert not _mask(np.asarray(env.observe_sim(lit.replace(car_brake=lit.car_brake * 0))), render_lib.BRAKE_LIGHT).any()
+    dark = lit.replace(car_brake=lit.car_brake * 0)
+    assert not _mask(np.asarray(env.observe_sim(dark)), render_lib.BRAKE_LIGHT).any()
     old, lit_v1 = _scene(version=1, lead_brake=1.0)
     assert not _mask(np.asarray(old.observe_sim(lit_v1)), render_lib.BRAKE_LIGHT).any()
 
