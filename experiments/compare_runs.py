@@ -11,7 +11,8 @@ evaluation: each episode's return and metrics, and its losses), and how far apar
 absolute difference over all weights, where both saved them), then a summary: the median and largest return
 difference, and how many runs have identical records and bit-identical parameters. A run's key does not
 fix its float rounding, which can depend on how many runs a program vmaps over (docs/reliability.md, "Seeds are
-not bit-reproducible across program sizes").
+not bit-reproducible across program sizes"). Sweeps of two versions of a task (ToyTown's `task_version`) are
+refused: their runs share keys but not what the policies saw.
 """
 
 from __future__ import annotations
@@ -37,6 +38,13 @@ def _runs(path: pathlib.Path) -> dict[tuple, dict]:
 
     runs = results_lib.load(path if path.is_file() else RunDir(path).results).runs
     return {_ident(r): r for r in runs if r["status"] == "ok"}
+
+
+def _task_version(path: pathlib.Path) -> int | None:
+    """The task version a sweep folder or results file ran (`tasks.Protocol.task_version`; None: a task without)."""
+    from ape_jax.pipeline import results as results_lib
+
+    return (results_lib.load(path if path.is_file() else RunDir(path).results).protocol or {}).get("task_version")
 
 
 def _recorded(run: dict) -> str:
@@ -100,6 +108,10 @@ def main(argv=None) -> int:
         if not RunDir(folder).finished():
             fail(parser, f"{folder} is not a finished sweep's --out folder (results.json and params/)")
     try:
+        versions = [_task_version(path) for path in (args.run_a, args.run_b)]
+        if versions[0] != versions[1]:
+            fail(parser, f"{args.run_a} ran task version {versions[0]} and {args.run_b} version {versions[1]}: "
+                         f"two versions of a task show other things, so their runs are never compared or merged")
         rows = compare(args.run_a, args.run_b)
     except ResultsError as e:  # one line naming the file
         fail(parser, str(e))

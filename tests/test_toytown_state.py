@@ -191,3 +191,37 @@ def test_a_one_frame_state_or_a_stride_the_task_cannot_take_is_refused_and_nothi
     out = tmp_path / "run"
     assert message in refused(capsys, lambda: sweep.main([*argv, "--yes", "--out", str(out)]))
     assert not out.exists() or not any(out.iterdir())
+
+
+# -- versions never merge --------------------------------------------------------------------------------------------
+
+def _as_version_2(tmp_path):
+    """The committed Table 1 seed-0 file (the first version: it records none) and a copy that says version 2."""
+    import json
+    import pathlib
+
+    first = pathlib.Path(__file__).resolve().parents[1] / "results" / "toytown-image-nocrash-default-seeds0.json"
+    obj = json.loads(first.read_text())
+    for holder in (obj, obj["settings"]):
+        holder["protocol"]["task_version"] = 2
+    second = tmp_path / "v2.json"
+    second.write_text(json.dumps(obj))
+    return first, second
+
+
+def test_results_of_two_task_versions_are_grouped_apart_and_the_first_is_labelled(tmp_path):
+    from experiments import report
+    from experiments.report.analysis import Key
+
+    first, second = _as_version_2(tmp_path)
+    merged = report.merge([report.load(first), report.load(second)])
+    assert set(merged) == {Key("toytown", "image", "nocrash", version=1), Key("toytown", "image", "nocrash", version=2)}
+    titles = {k.version: m.title for k, m in merged.items()}
+    assert titles == {1: "ToyTown (image, nocrash, task version 1)", 2: "ToyTown (image, nocrash)"}
+
+
+def test_compare_runs_refuses_two_task_versions_in_one_line(tmp_path, capsys):
+    from experiments import compare_runs
+
+    first, second = _as_version_2(tmp_path)
+    assert "ran task version 1" in refused(capsys, lambda: compare_runs.main([str(first), str(second)]))
