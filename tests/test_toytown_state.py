@@ -217,7 +217,7 @@ def test_results_of_two_task_versions_are_grouped_apart_and_the_first_is_labelle
     merged = report.merge([report.load(first), report.load(second)])
     assert set(merged) == {Key("toytown", "image", "nocrash", version=1), Key("toytown", "image", "nocrash", version=2)}
     titles = {k.version: m.title for k, m in merged.items()}
-    assert titles == {1: "ToyTown (image, nocrash, task version 1)", 2: "ToyTown (image, nocrash)"}
+    assert titles == {1: "ToyTown (image, nocrash, version 1)", 2: "ToyTown (image, nocrash)"}
 
 
 def test_compare_runs_refuses_two_task_versions_in_one_line(tmp_path, capsys):

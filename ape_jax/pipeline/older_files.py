@@ -21,6 +21,7 @@ def legacy_settings(obj: dict) -> dict:
     learning rate, batch and grids) and its protocol split by episode, as every sweep before schema 3 ran."""
     config, name = obj["config"], (obj.get("protocol") or {}).get("name") or "brax"
     base = dataclasses.asdict(tasks.PROTOCOLS[name]) if name in tasks.PROTOCOLS else {"name": name}
+    base = {k: list(v) if isinstance(v, tuple) else v for k, v in base.items()}  # as JSON holds them (`reveal`)
     out = {"protocol": {**base, "split": "episodes"}, "budget": {}, "recipe": {"name": "mlp"}}
     for section, keys in CONFIG_FIELDS.items():
         out[section].update({k: config[k] for k in keys if config.get(k) is not None})

@@ -448,7 +448,7 @@ def group_title(key: Key, protocol: dict, with_protocol: bool, with_obs: bool | 
     parts = [key.obs] if with_obs else []
     parts += [protocol_words(protocol)] if with_protocol else []
     if key.version is not None and key.version != current_task_version(key.env):  # the first tables' camera, ...
-        parts.append(f"task version {key.version}")
+        parts.append(f"version {key.version}")
     return tasks.get(key.env).title + (f" ({', '.join(parts)})" if parts else "")
 
 
