@@ -43,6 +43,7 @@ def parse(argv=None) -> argparse.Namespace:
     import envs
     from ape_jax import tasks
     from ape_jax.pipeline import collect, data
+    from ape_jax.pipeline.hints import image_size
     from ape_jax.pipeline.presets import BUDGET_MAX, current_protocol, parse_set
 
     p = Parser(prog="python -m experiments.collect", description=__doc__.splitlines()[0])
@@ -67,7 +68,8 @@ def parse(argv=None) -> argparse.Namespace:
                    help="std of the Gaussian action noise (default: the protocol's)")
     p.add_argument("--noise-steps", type=int, default=None,
                    help="steps per burst of noise, 1: each step on its own (default: the protocol's, 10 for nocrash)")
-    p.add_argument("--image-size", default=None, help="image side or HxW for --obs image (default: the env's)")
+    p.add_argument("--image-size", default=None,
+                   help="with --obs image: the frames' size, N (square), HxW or H,W (default: the env's)")
     p.add_argument("--batch", type=int, default=32, help="episodes per jitted call")
     p.add_argument("--data-dir", type=pathlib.Path, default=None, help=f"cache directory (default: {data.cache_dir()})")
     p.add_argument("--force", action="store_true", help="collect (and export) again even if the dataset is cached")
@@ -131,10 +133,9 @@ def parse(argv=None) -> argparse.Namespace:
         if args.obs != "image":
             fail(p, "--image-size applies to --obs image only")
         try:
-            size = [int(v) for v in args.image_size.lower().split("x")]
-            args.overrides["image_size"] = envs.brax_env.parse_image_size(size[0] if len(size) == 1 else size)
+            args.overrides["image_size"] = image_size(args.image_size)
         except ValueError as e:
-            fail(p, f"--image-size: {e}")
+            fail(p, f"--image-size {args.image_size!r}: {e}")
     try:   # the task's own checks (e.g. ToyTown's smallest image), before anything is collected or written
         envs.make(args.env, obs=args.obs, **args.overrides)
     except ValueError as e:

@@ -157,8 +157,9 @@ def compare(yours: Sequence[analysis.Source], against: Sequence[analysis.Source]
     for y in yours:
         analysis.check_references(y)   # every table here is in % of expert: none silently without it
         if not [row for row in y.summary if row["method"] not in REFERENCES]:
-            raise CompareError(f"{y.path}: holds only reference methods ({', '.join(REFERENCES)}): nothing of "
-                               "yours to compare")
+            ran = ", ".join(dict.fromkeys(row["method"] for row in y.summary))   # its own, not every reference's
+            raise CompareError(f"{y.path}: holds only reference methods ({ran}): nothing of yours to compare "
+                               "(train a method of your own beside them)")
         matched = match(y, against)
         for r in matched:
             analysis.check_references(r)

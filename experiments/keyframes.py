@@ -41,6 +41,7 @@ def demo_obs(env_name: str) -> str:
 
 def parse(argv=None) -> argparse.Namespace:
     from ape_jax.pipeline import collect, data
+    from ape_jax.pipeline.hints import image_size
 
     p = Parser(prog="python -m experiments.keyframes", description=__doc__.splitlines()[0])
     p.add_argument("--env", default="hopper", help=f"one of {', '.join(tasks.sweepable())} (default: hopper)")
@@ -57,13 +58,18 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--zoom", type=int, default=150,
                    help="steps around the highest-APE keyframe shown close up (default: 150; 0, or an episode "
                         "shorter than twice this: the actions along the whole episode instead)")
-    p.add_argument("--image-size", type=int, default=96, help="side of the rendered frames in pixels (default: 96)")
+    p.add_argument("--image-size", default="96", help="the rendered frames' size in pixels, N (square), HxW or H,W "
+                   "(default: 96)")
     p.add_argument("--ape-steps", type=int, default=5000, help="Adam steps fitting the APE model (default: 5000)")
     p.add_argument("--thr", type=float, default=0.1, help="fraction of the dataset that are keyframes (default: 0.1)")
     p.add_argument("--seed", type=int, default=0, help="PRNG seed of the APE fit (default: 0)")
     p.add_argument("--data-dir", type=pathlib.Path, default=None,
                    help=f"demonstrations cache (default: {data.cache_dir()})")
     args = p.parse_args(argv)
+    try:
+        args.image_size = image_size(args.image_size)
+    except ValueError as e:
+        fail(p, f"--image-size {args.image_size!r}: {e}")
     if args.env not in tasks.sweepable():
         fail(p, f"unknown env {args.env!r}; valid: {', '.join(tasks.sweepable())}")
     try:
@@ -74,7 +80,7 @@ def parse(argv=None) -> argparse.Namespace:
     if not 0 <= args.episode < episodes:
         fail(p, f"--episode must be in [0, {episodes - 1}] ({args.env} has {episodes} demonstration episodes), "
                 f"got {args.episode}")
-    for flag, value, least in (("--frames", args.frames, 1), ("--image-size", args.image_size, 1),
+    for flag, value, least in (("--frames", args.frames, 1),
                                ("--ape-steps", args.ape_steps, 1), ("--ordinary", args.ordinary, 0),
                                ("--zoom", args.zoom, 0),
                                ("--min-gap", 1 if args.min_gap is None else args.min_gap, 1)):
@@ -82,8 +88,8 @@ def parse(argv=None) -> argparse.Namespace:
             fail(p, f"{flag} must be >= {least}, got {value}")
     if args.frames + args.ordinary > 12:
         fail(p, f"--frames + --ordinary must be <= 12 (one row of pictures), got {args.frames + args.ordinary}")
-    if args.image_size > 1024:
-        fail(p, f"--image-size must be <= 1024, got {args.image_size}")
+    if max(args.image_size) > 1024:
+        fail(p, f"--image-size must be at most 1024 pixels a side, got {'x'.join(map(str, args.image_size))}")
     if not 0.0 < args.thr < 1.0:
         fail(p, f"--thr must be in (0, 1), got {args.thr}")
     default = tasks.get(args.env).protocol(None, demo_obs(args.env)).name

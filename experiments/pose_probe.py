@@ -49,6 +49,7 @@ TARGETS = ("pose", "velocity", "action")
 def parse(argv=None) -> argparse.Namespace:
     import envs
     from ape_jax import tasks
+    from ape_jax.pipeline.hints import image_size
 
     p = Parser(prog=PROG, description=__doc__.splitlines()[0])
     p.add_argument("--env", default="hopper", help="a Brax task with image observations (default: hopper)")
@@ -61,8 +62,8 @@ def parse(argv=None) -> argparse.Namespace:
                    help="with --obs pos: a fixed Gaussian error on every observation, of variance F × the dimension's "
                         "training variance, drawn once per row: the pose as an encoder that reads it with "
                         "1 − R² = F would give it (default: 0)")
-    p.add_argument("--image-size", default="32x32", help="HxW of the rendered frames (default: 32x32, the CPU "
-                   "image presets')")
+    p.add_argument("--image-size", default="32x32", help="the rendered frames' size, N (square), HxW or H,W "
+                   "(default: 32x32, the CPU image presets')")
     p.add_argument("--encoder", default="small", help="the image encoder (default: small)")
     p.add_argument("--history", type=int, default=1, help="frames the network sees (default: 1)")
     p.add_argument("--iterations", type=int, default=5_000, help="Adam steps per run (default: 5,000)")
@@ -76,6 +77,10 @@ def parse(argv=None) -> argparse.Namespace:
     p.add_argument("--out", type=pathlib.Path, required=True, help="the JSON file to write")
     p.add_argument("--data-dir", type=pathlib.Path, default=None, help="demonstration cache (default: the sweep's)")
     args = p.parse_args(argv)
+    try:
+        args.image_size = "x".join(map(str, image_size(args.image_size)))
+    except ValueError as e:
+        fail(p, f"--image-size {args.image_size!r}: {e}")
     posed = [t for t in tasks.sweepable() if "pos" in envs.obs_modes(t)]  # the tasks whose state is a pose
     if args.env not in posed:
         fail(p, f"--env {args.env!r}: one of the tasks with an expert and a pose ({', '.join(posed)})")

@@ -165,12 +165,13 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
         fail(p, str(e))
     args.checkpoint_every = args.checkpoint_every or args.settings.budget.chunk
     args.methods = _runnable(p, args.methods, named, args.settings, args.obs)
-    # a method's own setting given for a method the sweep will not train: said, as it may be a slip (recorded all
-    # the same: a replayed file's settings are its own, whichever methods it ran)
-    for m in dict.fromkeys(s.partition(".")[0] for s in args.sets):
+    # a method's own setting the user gave for a method the sweep will not train: nothing would read it, so it is
+    # a slip (the shortcuts' and the preset's grids set every method's knobs and are not the user's: not refused)
+    for item in args.sets:
+        m = item.partition(".")[0].strip()
         if m in methods.names() and m not in args.methods:
-            print(f"note: --set {m}.*: {m} is not among the methods ({', '.join(args.methods)}); its settings are "
-                  "recorded but nothing reads them", file=sys.stderr)
+            fail(p, f"--set {item}: {m} is not among --methods ({', '.join(args.methods)}), so nothing would read "
+                    f"its setting: add {m} to --methods, or leave the --set out")
     args.cost = cost(args.env, args.settings, args.methods)
     if args.cost is not None and args.cost.over and not args.yes:
         fail(p, f"{args.cost}, over the limit of {UPDATES_LIMIT:,} updates or {EPISODES_LIMIT:,} episodes; pass "

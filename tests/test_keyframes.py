@@ -92,7 +92,7 @@ def test_select_spaces_the_frames_and_zooms_on_the_highest_ape_keyframe():
         (["--env", "hopper", "--episode", "25"], "--episode must be in [0, 24]"),
         (["--env", "toycar", "--episode", "-1"], "--episode must be in [0, 9]"),
         (["--frames", "0"], "--frames must be >= 1"),
-        (["--image-size", "-3"], "--image-size must be >= 1"),
+        (["--image-size", "-3"], "--image-size '-3': an image size is N, HxW or H,W (positive integers)"),
         (["--ape-steps", "0"], "--ape-steps must be >= 1"),
         (["--min-gap", "0"], "--min-gap must be >= 1"),
         (["--thr", "1.5"], "--thr must be in (0, 1)"),

@@ -113,12 +113,14 @@ def test_the_sweep_trains_a_plugin_s_grid_from_its_knobs(plugin, tmp_path):
     assert r["settings"]["knobs"] == {"scaled-oh": {"scales": [0.5, 2.0], "rounds": 1}}
 
 
-def test_a_setting_of_a_method_not_run_is_noted_and_recorded(plugin, capsys):
+def test_a_setting_of_a_method_not_run_is_refused_naming_the_method(plugin, capsys):
     from experiments import sweep
 
-    args = sweep.parse(["--plugins", "scaled_oh", "--methods", "bc-oh", "--set", "scaled-oh.rounds=2"], writes=False)
-    assert "note: --set scaled-oh.*: scaled-oh is not among the methods (bc-oh)" in capsys.readouterr().err
-    assert args.settings.knobs["scaled-oh"].rounds == 2
+    with pytest.raises(SystemExit) as exc:
+        sweep.parse(["--plugins", "scaled_oh", "--methods", "bc-oh", "--set", "scaled-oh.rounds=2"], writes=False)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.count("\n") == 1, err
+    assert "--set scaled-oh.rounds=2: scaled-oh is not among --methods (bc-oh)" in err and "add scaled-oh" in err
 
 
 def test_a_spec_keeps_the_knobs_of_methods_it_does_not_train(plugin):

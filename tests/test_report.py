@@ -310,17 +310,17 @@ def test_the_report_tabulates_the_bootstrap_per_environment(tmp_path):
                ("ours-step", {"thr": 0.2, "w": 3.0}, 1005.0), ("ours-softmax", {"tau": 5.0}, 800.0))
     text = report.report([_loaded(tmp_path, _results(methods=methods))])
     # seeds are ret ± 10: Welch's interval with 2 degrees of freedom, 500 ± t(0.975, 2) · √(200 / 2 · 2) = ± 61
-    assert ("| Hopper | Ours, step THR 10% W 5 (the paper's) − BC-OH | 2 / 2 | +500 (return) | [+439, +561] | "
-            "Ours better |") in text
+    assert ("| Hopper | Ours, step THR 10% W 5 (the paper's) − BC-OH | 2 / 2 | +500 (return) | [+439, +561] "
+            "(2 seeds: wide) | Ours better |") in text
     assert ("| Hopper | Ours, best step (thr 0.1, w 5; selected after the fact) − BC-OH | 2 / 2 | +500 (return) | "
-            "[+439, +561] | Ours better |") in text
+            "[+439, +561] (2 seeds: wide) | Ours better |") in text
     assert ("| Hopper | Ours, best softmax (tau 5; selected after the fact) − BC-OH | 2 / 2 | -200 (return) | "
-            "[-261, -139] | BC-OH better |") in text
+            "[-261, -139] (2 seeds: wide) | BC-OH better |") in text
     assert "BC-OH − BC-SO" not in text.split("| task | comparison |")[1]    # no BC-SO in the fixture: no such row
     assert "95% Welch t-interval (down to 2 seeds per arm" in text
     close = report.report([_loaded(tmp_path, _results(methods=(("bc-oh", {}, 1000.0),
                                                                ("ours-step", {"thr": 0.1, "w": 5.0}, 1005.0))))])
-    assert "| +5 (return) | [-56, +66] | not significant (CI contains 0) |" in close
+    assert "| +5 (return) | [-56, +66] (2 seeds: wide) | not significant (CI contains 0) |" in close
 
 
 # -- the grid search: the paper's choices -------------------------------------------------------------------------
@@ -526,11 +526,13 @@ def test_image_results_and_a_task_judged_by_a_rate_get_their_tables(tmp_path):
     # episode pooled: 0.90 and 0.95 of each seed's episodes
     episodes = [run["eval"]["episodes"] for run in sandbox["runs"] if run["method"] == "bc-oh"]
     pooled = stats.wilson(round(0.9 * episodes[0]) + round(0.95 * episodes[1]), sum(episodes))
-    assert ("| BC-OH | 2 | 92.50 ± 3.54 [60.73, 100.00] | 0.00 ± 0.00 [0.00, 0.00] | 0.80 ± 0.00 [0.80, 0.80] | "
+    assert ("| BC-OH | 2 (intervals wide) | 92.50 ± 3.54 [60.73, 100.00] | 0.00 ± 0.00 [0.00, 0.00] | "
+            "0.80 ± 0.00 [0.80, 0.80] | "
             f"0.50 ± 0.00 [0.50, 0.50] | 5.00 ± 7.07 [0.00, 68.53] | {100 * pooled.value:.2f} [{100 * pooled.low:.2f}, "
             f"{100 * pooled.high:.2f}] | 95.1 ± 4.5 |") in table
     assert "100 s in all" in table and "test CPU" in table   # the run's wall time, in its provenance
-    assert "| Ours, step THR 10% W 5 | 2 |" in table and "97.8 ± 0.5" in table   # the paper's, from the task record
+    assert "| Ours, step THR 10% W 5 | 2 (intervals wide) |" in table
+    assert "97.8 ± 0.5" in table   # the paper's, from the task record
     # its measure is success, not its (zero) reward: in the grid table and the bootstrap
     assert "| method | hparams | seeds | success % |" in table
     assert "| Ours (step) | thr 0.1, w 5 | 2 | 92.5 ± 3.5 |" in table
@@ -716,7 +718,7 @@ def test_the_copycat_map_gives_each_frame_skip_its_row_and_gaps(tmp_path):
     assert cm.rows[0].history_ci == report.mean_difference([30.0, 30.5, 31.0], [29.5, 30.0, 30.5])
     text = report.report(files)
     assert ("| Hopper | 2 | 20,000 | mujoco-state-fs2 | 30.0 ± 0.7 | 50.0 ± 0.7 | 55.0 ± 0.7 | 2 / 2 / 2 | "
-            "+20.0 [+17.0, +23.0] | 50.0 |") in text
+            "+20.0 [+17.0, +23.0] (2 seeds: wide) | 50.0 |") in text
     low, high = cm.rows[0].history_ci.low, cm.rows[0].history_ci.high
     assert low < 0 < high   # at frame skip 1 the history is not significant; at 2 and 4 it is
     # one frame skip of the family is no map
@@ -1103,3 +1105,46 @@ def test_a_file_trained_again_shows_the_first_trainings_returns_beside_its_own(t
     bad = {**again, "replaces": {"summary": [{"method": "bc-oh"}]}}
     with pytest.raises(report.ReportError, match="replaces.summary"):
         _loaded(tmp_path, bad, "bad.json")
+
+
+# -- reports of one and two seeds ----------------------------------------------------------------------------------
+
+def _few_seeds(tmp_path, deltas):
+    """`_results` over `deltas` seeds as the sweep writes them: one seed records no std (None)."""
+    obj = _results(deltas=deltas)
+    if len(deltas) == 1:
+        for row in obj["summary"]:
+            row["return_std"] = row["normalized_std"] = None
+    return _loaded(tmp_path, obj)
+
+
+def test_a_one_seed_report_shows_no_sd_no_interval_and_no_best(tmp_path):
+    built = report.build([_few_seeds(tmp_path, (0.0,))])
+    page, index = built.pages["hopper-pos.md"].text, built.pages["index.md"].text
+    for text in (page, index):
+        assert "nan" not in text and "**" not in text, text   # no "± nan", no bolded best
+    assert "| Ours (step) | thr 0.2, w 3 | 1 | 1,600.0 | 80.0 |" in page   # the grid's highest mean, not bold
+    assert "not judged at 1 seed" in page and "within one std" not in page
+    difference = next(line for line in index.splitlines() if "| BC-OH − BC-SO" in line)
+    assert "| 1 / 1 | +700 (return) | — | no verdict" in difference   # no [+700, +700]
+
+
+def test_a_two_seed_report_marks_its_intervals_wide(tmp_path):
+    built = report.build([_few_seeds(tmp_path, (-10.0, 10.0))])
+    page, index = built.pages["hopper-pos.md"].text, built.pages["index.md"].text
+    difference = next(line for line in index.splitlines() if "| BC-OH − BC-SO" in line)
+    assert "| 2 / 2 |" in difference and "] (2 seeds: wide) |" in difference
+    assert "within one std" in page and "**Ours (step)**" in page   # two seeds: a std, and a best by its mean
+
+
+def test_interval_cells_by_seeds():
+    from experiments.report.analysis import Interval, RecipeCell
+    from experiments.report.sections.common import diff_cell, interval, pct_cell, seeds_cell
+
+    assert interval(1.0, 2.0, 1) == "" and interval(1.0, 2.0, 3) == "[1.0, 2.0]"
+    assert interval(1.0, 2.0, 2) == "[1.0, 2.0] (2 seeds: wide)" and interval(1.0, 2.0, 2, note=False) == "[1.0, 2.0]"
+    assert pct_cell(RecipeCell(50.0, 50.0, 50.0, (50.0,))) == "50.0"
+    assert pct_cell(RecipeCell(50.0, 40.0, 60.0, (45.0, 50.0, 55.0))) == "50.0 [40.0, 60.0]"
+    assert diff_cell(Interval(5.0, 5.0, 5.0, 1, 4)) == "+5.0"
+    assert diff_cell(Interval(5.0, 1.0, 9.0, 2, 2)) == "**+5.0 [+1.0, +9.0] (2 seeds: wide)**"
+    assert (seeds_cell(1), seeds_cell(2), seeds_cell(5)) == ("1", "2 (intervals wide)", "5")

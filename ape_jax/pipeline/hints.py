@@ -5,9 +5,12 @@ those types, and how `SettingsError` says what a field cannot take."""
 
 from __future__ import annotations
 
+import re
 import types
 import typing
 from typing import Any
+
+IMAGE_SIZE_FORMS = "N, HxW or H,W (positive integers)"  # what `image_size` reads, for the messages that name it
 
 
 class SettingsError(ValueError):
@@ -74,10 +77,29 @@ def parse(hint: Any, text: str) -> Any:
             raise ValueError(f"{text!r} is not true or false")
         return text.lower() == "true"
     if hint is int:
-        return int(text)
+        try:
+            return int(text)
+        except ValueError:  # int()'s own words ("invalid literal ... base 10") say nothing a user typed
+            raise ValueError(f"{text!r} is not a whole number") from None
     if hint is float:
-        return float(text)
+        try:
+            return float(text)
+        except ValueError:
+            raise ValueError(f"{text!r} is not a number") from None
     return text
+
+
+def image_size(text: str) -> tuple[int, int]:
+    """An image size as typed on a command line, `N` (square), `HxW` or `H,W`, as `(height, width)`.
+
+    The one reader of every `--image-size` flag and of `--set protocol.image_size=...`, so they all take the same
+    forms. Raises `ValueError("an image size is N, HxW or H,W (positive integers)")`; the caller names the flag and
+    the text, which the message leaves out.
+    """
+    parts = [p.strip() for p in re.split(r"[x,]", str(text).strip().lower())]
+    if len(parts) not in (1, 2) or not all(p.isascii() and p.isdigit() and int(p) > 0 for p in parts):
+        raise ValueError(f"an image size is {IMAGE_SIZE_FORMS}")
+    return int(parts[0]), int(parts[-1])
 
 
 def format_value(hint: Any, value: Any) -> str:

@@ -398,6 +398,9 @@ def load_dataset(spec: str | os.PathLike, fmt: str = "auto") -> tuple[Demonstrat
         fmt = "npz" if str(spec).endswith((".npz", ".json")) else "minari"
     if fmt == "npz":
         path = pathlib.Path(spec).with_suffix(".npz")
+        if path != pathlib.Path(spec) and not path.exists():  # named by its metadata: the message names what was typed
+            raise DataError(f"{spec}: no such dataset file (a dataset is NAME.npz with its NAME.json beside it, and "
+                            f"{path.name} is not there)")
         return data_lib.load(path)[0], str(path)
     path = resolve(spec)
     return from_minari(path), str(path.parent if path.name == "data" else path)

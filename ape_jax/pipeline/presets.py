@@ -38,7 +38,7 @@ from ape_jax.learner import LearnerConfig, lr_boundaries
 from ape_jax.models import IMAGE_ENCODERS
 from ape_jax.tasks import Protocol
 from ape_jax.pipeline.hints import SettingsError, check as _check, coerce as _coerce, describe as _describe
-from ape_jax.pipeline.hints import format_value as _format, parse as _parse
+from ape_jax.pipeline.hints import format_value as _format, image_size as _image_size, parse as _parse
 from ape_jax.pipeline import method_knobs
 
 from ape_jax.weighting import SOFTMAX_GRID, STEP_GRID, SoftmaxKnobs  # noqa: F401 - the paper's grids, where callers look
@@ -435,7 +435,8 @@ def parse_set(item: str) -> tuple[str, str, Any]:
     """`"SECTION.FIELD=VALUE"` -> `(section, field, value)`, the value parsed by the field's type.
 
     Values: numbers as written; `none` for an optional field; lists comma-separated (`0.1,0.2`), the step
-    grid's settings as `THR:W` (`0.1:5,0.2:3`), an image size as `HxW` or `H,W`.
+    grid's settings as `THR:W` (`0.1:5,0.2:3`), an image size as `N` (square), `HxW` or `H,W`
+    (`hints.image_size`, as every `--image-size` flag).
     """
     key, sep, text = item.partition("=")
     section, dot, field = key.strip().partition(".")
@@ -452,6 +453,12 @@ def parse_set(item: str) -> tuple[str, str, Any]:
         raise SettingsError(f"--set {item!r}: unknown field {section}.{field}; valid: "
                             + ", ".join(f"{section}.{f}" for f in fields(section)))
     hint = typing.get_type_hints(_RECORDS[section])[field]
+    own = _TEXT_READERS.get((section, field))
+    if own is not None and text.strip().lower() not in ("none", "null"):
+        try:
+            return section, field, own(text.strip())
+        except ValueError as e:
+            raise SettingsError(f"--set {item!r}: {e}, or none (the task's own)") from None
     try:
         return section, field, _parse(hint, text.strip())
     except (TypeError, ValueError) as e:
@@ -464,6 +471,11 @@ def format_set(section: str, field: str, value: Any) -> str:
 
 
 # -- internals ------------------------------------------------------------------------------------------------------
+
+# fields whose text is read by a reader of their own, not by their type: an image size reads as every --image-size
+# flag reads it (a single N is square), which `tuple[int, int]` alone cannot say
+_TEXT_READERS = {("protocol", "image_size"): _image_size}
+
 
 def _section_of(key: str) -> str:
     for section in SECTIONS:

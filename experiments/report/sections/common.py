@@ -84,6 +84,24 @@ def table(head: Sequence[str], rows: Sequence[Sequence[str]], align: str | int =
 
 # -- cells the sections share --------------------------------------------------------------------------------------
 
+# What an interval over two seeds is marked with: Student's t at one degree of freedom multiplies the standard
+# error by 12.7, so such an interval is honest but too wide to read much from.
+WIDE = " (2 seeds: wide)"
+
+
+def interval(low: float, high: float, n: int, fmt: str = ".1f", note: bool = True) -> str:
+    """`"[49.5, 50.5]"`: a 95% interval over `n` seeds; "" below 2 seeds (one seed gives none, only `[x, x]`), and
+    at 2 seeds marked `WIDE` (with `note`; a table that says so once in its seeds column passes False)."""
+    if n < 2:
+        return ""
+    return f"[{low:{fmt}}, {high:{fmt}}]" + (WIDE if n == 2 and note else "")
+
+
+def seeds_cell(n: int) -> str:
+    """A table's seeds column: the count, marked where its row's intervals are over 2 seeds (`interval`)."""
+    return f"{n} (intervals wide)" if n == 2 else str(n)
+
+
 def plus_minus(mean: float, sd: float | None, fmt: str = ",.0f") -> str:
     """`"1,000 ± 8"`: a mean ± the sample sd over seeds; the mean alone where one seed gives no sd (None)."""
     return f"{mean:{fmt}}" if sd is None else f"{mean:{fmt}} ± {sd:{fmt}}"
@@ -103,8 +121,11 @@ def norm_cell(row: dict | None) -> str:
 
 
 def pct_cell(cell, fmt: str = ".1f") -> str:
-    """`"50.0 [49.5, 50.5]"`: a mean over seeds with its 95% t-interval (`RecipeCell`); "—" for None."""
-    return "—" if cell is None else f"{cell.mean:{fmt}} [{cell.low:{fmt}}, {cell.high:{fmt}}]"
+    """`"50.0 [49.5, 50.5]"`: a mean over seeds with its 95% t-interval (`RecipeCell`; the mean alone at one seed,
+    the interval marked wide at two: `interval`); "—" for None."""
+    if cell is None:
+        return "—"
+    return f"{cell.mean:{fmt}} {interval(cell.low, cell.high, len(cell.seeds), fmt)}".rstrip()
 
 
 def diff_cell(ci: Interval | None, fmt: str = "+.1f", either: bool = False) -> str:
@@ -112,7 +133,7 @@ def diff_cell(ci: Interval | None, fmt: str = "+.1f", either: bool = False) -> s
     excludes 0 either way with ≥ 2 seeds per arm); "—" for None."""
     if ci is None:
         return "—"
-    text = f"{ci.diff:{fmt}} [{ci.low:{fmt}}, {ci.high:{fmt}}]"
+    text = f"{ci.diff:{fmt}} {interval(ci.low, ci.high, min(ci.n_a, ci.n_b), fmt)}".rstrip()
     bold = significant(ci) or (either and min(ci.n_a, ci.n_b) >= 2 and ci.high < 0)
     return f"**{text}**" if bold else text
 

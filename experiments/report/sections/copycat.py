@@ -7,14 +7,15 @@ from ape_jax import tasks
 from experiments.report import figures
 from experiments.report.analysis import (STATE, MAP_METHODS, CopycatMap, MapPoint, copycat_map, diagnostics_thresholds,
                                          extended_map, ordered, thousands)
-from experiments.report.sections.common import Context, Section, copycat_count, diff_cell, ratio_text, table
+from experiments.report.sections.common import (Context, Section, copycat_count, diff_cell, interval, plus_minus,
+                                                ratio_text, table)
 from experiments.report.sections.diagnostics import thresholds_line
 
 NAMES = [lab for lab, _, _ in MAP_METHODS]
 
 
 def _map_cell(cell) -> str:
-    return "—" if cell is None else f"{cell.mean:.1f} ± {cell.std:.1f}"
+    return "—" if cell is None else plus_minus(cell.mean, cell.std if cell.n > 1 else None, ".1f")
 
 
 def copycat_map_table(maps: list[CopycatMap]) -> str:
@@ -25,8 +26,8 @@ def copycat_map_table(maps: list[CopycatMap]) -> str:
         shown = {(r.frame_skip, r.train_transitions) for r in cm.rows}
         for r in cm.rows + [r for r in cm.data_rows if (r.frame_skip, r.train_transitions) not in shown]:
             history = "—" if r.history is None else f"{r.history:+.1f}"
-            if r.history_ci is not None:
-                history += f" [{r.history_ci.low:+.1f}, {r.history_ci.high:+.1f}]"
+            if (ci := r.history_ci) is not None:
+                history = f"{history} {interval(ci.low, ci.high, min(ci.n_a, ci.n_b), '+.1f')}".rstrip()
             train = "—" if r.train_transitions is None else f"{r.train_transitions:,}"
             seeds = " / ".join("—" if c is None else str(c.n) for c in r.cells)
             rows.append([cm.title, str(r.frame_skip), train, r.protocol, *map(_map_cell, r.cells), seeds, history,

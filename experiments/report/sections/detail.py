@@ -3,6 +3,7 @@ paper's settings against its best, the loss analysis (the paper's Table 3), and 
 
 from __future__ import annotations
 
+import math
 import pathlib
 import shlex
 
@@ -22,9 +23,11 @@ from experiments.results_index import dataset_of, settings_arguments
 
 def grid_table(m: Group) -> str:
     """Every configuration: return and % of expert (a task judged by a rate, its reward not its measure: the rate
-    in %), the best in bold; where a file of the group was trained again to replace one whose policies were not
-    kept (`results.json`'s `replaces`), the first training's return beside it."""
+    in %), the best in bold where it has 2 seeds or more (one seed's ranking is noise: none is marked); where a file
+    of the group was trained again to replace one whose policies were not kept (`results.json`'s `replaces`), the
+    first training's return beside it."""
     best = best_of([r for r in m.summary if r["n_seeds"]])
+    best = best if best is not None and best["n_seeds"] >= 2 else None
     rate, first = is_rate(m), first_training(m)
     rows = []
     for r in m.summary:
@@ -85,7 +88,8 @@ def copycat_table(m: Group) -> str | None:
 
 
 def _value(g: tuple[float, float], prefix: str) -> str:
-    return f"{g[0]:.1f} ± {g[1]:.1f}" if prefix == "normalized" else f"{g[0]:,.0f} ± {g[1]:,.0f}"
+    sd = None if math.isnan(g[1]) else g[1]  # one seed records no std: the mean alone
+    return plus_minus(g[0], sd, ".1f" if prefix == "normalized" else ",.0f")
 
 
 def choices_table(m: Group) -> str:
@@ -102,10 +106,12 @@ def choices_table(m: Group) -> str:
                           f"{words(c.closest['hparams'])}", c.closest))
         for name, row in tried:
             g = None if row is None else gap(row, c.best, prefix)
+            noisy = g is not None and not math.isnan(g.noise)  # a std on both sides: a gap can be judged
             rows.append([name, "not run" if g is None else _value(g.chosen, prefix), words(c.best["hparams"]),
                          _value(metric_value(c.best, prefix), prefix),
-                         "—" if g is None else f"{g.gap:.1f}", "—" if g is None else f"{g.noise:.1f}",
-                         "—" if g is None else "best" if g.is_best else "yes" if g.within else "no"])
+                         "—" if g is None else f"{g.gap:.1f}", f"{g.noise:.1f}" if noisy else "—",
+                         "—" if g is None else "best" if g.is_best else ("yes" if g.within else "no") if noisy
+                         else "— (no std)"])
     return table(["setting", unit, "the grid's best", unit, "gap", "larger std", "within one std"], rows,
                  "lrlrrrl") if rows else ""
 
@@ -249,7 +255,11 @@ def group_sections(ctx: Context, key: Key) -> list[Section]:
                  if r.path in aside else "") for r in m.sources), "",
             grid_table(m), *retrained_line(m),
             *ctx.figure(f"grid-{file_stem(m)}.png", f"{m.title} grid search", lambda: figures.grid_figure(m))]
-    if found := choices_table(m):
+    if max((r["n_seeds"] for r in m.summary), default=0) < 2:
+        if choices(m):  # no std to judge a gap by, and no best among settings of one seed each
+            body += ["The paper's settings against the best of our grid: not judged at 1 seed (no std over seeds; "
+                     "--seeds 3 or more for one).", ""]
+    elif found := choices_table(m):
         body += ["The paper's settings against the best of our grid (\"within one std\": the gap at most the larger "
                  "std over seeds).", "", found]
     body += ["Loss analysis (the paper's Table 3): mean per-sample loss; changepoints the top 10% APE.", "",

@@ -7,15 +7,16 @@ from __future__ import annotations
 from ape_jax import tasks
 from experiments.report import figures
 from experiments.report.analysis import Difference, Group, difference_rows, is_rate, longer_runs, ordered, verdict
-from experiments.report.sections.common import Context, Section, return_cell, table
+from experiments.report.sections.common import Context, Section, interval, return_cell, table
 
 
 def difference_table(rows: list[Difference]) -> str:
-    """The rows of `difference_rows` as a table: per group and comparison, seeds, difference of means, 95% CI,
-    verdict."""
+    """The rows of `difference_rows` as a table: per group and comparison, seeds, difference of means, 95% CI
+    (none where an arm has one seed, marked wide at two), verdict."""
     return table(["task", "comparison", "seeds", "difference", "95% CI", "verdict"],
                  [[d.title, d.label, f"{d.ci.n_a} / {d.ci.n_b}", f"{d.ci.diff:+,.0f} ({d.unit})",
-                   f"[{d.ci.low:+,.0f}, {d.ci.high:+,.0f}]", verdict(d.ci, d.a, d.b)] for d in rows], "llrrrl")
+                   interval(d.ci.low, d.ci.high, min(d.ci.n_a, d.ci.n_b), "+,.0f") or "—", verdict(d.ci, d.a, d.b)]
+                  for d in rows], "llrrrl")
 
 
 def longer_table(rows, base: Group, longer: Group) -> str:

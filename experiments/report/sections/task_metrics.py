@@ -12,7 +12,8 @@ from experiments.report import figures
 from experiments.report.analysis import (Comparison, Group, Key, driving_comparisons, driving_rows, driving_table,
                                          file_stem, group_title, is_rate, mean_estimate, ordered, per_seed,
                                          policy_diagnostics, task_metric_rows)
-from experiments.report.sections.common import Context, Section, hparams_text, plus_minus, table
+from experiments.report.sections.common import (WIDE, Context, Section, hparams_text, interval, plus_minus, seeds_cell,
+                                                table)
 
 
 # How the task-metrics table heads a task's own metrics, and the factor it shows them at (rates in %); a metric
@@ -29,14 +30,15 @@ def _metric_heading(m: Group, metric: str) -> tuple[str, float]:
 
 def _metric_cells(m: Group, runs: list[dict]) -> list[str]:
     """One policy's cells of the task's metrics (mean ± sd over seeds [95% t-interval], a share of episodes clipped
-    to [0, 100]) and, for a rate, the rate over every episode [Wilson 95%]."""
+    to [0, 100]; the mean alone at one seed) and, for a rate, the rate over every episode [Wilson 95%]."""
     def cell(v, scale: float) -> str:
         if not len(v):
             return "—"
         _, low, high = mean_estimate(v)
         if scale == 100.0:  # a share of episodes, in %: its mean lies in [0, 100], and so may its interval
             low, high = max(low, 0.0), min(high, 100.0)
-        return f"{plus_minus(v.mean(), stats.sample_sd(v), '.2f')} [{low:.2f}, {high:.2f}]"
+        # the seeds column says once that two seeds' intervals are wide (`seeds_cell`)
+        return f"{plus_minus(v.mean(), stats.sample_sd(v), '.2f')} {interval(low, high, len(v), '.2f', False)}".rstrip()
 
     scales = [_metric_heading(m, k)[1] for k in m.task_metrics]
     return [*(cell(per_seed(runs, key, scale), scale) for key, scale in zip(m.task_metrics, scales)),
@@ -61,7 +63,7 @@ def task_table(m: Group) -> str | None:
     paper = tasks.get(m.env).paper
     return table(["method", "seeds", *_metric_heads(m),
                   *([f"paper: {m.metric}" + (" %" if is_rate(m) else "")] if paper else [])],
-                 [[lab, str(len(runs)), *_metric_cells(m, runs),
+                 [[lab, seeds_cell(len(runs)), *_metric_cells(m, runs),
                    *([f"{paper[method][0]} ± {paper[method][1]}" if method in paper else "—"] if paper else [])]
                   for lab, method, runs in rows])
 
@@ -83,7 +85,7 @@ def driving_metric_table(m: Group) -> str | None:
         return None
     return table(["method", "hparams", "seeds", *_metric_heads(m), "copycat: first verdict",
                   "copycat: controlled verdict"],
-                 [[r.label, hparams_text(r.hparams), str(len(r.runs)), *_metric_cells(m, r.runs),
+                 [[r.label, hparams_text(r.hparams), seeds_cell(len(r.runs)), *_metric_cells(m, r.runs),
                    *verdict_cells(r.runs)] for r in rows], 2)
 
 
@@ -120,7 +122,8 @@ def comparison_text(c: Comparison) -> str:
     seeds = f"{c.ci.n_a} seeds" if c.ci.n_a == c.ci.n_b else f"{c.ci.n_a} and {c.ci.n_b} seeds"
     said = (f"{c.a} higher" if c.ci.low > 0 else f"{c.a} lower" if c.ci.high < 0
             else f"no difference shown at {seeds}")
-    return f"{head} [{_plain(c.ci.low, fmt)}, {_plain(c.ci.high, fmt)}]: {said}"
+    wide = WIDE if min(c.ci.n_a, c.ci.n_b) == 2 else ""
+    return f"{head} [{_plain(c.ci.low, fmt)}, {_plain(c.ci.high, fmt)}]{wide}: {said}"
 
 
 def comparisons_line(m: Group) -> list[str]:
