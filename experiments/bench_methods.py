@@ -80,7 +80,22 @@ def main(argv=None) -> int:
     p.add_argument("--preset", default="default")
     p.add_argument("--methods", default=METHODS, help=f"comma-separated, BC-SO first for the ratios ({METHODS})")
     p.add_argument("--repeats", type=int, default=2, help="sweeps per method; the median is reported")
-    return run_benchmark(p, argv, ("--repeats",), table, SECTION)
+    return run_benchmark(p, argv, ("--repeats",), table, SECTION, check=_check)
+
+
+def _check(args) -> str | None:
+    """Why the benchmark cannot run as asked (before anything is timed), or None."""
+    import envs
+    from ape_jax import methods
+
+    unknown = [m for m in args.methods.split(",") if m not in methods.names()]
+    if unknown:
+        return f"--methods: unknown {unknown}; valid: {', '.join(methods.names())}"
+    if args.env not in envs.names() and args.env not in envs.brax_env.brax_names():
+        return f"--env {args.env!r}: no such task; valid: {', '.join(envs.names())} or a Brax environment"
+    if args.obs not in envs.obs_modes(args.env):
+        return f"--obs {args.obs!r} is not supported by {args.env}; valid: {', '.join(envs.obs_modes(args.env))}"
+    return None
 
 
 if __name__ == "__main__":

@@ -333,6 +333,9 @@ def test_report_refusals_leave_an_existing_out_untouched(tmp_path, capsys):
     ("bench_images", lambda root: ["--encoders", "patch+batch"],
      "--encoders: ['patch+batch']: the small and patch encoders take +group"),
     ("bench_images", lambda root: ["--sizes", "4"], "--sizes must be image sides in [8, 512], got [4]"),
+    ("bench_methods", lambda root: ["--repeats", "0"], "--repeats must be >= 1"),
+    ("bench_methods", lambda root: ["--methods", "bc-so,bogus"], "--methods: unknown ['bogus']; valid: bc-so"),
+    ("bench_methods", lambda root: ["--env", "toycar", "--obs", "pos"], "--obs 'pos' is not supported by toycar"),
 ])
 def test_benchmarks_refuse_bad_input_before_timing(tmp_path, capsys, module, args, message):
     import importlib
