@@ -225,3 +225,21 @@ def test_compare_runs_refuses_two_task_versions_in_one_line(tmp_path, capsys):
 
     first, second = _as_version_2(tmp_path)
     assert "ran task version 1" in refused(capsys, lambda: compare_runs.main([str(first), str(second)]))
+
+
+def test_a_history_at_another_stride_is_a_group_of_its_own_titled_by_it(tmp_path):
+    import json
+    import pathlib
+
+    from experiments import report
+
+    table = pathlib.Path(__file__).resolve().parents[1] / "results" / "toytown-pos-nocrash-default.json"
+    obj = json.loads(table.read_text())
+    for holder in (obj, obj["settings"]):
+        holder["protocol"]["history_stride"] = 5
+    strided = tmp_path / "stride.json"
+    strided.write_text(json.dumps(obj))
+    merged = report.merge([report.load(table), report.load(strided)])   # the same runs: merged, it would refuse
+    assert sorted(k.protocol for k in merged) == ["nocrash", "nocrash.episodes.mlp.stride5"]
+    (m,) = [m for k, m in merged.items() if k.protocol != "nocrash"]
+    assert "frames 5 steps apart" in m.title and m.protocol["variant_of"] == "nocrash"

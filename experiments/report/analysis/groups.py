@@ -237,18 +237,20 @@ def former_preset(res: results_lib.Results) -> str | None:
 def variant_name(res: results_lib.Results, protocol: dict) -> str:
     """The group name of a file's setting: its protocol's name for files split by episode with the `mlp` recipe (every
     file before results schema 3), else `NAME.SPLIT.RECIPE` (e.g. `mujoco-state.rows.bn-mlp`; `.h<H>` for another
-    history, `.<expert>` for another expert (`expert_part`: `.ppo`, `.cs294-56145a42`), `.raw` for raw labels, `.prev`
-    with the previous action in view), a group of its own: the recipe section (`recipe_groups`, `recipe_rows`) compares
-    them, and they never join the copycat map or the whole-episode tables. A retired preset's files
+    history, `.stride<K>` for a history's frames K steps apart, `.<expert>` for another expert (`expert_part`: `.ppo`,
+    `.cs294-56145a42`), `.raw` for raw labels, `.prev` with the previous action in view), a group of its own: the
+    recipe section (`recipe_groups`, `recipe_rows`) compares them, and they never join the copycat map or the
+    whole-episode tables. A retired preset's files
     (`former_preset`) are `NAME.first`, a group of their own too."""
     if former_preset(res) is not None:
         return f"{protocol['name']}.first"
     split, recipe = protocol.get("split") or "episodes", res.recipe_name
     history, expert, prev = other_history(protocol), expert_part(res, protocol), bool(protocol.get("prev_action"))
-    raw = raw_labels(protocol)
-    if (split, recipe, history, expert, raw, prev) == ("episodes", "mlp", None, None, False, False):
+    raw, stride = raw_labels(protocol), protocol.get("history_stride") or 1
+    if (split, recipe, history, expert, raw, prev, stride) == ("episodes", "mlp", None, None, False, False, 1):
         return protocol["name"]
     return (f"{protocol['name']}.{split}.{recipe}" + ("" if history is None else f".h{history}")
+            + ("" if stride == 1 else f".stride{stride}")
             + ("" if expert is None else f".{expert}") + (".raw" if raw else "") + (".prev" if prev else ""))
 
 
@@ -257,7 +259,7 @@ def other_setting(protocol: dict) -> bool:
     the previous action in view (`protocol.prev_action`), or a retired preset (such groups stay out of the recipe
     table and the paper-budget table, and are settings of their own in the map)."""
     return (other_history(protocol) is not None or protocol.get("expert") is not None or raw_labels(protocol)
-            or bool(protocol.get("prev_action")) or "preset" in protocol)
+            or bool(protocol.get("prev_action")) or "preset" in protocol or (protocol.get("history_stride") or 1) > 1)
 
 
 def other_history(protocol: dict) -> int | None:
@@ -279,6 +281,7 @@ def protocol_words(p: dict) -> str:
         history = other_history(p)
         return (f"{p['variant_of']}, split by {p.get('split')}, recipe {p.get('recipe')}"
                 + ("" if history is None else f", history {history}")
+                + ("" if (p.get("history_stride") or 1) == 1 else f", frames {p['history_stride']} steps apart")
                 + ("" if (words := expert_words(p)) is None else f", expert {words}")
                 + (", previous action in view" if p.get("prev_action") else ""))
     if not in_state_family(name) or name == STATE:
