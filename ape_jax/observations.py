@@ -235,6 +235,9 @@ class PreviousAction(Env):
     def render(self, state: State) -> jax.Array:
         return self.inner.render(state)
 
+    def caption(self, sim: Any, metrics: dict[str, float] | None = None) -> dict[str, str]:
+        return self.inner.caption(sim, metrics)
+
     def expert_observation(self, state: State) -> jax.Array:
         return self.inner.expert_observation(state)
 

@@ -181,6 +181,21 @@ class Env(abc.ABC):
         """
         return {}
 
+    def caption(self, sim: Any, metrics: dict[str, float] | None = None) -> dict[str, str]:
+        """What a video's caption says of one step, in words (host side, not traced): `{label: text}`.
+
+        Args:
+          sim: one step's simulator state (`sim_state`, unbatched host arrays), e.g. a driving task's speed and
+            the light ahead.
+          metrics: the episode's own metrics (`episode_metrics`, as floats), given for its last frame: then the
+            words include its outcome (e.g. `"outcome": "collision (vehicle)"`).
+
+        Returns:
+          The task's words, in the order shown; none by default (the caption then shows the method, the step and
+          the return only).
+        """
+        return {}
+
     def check_action(self, action: jax.Array) -> None:
         """Raises `ValueError` at trace time when `action` has the wrong shape."""
         shape = tuple(jnp.shape(action))

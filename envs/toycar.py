@@ -217,6 +217,19 @@ class ToyCar(ConfiguredEnv):
         after = jax.tree.map(lambda p, f: jnp.concatenate([p[1:], f[None]]), sims, final.pipeline_state)
         return episode_metrics(jax.tree.map(lambda p: p[0], sims), after, valid, self.config)
 
+    def caption(self, sim: ToyCarSim | dict, metrics: dict[str, float] | None = None) -> dict[str, str]:
+        """A video caption's words (`Env.caption`): the speed, the light (green, amber, red; none once passed) and
+        with the episode's `metrics` its outcome (success; else red light, stuck or timeout)."""
+        sim = ToyCarSim(**sim) if isinstance(sim, dict) else sim
+        light = ("none" if float(sim.x) > float(sim.light_x) else "red" if float(sim.green) <= 0 else
+                 "amber" if bool(amber(sim.green, sim.remaining, self.config)) else "green")
+        words = {"speed": f"{float(sim.v):.1f} m/s", "light": light}
+        if metrics is not None:
+            failed = [f"ran {metrics['red_light_violations']:.0f} red"] * (metrics["red_light_violations"] > 0) + \
+                ["stuck"] * (metrics["stuck"] > 0)
+            words["outcome"] = "success" if metrics["success"] > 0 else ", ".join(failed) or "timeout"
+        return words
+
 
 registry.register("toycar", ToyCar, ToyCarConfig, obs_modes=ToyCar.obs_modes, default_obs="image")
 

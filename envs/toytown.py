@@ -349,6 +349,22 @@ class ToyTown(ConfiguredEnv):
     def episode_metrics(self, sims: ToyTownSim, final: State, valid: jax.Array) -> dict[str, jax.Array]:
         return episode_metrics(jax.tree.map(lambda a: a[0], sims), final.pipeline_state, valid, self.config)
 
+    def caption(self, sim: ToyTownSim | dict, metrics: dict[str, float] | None = None) -> dict[str, str]:
+        """A video caption's words (`Env.caption`): the speed and the light ahead as the full state has them (red,
+        amber, green; none within sight), and with the episode's `metrics` its outcome (success; a collision and
+        with what; a timeout; stuck; red lights run)."""
+        full = dict(zip(FEATURES, features(ToyTownSim(**sim) if isinstance(sim, dict) else sim, self.config).tolist()))
+        lit = [colour for colour in ("red", "amber", "green") if full[f"light_{colour}"] > 0.5]
+        words = {"speed": f"{full['speed']:.1f} m/s", "light": lit[0] if lit else "none"}
+        if metrics is not None:
+            hit = [what for what in ("vehicle", "pedestrian", "offroad") if metrics[f"collisions_{what}"] > 0]
+            ends = ["success"] if metrics["success"] > 0 else [f"collision ({', '.join(hit)})"] if hit else \
+                ["timeout"]
+            ends += ["stuck"] * (metrics["stuck"] > 0) + \
+                [f"{metrics['red_light_violations']:.0f} red light(s) run"] * (metrics["red_light_violations"] > 0)
+            words["outcome"] = ", ".join(ends)
+        return words
+
 
 registry.register("toytown", ToyTown, ToyTownConfig, obs_modes=ToyTown.obs_modes, default_obs="image")
 

@@ -13,6 +13,8 @@ Ctrl-C stops a run with exit status 130 and one line. Python ignores an exceptio
 propagated (a `gc.callbacks` function such as JAX's `_xla_gc_callback`, a finalizer), so a Ctrl-C landing there
 would be lost: inside `interrupts()` it is recorded, never reported as "Exception ignored", and
 `raise_if_interrupted` (called between chunks by `checked_bar`'s bars, and before results are written) raises it.
+A Ctrl-C during a collection's compile (run in the background so it is not held for it) leaves the compile
+running: `end_if_compiling` ends such a process at once.
 """
 
 from __future__ import annotations
@@ -208,6 +210,18 @@ def raise_if_interrupted() -> None:
         raise KeyboardInterrupt
 
 
+def end_if_compiling(code: int) -> None:
+    """Ends the process now with exit status `code` where a Ctrl-C left a program compiling in the background (a
+    collection's, `ape_jax.pipeline.collect.compiling`); otherwise returns. XLA's compile cannot be stopped and
+    tearing the interpreter down under it crashes (exit 139), so the output is flushed and the process leaves
+    with `os._exit`: call it last, once files and locks are dealt with."""
+    collect = sys.modules.get("ape_jax.pipeline.collect")   # not imported: nothing of it can be compiling
+    if collect is not None and collect.compiling():
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+
+
 def interruptible(left: str):
     """Makes an entry point's `main(argv)` stop on Ctrl-C with one line, `PROG: interrupted; LEFT`, and exit status
     130 (run inside `interrupts()`); `left` says what the interrupted command leaves, e.g. "nothing was written"."""
@@ -219,6 +233,7 @@ def interruptible(left: str):
                     return main(argv)
             except KeyboardInterrupt:
                 print(f"\n{_PROG[0] + ': ' if _PROG else ''}interrupted; {left}", file=sys.stderr)
+                end_if_compiling(130)
                 return 130
         return run
     return wrap

@@ -19,10 +19,13 @@ configuration's mean return before and after.
 
 `--video METHOD[:SEED]` instead writes a GIF of one of the policy's evaluation
 episodes (`--episode`, default 0) to `RUN/videos/` (or `--video-out FILE.gif`),
-rendered as the sweep's evaluation saw it, with its return in the caption
-(`ape_jax.pipeline.watch`); a method that ran several settings shows its best
-(by mean return), at its first seed unless SEED is given. `results.json` is
-left alone.
+rendered as the sweep's evaluation saw it, captioned with the method, step, the
+task's words (ToyTown's speed and light ahead), the return and, at the end, the
+outcome (`ape_jax.pipeline.watch`); a method that ran several settings shows its
+best (by mean return), at its first seed unless SEED is given. `expert` is the
+task's expert on the same episode; `--video ours-step:0,expert` shows both side
+by side. It plays at the control step's rate (ToyTown: 10 frames per second),
+skipping steps of long episodes (said in the output). `results.json` is left alone.
 
 `--rejudge FILE [FILE ...]` instead recomputes each results file's controlled
 copycat verdict from its recorded diagnostics (no policies needed;
@@ -63,8 +66,9 @@ def main(argv=None) -> int:
                         "results to FILE (or --out), FILE's own record kept under `replaces`")
     p.add_argument("--data-dir", type=pathlib.Path, default=None,
                    help=f"demonstration cache (default: {data.cache_dir()})")
-    p.add_argument("--video", default=None, metavar="METHOD[:SEED]",
-                   help="write a GIF of this policy's evaluation episode instead (results.json is left alone)")
+    p.add_argument("--video", default=None, metavar="METHOD[:SEED][,...]",
+                   help="write a GIF of this policy's evaluation episode instead (results.json is left alone); "
+                        "'expert' is the task's expert; several, comma-separated, side by side")
     p.add_argument("--episode", type=int, default=0, help="with --video: which evaluation episode (default 0)")
     p.add_argument("--video-out", type=pathlib.Path, default=None, metavar="FILE.gif",
                    help="with --video: where (default RUN/videos/METHOD-seedSEED-episodeN.gif)")
@@ -240,27 +244,36 @@ def _verdict_counts(res) -> str:
 
 
 def _video(p, args, res) -> int:
-    """`--video`: one evaluation episode of a saved policy as a captioned GIF."""
+    """`--video`: one evaluation episode of saved policies (or the expert) as a captioned GIF, side by side."""
     from ape_jax.pipeline import watch
 
     run = RunDir(args.run)
     try:
-        method, seed = watch.parse_choice(args.video)
-        record = watch.choose_run(res, method, seed)
+        choices = watch.parse_choices(args.video)
+        records = [None if method == watch.EXPERT else watch.choose_run(res, method, seed) for method, seed in choices]
     except watch.WatchError as e:
         return fail(p, str(e))
-    target = args.video_out or run.video(method, record["seed"], args.episode)
+    names = [method if record is None else f"{method}-seed{record['seed']}"
+             for (method, _), record in zip(choices, records)]
+    target = args.video_out or run.videos / f"{'+'.join(names)}-episode{args.episode}.gif"
     if (why := unwritable_file(target)) is not None:
         return fail(p, f"cannot write the video to {target}: {why}")
     from envs.experts import ExpertError
 
     try:
-        clip = watch.episode_of(res, run.params, method, record["seed"], args.episode, args.data_dir)
+        clips = [watch.expert_episode_of(res, args.episode, args.data_dir) if record is None else
+                 watch.episode_of(res, run.params, method, record["seed"], args.episode, args.data_dir)
+                 for (method, _), record in zip(choices, records)]
     except (watch.WatchError, ExpertError, ValueError) as e:
         return fail(p, str(e))
-    watch.write_gif(clip, target)
-    print(f"wrote {target}: {clip.title}, {clip.metric} {clip.episode_metric:,.4g} (the evaluation's mean "
-          f"{clip.mean_metric:,.4g}), {len(clip.frames)} frames at {clip.fps} per second")
+    watch.write_gif(clips, target)
+    first = clips[0]
+    shown = (f"every step, {first.speedup:.3g}× real time" if first.stride == 1 else
+             f"every {first.stride}th step, frames skipped: {first.speedup:.3g}× real time")
+    print(f"wrote {target}: " + "; ".join(
+        f"{c.title}, {c.metric} {c.episode_metric:,.4g} (the evaluation's mean {c.mean_metric:,.4g})"
+        + (f", {c.outcome}" if c.outcome else "") for c in clips)
+        + f"; {max(len(c.frames) for c in clips)} frames at {first.fps:g} per second ({shown})")
     return 0
 
 

@@ -38,8 +38,8 @@ import sys
 from experiments import _distributed, _reference
 from experiments._table import table
 from experiments._cli import (EPISODES_LIMIT, UPDATES_LIMIT, Parser, add_compile_cache_flag, checked_bar,
-                             data_directory, fail, interrupts, raise_if_interrupted, refused, unwritable,
-                             use_compile_cache)
+                             data_directory, end_if_compiling, fail, interrupts, raise_if_interrupted, refused,
+                             unwritable, use_compile_cache)
 from experiments._sweep_checks import demonstrations_writable, grid, step_setting, temperature
 
 PROG = "python -m experiments.sweep"
@@ -275,8 +275,9 @@ def main(argv=None) -> int:
     except SystemExit as e:
         code = e.code
         raise
-    except KeyboardInterrupt:
-        print(f"\n{_prog()}: {_interrupted(argv, state.get('args'))}", file=sys.stderr)
+    except KeyboardInterrupt as e:
+        code = 130
+        print(f"\n{_prog()}: {_interrupted(argv, state.get('args'), e)}", file=sys.stderr)
         return 130
     finally:
         if (lock := state.get("lock")) is not None:
@@ -284,6 +285,8 @@ def main(argv=None) -> int:
         out = state["args"].out if state.get("created") else None
         if out is not None and out.is_dir() and not any(out.iterdir()):
             out.rmdir()  # a sweep refused or stopped before any work leaves no empty folder behind
+        if code == 130:
+            end_if_compiling(130)   # a Ctrl-C during a collection's compile: leave now, the lock released
 
 
 def _main(argv, state: dict) -> int:
@@ -328,13 +331,21 @@ def _hold(out: pathlib.Path):
         lock.acquire()
     except LockHeld as e:
         fail(None, str(e))
+    if lock.took_over is not None:
+        print(f"took over {lock.path}: the sweep that held it ({lock.took_over}) ended without releasing it")
     return lock
 
 
-def _interrupted(argv, args: argparse.Namespace | None) -> str:
-    """The one line Ctrl-C leaves: how to resume what was saved, or that nothing was."""
+def _interrupted(argv, args: argparse.Namespace | None, why: BaseException | None = None) -> str:
+    """The one line Ctrl-C leaves: what it stopped where that was the collection of demonstrations (`why`, a
+    `collect.CollectionInterrupted`), and how to resume what was saved, or that nothing was."""
     from ape_jax.pipeline.rundir import RunDir
 
+    collect = sys.modules.get("ape_jax.pipeline.collect")   # not imported yet: it cannot have been collecting
+    if collect is not None and isinstance(why, collect.CollectionInterrupted):
+        if args is None or not holds_sweep(args.out):
+            return f"interrupted: {why}; run the same command again to start"
+        return f"interrupted: {why}; " + _interrupted(argv, args).removeprefix("interrupted; ")
     if args is None or not holds_sweep(args.out):
         return "interrupted before anything was saved; run the same command again to start"
     given = list(sys.argv[1:] if argv is None else argv)

@@ -218,6 +218,30 @@ def test_a_real_sigint_during_training_leaves_one_line_and_resumable_checkpoints
     assert saved and all(ProgramCheckpoint(p, 50)._manager().latest_step() for p in saved)
 
 
+def test_a_real_sigint_while_demonstrations_are_collected_stops_the_sweep_within_seconds_caching_nothing(tmp_path):
+    """Collection runs in short jitted chunks and compiles in the background: a Ctrl-C is not held for a whole
+    batch of episodes or an XLA compile (it took 20-38 s), and it says what it stopped."""
+    out, data = tmp_path / "run", tmp_path / "data"
+    argv = [*TINY, "--set", "protocol.episodes=100000", "--out", str(out), "--data-dir", str(data)]
+    proc = subprocess.Popen([sys.executable, "-u", "-m", "experiments.sweep", *argv], cwd=ROOT, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        assert proc.stdout.readline().startswith("sweep: toycar")   # printed just before the collection starts
+        time.sleep(2.0)   # compiling, or collecting (100,000 ToyCar episodes take minutes)
+        proc.send_signal(signal.SIGINT)
+        sent = time.monotonic()
+        _, err = proc.communicate(timeout=60)
+        took = time.monotonic() - sent
+    finally:
+        proc.kill()
+    assert proc.returncode == 130 and "Traceback" not in err, err[-3000:]
+    assert took < 5.0, f"the sweep took {took:.1f} s to stop"   # ~1 s, most of it the interpreter's exit
+    line = err.strip().splitlines()[-1]
+    assert line.startswith(f"{PROG}: interrupted: stopped the collection of 100,000 expert episodes (") and \
+        "collected, nothing cached); " in line, line
+    assert not list(data.glob("*.npz")) and not (out / LOCK).exists()
+
+
 # -- 6. a held folder ------------------------------------------------------------------------------------------------
 
 HOLDER = """
@@ -253,6 +277,25 @@ def test_a_second_sweep_into_a_held_folder_is_refused_naming_the_holder_and_a_ki
         record = json.loads((out / LOCK).read_text())
         assert record["pid"] == os.getpid() and record["host"] == socket.gethostname()
     assert not (out / LOCK).exists()
+
+
+def test_a_lock_left_by_a_killed_sweep_is_taken_over_saying_so_in_one_line(tmp_path, capsys):
+    out = tmp_path / "run"
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER, str(out)], cwd=ROOT, stdout=subprocess.PIPE, text=True,
+                              env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        assert holder.stdout.readline() == "held\n"
+        started = json.loads((out / LOCK).read_text())["started"]
+    finally:
+        holder.kill()   # SIGKILL: no chance to release; the kernel drops the flock, the file stays
+        holder.wait()
+    (out / "checkpoints").mkdir()
+    (out / "checkpoints" / "notes.txt").write_text("someone else's")   # so the sweep stops right after the lock
+    with pytest.raises(SystemExit):
+        sweep.main([*TINY, "--out", str(out)])
+    printed = capsys.readouterr().out
+    assert printed.splitlines()[0] == (f"took over {out / LOCK}: the sweep that held it (pid {holder.pid} on "
+                                       f"{socket.gethostname()}, started {started}) ended without releasing it")
 
 
 def test_the_lock_is_exclusive_within_one_process_too_and_a_folder_without_one_is_taken(tmp_path):

@@ -29,6 +29,23 @@ def noisy(car):
     return collect.collect(car, car.expert, jax.random.PRNGKey(1), num_episodes=3, noise_frac=0.5, noise_std=0.5)
 
 
+@pytest.mark.parametrize("chunk", [64, 300])
+def test_collection_in_chunks_has_the_whole_episode_programs_rows_and_stops_once_every_episode_ended(car, chunk):
+    """`collect` runs jitted chunks of steps (a Ctrl-C waits for one chunk, not a batch's whole episodes): the
+    rows, labels, simulator states and final states are bit for bit those of one whole-episode program."""
+    key = jax.random.PRNGKey(5)
+    whole = jax.device_get(collect.make_batch_collector(car, car.expert, 4, 0.3, 0.5, 3)(key))
+    chunked = collect.make_chunked_collector(car, car.expert, 4, 0.3, 0.5, 3, chunk=chunk)(key)
+    steps = chunked.valid.shape[1]
+    assert steps < car.episode_length or chunk == car.episode_length   # stopped early: all ended by then
+    assert not np.asarray(whole.valid)[:, steps:].any()   # what the chunks left out was outside every episode
+    cut = jax.tree.map(lambda x: np.asarray(x)[:, :steps], whole.replace(final=None))
+    for a, b in zip(jax.tree.leaves(cut), jax.tree.leaves(chunked.replace(final=None)), strict=True):
+        np.testing.assert_array_equal(a, b)
+    for a, b in zip(jax.tree.leaves(whole.final), jax.tree.leaves(chunked.final), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_collected_transitions_have_consistent_shapes_and_episode_boundaries(car, demos):
     n = len(demos)
     assert demos.obs.shape == (n, 5) and demos.obs.dtype == np.float32

@@ -369,10 +369,19 @@ def test_a_saved_policy_is_watched_as_a_captioned_gif_of_its_evaluation_episode(
         im.seek(im.n_frames // 2)
         frame = np.asarray(im.convert("RGB"))
     assert frame[:256].std() > 5 and (frame[256:] < 100).any()   # a picture, and dark caption text
+    # the expert beside the policy, on the same episode: ToyCar's 0.1 s steps at 10 frames per second
+    assert evaluate.main([str(run), "--video", "ours-step:0,expert", "--episode", "1", *data]) == 0
+    out = capsys.readouterr().out
+    both = run / "videos" / "ours-step-seed0+expert-episode1.gif"
+    assert f"wrote {both}" in out and "expert, episode 1" in out and "at 10 per second (every step" in out
+    with Image.open(both) as im:
+        assert im.width == 2 * 256 + 4 and im.info["duration"] == 100
     for argv, message in ((["--video", "nope"], "no trained policy of method 'nope' in this sweep; it ran: "
                                                 "bc-oh, ours-step"),
                           (["--video", "bc-oh:7"], "has no seed 7"),
                           (["--video", "bc-oh:x"], "must be an integer"),
+                          (["--video", "bc-oh,bc-oh"], "each policy once"),
+                          (["--video", "expert:0"], "the expert has no seed"),
                           (["--video", "bc-oh", "--episode", "5"], "episode 5 is not one of the evaluation's 2"),
                           (["--video", "bc-oh", "--video-out", str(tmp_path / "a.mp4")], "must name a .gif"),
                           (["--episode", "1"], "go with --video")):

@@ -83,12 +83,14 @@ class OutLock:
     unlocks; a process that opened the file before it was deleted finds, after locking, that the path no longer
     names the file it locked, and opens it again. `release(restore=True)` (a sweep that refused, having done
     nothing) leaves the folder as it was found instead: a file it took over gets its old contents back.
+    `took_over` then names the sweep whose stale file was taken over (`pid P on HOST, started T`), else None.
     """
 
     def __init__(self, out: os.PathLike):
         self.path = RunDir(out).lock
         self._fd: int | None = None
         self._found: bytes | None = None   # the contents of a file that was there before `acquire`
+        self.took_over: str | None = None
 
     def acquire(self) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -120,6 +122,8 @@ class OutLock:
         record = {"pid": os.getpid(), "host": socket.gethostname(),
                   "started": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
                   "command": sys.argv}
+        # a file left behind and not locked: its sweep ended without releasing it (killed: SIGKILL, a power cut)
+        self.took_over = None if found is None else _recorded(found) or "a sweep that left no record"
         os.ftruncate(fd, 0)
         os.pwrite(fd, (json.dumps(record) + "\n").encode(), 0)
         self._fd, self._found = fd, found
@@ -148,10 +152,18 @@ class OutLock:
 def _holder(fd: int) -> str:
     """Who holds the lock, as its file records it (`pid P on HOST, started T`)."""
     try:
-        record = json.loads(os.pread(fd, 1 << 16, 0).decode())
-        return f"pid {int(record['pid'])} on {record['host']}, started {record['started']}"
-    except (OSError, ValueError, KeyError, TypeError):
+        return _recorded(os.pread(fd, 1 << 16, 0)) or "its lock file is still being written"
+    except OSError:
         return "its lock file is still being written"
+
+
+def _recorded(text: bytes) -> str | None:
+    """The sweep a lock file's contents name, `pid P on HOST, started T`; None where they name none."""
+    try:
+        record = json.loads(text.decode())
+        return f"pid {int(record['pid'])} on {record['host']}, started {record['started']}"
+    except (ValueError, KeyError, TypeError):
+        return None
 
 
 def _differences(old: Any, new: Any, prefix: str = "") -> list[str]:

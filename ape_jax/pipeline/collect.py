@@ -33,6 +33,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import pathlib
+import threading
 import time
 from importlib.metadata import version
 from typing import Any
@@ -146,15 +147,108 @@ def make_batch_collector(env: envs.Env, expert: Callable[[jax.Array], jax.Array]
     return jax.jit(lambda k: envs.rollout(env, policy, None, k, batch, record=record))
 
 
+CHUNK_STEPS = 100  # steps per jitted call of `collect`: a Ctrl-C waits for one chunk (ToyTown's 32 episodes: ~0.05 s)
+
+
+class CollectionInterrupted(KeyboardInterrupt):
+    """Ctrl-C while `collect` ran: nothing was returned (so nothing cached); `done` of `total` episodes had been
+    collected."""
+
+    def __init__(self, done: int, total: int):
+        super().__init__(f"stopped the collection of {total:,} expert episodes ({done:,} collected, nothing cached)")
+        self.done, self.total = done, total
+
+
+_COMPILES: set[threading.Event] = set()   # one per compile a Ctrl-C left running, set when it ends (`compiling`)
+
+
+def compiling() -> bool:
+    """Whether a collection program is still compiling in the background: a Ctrl-C stopped the wait for it."""
+    return any(not finished.is_set() for finished in _COMPILES)
+
+
+def compiled(fn: Callable, *args) -> Callable:
+    """`jax.jit(fn).lower(*args).compile()`, run in a daemon thread while this one waits for it.
+
+    XLA's compile of a collection program takes seconds (ToyTown's, ~7 s; several times that on a loaded CPU) and
+    holds the thread that runs it: Python runs a Ctrl-C's handler only once that thread is back in Python. Waiting
+    here, the KeyboardInterrupt is raised at once and the compile is abandoned (`compiling` says so: an entry
+    point then ends the process with `os._exit`, since tearing the interpreter down under XLA crashes it). The
+    persistent compilation cache applies as it does to any jitted call.
+    """
+    box: dict = {}
+    finished = threading.Event()   # not `Thread.join`: an interrupted join marks a running thread stopped
+
+    def work():
+        try:
+            box["program"] = jax.jit(fn).lower(*args).compile()
+        except BaseException as e:   # handed to the waiting thread, which raises it
+            box["error"] = e
+        finally:
+            finished.set()
+
+    _COMPILES.add(finished)
+    threading.Thread(target=work, name="ape_jax-compile", daemon=True).start()
+    while not finished.wait(0.05):   # a Ctrl-C raises here
+        pass
+    _COMPILES.discard(finished)
+    if "error" in box:
+        raise box["error"]
+    return box["program"]
+
+
+def make_chunked_collector(env: envs.Env, expert: Callable[[jax.Array], jax.Array], batch: int,
+                           noise_frac: float = 0.0, noise_std: float = 0.0, noise_steps: int = 1,
+                           chunk: int = CHUNK_STEPS) -> Callable[[jax.Array], envs.Trajectory]:
+    """`make_batch_collector`'s `key -> Trajectory`, run as chunks of `chunk` steps with the host between them.
+
+    The steps are the batch collector's (the same keys; `envs.rollout.start` / `advance`), so the rows kept are
+    too. A Ctrl-C (KeyboardInterrupt) is raised between two chunks, or at once while a program compiles
+    (`compiled`), where one whole-episode call would hold it for its compile and the whole episode. The chunks
+    stop once every episode has ended: the trajectory may have fewer than `env.episode_length` steps (the ones
+    left out were all invalid).
+    """
+    from envs.rollout import advance, start
+
+    policy = _noisy_expert(env, expert, noise_frac, noise_std, noise_steps)
+
+    def record(state):
+        return {"label": expert(env.expert_observation(state)), "sim": _as_dict(env.sim_state(state))}
+
+    total = env.episode_length
+    programs: dict = {}   # compiled once per collector: the start, and one per chunk length (a remainder: two)
+
+    def program(name, fn, *args):
+        if name not in programs:
+            programs[name] = compiled(fn, *args)
+        return programs[name]
+
+    def run(key: jax.Array) -> envs.Trajectory:
+        running = program("start", lambda k: start(env, policy, None, k, batch), key)(key)
+        pieces = []
+        for t in range(0, total, chunk):
+            n = min(chunk, total - t)
+            step = program(n, lambda r, n=n: advance(env, policy, None, r, n, record=record), running)
+            running, piece = step(running)
+            pieces.append(jax.device_get(piece))   # waits for the chunk; a Ctrl-C is raised after it
+            if bool(running.all_done):
+                break
+        return jax.tree.map(lambda *xs: np.concatenate(xs, axis=1), *(p.replace(final=None) for p in pieces)
+                            ).replace(final=jax.device_get(running.state))
+
+    return run
+
+
 def collect(env: envs.Env, expert: Callable[[jax.Array], jax.Array], key: jax.Array, num_episodes: int,
             noise_frac: float = 0.0, noise_std: float = 0.0, batch: int = 32,
             progress: Callable[[int], None] | None = None, labels: str = "clipped",
             noise_steps: int = 1) -> data_lib.Demonstrations:
     """Rolls out `expert` for `num_episodes` episodes and returns their transitions.
 
-    Episodes run `batch` at a time in one jitted program (vmapped over
-    episodes, `lax.scan` over `env.episode_length` steps); the last batch is
-    padded and trimmed, so there is one compilation.
+    Episodes run `batch` at a time (vmapped over episodes, `lax.scan` over
+    `env.episode_length` steps) in jitted chunks of `CHUNK_STEPS` steps
+    (`make_chunked_collector`: Ctrl-C stops it between chunks, nothing
+    returned); the last batch is padded and trimmed, so the chunks compile once.
 
     Args:
       env: the environment, in the observation mode to record.
@@ -170,6 +264,9 @@ def collect(env: envs.Env, expert: Callable[[jax.Array], jax.Array], key: jax.Ar
     Returns:
       `Demonstrations` (NumPy arrays), episodes `0 .. num_episodes-1` in order; `executed` within the action
       bounds whatever `labels` says.
+
+    Raises:
+      CollectionInterrupted: Ctrl-C (a KeyboardInterrupt) while collecting; nothing is returned.
     """
     if labels not in tasks.LABELS:
         raise ValueError(f"labels {labels!r} is not one of {', '.join(tasks.LABELS)}")
@@ -179,14 +276,17 @@ def collect(env: envs.Env, expert: Callable[[jax.Array], jax.Array], key: jax.Ar
         raise ValueError(f"noise_frac must be in [0, 1], noise_std >= 0 and noise_steps >= 1, got {noise_frac}, "
                          f"{noise_std} and {noise_steps}")
     batch = min(batch, num_episodes)
-    run = make_batch_collector(env, expert, batch, noise_frac, noise_std, noise_steps)
+    run = make_chunked_collector(env, expert, batch, noise_frac, noise_std, noise_steps)
     parts = []
-    for i in range(-(-num_episodes // batch)):
-        traj = jax.device_get(run(jax.random.fold_in(key, i)))
-        keep = min(batch, num_episodes - i * batch)
-        parts.append(_flatten(traj, keep, first_episode=i * batch))
-        if progress:
-            progress(min((i + 1) * batch, num_episodes))
+    try:
+        for i in range(-(-num_episodes // batch)):
+            traj = run(jax.random.fold_in(key, i))
+            keep = min(batch, num_episodes - i * batch)
+            parts.append(_flatten(traj, keep, first_episode=i * batch))
+            if progress:
+                progress(min((i + 1) * batch, num_episodes))
+    except KeyboardInterrupt:
+        raise CollectionInterrupted(sum(len(np.unique(p.episode)) for p in parts), num_episodes) from None
     demos = jax.tree.map(lambda *xs: np.concatenate(xs), *parts)
     if labels == "clipped":
         demos = demos.replace(action=_clipped(demos.action, env))
