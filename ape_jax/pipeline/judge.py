@@ -78,11 +78,12 @@ def control_errors(res: Results) -> dict[int, list[float]]:
 
 
 def control_key(res: Results) -> dict:
-    """What must agree for one file's control to stand for another's: the task and observation mode, the
-    demonstrations (`config.data` but their path), the protocol's fields (but `prev_action`: the control sees no
-    previous action; and `history_stride`: it sees one frame, at any stride), the recipe's fields (the learner's: the methods' knobs are their own records, `Settings.knobs`),
-    the training length and the probe (fit steps and rows). The records as resolved (`Results.records`), so a
-    file from before a field was recorded matches one with its default."""
+    """What must agree for one file's control to stand for another's: the task and observation mode, the demonstrations
+    (`config.data` but their path), the protocol's fields (but `prev_action`: the control sees no previous
+    action; and `history_stride`: it sees one frame, at any stride), the recipe's fields (the learner's: the
+    methods' knobs are their own records, `Settings.knobs`), the training length and the probe (fit steps and
+    rows). The records as resolved (`Results.records`), so a file from before a field was recorded matches one
+    with its default."""
     records = res.records()
     protocol = {k: v for k, v in dataclasses.asdict(records.protocol).items()
                 if k not in ("name", "doc", "prev_action", "history_stride")}
