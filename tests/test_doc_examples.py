@@ -82,3 +82,15 @@ def _run(command, where, cwd, env) -> str:
                                          for c in ex.commands(b)) or any(b.lang == "python" for b in ex.blocks(p))])
 def test_the_examples_of_a_page_run_in_order(page, tmp_path, cache):
     assert _run_page(page, tmp_path, cache)
+
+
+def test_the_readmes_commands_run_as_typed_from_the_clone_after_its_install():
+    """The README installs into `./.venv` and never activates it, so each of its commands names that interpreter (a
+    bare `python -m ...` fails with `No module named 'jax'` in a fresh shell): in code blocks and in inline code."""
+    import re
+
+    text = (ex.ROOT / "README.md").read_text()
+    bare = [c for c in re.findall(r"(?:^|[`\s:])((?:[^\s`]*/)?python3? -m [^\s`]+)", text, re.M)
+            if not c.startswith(".venv/bin/") and not c.startswith("python3 -m venv")]
+    assert not bare, f"README commands that a fresh shell cannot run as typed: {bare}"
+    assert text.count(".venv/bin/python -m experiments.") >= 6
