@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from experiments import report
-from experiments.report.analysis import Key, driving_comparisons, driving_rows, loss_rows, merge
+from experiments.report.analysis import Key, driving_rows, loss_rows, merge
+from test_report_findings import _comparisons, _verdicts as _copycats
 
 RESULTS = pathlib.Path(__file__).resolve().parents[1] / "results"
 
@@ -26,17 +27,6 @@ def _table(protocol: str, stem: str = "default"):
 
 def _pct(per, method) -> float:
     return round(100 * per[method]["success"].mean(), 1)
-
-
-def _comparisons(m) -> dict:
-    return {(c.a, c.b, c.metric): f"{c.ci.diff:+.1f} [{c.ci.low:+.1f}, {c.ci.high:+.1f}]" if c.metric == "success"
-            else f"{c.ci.diff:+.2f} [{c.ci.low:+.2f}, {c.ci.high:+.2f}]" for c in driving_comparisons(m)}
-
-
-def _copycats(m) -> tuple[int, set]:
-    pairs = [(r["diagnostics"]["verdict"], r["diagnostics"]["controlled_verdict"]) for r in m.runs
-             if r.get("diagnostics") and r["diagnostics"].get("verdict")]
-    return len(pairs), {v for pair in pairs for v in pair}
 
 
 def _val_loss(m) -> dict:

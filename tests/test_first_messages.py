@@ -16,20 +16,12 @@ from ape_jax.pipeline.presets import SettingsError, parse_set
 from experiments import collect, compare, keyframes, pose_probe
 
 from _refusal import assert_sweep_refuses
+from test_cli_guards import refused
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 TOYTOWN = ROOT / "results" / "toytown-image-nocrash-default-seeds0.json"
 FORMS = "an image size is N, HxW or H,W (positive integers)"
 TINY = ["--env", "toycar", "--obs", "full", "--iterations", "4", "--eval-episodes", "2", "--seeds", "1", "--quiet"]
-
-
-def refused(capsys, call) -> str:
-    """The one line `call()` refuses with (exit status 2)."""
-    with pytest.raises(SystemExit) as exc:
-        call()
-    err = capsys.readouterr().err
-    assert exc.value.code == 2 and err.count("\n") == 1 and "Traceback" not in err, err
-    return err
 
 
 # -- image sizes: one reader ----------------------------------------------------------------------------------------

@@ -18,6 +18,7 @@ from envs import toytown_world as world
 from envs.toytown import step_sim
 from envs.toytown_expert import FEATURES, HIDDEN, LEAD_BRAKES, features, one_frame, one_frame_names, perception
 from experiments import sweep
+from test_cli_guards import refused
 
 SHORT = dict(route_length=180.0, intersections=2, episode_length=700)
 GREEN_FOREVER = dict(green_range=(1000.0, 1000.0))
@@ -168,14 +169,6 @@ def test_a_history_at_stride_k_spans_k_steps_and_the_policy_sees_its_ends():
     np.testing.assert_array_equal(seen, jnp.concatenate([window[0, 0], window[0, 5]])[None])
     with pytest.raises(ValueError, match="must be a multiple of history_stride"):
         LearnerConfig(obs_shape=(4,), action_dim=3, history=5, history_stride=5)
-
-
-def refused(capsys, call) -> str:
-    with pytest.raises(SystemExit) as exc:
-        call()
-    err = capsys.readouterr().err
-    assert exc.value.code == 2 and err.count("\n") == 1 and "Traceback" not in err, err
-    return err
 
 
 @pytest.mark.parametrize("argv,message", [
