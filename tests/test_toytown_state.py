@@ -188,18 +188,23 @@ def test_a_one_frame_state_or_a_stride_the_task_cannot_take_is_refused_and_nothi
 
 # -- versions never merge --------------------------------------------------------------------------------------------
 
-def _as_version_2(tmp_path):
-    """The committed Table 1 seed-0 file (the first version: it records none) and a copy that says version 2."""
+def _with_protocol(tmp_path, name: str, **fields):
+    """Committed results file `name` and a copy of it whose protocol (and settings' protocol) sets `fields`."""
     import json
     import pathlib
 
-    first = pathlib.Path(__file__).resolve().parents[1] / "results" / "toytown-image-nocrash-default-seeds0.json"
+    first = pathlib.Path(__file__).resolve().parents[1] / "results" / name
     obj = json.loads(first.read_text())
     for holder in (obj, obj["settings"]):
-        holder["protocol"]["task_version"] = 2
-    second = tmp_path / "v2.json"
+        holder["protocol"].update(fields)
+    second = tmp_path / "changed.json"
     second.write_text(json.dumps(obj))
     return first, second
+
+
+def _as_version_2(tmp_path):
+    """The committed Table 1 seed-0 file (the first version: it records none) and a copy that says version 2."""
+    return _with_protocol(tmp_path, "toytown-image-nocrash-default-seeds0.json", task_version=2)
 
 
 def test_results_of_two_task_versions_are_grouped_apart_and_the_first_is_labelled(tmp_path):
@@ -221,17 +226,9 @@ def test_compare_runs_refuses_two_task_versions_in_one_line(tmp_path, capsys):
 
 
 def test_a_history_at_another_stride_is_a_group_of_its_own_titled_by_it(tmp_path):
-    import json
-    import pathlib
-
     from experiments import report
 
-    table = pathlib.Path(__file__).resolve().parents[1] / "results" / "toytown-pos-nocrash-default.json"
-    obj = json.loads(table.read_text())
-    for holder in (obj, obj["settings"]):
-        holder["protocol"]["history_stride"] = 5
-    strided = tmp_path / "stride.json"
-    strided.write_text(json.dumps(obj))
+    table, strided = _with_protocol(tmp_path, "toytown-pos-nocrash-default.json", history_stride=5)
     merged = report.merge([report.load(table), report.load(strided)])   # the same runs: merged, it would refuse
     assert sorted(k.protocol for k in merged) == ["nocrash", "nocrash.episodes.mlp.stride5"]
     (m,) = [m for k, m in merged.items() if k.protocol != "nocrash"]
