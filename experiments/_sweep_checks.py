@@ -1,11 +1,13 @@
-"""The sweep's own argument checks (`experiments.sweep`): its grids given on the command line, and a
-demonstration cache it would have to write. Each refuses with one line and exit status 2 (`_cli.fail`)."""
+"""The sweep's own argument checks (`experiments.sweep`): its grids given on the command line, a
+demonstration cache it would have to write, and what it asks for in updates and episodes (`cost`, against
+`_cli.UPDATES_LIMIT` and `EPISODES_LIMIT`). Each refuses with one line and exit status 2 (`_cli.fail`)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
-from experiments._cli import fail, unwritable
+from experiments._cli import EPISODES_LIMIT, UPDATES_LIMIT, fail, unwritable
 
 
 def grid(p, flag: str, text: str, parse_one) -> tuple:
@@ -56,3 +58,43 @@ def demonstrations_writable(spec) -> None:
     path = data.cache_path(spec.data_dir or data.cache_dir(), key)
     if not path.exists() and (why := unwritable(path.parent)):
         fail(None, f"--data-dir {path.parent}: cannot save the demonstrations to be collected there: {why}")
+
+
+@dataclasses.dataclass(frozen=True)
+class Cost:
+    """What a sweep asks for: `configurations` (method settings) x `seeds` x `iterations` model updates, and
+    `episodes` evaluation episodes (every policy at the end and at each `eval_at`)."""
+
+    configurations: int
+    seeds: int
+    iterations: int
+    episodes: int
+
+    @property
+    def updates(self) -> int:
+        return self.configurations * self.seeds * self.iterations
+
+    @property
+    def over(self) -> bool:
+        return self.updates > UPDATES_LIMIT or self.episodes > EPISODES_LIMIT
+
+    def __str__(self) -> str:
+        return (f"this sweep asks for {self.updates:,} model updates ({self.configurations:,} configurations x "
+                f"{self.seeds:,} seeds x {self.iterations:,} iterations) and {self.episodes:,} evaluation episodes")
+
+
+def cost(env: str, settings, names) -> Cost | None:
+    """The sweep's `Cost` from its settings and methods, before anything runs; None where a method's grid cannot
+    be listed without the demonstrations (a plugin's that reads the training split's size)."""
+    from ape_jax import methods, tasks
+    from ape_jax.pipeline.sweep import grid_runs
+
+    budget = settings.budget
+    ctx = methods.GridContext(task=tasks.get(env), n_train=settings.protocol.train_transitions or 1,
+                              knobs=settings.knobs)
+    try:
+        configurations = len(grid_runs(names, 1, ctx))
+    except Exception:  # noqa: BLE001 - a plugin's grid; the sweep lists it again with the real split
+        return None
+    return Cost(configurations, budget.seeds, budget.iterations,
+                configurations * budget.seeds * budget.eval_episodes * (1 + len(budget.eval_at)))

@@ -29,7 +29,6 @@ alone evaluates and writes.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import pathlib
 import shlex
 import shutil
@@ -40,7 +39,7 @@ from experiments._table import table
 from experiments._cli import (EPISODES_LIMIT, UPDATES_LIMIT, Parser, add_compile_cache_flag, checked_bar,
                              data_directory, end_if_compiling, fail, interrupts, raise_if_interrupted, refused,
                              unwritable, use_compile_cache)
-from experiments._sweep_checks import demonstrations_writable, grid, step_setting, temperature
+from experiments._sweep_checks import Cost, cost, demonstrations_writable, grid, step_setting, temperature  # noqa: F401 (Cost: read here)
 
 PROG = "python -m experiments.sweep"
 
@@ -194,29 +193,6 @@ def parse(argv=None, writes: bool = True) -> argparse.Namespace:
     return args
 
 
-@dataclasses.dataclass(frozen=True)
-class Cost:
-    """What a sweep asks for: `configurations` (method settings) x `seeds` x `iterations` model updates, and
-    `episodes` evaluation episodes (every policy at the end and at each `eval_at`)."""
-
-    configurations: int
-    seeds: int
-    iterations: int
-    episodes: int
-
-    @property
-    def updates(self) -> int:
-        return self.configurations * self.seeds * self.iterations
-
-    @property
-    def over(self) -> bool:
-        return self.updates > UPDATES_LIMIT or self.episodes > EPISODES_LIMIT
-
-    def __str__(self) -> str:
-        return (f"this sweep asks for {self.updates:,} model updates ({self.configurations:,} configurations x "
-                f"{self.seeds:,} seeds x {self.iterations:,} iterations) and {self.episodes:,} evaluation episodes")
-
-
 def _runnable(p, names: tuple[str, ...], named: set[str], settings, obs: str) -> tuple[str, ...]:
     """`names` less the methods a shortcut (`all`, `baselines`, ...) brought in that cannot run under `settings`
     (`Method.refuses`: ChannelDropout without a leaking channel in view, RAP on another image encoder) or without
@@ -236,23 +212,6 @@ def _runnable(p, names: tuple[str, ...], named: set[str], settings, obs: str) ->
     if not keep:
         fail(p, "none of the methods asked for can run under these settings (each is left out above)")
     return tuple(keep)
-
-
-def cost(env: str, settings, names) -> Cost | None:
-    """The sweep's `Cost` from its settings and methods, before anything runs; None where a method's grid cannot
-    be listed without the demonstrations (a plugin's that reads the training split's size)."""
-    from ape_jax import methods, tasks
-    from ape_jax.pipeline.sweep import grid_runs
-
-    budget = settings.budget
-    ctx = methods.GridContext(task=tasks.get(env), n_train=settings.protocol.train_transitions or 1,
-                              knobs=settings.knobs)
-    try:
-        configurations = len(grid_runs(names, 1, ctx))
-    except Exception:  # noqa: BLE001 - a plugin's grid; the sweep lists it again with the real split
-        return None
-    return Cost(configurations, budget.seeds, budget.iterations,
-                configurations * budget.seeds * budget.eval_episodes * (1 + len(budget.eval_at)))
 
 
 def holds_sweep(out: pathlib.Path) -> bool:

@@ -177,7 +177,8 @@ CAR = ["--env", "toycar", "--obs", "full", "--episodes", "1"]
     (["--batch", "0"], "--batch must be >= 1, got 0"),
     (["--episodes", "-3"], "--episodes must be >= 1, got -3"),
     (["--episodes", "ten"], "argument --episodes: invalid int value: 'ten'"),
-    (["--obs", "image", "--image-size", "0x5"], "--image-size: image_size must be a positive int or (height, width)"),
+    (["--obs", "image", "--image-size", "0x5"],
+     "--image-size '0x5': an image size is N, HxW or H,W (positive integers)"),
     (["--env", "hopper", "--obs", "rgb"], "--obs 'rgb' is not supported by hopper; valid: full, pos, image"),
     (lambda root: ["--data-dir", root / "file"], "is a file; it must be a directory"),
     (lambda root: ["--data-dir", root / "file" / "cache"], "--data-dir {root}/file/cache: cannot write the dataset "

@@ -33,7 +33,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import pathlib
-import threading
 import time
 from importlib.metadata import version
 from typing import Any
@@ -46,6 +45,7 @@ import numpy as np
 import envs
 from ape_jax import observations, tasks
 from ape_jax.pipeline import data as data_lib
+from ape_jax.pipeline.interrupts import CollectionInterrupted, compiled, compiling  # noqa: F401 (read here)
 from ape_jax.pipeline import setup as setup_lib
 from ape_jax.pipeline.setup import ExpertRef, variant_of
 from ape_jax.pipeline.setup import protocol_setup, reference_returns  # noqa: F401  (the entry points import them here)
@@ -148,53 +148,6 @@ def make_batch_collector(env: envs.Env, expert: Callable[[jax.Array], jax.Array]
 
 
 CHUNK_STEPS = 100  # steps per jitted call of `collect`: a Ctrl-C waits for one chunk (ToyTown's 32 episodes: ~0.05 s)
-
-
-class CollectionInterrupted(KeyboardInterrupt):
-    """Ctrl-C while `collect` ran: nothing was returned (so nothing cached); `done` of `total` episodes had been
-    collected."""
-
-    def __init__(self, done: int, total: int):
-        super().__init__(f"stopped the collection of {total:,} expert episodes ({done:,} collected, nothing cached)")
-        self.done, self.total = done, total
-
-
-_COMPILES: set[threading.Event] = set()   # one per compile a Ctrl-C left running, set when it ends (`compiling`)
-
-
-def compiling() -> bool:
-    """Whether a collection program is still compiling in the background: a Ctrl-C stopped the wait for it."""
-    return any(not finished.is_set() for finished in _COMPILES)
-
-
-def compiled(fn: Callable, *args) -> Callable:
-    """`jax.jit(fn).lower(*args).compile()`, run in a daemon thread while this one waits for it.
-
-    XLA's compile of a collection program takes seconds (ToyTown's, ~7 s; several times that on a loaded CPU) and
-    holds the thread that runs it: Python runs a Ctrl-C's handler only once that thread is back in Python. Waiting
-    here, the KeyboardInterrupt is raised at once and the compile is abandoned (`compiling` says so: an entry
-    point then ends the process with `os._exit`, since tearing the interpreter down under XLA crashes it). The
-    persistent compilation cache applies as it does to any jitted call.
-    """
-    box: dict = {}
-    finished = threading.Event()   # not `Thread.join`: an interrupted join marks a running thread stopped
-
-    def work():
-        try:
-            box["program"] = jax.jit(fn).lower(*args).compile()
-        except BaseException as e:   # handed to the waiting thread, which raises it
-            box["error"] = e
-        finally:
-            finished.set()
-
-    _COMPILES.add(finished)
-    threading.Thread(target=work, name="ape_jax-compile", daemon=True).start()
-    while not finished.wait(0.05):   # a Ctrl-C raises here
-        pass
-    _COMPILES.discard(finished)
-    if "error" in box:
-        raise box["error"]
-    return box["program"]
 
 
 def make_chunked_collector(env: envs.Env, expert: Callable[[jax.Array], jax.Array], batch: int,

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import sys
 import typing
 from typing import Any
 from collections.abc import Iterable, Mapping
@@ -40,6 +39,7 @@ from ape_jax.tasks import Protocol
 from ape_jax.pipeline.hints import SettingsError, check as _check, coerce as _coerce, describe as _describe
 from ape_jax.pipeline.hints import format_value as _format, image_size as _image_size, parse as _parse
 from ape_jax.pipeline import method_knobs
+from ape_jax.pipeline.renames import FORMER_RECIPES, current_protocol, notice_renamed  # noqa: F401 (callers read them here)
 
 from ape_jax.weighting import SOFTMAX_GRID, STEP_GRID, SoftmaxKnobs  # noqa: F401 - the paper's grids, where callers look
 
@@ -173,8 +173,7 @@ class Recipe:
 # network and loss (theirs: 128-64-128 units and a tanh-Gaussian likelihood); the default recipe of the `palr-h*`
 # protocols. The FCA code's recipe was named `fca` and PALR's `palr`, as the methods are (one name per thing):
 # `--recipe fca` reads as `bn-mlp` and `--recipe palr` as `mlp-b1024`, with a notice; a file's or checkpoint's
-# former name silently.
-FORMER_RECIPES: Mapping[str, str] = {"fca": "bn-mlp", "palr": "mlp-b1024"}
+# former name silently (`renames.FORMER_RECIPES`).
 RECIPES: Mapping[str, Recipe] = {
     "mlp": Recipe("mlp"),
     "bn-mlp": Recipe("bn-mlp", network="bn-mlp", init="xavier", beta1=0.5, batch_size=64),
@@ -389,27 +388,6 @@ def resolve(env: str, obs: str, protocol: str | None = None, preset: str = "quic
     for kind, old, new in renamed:
         notice_renamed(kind, old, new)
     return settings
-
-
-_noticed: set[tuple[str, str]] = set()
-
-
-def current_protocol(name: str | None) -> str | None:
-    """A protocol named on the command line, as it is called now (`tasks.FORMER_PROTOCOLS`), with the notice."""
-    new = tasks.FORMER_PROTOCOLS.get(name or "")
-    if new:
-        notice_renamed("protocol", name, new)
-    return new or name
-
-
-def notice_renamed(kind: str, old: str, new: str) -> None:
-    """Says once per process, on stderr, that `kind` `old` is now called `new` (`docs/design.md`, "Words")."""
-    if (kind, old) not in _noticed:
-        _noticed.add((kind, old))
-        extra = "" if kind != "protocol.expert" else (
-            f" (an expert imported as {old!r} before is found as {new!r} once imported again: "
-            f"python -m experiments.import_expert PATH --env ENV --name {new})")
-        print(f"notice: {kind} {old!r} is now {new!r}; the old name keeps working{extra}", file=sys.stderr)
 
 
 def _check_image_recipe(recipe: Recipe, obs: str, image_size: tuple[int, int] | None) -> None:
