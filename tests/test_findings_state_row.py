@@ -141,3 +141,22 @@ def test_frames_half_a_second_apart_give_the_speed_back_a_little_and_cost_it_whe
                     "bc-oh vs bc-so": "-3.0 [-12.7, +6.7]", "ours vs bc-oh": "-3.6 [-10.0, +2.8]"},
         "nocrash-nospeed": {"bc-oh": 10.0, "ours": 5.2, "bc-oh vs stride 1": "+7.2 [+1.7, +12.7]",
                             "bc-oh vs bc-so": "+7.8 [+2.2, +13.4]", "ours vs bc-oh": "-4.8 [-10.3, +0.7]"}}
+
+
+def test_in_a_normalised_network_fca_and_mine_are_stable_and_still_far_below_bc_oh():
+    """The exploratory extra beside Table 1 (`recipe.network=bn-mlp`): FCA's and MINE's losses are ordinary and they
+    drive, far below BC-OH of the same network; BC-OH clears BC-SO there."""
+    from experiments.stats import welch_difference
+
+    obj = json.loads((RESULTS / "exploratory" / "toytown-pos-nocrash-bn-default.json").read_text())
+    assert obj["settings"]["recipe"]["network"] == "bn-mlp"
+    success, loss = {}, {}
+    for run in obj["runs"]:
+        success.setdefault(run["method"], []).append(100 * run["eval"]["success"])
+        loss.setdefault(run["method"], []).append(run["losses"]["val"]["unweighted"])
+    assert {m: round(float(np.mean(v)), 1) for m, v in success.items()} == {
+        "bc-so": 64.4, "bc-oh": 79.2, "fca": 12.4, "mine": 15.4}
+    assert max(float(np.mean(v)) for v in loss.values()) < 0.06
+    text = {m: f"{d.value:+.1f} [{d.low:+.1f}, {d.high:+.1f}]" for m in ("fca", "mine", "bc-so")
+            if (d := welch_difference(success[m], success["bc-oh"]))}
+    assert text == {"fca": "-66.8 [-75.3, -58.3]", "mine": "-63.8 [-74.4, -53.2]", "bc-so": "-14.8 [-26.0, -3.6]"}
