@@ -15,6 +15,7 @@ from __future__ import annotations
 import functools
 import pathlib
 import shlex
+import sys
 
 ARMS = (("bc-so", "BC-SO"), ("bc-oh", "BC-OH"), ("ours-step", "Ours (step, THR 10% W 5)"))
 
@@ -151,6 +152,17 @@ def _reading(iterations: int, here: dict, rows: list[tuple[int, dict]]) -> str:
     return words
 
 
+def typed_python() -> str:
+    """The interpreter as a user types it from here: this one's path relative to the working directory where it
+    lies inside it (the README's `.venv/bin/python`: a bare `python` in a fresh shell has no jax), else `python`
+    (an activated or system environment)."""
+    try:
+        rel = pathlib.Path(sys.executable).relative_to(pathlib.Path.cwd())
+    except ValueError:
+        return "python"
+    return shlex.quote(str(rel))
+
+
 def next_steps(out: pathlib.Path, smoke: bool = False) -> list[str]:
     """The lines that end a sweep: the commands that report what it wrote in `out`, and compare it where a shipped
     file of the same setting and budget lets `experiments.compare` rank it (else why not, as a comment)."""
@@ -159,11 +171,11 @@ def next_steps(out: pathlib.Path, smoke: bool = False) -> list[str]:
                 "compare refuse them)"]
     from ape_jax.pipeline.rundir import RunDir
 
-    q = shlex.quote
-    report = (f"  python -m experiments.report {q(str(RunDir(out).results))} --out {q(str(out / 'report.md'))}"
+    q, py = shlex.quote, typed_python()
+    report = (f"  {py} -m experiments.report {q(str(RunDir(out).results))} --out {q(str(out / 'report.md'))}"
               f"   # tables and figures ({out / 'figures'}/)")
     if comparable(RunDir(out).results):
-        return ["next:", report, f"  python -m experiments.compare {q(str(out))}   # against the shipped results/ "
+        return ["next:", report, f"  {py} -m experiments.compare {q(str(out))}   # against the shipped results/ "
                                  "of the same task, protocol, recipe and budget"]
     return ["next:", report, "  # experiments.compare ranks a sweep against a shipped file of its setting and budget "
                              "(e.g. --preset default) with a method of its own beside the references; none here"]

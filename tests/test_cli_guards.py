@@ -83,13 +83,22 @@ def test_the_sweep_ends_with_the_commands_that_report_its_folder_and_compare_it_
     shutil.copy(shipped / "hopper-pos-fca-rows-default-fca-after.json", out / "results.json")   # RAP, PALR, MINE
     lines = _reference.next_steps(out)
     assert lines[0] == "next:"
-    assert shlex.split(lines[1].split("#")[0]) == ["python", "-m", "experiments.report", f"{out}/results.json",
+    py = _reference.typed_python()   # `.venv/bin/python` from the clone: the command runs as typed
+    assert shlex.split(lines[1].split("#")[0]) == [py, "-m", "experiments.report", f"{out}/results.json",
                                                    "--out", f"{out}/report.md"]
-    assert shlex.split(lines[2].split("#")[0]) == ["python", "-m", "experiments.compare", str(out)]
+    assert shlex.split(lines[2].split("#")[0]) == [py, "-m", "experiments.compare", str(out)]
     shutil.copy(shipped / "hopper-pos-fca-rows-default-fca-bc.json", out / "results.json")   # references only
     lines = _reference.next_steps(out)
     assert len(lines) == 3 and lines[2].lstrip().startswith("# experiments.compare") and "none here" in lines[2]
     assert "without --smoke" in _reference.next_steps(out, smoke=True)[0]
+
+
+def test_the_next_commands_name_the_interpreter_a_fresh_shell_can_run(monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(sys, "executable", str(tmp_path / ".venv" / "bin" / "python"))
+    assert _reference.typed_python() == ".venv/bin/python"
+    monkeypatch.setattr(sys, "executable", "/usr/bin/python3")
+    assert _reference.typed_python() == "python"
 
 
 # -- 2. ranges, 4. --resume, 5. cost: refused while parsing, before anything runs --------------------------------
