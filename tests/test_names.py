@@ -12,7 +12,7 @@ import pathlib
 import pytest
 
 from ape_jax import methods, tasks
-from ape_jax.pipeline import checkpoint, presets, results
+from ape_jax.pipeline import checkpoint, presets, renames, results
 from ape_jax.pipeline.presets import SettingsError, resolve
 
 
@@ -39,7 +39,7 @@ def test_no_protocol_recipe_method_or_shipped_expert_shares_a_name():
 
 
 def test_palr_s_recipe_is_mlp_b1024_and_its_former_name_reads_as_it(capsys):
-    presets._noticed.clear()
+    renames._noticed.clear()
     assert resolve("halfcheetah", "pos", protocol="palr-h2").recipe.name == "mlp-b1024"
     old = resolve("halfcheetah", "pos", protocol="palr-h2", recipe="palr")
     assert "notice: recipe 'palr' is now 'mlp-b1024'" in capsys.readouterr().err
@@ -48,7 +48,7 @@ def test_palr_s_recipe_is_mlp_b1024_and_its_former_name_reads_as_it(capsys):
 
 
 def test_the_former_names_resolve_to_the_same_settings_with_one_notice_each(capsys):
-    presets._noticed.clear()
+    renames._noticed.clear()
     old = resolve("hopper", "pos", protocol="fca-fs2", recipe="fca", sets=["protocol.expert=fca"])
     err = capsys.readouterr().err
     assert "notice: protocol 'fca-fs2' is now 'mujoco-state-fs2'" in err
