@@ -232,7 +232,8 @@ class Protocol:
         return {**out, **self.task_settings()}
 
     def task_settings(self) -> dict[str, Any]:
-        """The task's own settings this protocol fixes for collection and evaluation (`traffic`, `speed_input`)."""
+        """The task's own settings this protocol fixes for collection and evaluation (`traffic`, `speed_input`,
+        `task_version`, `reveal`), where set."""
         out = {k: getattr(self, k) for k in ("traffic", "speed_input", "task_version") if getattr(self, k) is not None}
         return {**out, **({"reveal": tuple(self.reveal)} if self.reveal else {})}
 
