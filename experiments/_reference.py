@@ -4,8 +4,8 @@ longer budgets, so a first table at the `quick` budget is read against the answe
 A quick sweep trains 1% of the paper's iterations with one seed. Its ordering can be the opposite of the
 published one (Hopper: BC-OH below BC-SO at 3k, far above it at 30k and 300k), and a 1-seed row has no interval.
 `reference_lines` finds the committed files of the same task, observation, protocol, expert, labels and recipe
-(any budget, seeds or weighting grid: `experiments.compare`'s comparable fields with the budget left free),
-and prints their BC-SO, BC-OH and Ours (step, THR 10% W 5) per budget, in % of expert with 95% t-intervals,
+(its own budget or longer, any seeds or weighting grid: `experiments.compare`'s comparable fields with the budget
+left free), and prints their BC-SO, BC-OH and Ours (step, THR 10% W 5) per budget, in % of expert with 95% t-intervals,
 beside this run's, with one line on what this budget can and cannot show. `next_steps` are the commands that end
 a sweep's output: the report of its folder, and `experiments.compare` where a shipped file lets it rank the sweep.
 """
@@ -22,7 +22,8 @@ ARMS = (("bc-so", "BC-SO"), ("bc-oh", "BC-OH"), ("ours-step", "Ours (step, THR 1
 
 def reference_lines(results_path: str | pathlib.Path, shipped: pathlib.Path | None = None) -> list[str]:
     """The printed block: the shipped files' rows per budget above this run's, and the reading; [] where no
-    shipped file shares this run's setting at a longer budget, or this run is a smoke run.
+    shipped file shares this run's setting at its budget or a longer one, or this run is a smoke run. A run that
+    trained none of the references gets the shipped rows and a line naming its own methods (no row of dashes).
 
     Args:
       results_path: the sweep's `results.json`.
@@ -38,7 +39,8 @@ def reference_lines(results_path: str | pathlib.Path, shipped: pathlib.Path | No
     iterations = mine.config["iterations"]
     by_budget: dict[int, list] = {}
     for other in _shipped(shipped or SHIPPED):
-        if (other.config["iterations"] > iterations and _setting(comparable_fields(other)) == want
+        if (other.config["iterations"] >= iterations and _setting(comparable_fields(other)) == want
+                and not _same_file(other, mine)
                 and {"bc-so", "bc-oh"} & {r["method"] for r in other.summary}):
             by_budget.setdefault(other.config["iterations"], []).append(other)
     if not by_budget:
@@ -50,11 +52,22 @@ def reference_lines(results_path: str | pathlib.Path, shipped: pathlib.Path | No
              f"  {'iterations':>10} {'seeds':>5}  " + "  ".join(f"{label:<{width}}" for _, label in ARMS)]
     for n, arms in rows:
         lines.append(f"  {n:>10,} {_seeds(arms):>5}  " + "  ".join(f"{_cell(arms.get(m)):<{width}}" for m, _ in ARMS))
-    lines.append(f"  {iterations:>10,} {_seeds(here):>5}  " + "  ".join(f"{_cell(here.get(m)):<{width}}"
-                                                                       for m, _ in ARMS) + "  <- this run")
+    if here:
+        lines.append(f"  {iterations:>10,} {_seeds(here):>5}  " + "  ".join(f"{_cell(here.get(m)):<{width}}"
+                                                                           for m, _ in ARMS) + "  <- this run")
+    else:
+        ran = ", ".join(dict.fromkeys(row["method"] for row in mine.summary))
+        lines.append(f"  this run trained none of these ({ran}): `python -m experiments.compare` ranks it against "
+                     "them where its budget is a shipped one")
     files = sorted({pathlib.Path(f.path).name for f in by_budget[rows[-1][0]]})
     lines.append(_reading(iterations, here, rows) + f" ({', '.join('results/' + f for f in files)})")
     return [line.rstrip() for line in lines]
+
+
+def _same_file(a, b) -> bool:
+    """Whether two loaded results are one file (a shipped file given as the run itself)."""
+    pa, pb = getattr(a, "path", None), getattr(b, "path", None)
+    return pa is not None and pb is not None and pathlib.Path(pa).resolve() == pathlib.Path(pb).resolve()
 
 
 def comparable(results_path: str | pathlib.Path, shipped: pathlib.Path | None = None) -> bool:
@@ -139,7 +152,8 @@ def _describe(res) -> str:
 def _reading(iterations: int, here: dict, rows: list[tuple[int, dict]]) -> str:
     """One line: what this budget can show, and whether its BC-OH-vs-BC-SO order is the longest budget's."""
     longest, arms = rows[-1]
-    words = f"  reading: {iterations:,} of the {longest:,} iterations the answer is read at"
+    words = (f"  reading: {iterations:,} of the {longest:,} iterations the answer is read at" if iterations < longest
+             else f"  reading: the budget the shipped answer is read at ({longest:,} iterations)")
     if _seeds(here) == "1":
         words += ", one seed: it checks that the pipeline runs end to end and cannot rank methods"
     if "bc-so" in here and "bc-oh" in here and "bc-so" in arms and "bc-oh" in arms:

@@ -66,8 +66,25 @@ def test_only_a_run_a_shipped_file_matches_is_called_comparable(tmp_path):
     assert not comparable(_short_run(tmp_path, 20.0, 60.0))   # neither: references only, and at 3,000 iterations
 
 
-def test_a_run_at_the_longest_shipped_budget_gets_no_reference_and_a_middle_one_only_the_longer(tmp_path):
-    assert reference_lines(_short_run(tmp_path, 20.0, 60.0, iterations=300_000)) == []
+def test_a_run_gets_the_shipped_rows_of_its_own_budget_and_the_longer_ones(tmp_path):
+    lines = reference_lines(_short_run(tmp_path, 20.0, 60.0, iterations=300_000))
+    assert [line.split()[0] for line in lines[2:-1]] == ["300,000", "300,000"]   # the shipped row, then this run
+    assert "the budget the shipped answer is read at (300,000 iterations)" in lines[-1]
     lines = reference_lines(_short_run(tmp_path, 20.0, 60.0, iterations=30_000))
-    assert [line.split()[0] for line in lines[2:-1]] == ["300,000", "30,000"]
+    assert [line.split()[0] for line in lines[2:-1]] == ["30,000", "300,000", "30,000"]
     assert "30,000 of the 300,000 iterations the answer is read at" in lines[-1]
+
+
+def test_a_run_of_none_of_the_references_gets_the_shipped_rows_and_a_line_naming_its_methods(tmp_path):
+    """The `default` sweep of methods of its own (`--methods rap,palr`): the shipped 30k row of its budget, no row of
+    dashes for this run."""
+    obj = json.loads(THIRTY_K.read_text())
+    runs = [dict(r, method="rap" if r["method"] == "bc-so" else "palr") for r in obj["runs"]
+            if r["method"] in ("bc-so", "bc-oh")]
+    obj["runs"], obj["summary"] = runs, results.summarize(runs)
+    path = tmp_path / "results.json"
+    path.write_text(json.dumps(obj))
+    lines = reference_lines(path)
+    assert lines[2].split()[0] == "30,000" and "51.9 [37.2, 66.6]" in lines[2]
+    assert any("this run trained none of these (rap, palr)" in line for line in lines)
+    assert not any(line.rstrip().endswith("<- this run") for line in lines)
