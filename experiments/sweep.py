@@ -204,7 +204,7 @@ def _runnable(p, names: tuple[str, ...], named: set[str], settings, obs: str) ->
     for name in names:
         refuses = methods.get(name).refuses
         why = None if name in named else (refuses(settings, obs) if refuses is not None else None) \
-            or methods.unread(name, settings.knobs, names)
+            or methods.unread(name, settings.knobs, names) or _empty_grid(name, settings)
         if why:
             print(f"{_prog()}: leaving out {name}, which the shortcut brought in: {why}", file=sys.stderr)
         else:
@@ -212,6 +212,18 @@ def _runnable(p, names: tuple[str, ...], named: set[str], settings, obs: str) ->
     if not keep:
         fail(p, "none of the methods asked for can run under these settings (each is left out above)")
     return tuple(keep)
+
+
+def _empty_grid(name: str, settings) -> str | None:
+    """Why `name` has nothing to train under `settings` (its grid empty: the image presets' `softmax_grid=()`), or
+    None. A plugin's grid that needs the demonstrations to be listed is not judged here."""
+    from ape_jax import methods
+
+    ctx = methods.GridContext(task=None, n_train=settings.protocol.train_transitions or 1, knobs=settings.knobs)
+    try:
+        return None if methods.get(name).settings(ctx) else "its grid is empty in this preset (nothing to train)"
+    except Exception:  # noqa: BLE001 - a plugin's grid that reads the task or the split: the sweep lists it later
+        return None
 
 
 def holds_sweep(out: pathlib.Path) -> bool:
