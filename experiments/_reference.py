@@ -6,7 +6,9 @@ published one (Hopper: BC-OH below BC-SO at 3k, far above it at 30k and 300k), a
 `reference_lines` finds the committed files of the same task, observation, protocol, expert, labels and recipe
 (its own budget or longer, any seeds or weighting grid: `experiments.compare`'s comparable fields with the budget
 left free), and prints their BC-SO, BC-OH and Ours (step, THR 10% W 5) per budget, in % of expert with 95% t-intervals,
-beside this run's, with one line on what this budget can and cannot show. `next_steps` are the commands that end
+beside this run's, with one line on what this budget can and cannot show. A task judged by a rate (ToyTown's
+success) gets `rate_lines`: what the rate means, and the shipped tables of its protocol per observation mode and
+task version, with BC-full and a plain word where their policies crash or stand still. `next_steps` are the commands that end
 a sweep's output: the report of its folder, and `experiments.compare` where a shipped file lets it rank the sweep.
 """
 
@@ -35,6 +37,8 @@ def reference_lines(results_path: str | pathlib.Path, shipped: pathlib.Path | No
     if _smoke(results_path):
         return []
     mine = analysis.load(results_path)
+    if analysis.main_metric(mine) != "return":   # a rate (ToyTown's success): its own block
+        return rate_lines(mine, _shipped(shipped or SHIPPED))
     want = _setting(comparable_fields(mine))
     iterations = mine.config["iterations"]
     by_budget: dict[int, list] = {}
@@ -62,6 +66,73 @@ def reference_lines(results_path: str | pathlib.Path, shipped: pathlib.Path | No
     files = sorted({pathlib.Path(f.path).name for f in by_budget[rows[-1][0]]})
     lines.append(_reading(iterations, here, rows) + f" ({', '.join('results/' + f for f in files)})")
     return [line.rstrip() for line in lines]
+
+
+RATE_ARMS = (*ARMS, ("bc-full", "BC-full"))
+WORDS = {"success": "the route completed in time without a collision"}   # what a rate metric means, where known
+
+
+def rate_lines(mine, shipped: tuple) -> list[str]:
+    """The block for a task judged by a rate (ToyTown's success): what the rate means, then the shipped tables of
+    this task and protocol, each observation mode and task version apart (the camera's, the one-frame state's),
+    BC-SO, BC-OH, Ours (step, THR 10% W 5) and BC-full (the ceiling) in % of episodes with 95% t-intervals, this
+    run beside them, and a reading that says plainly where the shipped policies crash or stand still. [] where
+    nothing shipped shares the task and protocol."""
+    from experiments.report import analysis
+
+    metric, name = analysis.main_metric(mine), (mine.protocol or {}).get("name")
+    tables: dict[tuple, list] = {}
+    for other in shipped:
+        p = other.protocol or {}
+        if (other.env == mine.env and p.get("name") == name and (p.get("history_stride") or 1) == 1
+                and {"bc-so", "bc-oh"} & {r["method"] for r in other.summary} and not _same_file(other, mine)):
+            tables.setdefault((other.obs, p.get("task_version"), other.config["iterations"]), []).append(other)
+    if not tables:
+        return []
+    width = 20
+    lines = [f"shipped reference: {mine.env}, protocol {name}, in results/ ({metric}"
+             + (f": {WORDS[metric]}" if metric in WORDS else "") + "; % of episodes, mean [95% t-interval] over seeds)",
+             f"  {'observations':<13} {'version':>7} {'iterations':>10} {'seeds':>5}  "
+             + "  ".join(f"{label:<{width}}" for _, label in RATE_ARMS)]
+    crashing = []
+    for (obs, version, iterations), files in sorted(tables.items(), key=lambda kv: (kv[0][0] != mine.obs, kv[0])):
+        arms, crash = _rate_arms(analysis, files, metric)
+        lines.append(f"  {obs:<13} {version or '-':>7} {iterations:>10,} {_seeds(arms):>5}  "
+                     + "  ".join(f"{_cell(arms.get(m)):<{width}}" for m, _ in RATE_ARMS))
+        if crash:
+            crashing.append(f"the shipped {obs} policies (version {version}) {crash}")
+    here, _ = _rate_arms(analysis, [mine], metric)
+    version = (mine.protocol or {}).get("task_version")
+    lines.append(f"  {mine.obs:<13} {version or '-':>7} {mine.config['iterations']:>10,} {_seeds(here):>5}  "
+                 + "  ".join(f"{_cell(here.get(m)):<{width}}" for m, _ in RATE_ARMS) + "  <- this run")
+    budget = max(it for _, _, it in tables)
+    words = (f"  reading: {mine.config['iterations']:,} of the {budget:,} iterations the tables were read at"
+             if mine.config["iterations"] < budget else "  reading: the tables' budget")
+    if _seeds(here) == "1":
+        words += ", one seed: it checks that the pipeline runs end to end and cannot rank methods"
+    lines.append(words + "".join(f"; {c}" for c in crashing))
+    return [line.rstrip() for line in lines]
+
+
+def _rate_arms(analysis, files, metric: str) -> tuple[dict[str, list[float]], str | None]:
+    """Per-seed rates (%) of `RATE_ARMS` in `files` (one table), and how BC-SO, BC-OH and Ours fail where every seed
+    of theirs ends most episodes so (`"crash in 90-100% of episodes"`, `"stand still in ..."`), else None."""
+    out, crashes, stuck = {}, [], []
+    for m in analysis.merge(files).values():
+        for method, _ in RATE_ARMS:
+            row = (analysis.paper_step_row(m) if method == "ours-step"
+                   else analysis.best_of(analysis.method_rows(m, method)))
+            values = analysis.seed_values(m, row, metric)
+            if values:
+                out[method] = [100 * float(v) for v in values]
+            if method != "bc-full" and row is not None:
+                crashes += analysis.seed_values(m, row, "collisions")
+                stuck += analysis.seed_values(m, row, "stuck")
+    either = [c + s for c, s in zip(crashes, stuck)]
+    for values, verb in ((crashes, "crash in"), (stuck, "stand still in"), (either, "crash or stand still in")):
+        if values and min(values) >= 0.5:
+            return out, f"{verb} {100 * min(values):.0f}-{100 * min(max(values), 1.0):.0f}% of episodes"
+    return out, None
 
 
 def _same_file(a, b) -> bool:

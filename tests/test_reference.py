@@ -88,3 +88,21 @@ def test_a_run_of_none_of_the_references_gets_the_shipped_rows_and_a_line_naming
     assert lines[2].split()[0] == "30,000" and "51.9 [37.2, 66.6]" in lines[2]
     assert any("this run trained none of these (rap, palr)" in line for line in lines)
     assert not any(line.rstrip().endswith("<- this run") for line in lines)
+
+
+def test_a_driving_run_reads_against_the_shipped_camera_and_state_tables_and_is_told_where_they_crash():
+    """A task judged by a rate (ToyTown's success): what success is, the shipped tables of its protocol per observation
+    mode and task version (the camera's, version 1; the one-frame state's, version 2) with BC-full, this run beside
+    them, and a reading that says plainly that the shipped camera policies crash."""
+    run = SHIPPED / "toytown-image-nocrash-default-seeds0.json"   # as if a fresh run of one seed
+    lines = reference_lines(run)
+    assert lines[0].startswith("shipped reference: toytown, protocol nocrash, in results/ (success: the route "
+                               "completed in time without a collision")
+    assert "BC-full" in lines[1]
+    rows = {tuple(line.split()[:3]): line for line in lines[2:-1]}
+    assert ("image", "1", "10,000") in rows and ("pos", "2", "10,000") in rows
+    pos = rows[("pos", "2", "10,000")]
+    assert "87.4 [78.0, 96.8]" in pos and "95.4 [92.0, 98.8]" in pos and "98.6 [97.5, 99.7]" in pos
+    assert lines[-2].endswith("<- this run") and "(1 seed)" in lines[-2]
+    assert "the shipped image policies (version 1) crash in" in lines[-1] and "one seed" in lines[-1]
+    assert "shipped pos policies" not in lines[-1]   # the state row drives
