@@ -1,15 +1,16 @@
 """The shipped reference beside a short sweep's table: what `results/` holds for the same task and setting at
 longer budgets, so a first table at the `quick` budget is read against the answer, not as one.
 
-A quick sweep trains 1% of the paper's iterations with one seed. Its ordering can be the opposite of the
-published one (Hopper: BC-OH below BC-SO at 3k, far above it at 30k and 300k), and a 1-seed row has no interval.
+A quick sweep trains 1% of the paper's iterations with one seed. Its ordering can be the opposite of the published
+one (Hopper: BC-OH below BC-SO at 3k, far above it at 30k and 300k), and a 1-seed row has no interval.
 `reference_lines` finds the committed files of the same task, observation, protocol, expert, labels and recipe
 (its own budget or longer, any seeds or weighting grid: `experiments.compare`'s comparable fields with the budget
-left free), and prints their BC-SO, BC-OH and Ours (step, THR 10% W 5) per budget, in % of expert with 95% t-intervals,
-beside this run's, with one line on what this budget can and cannot show. A task judged by a rate (ToyTown's
-success) gets `rate_lines`: what the rate means, and the shipped tables of its protocol per observation mode and
-task version, with BC-full and a plain word where their policies crash or stand still. `next_steps` are the commands that end
-a sweep's output: the report of its folder, and `experiments.compare` where a shipped file lets it rank the sweep.
+left free), and prints their BC-SO, BC-OH and Ours (step, THR 10% W 5) per budget, in % of expert with 95%
+t-intervals, beside this run's, with one line on what this budget can and cannot show. A task judged by a rate
+(ToyTown's success) gets `rate_lines`: what the rate means, and the shipped tables of its protocol per observation
+mode and task version, with BC-full and a plain word where their policies crash or stand still. `next_steps` are
+the commands that end a sweep's output: the report of its folder, and `experiments.compare` where a shipped file
+lets it rank the sweep.
 """
 
 from __future__ import annotations
