@@ -415,10 +415,13 @@ def test_a_fault_inside_a_library_shows_its_traceback_and_a_refusal_of_ours_is_o
     assert refused(ours.value)
 
 
-def test_a_method_the_shortcut_brings_in_with_an_empty_grid_is_left_out_with_a_line(tmp_path, capsys):
+def test_a_method_the_shortcut_brings_in_with_an_empty_grid_is_not_announced_as_trained(tmp_path, capsys):
     """ToyTown's image presets train the paper's step setting only (`softmax_grid=()`): the no-argument sweep announces
-    and runs BC-SO, BC-OH and ours (step), and says why ours (softmax) is left out, instead of announcing it."""
+    and runs BC-SO, BC-OH and ours (step), and its header names ours (softmax) as having no setting, instead of
+    announcing it as trained; a refusal of the same command stays one line."""
     args = sweep.parse(["--env", "toytown", "--out", str(tmp_path / "run")])
-    assert args.methods == ("bc-so", "bc-oh", "ours-step")
-    assert "leaving out ours-softmax, which the shortcut brought in: its grid is empty" in capsys.readouterr().err
+    assert args.methods == ("bc-so", "bc-oh", "ours-step") and args.empty == ("ours-softmax",)
+    assert capsys.readouterr().err == ""
     assert "ours-softmax" in sweep.parse(["--env", "hopper", "--out", str(tmp_path / "other")]).methods
+    refused(capsys, lambda: sweep.main(["--env", "toytown", "--set", "protocol.traffic=jammed", "--yes",
+                                        "--out", str(tmp_path / "bad")]))
