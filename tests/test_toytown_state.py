@@ -233,3 +233,22 @@ def test_a_history_at_another_stride_is_a_group_of_its_own_titled_by_it(tmp_path
     assert sorted(k.protocol for k in merged) == ["nocrash", "nocrash.episodes.mlp.stride5"]
     (m,) = [m for k, m in merged.items() if k.protocol != "nocrash"]
     assert "frames 5 steps apart" in m.title and m.protocol["variant_of"] == "nocrash"
+
+
+def test_the_ceiling_tool_reads_one_frame_sweeps_and_refuses_other_files(tmp_path, capsys):
+    import json
+    import pathlib
+
+    from experiments import toytown_ceiling
+
+    results = pathlib.Path(__file__).resolve().parents[1] / "results"
+    files = sorted(str(p) for p in (results / "exploratory").glob("toytown-ceiling-v*.json"))
+    out = tmp_path / "ceiling.json"
+    assert len(files) == 4 and toytown_ceiling.main([*files, "--out", str(out)]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert [(r["task_version"], r["revealed"]) for r in rows] == [(1, []), (1, ["lead_speed"]), (2, []),
+                                                                  (2, ["lead_speed"])]
+    assert "| 2 | - | 5 | 87.4 |" in capsys.readouterr().out
+    assert toytown_ceiling.main([str(results / "hopper-pos-default.json")]) == 2
+    assert "not a ToyTown one-frame sweep" in capsys.readouterr().err
+    assert "no such results file" in refused(capsys, lambda: toytown_ceiling.main([str(tmp_path / "none.json")]))
