@@ -55,6 +55,10 @@ def full_env(env: Env) -> Env:
     with no full observation mode."""
     if isinstance(env, PreviousAction):
         return PreviousAction(full_env(env.inner))
+    from ape_jax.perception.perceived import Perceived
+
+    if isinstance(env, Perceived):  # frames through an encoder (`ape_jax.perception`): the camera's task observes it
+        return full_env(env.inner)
     if env.obs_mode == FULL:
         return env
     if isinstance(env, envs.brax_env.BraxEnv):

@@ -333,6 +333,35 @@ def protocol_family(name: str) -> str:
 
 
 @dataclasses.dataclass(frozen=True)
+class Perception:
+    """A task's perception card: what its encoder reads from one frame and what it is trained on
+    (`ape_jax.perception.pretrain`, docs/perception.md).
+
+    Attributes:
+      targets: the observation mode whose values the encoder reads from one frame (`pos`: what one frame shows).
+      protocol: the protocol whose collection settings and expert noise make the training frames.
+      image_size: the frames' size `(H, W)`.
+      episodes: expert episodes in the training layouts; `perturbed_episodes` more with `perturbed_noise` times the
+        protocol's noise (frames off the expert's path).
+      stride: every `stride`-th step's frame is kept.
+      frame_settings: task settings every frame is made with (ToyTown: the speed strip lit).
+      heldout: named held-out conditions, each the task settings that make it (the card's `1 − R²` per target);
+        `heldout_episodes` expert episodes each.
+    """
+
+    targets: str
+    protocol: str
+    image_size: tuple[int, int]
+    episodes: int = 150
+    perturbed_episodes: int = 50
+    perturbed_noise: float = 3.0
+    stride: int = 2
+    frame_settings: Mapping[str, Any] = dataclasses.field(default_factory=lambda: MappingProxyType({}))
+    heldout: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=lambda: MappingProxyType({}))
+    heldout_episodes: int = 10
+
+
+@dataclasses.dataclass(frozen=True)
 class Task:
     """A task's settings.
 
@@ -358,6 +387,8 @@ class Task:
         the report (a rate metric's in %).
       protocols: the protocols (`PROTOCOLS`) the task can take.
       default_protocols: the protocol a sweep uses unless told, per observation mode (others: `"brax"`).
+      perception: its perception card (`Perception`): a camera sweep may then see frames through the task's
+        pretrained encoder (`recipe.perception=task`); None: it has none.
     """
 
     name: str
@@ -377,6 +408,7 @@ class Task:
     protocols: tuple[str, ...] = tuple(p for p in PROTOCOLS if _FAMILY_OF[p] not in DRIVING_FAMILIES)
     default_protocols: Mapping[str, str] = dataclasses.field(
         default_factory=lambda: MappingProxyType({"pos": STATE, "full": STATE}))
+    perception: Perception | None = None
 
     def __post_init__(self):
         if self.loss not in ("l1", "l2"):
@@ -464,7 +496,13 @@ TASKS: Mapping[str, Task] = MappingProxyType({t.name: t for t in (
              "default": {"iterations": 10_000, "seeds": 5, "eval_episodes": 25, "eval_at": (), "chunk": 1_000,
                          "episodes": 100, "lr": 1e-3, "batch_size": 64, "image_size": (64, 64), "encoder": "patch",
                          "encoder_norm": "group", "step_grid": ((0.1, 5.0),), "softmax_grid": ()},
-             "paper": {"image_size": (64, 64), "seeds": 5, "step_grid": ((0.1, 5.0),), "softmax_grid": ()}}}),
+             "paper": {"image_size": (64, 64), "seeds": 5, "step_grid": ((0.1, 5.0),), "softmax_grid": ()}}},
+         # the perception card (docs/perception.md): the one-frame state read from the 64×64 camera, frames of the
+         # NoCrash demonstrations' settings with the speed strip lit, held out on new layouts and the new palette
+         perception=Perception("pos", "nocrash", (64, 64), frame_settings=MappingProxyType({"speed_input": True}),
+                               heldout=MappingProxyType({"test layouts": MappingProxyType({"town": "test"}),
+                                                         "test layouts, test weather": MappingProxyType(
+                                                             {"town": "test", "weather": "test"})}))),
 )})
 
 

@@ -151,6 +151,11 @@ class ToyTown(ConfiguredEnv):
         return (len(one_frame_names(self.config) if self.obs_mode == "pos" else FEATURES),)
 
     @property
+    def observation_names(self) -> tuple[str, ...] | None:
+        """The names of a vector observation's entries (`one_frame_names`, `FEATURES`); None for frames."""
+        return None if self.obs_mode == "image" else one_frame_names(self.config) if self.obs_mode == "pos" else FEATURES
+
+    @property
     def action_size(self) -> int:
         return 3
 

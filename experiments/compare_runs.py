@@ -47,6 +47,14 @@ def _task_version(path: pathlib.Path) -> int | None:
     return (results_lib.load(path if path.is_file() else RunDir(path).results).protocol or {}).get("task_version")
 
 
+def _encoder(path: pathlib.Path) -> str | None:
+    """The SHA-256 of the perception encoder a sweep saw its frames through (`recipe.perception_sha256`), or None."""
+    from ape_jax.pipeline import results as results_lib
+
+    res = results_lib.load(path if path.is_file() else RunDir(path).results)
+    return ((res.settings or {}).get("recipe") or {}).get("perception_sha256")
+
+
 def _recorded(run: dict) -> str:
     """What a run records that training and evaluation computed: its evaluation, losses and training curves, and
     those of its snapshots (`at`); not its diagnostics, which judging a file adds to."""
@@ -112,6 +120,10 @@ def main(argv=None) -> int:
         if versions[0] != versions[1]:
             fail(parser, f"{args.run_a} ran task version {versions[0]} and {args.run_b} version {versions[1]}: "
                          f"two versions of a task show other things, so their runs are never compared or merged")
+        encoders = [_encoder(path) for path in (args.run_a, args.run_b)]
+        if encoders[0] != encoders[1]:
+            fail(parser, f"{args.run_a} saw its frames through {encoders[0] or 'no encoder'} and {args.run_b} "
+                         f"through {encoders[1] or 'none'}: runs of two perception encoders are never compared")
         rows = compare(args.run_a, args.run_b)
     except ResultsError as e:  # one line naming the file
         fail(parser, str(e))

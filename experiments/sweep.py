@@ -411,6 +411,9 @@ def _network(recipe, obs: str) -> str:
     """The policy network the run line names: the state network, or the image encoder with its settings."""
     if obs != "image":
         return recipe.network
+    if recipe.perception != "none":
+        name = "the task's" if recipe.perception == "task" else pathlib.Path(recipe.perception).name
+        return f"{recipe.network} on {name} perception encoder {recipe.perception_sha256[:12]}…, frozen"
     extras = [recipe.encoder_norm + " norm"] * (recipe.encoder_norm != "none")
     extras += [f"shift {recipe.augment_shift} px"] * (recipe.augment_shift > 0)
     return f"{recipe.encoder} encoder" + "".join(f", {x}" for x in extras)

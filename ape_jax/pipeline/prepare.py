@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import pathlib
 from collections.abc import Callable
 from typing import Any
 
@@ -69,6 +70,7 @@ class Prepared:
       data_sha256: the SHA-256 of the collected (or cached) demonstrations' file, which tells two collections
         with the same settings apart; None for `--dataset` and for a file another process is still writing.
       views: the other observations' views built so far (`view`), by observation.
+      perception: the encoder the frames are seen through (`perception.Encoder.describe`), None for none.
     """
 
     env: Any
@@ -84,6 +86,7 @@ class Prepared:
     data_sha256: str | None = None
     expert_description: dict | None = None
     views: dict = dataclasses.field(default_factory=dict, compare=False, repr=False)
+    perception: dict | None = None
 
     def observing(self, observation: str | None) -> str | None:
         """The observation `observation` (`Method.observation`) names here: None where it is the sweep's own
@@ -220,6 +223,16 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
             hooks.log(f"no normalised scores: {collect.no_references_advice(found, where)}")
     expert = None if expert is None else collect.labeller(expert, env, protocol.labels)
     check_fits(demos, env, str(path))
+    seen = None
+    if spec.recipe.perception != "none":  # the frames seen through the frozen encoder, embedded once
+        from ape_jax import perception
+
+        encoder = perception.resolve(spec.env, spec.recipe.perception, spec.recipe.perception_sha256)
+        with hooks.bar(desc="embed", total=len(demos), unit="frame") as b:
+            env, demos = perception.perceive(env, demos, encoder, progress=lambda n: b.update(n - b.n))
+        hooks.log(f"perception: {len(demos):,} frames embedded by {pathlib.Path(encoder.path).name} "
+                  f"(SHA-256 {encoder.sha256[:12]}…, {encoder.embedding_size} features a frame)")
+        seen = encoder.describe()
     if spec.protocol.prev_action:  # the previous action in view, in the rollouts and the demonstrations alike
         env, demos = observations.with_previous_action(env, demos)
     hooks.log(f"demonstrations: {len(demos):,} transitions in {demos.num_episodes} episodes ({source}: {path})")
@@ -230,7 +243,7 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
                          f"{spec.recipe.batch_size}; collect more episodes")
     return Prepared(env=env, task=spec.task, train=train, val=val, normalizer=Normalizer.fit(train.obs),
                     expert=expert, card=card, data_path=str(path), source=source, settings=settings,
-                    data_sha256=digest, expert_description=description)
+                    data_sha256=digest, expert_description=description, perception=seen)
 
 
 # -- 2. fit APE -----------------------------------------------------------------------------------------------------

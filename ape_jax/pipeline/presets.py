@@ -125,6 +125,12 @@ class Recipe:
       loss: `"l2"` or `"l1"`; None: the task's (L2 for MuJoCo, L1 for the driving tasks).
       loss_weights: each action dimension's share of the loss; empty: the task's (`Task.loss_weights`: CILRS's
         0.5 / 0.45 / 0.05 for ToyTown's steer, throttle and brake; else 1 each).
+      perception: camera sweeps: `"none"` (policies learn from pixels), `"task"` (the task's pretrained perception
+        encoder, `envs/perception/<task>.npz`) or an encoder file's path (`ape_jax.perception`): the frames are seen
+        through the frozen encoder, each frame's embedding computed once, and every policy is a state policy on the
+        embeddings (the recipe's `network`; its image fields do not apply and are recorded at their defaults).
+      perception_sha256: the encoder file's SHA-256, filled in when the settings are resolved (recorded in results
+        and fingerprints, so two encoders never merge); given, a file with another is refused.
     """
 
     name: str = "mlp"
@@ -145,6 +151,8 @@ class Recipe:
     bn_momentum: float = 0.1
     loss: str | None = None
     loss_weights: tuple[float, ...] = ()
+    perception: str = "none"
+    perception_sha256: str | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "name", FORMER_RECIPES.get(self.name, self.name))  # a file's former name: today's
@@ -157,6 +165,11 @@ class Recipe:
                and (not self.loss_weights or max(self.loss_weights) > 0),
                f"recipe.loss_weights: finite numbers >= 0, not all 0 (empty: the task's), got {self.loss_weights!r}")
         _check(self.lr > 0 and math.isfinite(self.lr), f"recipe.lr must be a finite number > 0, got {self.lr!r}")
+        _check(isinstance(self.perception, str) and self.perception.strip() != "",
+               f"recipe.perception: none, task, or an encoder file's path, got {self.perception!r}")
+        sha = self.perception_sha256
+        _check(sha is None or (isinstance(sha, str) and len(sha) == 64 and all(c in "0123456789abcdef" for c in sha)),
+               f"recipe.perception_sha256: 64 hexadecimal digits (or none), got {sha!r}")
         _check(all(0.0 < f < 1.0 for f in self.lr_decay_at) and list(self.lr_decay_at) == sorted(set(self.lr_decay_at)),
                f"recipe.lr_decay_at must be increasing fractions in (0, 1), got {self.lr_decay_at!r}")
         _check(0.0 <= self.warmup < 1.0, f"recipe.warmup must be a fraction in [0, 1), got {self.warmup!r}")
@@ -381,6 +394,14 @@ def resolve(env: str, obs: str, protocol: str | None = None, preset: str = "quic
     settings = Settings(*(_record(name, values[name]) for name in SECTIONS), preset=preset, smoke=smoke,
                         preset_iterations=preset_iterations, knobs=records)
     _check_image_recipe(settings.recipe, obs, settings.protocol.image_size)
+    if settings.recipe.perception != "none":
+        from ape_jax.perception import pinned
+
+        try:
+            settings = dataclasses.replace(settings, recipe=pinned(settings.recipe, env, obs, settings.protocol,
+                                                                   explicit))
+        except ValueError as e:   # one line: the file, or what does not fit
+            raise SettingsError(str(e)) from None
     if settings.recipe.dtype == "bfloat16" and (problem := models.bf16_problem()):
         raise SettingsError(f"recipe.dtype 'bfloat16': {problem}; use recipe.dtype=float32")
     for field in old_names:  # once the settings are good: a refusal stays one line

@@ -82,7 +82,7 @@ class SweepSpec:
         several = jax.process_count() > 1   # the policies a method reads are sharded over the processes' devices
         for m in self.methods:
             method = methods_lib.get(m)  # MethodError for an unknown name
-            why = method.refuses(self.settings, self.obs) if method.refuses is not None else None
+            why = method.refuses(self.settings, self.policy_obs) if method.refuses is not None else None
             if why or (why := methods_lib.unread(m, self.settings.knobs, self.methods)):
                 raise ValueError(why)
             if several and (read := methods_lib.read_by(m, self.settings.knobs)):
@@ -102,7 +102,7 @@ class SweepSpec:
             span = f" at stride {stride} ({self.protocol.history_span:,} steps)" if stride > 1 else ""
             raise ValueError(f"protocol.history {history}{span} is longer than an episode ({length:,} steps): a "
                              f"history can hold at most the frames one episode stores")
-        if self.protocol.prev_action and self.obs == "image":
+        if self.protocol.prev_action and self.policy_obs == "image":
             raise ValueError("protocol.prev_action needs vector observations (--obs pos or full): a frame has no "
                              "place for the previous action")
         if self.protocol.frames == "states":
@@ -123,6 +123,12 @@ class SweepSpec:
         obs = obs or tasks.get(env).default_obs
         settings = resolve(env, obs, protocol=protocol, preset=preset, recipe=recipe, sets=sets)
         return cls(env, obs, settings, tuple(methods if methods is not None else methods_lib.default()), **kw)
+
+    @property
+    def policy_obs(self) -> str:
+        """What the policies observe: `"embedding"` where the frames are seen through a perception encoder
+        (`recipe.perception`: vectors, as a state is), else the sweep's observation mode."""
+        return "embedding" if self.obs == "image" and self.recipe.perception != "none" else self.obs
 
     @property
     def episodes(self) -> int:

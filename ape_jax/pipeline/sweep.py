@@ -231,6 +231,8 @@ def assemble(spec: SweepSpec, prepared: Prepared, ape: ApeFit, trained: Sequence
     if spec.dataset is not None and prepared.expert_description is not None:
         # a collected sweep names its expert in `config.data.settings`; a dataset's expert is recorded here
         expert["demonstrator"] = prepared.expert_description
+    if prepared.perception is not None:   # the encoder the frames were seen through (its SHA-256 is the recipe's)
+        config["perception"] = prepared.perception
     if (diag := diagnostics_config(prepared.train.demos, evaluated.outputs)) is not None:
         config["diagnostics"] = diag
     config["env"] = {"dt": float(prepared.env.dt), "episode_length": int(prepared.env.episode_length),

@@ -105,6 +105,8 @@ class Key(NamedTuple):
     budget are another experiment, shown apart and compared in "Training longer" (`longer_runs`).
     `version` is the task version a task with versions ran (ToyTown's `task_version`; a file that records none ran
     version 1), None for other tasks: two versions show other things, so their results are never merged.
+    `perception` is the first 12 hexadecimal digits of the SHA-256 of the encoder the frames were seen through
+    (`recipe.perception_sha256`), None for policies that learn from pixels (or states): two encoders never merge.
     """
 
     env: str
@@ -112,6 +114,14 @@ class Key(NamedTuple):
     protocol: str
     budget: int | None = None
     version: int | None = None
+    perception: str | None = None
+
+
+def perception_of(r: results_lib.Results) -> str | None:
+    """`Key.perception` of a file: its encoder's SHA-256, first 12 digits; None where the frames were not seen
+    through one."""
+    sha = ((r.settings or {}).get("recipe") or {}).get("perception_sha256")
+    return sha[:12] if sha else None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -301,6 +311,8 @@ def _key(r: results_lib.Results) -> tuple[dict, Key]:
     """A file's protocol as its group records it (a variant's: named by `variant_name`, with `variant_of`, the
     recipe, a former preset and an imported expert's SHA-256) and its group's `Key`."""
     protocol = protocol_of(r, _where(r))
+    if (encoder := perception_of(r)) is not None:
+        protocol = {**protocol, "perception": encoder}
     name = variant_name(r, protocol)
     found = demonstrator(r) or {}
     if name != protocol["name"]:
@@ -308,7 +320,8 @@ def _key(r: results_lib.Results) -> tuple[dict, Key]:
                     **({"preset": former} if (former := former_preset(r)) else {}),
                     **({"expert_sha256": found["sha256"]} if found.get("kind") == "imported"
                        and found.get("sha256") else {})}
-    return protocol, Key(r.env, r.obs, name, None if former_preset(r) else budget_of(r), protocol.get("task_version"))
+    return protocol, Key(r.env, r.obs, name, None if former_preset(r) else budget_of(r), protocol.get("task_version"),
+                         encoder)
 
 
 def read_only(res: results_lib.Results) -> set[str]:
@@ -452,6 +465,8 @@ def group_title(key: Key, protocol: dict, with_protocol: bool, with_obs: bool | 
     parts += [protocol_words(protocol)] if with_protocol else []
     if key.version is not None and key.version != current_task_version(key.env):  # the first tables' camera, ...
         parts.append(f"version {key.version}")
+    if key.perception is not None:
+        parts.append(f"through the pretrained encoder {key.perception[:8]}")
     return tasks.get(key.env).title + (f" ({', '.join(parts)})" if parts else "")
 
 
@@ -465,6 +480,7 @@ def file_stem(m: Group) -> str:
     parts += [f"{m.budget}it"] if m.budget else []
     version = m.protocol.get("task_version")  # from the second on: the first's names stay as they were
     parts += [f"v{version}"] if version not in (None, 1) else []
+    parts += [f"enc{m.protocol['perception'][:8]}"] if m.protocol.get("perception") else []
     return "-".join(parts)
 
 

@@ -1,0 +1,185 @@
+"""A sweep through a perception encoder: the environment that observes embeddings, the demonstrations embedded once.
+
+    encoder = resolve(env_name, recipe.perception, sha256)       # the file the recipe names, checked
+    env, demos = perceive(camera_env, demos, encoder)            # `Perceived(env)`, `demos.obs` embedded
+
+`recipe.perception` is `"none"` (the default: policies learn from pixels), `"task"` (the task's shipped encoder,
+`envs/perception/<task>.npz`, made by `python -m experiments.perception --env <task>`) or a path to an encoder file
+(`card`'s format: a user's own). The encoder is frozen: each frame's embedding is computed once for the
+demonstrations and once per step in a rollout, so a method's update costs what a state update costs, and the
+history is the stack of per-frame embeddings. Every policy then is a state policy on `[E]` vectors (the recipe's
+state network), standardised with the training rows' statistics as a state is.
+"""
+
+from __future__ import annotations
+
+import pathlib
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from envs.base import Env, State
+from ape_jax.perception import card as card_lib
+from ape_jax.perception.card import Encoder, PerceptionError
+from ape_jax.perception.net import embedder, in_chunks
+
+SHIPPED = pathlib.Path(__file__).resolve().parents[2] / "envs" / "perception"
+NONE, TASK = "none", "task"
+_LOADED: dict[tuple[str, str | None], Encoder] = {}
+
+
+def shipped_path(env_name: str) -> pathlib.Path:
+    return SHIPPED / f"{env_name}.npz"
+
+
+def resolve(env_name: str, perception: str, sha256: str | None = None) -> Encoder:
+    """The encoder `recipe.perception` names for task `env_name` (`"task"`: its shipped one; else a file's path),
+    loaded once per process. `PerceptionError` (one line): a task without a perception card asked for `"task"`, a
+    missing, truncated or malformed file, a SHA-256 other than `sha256` (when given)."""
+    if perception == TASK:
+        from ape_jax import tasks
+
+        if tasks.get(env_name).perception is None:
+            with_card = [t for t in tasks.sweepable() if tasks.get(t).perception is not None]
+            raise PerceptionError(f"recipe.perception=task: {env_name} declares no perception card (tasks with one: "
+                                  f"{', '.join(with_card)}); give an encoder file's path instead")
+        path = shipped_path(env_name)
+        if not path.is_file():
+            raise PerceptionError(f"{path}: {env_name}'s encoder is not there; make it with python -m "
+                                  f"experiments.perception --env {env_name}")
+    else:
+        path = pathlib.Path(perception).expanduser()
+    key = (str(path.resolve()) if path.exists() else str(path), sha256)
+    if key not in _LOADED:
+        _LOADED[key] = card_lib.load(path, sha256)
+    return _LOADED[key]
+
+
+def pinned(recipe: Any, env_name: str, obs: str, protocol: Any, explicit: set[str]) -> Any:
+    """`recipe` (a `presets.Recipe` with `perception` set) seeing frames through the encoder it names: the file checked
+    against the sweep's camera (`check_sweep`: task, image size, task version, palette), its SHA-256 recorded, the
+    pixel encoder's fields at their defaults (a state policy trains on the embeddings). `ValueError` (one line) for
+    anything that does not fit; `explicit`: the fields `--set` gave."""
+    import dataclasses
+
+    import envs
+    from ape_jax.pipeline.setup import Setup
+
+    if obs != "image":
+        raise PerceptionError(f"recipe.perception reads camera frames: --obs image, not --obs {obs}")
+    pixels = [f"recipe.{k}" for k in ("encoder", "encoder_norm", "augment_shift") if k in explicit]
+    if pixels:
+        raise PerceptionError(f"{', '.join(pixels)}: for policies that learn from pixels; recipe.perception "
+                              f"{recipe.perception!r} trains state policies on the encoder's embeddings")
+    encoder = resolve(env_name, recipe.perception, recipe.perception_sha256)
+    check_sweep(encoder, envs.make(env_name, obs="image", **Setup.resolve(env_name, obs, protocol).collection))
+    return dataclasses.replace(recipe, perception_sha256=encoder.sha256, encoder="small", encoder_norm="none",
+                               augment_shift=0)
+
+
+def check_sweep(encoder: Encoder, env: Env) -> None:
+    """`card.check_fits` against the frames of `env` (the sweep's camera environment, collection settings)."""
+    cfg = getattr(env, "config", None)
+    card_lib.check_fits(encoder, env.name, tuple(getattr(cfg, "image_size", env.observation_shape[:2])),
+                        getattr(cfg, "task_version", None), getattr(cfg, "weather", None))
+
+
+def embed_frames(encoder: Encoder, frames: np.ndarray, progress=None) -> np.ndarray:
+    """`[N, E] float32`: the embedding of each of `frames` `[N, H, W, 3] uint8`, in jitted chunks."""
+    return in_chunks(embedder(encoder.net, encoder.params), np.asarray(frames), progress=progress)
+
+
+def perceive(env: Env, demos: Any, encoder: Encoder, progress=None) -> tuple[Env, Any]:
+    """`(Perceived(env, encoder), demos with each frame replaced by its embedding)`."""
+    if len(env.observation_shape) != 3:
+        raise PerceptionError(f"recipe.perception reads camera frames; {env.name!r} observes "
+                              f"{list(env.observation_shape)} (--obs image)")
+    return Perceived(env, encoder), demos.replace(obs=embed_frames(encoder, demos.obs, progress))
+
+
+class Perceived(Env):
+    """`env` (a camera environment) whose observation is its frame's embedding by a frozen encoder: `[E] float32`.
+    Everything else (the simulator, rewards, `done`, metrics, the expert's observation, rendering) is `env`'s."""
+
+    def __init__(self, env: Env, encoder: Encoder):
+        self.inner, self.encoder = env, encoder
+        self.name, self.obs_mode = env.name, env.obs_mode
+        self._embed = embedder(encoder.net, encoder.params)
+
+    def __getattr__(self, name: str):  # what this wrapper does not define is the environment's
+        if name in ("inner", "encoder"):
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+    def _seen(self, state: State) -> State:
+        return state.replace(obs=self._embed(state.obs).astype(np.float32))
+
+    def reset(self, key: jax.Array) -> State:
+        return self._seen(self.inner.reset(key))
+
+    def step(self, state: State, action: jax.Array) -> State:
+        # the inner environment steps from an observation of its own shape; its value matters only where the step is
+        # refused (`Env.step` keeps the state as given, `done`), so a blank frame spares a second render per step
+        blank = jnp.zeros(self.inner.observation_shape, self.inner.observation_dtype)
+        return self._seen(self.inner.step(state.replace(obs=blank), action))
+
+    def _reset(self, key: jax.Array) -> State:  # `reset` and `step` above are the wrapper's whole dynamics
+        return self.reset(key)
+
+    def _step(self, state: State, action: jax.Array) -> State:
+        return self.step(state, action)
+
+    @property
+    def observation_shape(self) -> tuple[int, ...]:
+        return (self.encoder.embedding_size,)
+
+    @property
+    def observation_dtype(self):
+        return np.float32
+
+    @property
+    def action_size(self) -> int:
+        return self.inner.action_size
+
+    @property
+    def action_bounds(self):
+        return self.inner.action_bounds
+
+    @property
+    def dt(self) -> float:
+        return self.inner.dt
+
+    @property
+    def episode_length(self) -> int:
+        return self.inner.episode_length
+
+    @property
+    def episode_metric_names(self) -> tuple[str, ...]:
+        return self.inner.episode_metric_names
+
+    @property
+    def action_names(self):
+        return self.inner.action_names
+
+    def episode_metrics(self, sims, final, valid):
+        return self.inner.episode_metrics(sims, final, valid)
+
+    def render(self, state: State) -> jax.Array:
+        return self.inner.render(state)
+
+    def caption(self, sim, metrics=None):
+        return self.inner.caption(sim, metrics)
+
+    def expert_observation(self, state: State) -> jax.Array:
+        return self.inner.expert_observation(state)
+
+    def sim_state(self, state: State):
+        return self.inner.sim_state(state)
+
+    def observe_sim(self, sim):
+        return self._embed(self.inner.observe_sim(sim))
+
+    def __repr__(self) -> str:
+        return f"<Perceived {self.inner!r} through {pathlib.Path(self.encoder.path).name}>"
