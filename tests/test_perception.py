@@ -130,6 +130,16 @@ def test_perception_settings_that_cannot_run_are_refused(encoder_file, sets, obs
     assert "\n" not in str(e.value)
 
 
+def test_every_table_method_can_run_through_an_encoder(encoder_file):
+    from ape_jax.pipeline.spec import SweepSpec
+
+    path, _ = encoder_file
+    methods = ("bc-so", "bc-oh", "ours-step", "fca", "history-dropout", "dagger", "boosting", "rap", "palr", "mine",
+               "bc-full")
+    spec = SweepSpec.make("toytown", "image", methods=methods, preset="default", sets=[f"recipe.perception={path}"])
+    assert spec.policy_obs == "embedding" and spec.methods == methods
+
+
 def test_the_sweep_command_refuses_a_missing_encoder_in_one_line_and_writes_nothing(tmp_path, capsys):
     from experiments import sweep
 

@@ -128,7 +128,7 @@ class SweepSpec:
     def policy_obs(self) -> str:
         """What the policies observe: `"embedding"` where the frames are seen through a perception encoder
         (`recipe.perception`: vectors, as a state is), else the sweep's observation mode."""
-        return "embedding" if self.obs == "image" and self.recipe.perception != "none" else self.obs
+        return "embedding" if self.obs == "image" and self.settings.recipe.perception != "none" else self.obs
 
     @property
     def episodes(self) -> int:
