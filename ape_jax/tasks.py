@@ -445,13 +445,18 @@ CILRS_LOSS_WEIGHTS = (0.5, 0.45, 0.05)
 # split, against FCA's 20k on MuJoCo. Fixed before any imitator was trained on it (docs/design.md, "ToyTown").
 _TOYTOWN_METRICS = ("success", "route_completion", "collisions", "collisions_vehicle", "collisions_pedestrian",
                     "collisions_offroad", "red_light_violations", "timeout", "stuck", "avg_speed")
+# The MuJoCo tasks' perception card: the pose (`pos`, the paper's MuJoCo-State observation) read from one frame of
+# the `brax` protocol's image setting (the committed from-scratch image tables'), 32×32 as those tables' frames;
+# held out on new episodes (one palette, no layouts).
+_MUJOCO_PERCEPTION = Perception("pos", "brax", (32, 32), episodes=100, perturbed_episodes=0,
+                                heldout=MappingProxyType({"new episodes": MappingProxyType({})}))
 TASKS: Mapping[str, Task] = MappingProxyType({t.name: t for t in (
     # FCA's α and adversary lr: the FCA code's README runs Hopper at α 2.0 and 4e-4; it gives nothing for
     # Walker2d and HalfCheetah, whose α and lr are its defaults (`factory.py`: 1.0 and 2e-4). The keyframe
     # paper's supplement ran its own FCA at α 0.1 (Hopper) and 0.5 (the others): `--set fca.alphas=...`.
-    Task("hopper", "Hopper", fca_alpha=2.0, fca_adversary_lr=4e-4),
-    Task("halfcheetah", "HalfCheetah", fca_alpha=1.0),
-    Task("walker2d", "Walker2d", fca_alpha=1.0),
+    Task("hopper", "Hopper", fca_alpha=2.0, fca_adversary_lr=4e-4, perception=_MUJOCO_PERCEPTION),
+    Task("halfcheetah", "HalfCheetah", fca_alpha=1.0, perception=_MUJOCO_PERCEPTION),
+    Task("walker2d", "Walker2d", fca_alpha=1.0, perception=_MUJOCO_PERCEPTION),
     Task("toycar", "ToyCar", loss="l1", episodes=10, fca_alpha=0.2, metric="success", metrics=_TOYCAR_METRICS,
          default_obs="image", expert="rule-based", protocols=("brax",), default_protocols={}, presets={"image": {
              "quick": {"image_size": (32, 32)},

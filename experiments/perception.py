@@ -32,6 +32,7 @@ def parse(argv=None):
     p.add_argument("--steps", type=int, default=16_000, help="Adam updates (default 16,000)")
     p.add_argument("--batch", type=int, default=128, help="frames per update (default 128)")
     p.add_argument("--lr", type=float, default=1e-3, help="Adam's peak learning rate, cosine to 0 (default 1e-3)")
+    p.add_argument("--image-size", help="the frames' size, N or HxW (default: the task's card's)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=pathlib.Path, help="the encoder file (default envs/perception/<task>.npz)")
     p.add_argument("--card", type=pathlib.Path, help="the card as JSON (default results/perception/<task>.json)")
@@ -42,6 +43,13 @@ def parse(argv=None):
         fail(p, f"--steps and --batch must be >= 1, got {args.steps} and {args.batch}")
     if not (args.lr > 0 and math.isfinite(args.lr)):
         fail(p, f"--lr must be a finite number > 0, got {args.lr}")
+    if args.image_size is not None:
+        from ape_jax.pipeline.hints import image_size
+
+        try:
+            args.image_size = image_size(args.image_size)
+        except ValueError as e:
+            fail(p, f"--image-size {args.image_size!r}: {e}")
     args.out = args.out or ROOT / "envs" / "perception" / f"{args.env}.npz"
     args.card = args.card or ROOT / "results" / "perception" / f"{args.env}.json"
     for path in (args.out, args.card):
@@ -67,7 +75,8 @@ def main(argv=None) -> int:
         bar.set_postfix(loss=f"{loss:.4f}", refresh=False)
 
     params, card = pretrain_lib.pretrain(args.env, steps=args.steps, batch=args.batch, lr=args.lr, seed=args.seed,
-                                         log=lambda s: print(s, file=sys.stderr), progress=progress)
+                                         image_size=args.image_size, log=lambda s: print(s, file=sys.stderr),
+                                         progress=progress)
     if bar is not None:
         bar.close()
     sha = card_lib.save(args.out, params, card)

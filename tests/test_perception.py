@@ -172,6 +172,7 @@ def test_the_perceived_environment_observes_the_frames_embedding(encoder_file):
 
 # -- pretraining -----------------------------------------------------------------------------------------------------
 
+@pytest.mark.integration   # four collections, each its own compile: ~20-40 s on 2 cores
 def test_pretraining_reads_the_one_frame_targets_and_never_the_actions(monkeypatch):
     task = tasks.get("toytown")
     small = dataclasses.replace(task.perception, episodes=3, perturbed_episodes=1, heldout_episodes=1, stride=3,
@@ -191,8 +192,10 @@ def test_pretraining_reads_the_one_frame_targets_and_never_the_actions(monkeypat
 def test_tasks_without_a_card_are_refused_by_the_pretraining_command(capsys):
     from experiments import perception as cli
 
-    err = refused(capsys, lambda: cli.main(["--env", "hopper"]))
-    assert "hopper declares no perception card" in err
+    err = refused(capsys, lambda: cli.main(["--env", "toycar"]))
+    assert "toycar declares no perception card" in err
+    err = refused(capsys, lambda: cli.main(["--env", "toytown", "--image-size", "abc"]))
+    assert "--image-size 'abc': an image size is" in err
 
 
 # -- results and reports ---------------------------------------------------------------------------------------------

@@ -116,14 +116,19 @@ def fit(net: PerceptionNet, frames: np.ndarray, targets: np.ndarray, steps: int,
     return params, losses
 
 
-def pretrain(task_name: str, steps: int = 6_000, batch: int = 128, lr: float = 1e-3, seed: int = 0,
-             log: Callable[[str], None] = lambda s: None,
+def pretrain(task_name: str, steps: int = 16_000, batch: int = 128, lr: float = 1e-3, seed: int = 0,
+             image_size: tuple[int, int] | None = None, log: Callable[[str], None] = lambda s: None,
              progress: Callable[[int, float], None] | None = None) -> tuple[Any, dict]:
-    """`(params, card)`: task `task_name`'s perception encoder trained as the module docstring says, and its card
-    (`card.save` writes both). `ValueError` (one line) for a task that declares no perception card."""
+    """`(params, card)`: task `task_name`'s perception encoder trained as the module docstring says (at `image_size`
+    where given, else the card's), and its card (`card.save` writes both). `ValueError` (one line) for a task that
+    declares no perception card."""
+    import dataclasses
+
     task = tasks.get(task_name)
     if task.perception is None:
         raise ValueError(f"{task_name} declares no perception card (tasks.Task.perception)")
+    if image_size is not None:
+        task = dataclasses.replace(task, perception=dataclasses.replace(task.perception, image_size=tuple(image_size)))
     p = task.perception
     setup, settings = _env_settings(task)
     key = jax.random.PRNGKey(seed)
