@@ -153,7 +153,9 @@ class ToyTown(ConfiguredEnv):
     @property
     def observation_names(self) -> tuple[str, ...] | None:
         """The names of a vector observation's entries (`one_frame_names`, `FEATURES`); None for frames."""
-        return None if self.obs_mode == "image" else one_frame_names(self.config) if self.obs_mode == "pos" else FEATURES
+        if self.obs_mode == "image":
+            return None
+        return one_frame_names(self.config) if self.obs_mode == "pos" else FEATURES
 
     @property
     def action_size(self) -> int:

@@ -2,9 +2,10 @@
 
 The encoder reads what one frame shows (the task's declared targets, ToyTown's one-frame state), trained on frames
 of the training layouts only and never on the expert's actions (`ape_jax.perception.pretrain`, docs/perception.md).
-It writes the encoder file (`--out`, default `envs/perception/<task>.npz`, the shipped one that
-`--set recipe.perception=task` reads) and its card as JSON beside the results (`--card`, default
-`results/perception/<task>.json`): targets, data, size, cost, and the held-out `1 − R²` of each target.
+It writes its card as JSON (`--out`, default `results/perception/<task>.json`): targets, data, size, cost, the
+held-out `1 − R²` of each target, the encoder file's SHA-256; and the encoder file (`--encoder`; default: beside
+`--out` with the suffix `.npz`, or, without `--out`, `envs/perception/<task>.npz`, the shipped one that
+`--set recipe.perception=task` reads).
 
 Bad input is refused with one line and exit status 2 before anything runs: a task without a perception card,
 counts below 1, a learning rate that is not a positive number, an output that cannot be written.
@@ -34,8 +35,9 @@ def parse(argv=None):
     p.add_argument("--lr", type=float, default=1e-3, help="Adam's peak learning rate, cosine to 0 (default 1e-3)")
     p.add_argument("--image-size", help="the frames' size, N or HxW (default: the task's card's)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", type=pathlib.Path, help="the encoder file (default envs/perception/<task>.npz)")
-    p.add_argument("--card", type=pathlib.Path, help="the card as JSON (default results/perception/<task>.json)")
+    p.add_argument("--out", type=pathlib.Path, help="the card as JSON (default results/perception/<task>.json)")
+    p.add_argument("--encoder", type=pathlib.Path,
+                   help="the encoder file (default: --out's path with .npz; without --out, envs/perception/<task>.npz)")
     args = p.parse_args(argv)
     if args.env not in tasks.TASKS or tasks.get(args.env).perception is None:
         fail(p, f"{args.env} declares no perception card; tasks with one: {', '.join(with_card) or 'none'}")
@@ -50,9 +52,11 @@ def parse(argv=None):
             args.image_size = image_size(args.image_size)
         except ValueError as e:
             fail(p, f"--image-size {args.image_size!r}: {e}")
-    args.out = args.out or ROOT / "envs" / "perception" / f"{args.env}.npz"
-    args.card = args.card or ROOT / "results" / "perception" / f"{args.env}.json"
-    for path in (args.out, args.card):
+    shipped = args.out is None
+    args.out = args.out or ROOT / "results" / "perception" / f"{args.env}.json"
+    args.encoder = args.encoder or (ROOT / "envs" / "perception" / f"{args.env}.npz" if shipped
+                                    else args.out.with_suffix(".npz"))
+    for path in (args.out, args.encoder):
         if (why := unwritable_file(path)) is not None:
             fail(p, why)
     return args
@@ -65,6 +69,7 @@ def main(argv=None) -> int:
 
     from ape_jax.perception import card as card_lib
     from ape_jax.perception import pretrain as pretrain_lib
+    from experiments._provenance import system
 
     bar = None
 
@@ -79,20 +84,22 @@ def main(argv=None) -> int:
                                          progress=progress)
     if bar is not None:
         bar.close()
-    sha = card_lib.save(args.out, params, card)
-    record = {"file": str(args.out.relative_to(ROOT)) if args.out.is_relative_to(ROOT) else str(args.out),
-              "sha256": sha, "command": ["python", "-m", "experiments.perception", *(argv or sys.argv[1:])], **card}
+    sha = card_lib.save(args.encoder, params, card)
+    where = args.encoder.resolve()
+    record = {"file": str(where.relative_to(ROOT)) if where.is_relative_to(ROOT) else str(args.encoder),
+              "sha256": sha, "command": ["python", "-m", "experiments.perception", *(argv or sys.argv[1:])], **card,
+              "system": system()}
     record.pop("target_mean"), record.pop("target_std")
-    args.card.parent.mkdir(parents=True, exist_ok=True)
-    args.card.write_text(json.dumps(record, indent=1) + "\n")
-    print(f"encoder: {args.out} (SHA-256 {sha[:12]}…, {card['training']['parameters']:,} parameters, "
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(record, indent=1) + "\n")
+    print(f"encoder: {args.encoder} (SHA-256 {sha[:12]}…, {card['training']['parameters']:,} parameters, "
           f"{card['training']['total_s'] / 60:.1f} min)")
     for condition, scores in card["heldout"].items():
         read = {k: v for k, v in scores.items() if v is not None}
         worst = sorted(read, key=read.get, reverse=True)[:3]
         print(f"  held out, {condition}: median 1 − R² {statistics.median(read.values()):.3f}; worst "
               + ", ".join(f"{k} {read[k]:.2f}" for k in worst))
-    print(f"card: {args.card}")
+    print(f"card: {args.out}")
     return 0
 
 

@@ -651,9 +651,9 @@ def test_python_m_experiments_report_runs(tmp_path):
 def test_fca_and_brax_results_of_one_task_are_merged_apart_into_two_tables(tmp_path, capsys):
     files = _map_files(tmp_path)
     merged = report.merge(files)
-    assert sorted(merged) == sorted([("hopper", "pos", p, None, None)
+    assert sorted(merged) == sorted([("hopper", "pos", p, None, None, None)
                                      for p in ("mujoco-state", "mujoco-state-fs2", "mujoco-state-fs4", "brax")])
-    assert merged[("hopper", "pos", "brax", None, None)].expert["return_mean"] == 3000.0   # each group keeps its expert
+    assert merged[("hopper", "pos", "brax", None, None, None)].expert["return_mean"] == 3000.0   # each group keeps its expert
     assert [m.title for m in merged.values()] == ["Hopper (mujoco-state)", "Hopper (mujoco-state, frame skip 2)",
                                                      "Hopper (mujoco-state, frame skip 4)", "Hopper (brax)"]
     text = report.report(files)
@@ -845,7 +845,7 @@ def test_a_longer_run_is_its_own_group_compared_configuration_by_configuration(t
     long["config"] = {**long["config"], "iterations": 100_000}
     files.append(_loaded(tmp_path, _schema2(long, protocol=_fca(1)), "long.json"))
     merged = report.merge(files)
-    key = ("hopper", "pos", "mujoco-state", 100_000, None)
+    key = ("hopper", "pos", "mujoco-state", 100_000, None, None)
     assert key in merged and merged[key].title == "Hopper (mujoco-state, 100,000 iterations)"
     text = _index(files, tmp_path / "figures")
     section = text[text.index("## Training longer"):]

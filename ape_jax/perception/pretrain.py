@@ -134,7 +134,7 @@ def pretrain(task_name: str, steps: int = 16_000, batch: int = 128, lr: float = 
     key = jax.random.PRNGKey(seed)
     k_demo, k_off, k_held, k_fit = jax.random.split(key, 4)
     t_start = time.perf_counter()
-    log(f"perception: {task_name}'s frames in the training layouts ({p.protocol}, {p.image_size[0]}×{p.image_size[1]})")
+    log(f"perception: {task_name}'s training frames ({p.protocol}, {p.image_size[0]}×{p.image_size[1]})")
     parts = [_frames_and_targets(task, settings, setup, p.episodes, k_demo, 1.0, log)]
     if p.perturbed_episodes:
         parts.append(_frames_and_targets(task, settings, setup, p.perturbed_episodes, k_off, p.perturbed_noise, log))
