@@ -8,6 +8,10 @@ becomes a page, whose own links are followed the same way) and rewrites the link
 point there. A link to a file that does not exist is left as written, so
 `mkdocs build --strict` fails on it like on any other broken link.
 
+Every figure opens full size on a click: the hook wraps each image of a page that is not
+already inside a link in a link to the image itself (the figures are drawn wider than the
+content column, which shows them scaled down).
+
 Registered in `mkdocs.yml` (`hooks:`); `exclude_docs` keeps this file out of the site.
 """
 
@@ -26,6 +30,9 @@ PREFIX = "repository"  # where the site keeps the repository's files
 _INLINE = re.compile(r"(!?\[[^\]\n]*\]\()([^)\s]+)")
 # [label]: target, a reference definition at the start of a line
 _REFERENCE = re.compile(r"(^[ ]{0,3}\[[^\]\n]+\]:[ \t]*)(\S+)", re.MULTILINE)
+# in a page's HTML, a link (left as it is, images and all) or an image outside one
+_LINK_OR_IMAGE = re.compile(r"<a\b[^>]*>.*?</a>|<img\b[^>]*>", re.DOTALL)
+_SRC = re.compile(r"""\bsrc=("[^"]*"|'[^']*')""")
 
 
 def _targets(markdown: str):
@@ -104,3 +111,15 @@ def on_page_markdown(markdown: str, page, config, files: Files) -> str:
     for start, end, new in sorted(edits, reverse=True):
         markdown = markdown[:start] + new + markdown[end:]
     return markdown
+
+
+def on_page_content(html: str, page, config, files: Files) -> str:
+    """Wraps each image of the page's HTML that no link holds in a link to the image's own file."""
+
+    def link(match: re.Match) -> str:
+        found = _SRC.search(match.group(0))
+        if match.group(0).startswith("<a") or found is None:
+            return match.group(0)
+        return f'<a href={found.group(1)} class="full-size">{match.group(0)}</a>'
+
+    return _LINK_OR_IMAGE.sub(link, html)

@@ -71,6 +71,16 @@ def test_links_to_repository_files_are_copied_and_rewritten(site, caplog):
     assert 'href="repository/NOTES/#part-two"' in index and 'src="repository/figures/a.png"' in index
     # the copied page's own link back into the docs points at the docs' page
     assert 'href="../../#home"' in (site / "site" / "repository" / "NOTES" / "index.html").read_text()
+    # the figure opens full size on a click: a link to its own file
+    assert ('<a href="repository/figures/a.png" class="full-size"><img alt="a figure" '
+            'src="repository/figures/a.png"') in index
+
+
+def test_an_image_already_in_a_link_is_left_as_it_is(site, caplog):
+    (site / "docs" / "index.md").write_text("# Home\n\n[![a figure](../figures/a.png)](https://example.org)\n")
+    assert _build(site, caplog) == []
+    index = (site / "site" / "index.html").read_text()
+    assert '<a href="https://example.org"><img' in index and "full-size" not in index
 
 
 def test_a_link_to_a_missing_file_or_anchor_warns(site, caplog):

@@ -17,7 +17,7 @@ from ape_jax.pipeline.presets import resolve
 from ape_jax.pipeline.setup import protocol_setup
 from experiments import report, stats
 from experiments.report.analysis import (DRIVING_ORDER, Key, driving_comparisons, driving_rows, driving_table,
-                                         loss_rows, merge)
+                                         driving_verdicts, loss_rows, merge)
 from experiments.report.figures import MAX_HEIGHT, driving_figure, save_png
 from test_report import _results, _schema2, _write
 
@@ -61,18 +61,18 @@ def _diagnostics(method: str, seed: int) -> dict:
             "controlled_verdict": "copycat" if controlled else "not copycat"}
 
 
-def toytown_file(protocol: str = "nocrash", methods=METHODS, seeds: int = SEEDS) -> dict:
-    """A schema-3 ToyTown results file as a sweep under `protocol` writes it: image observations, `seeds` seeds of
+def toytown_file(protocol: str = "nocrash", methods=METHODS, seeds: int = SEEDS, obs: str = "image") -> dict:
+    """A schema-3 ToyTown results file as a sweep under `protocol` writes it: `obs` observations, `seeds` seeds of
     `methods`, per seed the success, stuck and collision rates of `SUCCESS`, `STUCK`, `COLLISIONS` (the other
     metrics plausible), copycat diagnostics (`_diagnostics`) and losses that differ per method."""
-    settings = resolve("toytown", "image", protocol=protocol, preset="default").to_json()
+    settings = resolve("toytown", obs, protocol=protocol, preset="default").to_json()
     obj = _schema2(_results("toytown", tuple((m, hp, 0.0) for m, hp in methods), deltas=(0.0,) * seeds),
-                   protocol=protocol_setup("toytown", "image", protocol).settings,  # the task version recorded
+                   protocol=protocol_setup("toytown", obs, protocol).settings,  # the task version recorded
                    command=["python", "-m", "experiments.sweep", "--env", "toytown", "--protocol", protocol,
                             "--methods", ",".join(m for m, _ in methods)])
     iterations = settings["budget"]["iterations"]
-    obj.update(schema=3, obs="image", settings=settings, expert={"return_mean": None, "return_std": None,
-                                                                  "random_return_mean": None})
+    obj.update(schema=3, obs=obs, settings=settings, expert={"return_mean": None, "return_std": None,
+                                                             "random_return_mean": None})
     obj["config"].update(iterations=iterations, preset_iterations=iterations, seeds=seeds, eval_episodes=EPISODES,
                          methods=[m for m, _ in methods], metric="success",
                          task_metrics=list(tasks.get("toytown").metrics),
@@ -114,6 +114,11 @@ def _row(text: str, label: str) -> list[str]:
     return [c.strip() for c in line.strip("|").split("|")]
 
 
+def _cells(text: str, label: str) -> dict[str, str]:
+    """The cells of the row that starts with `label` in the first table of `text`, by the table's headings."""
+    return dict(zip(_row(text, "method"), _row(text, label)))
+
+
 def test_a_nocrash_group_reads_as_table_1_and_nocrash_nospeed_as_table_2(tmp_path):
     assert driving_table(_group(tmp_path)) == (1, "NoCrash-Dense, speed in view")
     assert driving_table(_group(tmp_path, "nocrash-nospeed")) == (2, "NoCrash-Dense without the speed")
@@ -136,10 +141,11 @@ def test_every_method_is_a_row_in_the_fixed_order_with_bc_full_last_as_the_ceili
     table = _section(report.build([_load(tmp_path, toytown_file(), "t.json")]).text, "## ToyTown (nocrash)")
     lines = [x for x in table.splitlines() if x.startswith("| ") and not x.startswith("| method")]
     assert [x.split(" | ")[0][2:] for x in lines[:len(ORDER)]] == labels
-    assert ("| method | hparams | seeds | success % | route completion | collisions | collisions vehicle | "
-            "collisions pedestrian | collisions offroad | red-light violations | timeout | stuck % | average speed | "
-            "success % of all episodes [Wilson 95%] | copycat: first verdict | copycat: controlled verdict |") in table
-    assert _row(table, "FCA (TCA)")[1] == "alpha 0.2, adversary_lr 0.0002"
+    # the key columns first, so that they stay in view on a page narrower than the table
+    assert ("| method | success % | collisions | stuck % | copycat: first verdict | copycat: controlled verdict | "
+            "hparams | seeds | route completion | collisions vehicle | collisions pedestrian | collisions offroad | "
+            "red-light violations | timeout | average speed | success % of all episodes [Wilson 95%] |") in table
+    assert _cells(table, "FCA (TCA)")["hparams"] == "alpha 0.2, adversary_lr 0.0002"
 
 
 def test_the_remedies_after_the_paper_follow_mine_in_their_order(tmp_path):
@@ -181,29 +187,34 @@ def test_ours_is_shown_at_the_papers_setting_and_a_baselines_settings_each_get_a
 
 def test_the_metric_cells_and_the_wilson_column_are_as_in_table_4(tmp_path):
     table = _section(report.build([_load(tmp_path, toytown_file(), "t.json")]).text, "## ToyTown (nocrash)")
-    cells = _row(table, "BC-OH")
+    cells = _cells(table, "BC-OH")
     success = 100 * np.array(SUCCESS["bc-oh"])
     e = stats.mean_interval(success)
-    assert cells[3] == f"{success.mean():.2f} ± {success.std(ddof=1):.2f} [{e.low:.2f}, {e.high:.2f}]"
+    assert cells["success %"] == f"{success.mean():.2f} ± {success.std(ddof=1):.2f} [{e.low:.2f}, {e.high:.2f}]"
     pooled = stats.wilson(round(sum(SUCCESS["bc-oh"]) * EPISODES), SEEDS * EPISODES)
-    assert cells[-3] == f"{100 * pooled.value:.2f} [{100 * pooled.low:.2f}, {100 * pooled.high:.2f}]"
+    assert cells["success % of all episodes [Wilson 95%]"] == (f"{100 * pooled.value:.2f} [{100 * pooled.low:.2f}, "
+                                                               f"{100 * pooled.high:.2f}]")
     crash = np.array(COLLISIONS["bc-oh"])
     e = stats.mean_interval(crash)
-    assert cells[5] == f"{crash.mean():.2f} ± {crash.std(ddof=1):.2f} [{e.low:.2f}, {e.high:.2f}]"
+    assert cells["collisions"] == f"{crash.mean():.2f} ± {crash.std(ddof=1):.2f} [{e.low:.2f}, {e.high:.2f}]"
 
 
 def test_the_verdict_columns_count_seeds_judged_copycat_of_seeds_diagnosed(tmp_path):
     table = _section(report.build([_load(tmp_path, toytown_file(), "t.json")]).text, "## ToyTown (nocrash)")
-    assert _row(table, "BC-OH")[-2:] == ["3/5", "2/5"]
-    assert _row(table, "Ours, step THR 10% W 5")[-2:] == ["1/5", "0/5"]
-    assert _row(table, "MINE")[-2:] == ["0/4", "0/4"]   # seed 0 unreadable: not diagnosed, never counted as 0
-    assert _row(table, "BC-SO")[-2:] == ["0/5", "0/5"]
+    verdicts = ("copycat: first verdict", "copycat: controlled verdict")
+
+    def counts(table, label):
+        return [_cells(table, label)[v] for v in verdicts]
+    assert counts(table, "BC-OH") == ["3/5", "2/5"]
+    assert counts(table, "Ours, step THR 10% W 5") == ["1/5", "0/5"]
+    assert counts(table, "MINE") == ["0/4", "0/4"]   # seed 0 unreadable: not diagnosed, never counted as 0
+    assert counts(table, "BC-SO") == ["0/5", "0/5"]
     # a file without diagnostics shows none
     plain = toytown_file()
     for run in plain["runs"]:
         run.pop("diagnostics")
     table = _section(report.build([_load(tmp_path, plain, "plain.json")]).text, "## ToyTown (nocrash)")
-    assert _row(table, "BC-OH")[-2:] == ["—", "—"]
+    assert counts(table, "BC-OH") == ["—", "—"]
 
 
 def test_table_3_lists_every_method_of_a_driving_group(tmp_path):
@@ -310,3 +321,32 @@ def test_pieces_written_before_and_after_the_methods_owned_their_knobs_merge_as_
     other.settings["recipe"]["lr"] = 0.5
     with pytest.raises(report.ReportError, match="with other settings"):
         report.merge([old, other])
+
+
+def test_the_results_page_leads_with_the_driving_verdict_of_the_state_its_figure_and_the_pages(tmp_path):
+    """`analysis.driving_verdicts` counts over every state table and quotes the state's Table 1; the results page
+    states it after the headline, with that table's figure and a link to each page with driving tables."""
+    files = [_load(tmp_path, toytown_file(p, obs=obs), f"{obs}-{p}.json")
+             for obs in ("pos", "image") for p in ("nocrash-nospeed", "nocrash")]
+    (v,) = driving_verdicts(merge(files))
+    assert v.headline == Key("toytown", "pos", "nocrash", version=2)   # Table 1 though Table 2 was loaded first
+    assert v.means == pytest.approx({m: 100 * np.mean(SUCCESS[m]) for m in ("bc-so", "bc-oh")})
+    history, words = _welch_text(SUCCESS["bc-oh"], SUCCESS["bc-so"])
+    assert (v.history.a, v.history.b) == ("BC-OH", "BC-SO") and v.history.ci.diff == pytest.approx(history.value)
+    # two state tables of 11 configurations × 5 seeds, MINE's seed 0 unreadable; BC-OH copycat in 3 seeds by the
+    # first verdict (Ours in 1) and in 2 by the controlled one
+    assert (v.policies, v.copycats, v.judged, v.controlled) == (2 * (len(ORDER) * SEEDS - 1), 2 * 4, 2 * 54, 2 * 2)
+    assert v.camera == pytest.approx(100 * np.mean(SUCCESS["dagger"])) and v.perceived is None  # BC-full excluded
+    out = tmp_path / "out"
+    index = report.build(files, out / "figures", out, out / "docs" / "results").pages["index.md"].text
+    section = _section(index, "## Driving: ToyTown")
+    assert index.index("## Driving: ToyTown") < index.index("## Every task's page")
+    assert f"success BC-OH {v.means['bc-oh']:.1f}%, BC-SO {v.means['bc-so']:.1f}% (BC-OH − BC-SO: {words}" in section
+    assert "8 of 108 policies by the first verdict, 4 of 108 by the controlled one" in section
+    assert f"learned from pixels, at most {v.camera:.1f}% success in any table" in section
+    assert "](../../figures/driving-toytown-nocrash-v2.png)" in section
+    assert ("Every driving table: [ToyTown, `pos` observations](toytown-pos.md), "
+            "[ToyTown, `image` observations](toytown-image.md).") in section
+    # the camera alone gives no verdict: the state is what it quotes
+    assert driving_verdicts(merge(files[2:])) == []
+    assert "## Driving" not in report.build(files[2:]).pages["index.md"].text

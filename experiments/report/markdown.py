@@ -2,8 +2,8 @@
 
 - the findings' block (`SUMMARY`), which `--out` (BENCHMARKS.md) holds between `<!-- report:start -->` and
   `<!-- report:end -->`: the headline tables;
-- `index.md` in the pages folder: the headline (`LEAD`: the paper's budget beside Table 5), the task pages listed,
-  then every table across tasks (`ACROSS`);
+- `index.md` in the pages folder: the headline (`LEAD`: the paper's budget beside Table 5, then driving), the task
+  pages listed, then every table across tasks (`ACROSS`);
 - one page per task and observation mode, `ENV-OBS.md` (`page_name`): per group, every configuration, its files'
   provenance, the loss analysis and the diagnostics (`detail.group_sections`), and the task's own metrics.
 
@@ -18,12 +18,11 @@ from typing import NamedTuple
 
 from matplotlib.figure import Figure
 
-from ape_jax import tasks
 from ape_jax.pipeline import results as results_lib
 from experiments.report.analysis import check_references, merge, ordered
-from experiments.report.sections import (copycat, curves, detail, differences, ranking, recipe, regime, state,
-                                         task_metrics)
-from experiments.report.sections.common import Context, Section, figures_note, table
+from experiments.report.sections import (copycat, curves, detail, differences, driving, ranking, recipe, regime,
+                                         state, task_metrics)
+from experiments.report.sections.common import Context, Section, figures_note, page_name, page_title, table
 
 # The findings' block: the headline tables.
 SUMMARY: tuple[Callable[[Context], list[Section]], ...] = (
@@ -35,9 +34,10 @@ SUMMARY: tuple[Callable[[Context], list[Section]], ...] = (
 )
 
 # `index.md` opens with the headline: the paper's protocol, recipe and budget beside Table 5 (what BENCHMARKS.md's
-# first table and the README's answer read), before the list of task pages.
+# first table and the README's answer read), then driving, before the list of task pages.
 LEAD: tuple[Callable[[Context], list[Section]], ...] = (
     recipe.paper_budget_section,          # the paper's budget over training, beside Table 5
+    driving.driving_lead,                 # per driving task, the verdict, a figure and its pages
 )
 
 # `index.md` after the list of task pages: the tables across tasks, in order.
@@ -57,11 +57,6 @@ ACROSS: tuple[Callable[[Context], list[Section]], ...] = (
 )
 
 INDEX = "index.md"
-
-
-def page_name(env: str, obs: str) -> str:
-    """A task page's file name: `hopper-pos.md`."""
-    return f"{env}-{obs}.md"
 
 
 class Page(NamedTuple):
@@ -116,7 +111,7 @@ def build(files: Sequence[results_lib.Results], figure_dir: pathlib.Path | None 
     for (env, obs), group in keys.items():
         sections = [s for key in group for s in task_metrics.task_metric_sections(here, key)]
         sections += [s for key in group for s in detail.group_sections(here, key)]
-        out[page_name(env, obs)] = Page(f"{tasks.get(env).title}, `{obs}` observations",
+        out[page_name(env, obs)] = Page(page_title(env, obs),
                                         f"Every configuration, by protocol; across tasks: [the results]({INDEX}).\n\n"
                                         + _join(sections))
     listed = table(["page", "groups", "results files"],

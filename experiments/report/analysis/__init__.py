@@ -12,6 +12,7 @@ what these functions return. One module per concern, each re-exported here:
 - `differences`: `mean_difference`, `mean_estimate`, `verdict`, and per group BC-OH − BC-SO and Ours − BC-OH
   (`difference_rows`); the paper's comparisons in a driving group (`driving_comparisons`);
 - `diagnostics`: copycat diagnostics per configuration, at the end and over training;
+- `driving`: a driving task's verdict across its driving groups (`driving_verdicts`), for the results page;
 - `copycat`: the copycat map (`copycat_map`) and the extended map (`extended_map`);
 - `recipe`: the recipe comparison (mlp against bn-mlp) and the paper's budget beside Table 5;
 - `ranking`: the later methods (`LATER`) ranked with the paper's per family of cells (where copying is
@@ -36,6 +37,7 @@ from experiments.report.analysis.diagnostics import (DiagnosticsRow, PolicyDiagn
                                                      diagnostics_block, diagnostics_rows, diagnostics_thresholds,
                                                      has_diagnostics, policy_diagnostics, recipe_diagnostics, run_at,
                                                      spread, training_points)
+from experiments.report.analysis.driving import CAMERA, DrivingVerdict, driving_verdicts
 from experiments.report.analysis.groups import (BRAX, STATE, STATE_TRAIN, FIRST_IMAGE_PRESET, MUJOCO, Group, Key,
                                                 Merged, ReportError, Source, budget_of, check_references, config_key,
                                                 demonstrator, expert_part, expert_words, file_stem,
@@ -71,8 +73,8 @@ __all__ = [
     "regime_groups", "regime_table",
     "check_references", "demonstrator", "expert_part", "expert_words", "raw_labels",
     "CEILING", "CEILING_LABEL", "Share", "gap_share", "has_ceiling", "history_share",
-    "DRIVING_COMPARISONS", "DRIVING_ORDER", "Comparison", "DrivingRow", "DrivingTable", "driving_comparisons",
-    "driving_rows", "driving_table", "setting_words",
+    "CAMERA", "DRIVING_COMPARISONS", "DRIVING_ORDER", "Comparison", "DrivingRow", "DrivingTable", "DrivingVerdict",
+    "driving_comparisons", "driving_rows", "driving_table", "driving_verdicts", "setting_words",
     "APE_SCALES", "LEARNED", "Estimate", "RateReading", "per_seed", "rate_reading",
     "BRAX", "BUDGET_METHODS", "STATE", "STATE_TRAIN", "FIRST_IMAGE_PRESET", "former_preset",
     "MAP_METHODS", "MUJOCO", "RECIPE_METHODS", "AlphaRow", "BudgetPoint", "BudgetRow", "Choice", "CopycatMap",

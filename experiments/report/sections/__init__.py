@@ -4,6 +4,7 @@
 - `state`: MuJoCo-State per protocol (with the rows against BC-OH and Table 5) and MuJoCo-Image;
 - `task_metrics`: a task's own metrics (the supplement's Table 4 protocol; a driving group's as its Table 1 or 2,
   every method with its copycat verdicts, the paper's comparisons and a figure of success and stuck);
+- `driving`: the results page's driving section (per driving task, its verdict, a figure and its pages);
 - `recipe`: the paper's recipe (mlp against bn-mlp) and the paper's budget beside Table 5;
 - `regime`: Table 5 with FCA's expert (an imported expert or raw labels), against BC-OH and with its diagnostics;
 - `ranking`: the later methods (`analysis.LATER`) ranked with the paper's, per family of cells;

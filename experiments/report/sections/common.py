@@ -14,6 +14,7 @@ from collections.abc import Callable, Sequence
 
 from matplotlib.figure import Figure
 
+from ape_jax import tasks
 from experiments.report.analysis import Interval, Merged, PolicyDiagnostics, Spread, percent
 
 
@@ -72,6 +73,16 @@ class Context:
     def on(self, base: pathlib.Path) -> Context:
         """The same report's context for a page in folder `base`."""
         return dataclasses.replace(self, base=pathlib.Path(base))
+
+
+def page_name(env: str, obs: str) -> str:
+    """A task page's file name: `hopper-pos.md`."""
+    return f"{env}-{obs}.md"
+
+
+def page_title(env: str, obs: str) -> str:
+    """A task page's title: "Hopper, `pos` observations"."""
+    return f"{tasks.get(env).title}, `{obs}` observations"
 
 
 def table(head: Sequence[str], rows: Sequence[Sequence[str]], align: str | int = 1) -> str:

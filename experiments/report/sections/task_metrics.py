@@ -9,9 +9,9 @@ from __future__ import annotations
 from ape_jax import tasks
 from experiments import stats
 from experiments.report import figures
-from experiments.report.analysis import (Comparison, Group, Key, driving_comparisons, driving_rows, driving_table,
-                                         file_stem, group_title, is_rate, mean_estimate, ordered, per_seed,
-                                         policy_diagnostics, task_metric_rows)
+from experiments.report.analysis import (Comparison, DrivingTable, Group, Key, driving_comparisons, driving_rows,
+                                         driving_table, file_stem, group_title, is_rate, mean_estimate, ordered,
+                                         per_seed, policy_diagnostics, task_metric_rows)
 from experiments.report.sections.common import (WIDE, Context, Section, hparams_text, interval, plus_minus, seeds_cell,
                                                 table)
 
@@ -75,18 +75,30 @@ def verdict_cells(runs: list[dict]) -> list[str]:
     return [f"{d.copycats}/{d.read}" if d.read else "—", f"{d.controlled}/{d.judged}" if d.judged else "—"]
 
 
+# A driving table's key columns, first after the method so that they stay in view where the page is narrower than
+# the table (the rest scrolls): the task's main metric, then these of its metrics, then the copycat verdicts.
+DRIVING_KEY_METRICS = ("collisions", "stuck")
+
+
 def driving_metric_table(m: Group) -> str | None:
     """A driving group's table (the supplement's Table 1 or 2): every configuration that ran (`analysis.driving_rows`:
-    BC-SO, BC-OH, Ours at the paper's step setting, the baselines in a fixed order, BC-full last), its hparams and
-    seeds, the task's metrics as `task_table` shows them, and its copycat verdicts (`verdict_cells`). None for a task
-    without metrics or a group without rows."""
+    BC-SO, BC-OH, Ours at the paper's step setting, the baselines in a fixed order, BC-full last). Its columns: the
+    method; the key columns, the main metric and `DRIVING_KEY_METRICS` as `task_table` shows them and the copycat
+    verdicts (`verdict_cells`); then the hparams, the seeds and the task's other metrics. None for a task without
+    metrics or a group without rows."""
     rows = driving_rows(m)
     if not m.task_metrics or not rows:
         return None
-    return table(["method", "hparams", "seeds", *_metric_heads(m), "copycat: first verdict",
-                  "copycat: controlled verdict"],
-                 [[r.label, hparams_text(r.hparams), seeds_cell(len(r.runs)), *_metric_cells(m, r.runs),
-                   *verdict_cells(r.runs)] for r in rows], 2)
+    main = [i for i, k in enumerate(m.task_metrics) if k == m.metric]
+    key = main + [i for i, k in enumerate(m.task_metrics) if k in DRIVING_KEY_METRICS and k != m.metric]
+    heads = _metric_heads(m)
+    rest = [i for i in range(len(heads)) if i not in key]
+    cells = [_metric_cells(m, r.runs) for r in rows]
+    return table(["method", *(heads[i] for i in key), "copycat: first verdict", "copycat: controlled verdict",
+                  "hparams", "seeds", *(heads[i] for i in rest)],
+                 [[r.label, *(c[i] for i in key), *verdict_cells(r.runs), hparams_text(r.hparams),
+                   seeds_cell(len(r.runs)), *(c[i] for i in rest)] for r, c in zip(rows, cells)],
+                 "l" + "r" * (len(key) + 2) + "lr" + "r" * len(rest))
 
 
 def wilson_cell(runs: list[dict], metric: str) -> str:
@@ -140,6 +152,13 @@ def comparisons_line(m: Group) -> list[str]:
     return ["The paper's comparisons, differences of means over seeds [Welch 95% t-interval]: " + " ".join(parts), ""]
 
 
+def driving_name(driving: DrivingTable) -> str:
+    """How a driving group's heading names its table: "the supplement's Table 1 (NoCrash-Dense, speed in view)"."""
+    if driving.number is None:
+        return f"the supplement's driving protocol family ({driving.words})"
+    return f"the supplement's Table {driving.number} ({driving.words})"
+
+
 def task_metric_sections(ctx: Context, key: Key | None = None) -> list[Section]:
     """Per group whose task records metrics of its own (`task_table`), in report order (only `key`'s, if given); a
     driving group's with the paper's comparisons and its figure under the table."""
@@ -155,8 +174,7 @@ def task_metric_sections(ctx: Context, key: Key | None = None) -> list[Section]:
                                + ("; the rate pooled over episodes [Wilson 95%]" if is_rate(m) else "")
                                + ("; the paper's beside (its own task)" if task.paper else "") + ".", [found]))
             continue
-        name = (f"the supplement's Table {driving.number} ({driving.words})" if driving.number is not None
-                else f"the supplement's driving protocol family ({driving.words})")
+        name = driving_name(driving)
         caption = (f"{task.title}'s own metrics for every method that ran, mean ± sd over seeds [95% t-interval]"
                    + ("; the rate pooled over episodes [Wilson 95%]" if is_rate(m) else "")
                    + "; copycat: seeds judged copycat / seeds diagnosed, by the first verdict and by the controlled "
