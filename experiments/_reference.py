@@ -87,7 +87,7 @@ def rate_lines(mine, shipped: tuple) -> list[str]:
         p = other.protocol or {}
         if (other.env == mine.env and p.get("name") == name and (p.get("history_stride") or 1) == 1
                 and {"bc-so", "bc-oh"} & {r["method"] for r in other.summary} and not _same_file(other, mine)):
-            tables.setdefault((other.obs, p.get("task_version"), other.config["iterations"]), []).append(other)
+            tables.setdefault((_seen(other), p.get("task_version"), other.config["iterations"]), []).append(other)
     if not tables:
         return []
     width = 20
@@ -96,7 +96,7 @@ def rate_lines(mine, shipped: tuple) -> list[str]:
              f"  {'observations':<13} {'version':>7} {'iterations':>10} {'seeds':>5}  "
              + "  ".join(f"{label:<{width}}" for _, label in RATE_ARMS)]
     crashing = []
-    for (obs, version, iterations), files in sorted(tables.items(), key=lambda kv: (kv[0][0] != mine.obs, kv[0])):
+    for (obs, version, iterations), files in sorted(tables.items(), key=lambda kv: (kv[0][0] != _seen(mine), kv[0])):
         arms, crash = _rate_arms(analysis, files, metric)
         lines.append(f"  {obs:<13} {version or '-':>7} {iterations:>10,} {_seeds(arms):>5}  "
                      + "  ".join(f"{_cell(arms.get(m)):<{width}}" for m, _ in RATE_ARMS))
@@ -104,7 +104,7 @@ def rate_lines(mine, shipped: tuple) -> list[str]:
             crashing.append(f"the shipped {obs} policies (version {version}) {crash}")
     here, _ = _rate_arms(analysis, [mine], metric)
     version = (mine.protocol or {}).get("task_version")
-    lines.append(f"  {mine.obs:<13} {version or '-':>7} {mine.config['iterations']:>10,} {_seeds(here):>5}  "
+    lines.append(f"  {_seen(mine):<13} {version or '-':>7} {mine.config['iterations']:>10,} {_seeds(here):>5}  "
                  + "  ".join(f"{_cell(here.get(m)):<{width}}" for m, _ in RATE_ARMS) + "  <- this run")
     budget = max(it for _, _, it in tables)
     words = (f"  reading: {mine.config['iterations']:,} of the {budget:,} iterations the tables were read at"
@@ -113,6 +113,13 @@ def rate_lines(mine, shipped: tuple) -> list[str]:
         words += ", one seed: it checks that the pipeline runs end to end and cannot rank methods"
     lines.append(words + "".join(f"; {c}" for c in crashing))
     return [line.rstrip() for line in lines]
+
+
+def _seen(res) -> str:
+    """What a file's policies observed, as the block names it: its observation mode, `image+encoder` for frames seen
+    through a perception encoder (`recipe.perception_sha256`)."""
+    encoder = ((res.settings or {}).get("recipe") or {}).get("perception_sha256")
+    return f"{res.obs}+encoder" if encoder else res.obs
 
 
 def _rate_arms(analysis, files, metric: str) -> tuple[dict[str, list[float]], str | None]:

@@ -216,3 +216,18 @@ def test_two_encoders_never_merge_in_the_report():
     titles = sorted(g.title for g in merged.values())
     assert "through the pretrained encoder aaaaaaaa" in titles[0]
     assert len({groups.file_stem(g) for g in merged.values()}) == 2
+
+
+def test_the_sweeps_reference_block_names_frames_seen_through_an_encoder():
+    from experiments import _reference
+    from ape_jax.pipeline import results as results_lib
+
+    obj = json.loads((ROOT / "results" / "toytown-image-nocrash-default-seeds0.json").read_text())
+    plain = results_lib.Results.from_json(obj)
+    seen = json.loads(json.dumps(obj))
+    seen["settings"]["recipe"]["perception_sha256"] = "c" * 64
+    seen["config"]["iterations"] = 300
+    lines = _reference.rate_lines(results_lib.Results.from_json(seen), (plain,))
+    mine = next(line for line in lines if line.endswith("<- this run"))
+    assert mine.split()[0] == "image+encoder"
+    assert any(line.split()[:1] == ["image"] for line in lines)   # the shipped from-scratch camera row
