@@ -653,7 +653,7 @@ def test_fca_and_brax_results_of_one_task_are_merged_apart_into_two_tables(tmp_p
     merged = report.merge(files)
     assert sorted(merged) == sorted([("hopper", "pos", p, None, None, None)
                                      for p in ("mujoco-state", "mujoco-state-fs2", "mujoco-state-fs4", "brax")])
-    assert merged[("hopper", "pos", "brax", None, None, None)].expert["return_mean"] == 3000.0   # each group keeps its expert
+    assert merged[("hopper", "pos", "brax", None, None, None)].expert["return_mean"] == 3000.0  # its own expert
     assert [m.title for m in merged.values()] == ["Hopper (mujoco-state)", "Hopper (mujoco-state, frame skip 2)",
                                                      "Hopper (mujoco-state, frame skip 4)", "Hopper (brax)"]
     text = report.report(files)
