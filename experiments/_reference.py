@@ -118,8 +118,10 @@ def rate_lines(mine, shipped: tuple) -> list[str]:
 def _seen(res) -> str:
     """What a file's policies observed, as the block names it: its observation mode, `image+encoder` for frames seen
     through a perception encoder (`recipe.perception_sha256`)."""
-    encoder = ((res.settings or {}).get("recipe") or {}).get("perception_sha256")
-    return f"{res.obs}+encoder" if encoder else res.obs
+    recipe = (res.settings or {}).get("recipe") or {}
+    if not recipe.get("perception_sha256"):
+        return res.obs
+    return f"{res.obs}+encoder" + ("" if recipe.get("perception_output", "embedding") == "embedding" else "-r")
 
 
 def _rate_arms(analysis, files, metric: str) -> tuple[dict[str, list[float]], str | None]:

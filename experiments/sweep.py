@@ -413,7 +413,8 @@ def _network(recipe, obs: str) -> str:
         return recipe.network
     if recipe.perception != "none":
         name = "the task's" if recipe.perception == "task" else pathlib.Path(recipe.perception).name
-        return f"{recipe.network} on {name} perception encoder {recipe.perception_sha256[:12]}…, frozen"
+        return (f"{recipe.network} on the {recipe.perception_output} of {name} perception encoder "
+                f"{recipe.perception_sha256[:12]}…, frozen")
     extras = [recipe.encoder_norm + " norm"] * (recipe.encoder_norm != "none")
     extras += [f"shift {recipe.augment_shift} px"] * (recipe.augment_shift > 0)
     return f"{recipe.encoder} encoder" + "".join(f", {x}" for x in extras)

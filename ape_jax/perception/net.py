@@ -72,6 +72,14 @@ def embedder(net: PerceptionNet, params: Any) -> Callable[[jax.Array], jax.Array
     return lambda frames: net.apply(frozen, frames, return_embedding=True)[1]
 
 
+def reader(net: PerceptionNet, params: Any, mean, std) -> Callable[[jax.Array], jax.Array]:
+    """`frames [..., H, W, 3] uint8 -> [..., D] float32`: the frozen encoder's read-out of its targets, in their own
+    units (`mean`, `std`: the card's standardisation): the one-frame state as the encoder reads it."""
+    frozen = jax.lax.stop_gradient(params)
+    mean, std = jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32)
+    return lambda frames: net.apply(frozen, frames) * std + mean
+
+
 def in_chunks(fn: Callable[[jax.Array], jax.Array], frames: np.ndarray, chunk: int = 4096,
               progress: Callable[[int], None] | None = None) -> np.ndarray:
     """`fn` (a batched `[B, ...] -> [B, ...]` function) over `frames` `[N, ...]`, `chunk` rows per jitted call (the

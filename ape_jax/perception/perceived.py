@@ -23,7 +23,7 @@ import numpy as np
 from envs.base import Env, State
 from ape_jax.perception import card as card_lib
 from ape_jax.perception.card import Encoder, PerceptionError
-from ape_jax.perception.net import embedder, in_chunks
+from ape_jax.perception.net import embedder, in_chunks, reader
 
 SHIPPED = pathlib.Path(__file__).resolve().parents[2] / "envs" / "perception"
 NONE, TASK = "none", "task"
@@ -86,30 +86,45 @@ def check_sweep(encoder: Encoder, env: Env) -> None:
                         getattr(cfg, "task_version", None), getattr(cfg, "weather", None))
 
 
-def embed_frames(encoder: Encoder, frames: np.ndarray, progress=None) -> np.ndarray:
-    """`[N, E] float32`: the embedding of each of `frames` `[N, H, W, 3] uint8`, in jitted chunks."""
-    return in_chunks(embedder(encoder.net, encoder.params), np.asarray(frames), progress=progress)
+OUTPUTS = ("embedding", "readout")   # what a policy sees of a frame (`recipe.perception_output`)
 
 
-def perceive(env: Env, demos: Any, encoder: Encoder, progress=None) -> tuple[Env, Any]:
-    """`(Perceived(env, encoder), demos with each frame replaced by its embedding)`."""
+def seeing(encoder: Encoder, output: str = "embedding"):
+    """`frames [..., H, W, 3] uint8 -> [..., F] float32`: what a policy sees of each frame: the encoder's embedding
+    (`[E]`), or its read-out of the targets in their own units (`[D]`, the one-frame state as the encoder reads it)."""
+    if output == "readout":
+        return reader(encoder.net, encoder.params, encoder.card["target_mean"], encoder.card["target_std"])
+    if output != "embedding":
+        raise PerceptionError(f"recipe.perception_output: one of {', '.join(OUTPUTS)}, got {output!r}")
+    return embedder(encoder.net, encoder.params)
+
+
+def embed_frames(encoder: Encoder, frames: np.ndarray, progress=None, output: str = "embedding") -> np.ndarray:
+    """`[N, F] float32`: what a policy sees of each of `frames` `[N, H, W, 3] uint8` (`seeing`), in jitted chunks."""
+    return in_chunks(seeing(encoder, output), np.asarray(frames), progress=progress)
+
+
+def perceive(env: Env, demos: Any, encoder: Encoder, progress=None, output: str = "embedding") -> tuple[Env, Any]:
+    """`(Perceived(env, encoder, output), demos with each frame replaced by what the policy sees of it)`."""
     if len(env.observation_shape) != 3:
         raise PerceptionError(f"recipe.perception reads camera frames; {env.name!r} observes "
                               f"{list(env.observation_shape)} (--obs image)")
-    return Perceived(env, encoder), demos.replace(obs=embed_frames(encoder, demos.obs, progress))
+    return Perceived(env, encoder, output), demos.replace(obs=embed_frames(encoder, demos.obs, progress, output))
 
 
 class Perceived(Env):
-    """`env` (a camera environment) whose observation is its frame's embedding by a frozen encoder: `[E] float32`.
-    Everything else (the simulator, rewards, `done`, metrics, the expert's observation, rendering) is `env`'s."""
+    """`env` (a camera environment) whose observation is what a frozen encoder makes of its frame (`seeing`: the
+    embedding, `[E] float32`, or the read-out, `[D]`). Everything else (the simulator, rewards, `done`, metrics, the
+    expert's observation, rendering) is `env`'s."""
 
-    def __init__(self, env: Env, encoder: Encoder):
-        self.inner, self.encoder = env, encoder
+    def __init__(self, env: Env, encoder: Encoder, output: str = "embedding"):
+        self.inner, self.encoder, self.output = env, encoder, output
         self.name, self.obs_mode = env.name, env.obs_mode
-        self._embed = embedder(encoder.net, encoder.params)
+        self._embed = seeing(encoder, output)
+        self._size = encoder.embedding_size if output == "embedding" else len(encoder.card["targets"])
 
     def __getattr__(self, name: str):  # what this wrapper does not define is the environment's
-        if name in ("inner", "encoder"):
+        if name in ("inner", "encoder", "output"):
             raise AttributeError(name)
         return getattr(self.inner, name)
 
@@ -133,7 +148,7 @@ class Perceived(Env):
 
     @property
     def observation_shape(self) -> tuple[int, ...]:
-        return (self.encoder.embedding_size,)
+        return (self._size,)
 
     @property
     def observation_dtype(self):
@@ -182,4 +197,4 @@ class Perceived(Env):
         return self._embed(self.inner.observe_sim(sim))
 
     def __repr__(self) -> str:
-        return f"<Perceived {self.inner!r} through {pathlib.Path(self.encoder.path).name}>"
+        return f"<Perceived {self.inner!r} through {pathlib.Path(self.encoder.path).name} ({self.output})>"

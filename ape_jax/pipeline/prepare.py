@@ -229,10 +229,11 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
 
         encoder = perception.resolve(spec.env, spec.recipe.perception, spec.recipe.perception_sha256)
         with hooks.bar(desc="embed", total=len(demos), unit="frame") as b:
-            env, demos = perception.perceive(env, demos, encoder, progress=lambda n: b.update(n - b.n))
-        hooks.log(f"perception: {len(demos):,} frames embedded by {pathlib.Path(encoder.path).name} "
-                  f"(SHA-256 {encoder.sha256[:12]}…, {encoder.embedding_size} features a frame)")
-        seen = encoder.describe()
+            output = spec.recipe.perception_output
+            env, demos = perception.perceive(env, demos, encoder, progress=lambda n: b.update(n - b.n), output=output)
+        hooks.log(f"perception: {len(demos):,} frames seen through {pathlib.Path(encoder.path).name} "
+                  f"(SHA-256 {encoder.sha256[:12]}…; its {output}, {env.observation_shape[0]} features a frame)")
+        seen = {**encoder.describe(), "output": output}
     if spec.protocol.prev_action:  # the previous action in view, in the rollouts and the demonstrations alike
         env, demos = observations.with_previous_action(env, demos)
     hooks.log(f"demonstrations: {len(demos):,} transitions in {demos.num_episodes} episodes ({source}: {path})")

@@ -131,6 +131,8 @@ class Recipe:
         embeddings (the recipe's `network`; its image fields do not apply and are recorded at their defaults).
       perception_sha256: the encoder file's SHA-256, filled in when the settings are resolved (recorded in results
         and fingerprints, so two encoders never merge); given, a file with another is refused.
+      perception_output: what a policy sees of a frame through the encoder: `"embedding"` (its features) or
+        `"readout"` (its estimate of the one-frame targets, in their units).
     """
 
     name: str = "mlp"
@@ -153,6 +155,7 @@ class Recipe:
     loss_weights: tuple[float, ...] = ()
     perception: str = "none"
     perception_sha256: str | None = None
+    perception_output: str = "embedding"
 
     def __post_init__(self):
         object.__setattr__(self, "name", FORMER_RECIPES.get(self.name, self.name))  # a file's former name: today's
@@ -167,6 +170,8 @@ class Recipe:
         _check(self.lr > 0 and math.isfinite(self.lr), f"recipe.lr must be a finite number > 0, got {self.lr!r}")
         _check(isinstance(self.perception, str) and self.perception.strip() != "",
                f"recipe.perception: none, task, or an encoder file's path, got {self.perception!r}")
+        _check(self.perception_output in ("embedding", "readout"),
+               f"recipe.perception_output: embedding or readout, got {self.perception_output!r}")
         sha = self.perception_sha256
         _check(sha is None or (isinstance(sha, str) and len(sha) == 64 and all(c in "0123456789abcdef" for c in sha)),
                f"recipe.perception_sha256: 64 hexadecimal digits (or none), got {sha!r}")

@@ -120,8 +120,9 @@ class Key(NamedTuple):
 def perception_of(r: results_lib.Results) -> str | None:
     """`Key.perception` of a file: its encoder's SHA-256, first 12 digits; None where the frames were not seen
     through one."""
-    sha = ((r.settings or {}).get("recipe") or {}).get("perception_sha256")
-    return sha[:12] if sha else None
+    recipe = (r.settings or {}).get("recipe") or {}
+    sha, output = recipe.get("perception_sha256"), recipe.get("perception_output") or "embedding"
+    return (sha[:12] + ("" if output == "embedding" else f":{output}")) if sha else None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -466,7 +467,8 @@ def group_title(key: Key, protocol: dict, with_protocol: bool, with_obs: bool | 
     if key.version is not None and key.version != current_task_version(key.env):  # the first tables' camera, ...
         parts.append(f"version {key.version}")
     if key.perception is not None:
-        parts.append(f"through the pretrained encoder {key.perception[:8]}")
+        sha, _, output = key.perception.partition(":")
+        parts.append(f"through the pretrained encoder {sha[:8]}" + (f"'s {output}" if output else ""))
     return tasks.get(key.env).title + (f" ({', '.join(parts)})" if parts else "")
 
 
@@ -480,7 +482,9 @@ def file_stem(m: Group) -> str:
     parts += [f"{m.budget}it"] if m.budget else []
     version = m.protocol.get("task_version")  # from the second on: the first's names stay as they were
     parts += [f"v{version}"] if version not in (None, 1) else []
-    parts += [f"enc{m.protocol['perception'][:8]}"] if m.protocol.get("perception") else []
+    if m.protocol.get("perception"):
+        sha, _, output = m.protocol["perception"].partition(":")
+        parts += [f"enc{sha[:8]}" + (f"-{output}" if output else "")]
     return "-".join(parts)
 
 
