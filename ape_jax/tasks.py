@@ -347,6 +347,9 @@ class Perception:
       frame_settings: task settings every frame is made with (ToyTown: the speed strip lit).
       heldout: named held-out conditions, each the task settings that make it (the card's `1 − R²` per target);
         `heldout_episodes` expert episodes each.
+      near: targets the encoder regresses as `exp(−x / scale)` (`{name: scale}`), so that a distance's error counts
+        most up close, where acting on it matters (ToyTown's gaps, `traffic.FAR` when nothing is seen); the read-out
+        inverts it.
     """
 
     targets: str
@@ -359,6 +362,7 @@ class Perception:
     frame_settings: Mapping[str, Any] = dataclasses.field(default_factory=lambda: MappingProxyType({}))
     heldout: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=lambda: MappingProxyType({}))
     heldout_episodes: int = 10
+    near: Mapping[str, float] = dataclasses.field(default_factory=lambda: MappingProxyType({}))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -505,6 +509,7 @@ TASKS: Mapping[str, Task] = MappingProxyType({t.name: t for t in (
          # the perception card (docs/perception.md): the one-frame state read from the 64×64 camera, frames of the
          # NoCrash demonstrations' settings with the speed strip lit, held out on new layouts and the new palette
          perception=Perception("pos", "nocrash", (64, 64), frame_settings=MappingProxyType({"speed_input": True}),
+                               near=MappingProxyType({"stop_gap": 10.0, "lead_gap": 10.0, "ped_gap": 10.0}),
                                heldout=MappingProxyType({"test layouts": MappingProxyType({"town": "test"}),
                                                          "test layouts, test weather": MappingProxyType(
                                                              {"town": "test", "weather": "test"})}))),

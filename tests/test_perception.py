@@ -231,3 +231,11 @@ def test_the_sweeps_reference_block_names_frames_seen_through_an_encoder():
     mine = next(line for line in lines if line.endswith("<- this run"))
     assert mine.split()[0] == "image+encoder"
     assert any(line.split()[:1] == ["image"] for line in lines)   # the shipped from-scratch camera row
+
+
+def test_a_near_target_is_read_back_in_its_own_units():
+    from ape_jax.perception.net import far, near
+
+    gaps = np.array([0.0, 3.0, 12.5, 40.0], np.float32)
+    np.testing.assert_allclose(np.asarray(far(near(gaps, 10.0), 10.0)), gaps, atol=1e-4)
+    assert near(3.0, 10.0) - near(4.0, 10.0) > 10 * (near(30.0, 10.0) - near(31.0, 10.0))   # steep up close

@@ -9,5 +9,5 @@ through it with `--set recipe.perception=task` (or a path to a user's encoder fi
 """
 
 from ape_jax.perception.card import Encoder, PerceptionError, load, save  # noqa: F401
-from ape_jax.perception.perceived import (NONE, TASK, Perceived, check_sweep, embed_frames, perceive,  # noqa: F401
-                                          pinned, resolve, shipped_path)
+from ape_jax.perception.perceived import (NONE, OUTPUTS, TASK, Perceived, check_sweep, embed_frames,  # noqa: F401
+                                          perceive, pinned, resolve, seeing, shipped_path)

@@ -72,12 +72,31 @@ def embedder(net: PerceptionNet, params: Any) -> Callable[[jax.Array], jax.Array
     return lambda frames: net.apply(frozen, frames, return_embedding=True)[1]
 
 
-def reader(net: PerceptionNet, params: Any, mean, std) -> Callable[[jax.Array], jax.Array]:
+def near(values: np.ndarray, scale: float) -> np.ndarray:
+    """A distance as the encoder regresses it (`tasks.Perception.near`): `exp(−x / scale)`, steep up close."""
+    return np.exp(-np.asarray(values, np.float32) / scale)
+
+
+def far(values: jax.Array, scale: float) -> jax.Array:
+    """`near`'s inverse, `−scale · log(y)`, `y` clipped into (0, 1]."""
+    return -scale * jnp.log(jnp.clip(values, 1e-6, 1.0))
+
+
+def reader(net: PerceptionNet, params: Any, mean, std, near_scales: Sequence[float | None] = ()
+           ) -> Callable[[jax.Array], jax.Array]:
     """`frames [..., H, W, 3] uint8 -> [..., D] float32`: the frozen encoder's read-out of its targets, in their own
-    units (`mean`, `std`: the card's standardisation): the one-frame state as the encoder reads it."""
+    units (`mean`, `std`: the card's standardisation; `near_scales`: per target, the `near` transform's scale to
+    invert, None where it has none): the one-frame state as the encoder reads it."""
     frozen = jax.lax.stop_gradient(params)
     mean, std = jnp.asarray(mean, jnp.float32), jnp.asarray(std, jnp.float32)
-    return lambda frames: net.apply(frozen, frames) * std + mean
+    scales = list(near_scales) or [None] * len(mean)
+
+    def read(frames):
+        y = net.apply(frozen, frames) * std + mean
+        cols = [far(y[..., i], s) if s else y[..., i] for i, s in enumerate(scales)]
+        return jnp.stack(cols, axis=-1)
+
+    return read
 
 
 def in_chunks(fn: Callable[[jax.Array], jax.Array], frames: np.ndarray, chunk: int = 4096,

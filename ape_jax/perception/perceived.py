@@ -93,7 +93,9 @@ def seeing(encoder: Encoder, output: str = "embedding"):
     """`frames [..., H, W, 3] uint8 -> [..., F] float32`: what a policy sees of each frame: the encoder's embedding
     (`[E]`), or its read-out of the targets in their own units (`[D]`, the one-frame state as the encoder reads it)."""
     if output == "readout":
-        return reader(encoder.net, encoder.params, encoder.card["target_mean"], encoder.card["target_std"])
+        scales = encoder.card.get("near") or {}
+        return reader(encoder.net, encoder.params, encoder.card["target_mean"], encoder.card["target_std"],
+                      [scales.get(t) for t in encoder.card["targets"]])
     if output != "embedding":
         raise PerceptionError(f"recipe.perception_output: one of {', '.join(OUTPUTS)}, got {output!r}")
     return embedder(encoder.net, encoder.params)

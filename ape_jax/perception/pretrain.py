@@ -32,7 +32,7 @@ import optax
 
 import envs
 from ape_jax import observations, tasks
-from ape_jax.perception.net import PerceptionNet, in_chunks, net_spec
+from ape_jax.perception.net import PerceptionNet, in_chunks, near, net_spec, reader
 from ape_jax.pipeline import collect as collect_lib
 from ape_jax.pipeline import setup as setup_lib
 
@@ -143,6 +143,10 @@ def pretrain(task_name: str, steps: int = 16_000, batch: int = 128, lr: float = 
     episode = np.concatenate([e + 10_000 * i for i, (_, _, e, _) in enumerate(parts)])
     env_targets = envs.make(task.name, obs=p.targets, **settings)
     names = target_names(env_targets)
+    scales = [p.near.get(n) for n in names]
+    if unknown := sorted(set(p.near) - set(names)):
+        raise ValueError(f"{task_name}'s perception card transforms {', '.join(unknown)}, which are not its targets")
+    targets = np.stack([near(targets[:, i], s) if s else targets[:, i] for i, s in enumerate(scales)], axis=1)
     ids = np.unique(episode)
     val_ids = np.random.default_rng(seed).choice(ids, max(1, len(ids) // 10), replace=False)
     is_val = np.isin(episode, val_ids)
@@ -153,19 +157,20 @@ def pretrain(task_name: str, steps: int = 16_000, batch: int = 128, lr: float = 
     t_fit = time.perf_counter()
     params, losses = fit(net, frames[~is_val], standard[~is_val], steps, batch, lr, k_fit, progress)
     fit_s = time.perf_counter() - t_fit
-    read = lambda x: in_chunks(lambda f: net.apply(params, f), x)  # noqa: E731
-    val_loss = float(np.mean((read(frames[is_val]) - standard[is_val]) ** 2))
+    val_loss = float(np.mean((in_chunks(lambda f: net.apply(params, f), frames[is_val]) - standard[is_val]) ** 2))
+    read = lambda x: in_chunks(reader(net, params, mean, std, scales), x)  # noqa: E731 (in the targets' own units)
     heldout = {}
     for i, (name, overrides) in enumerate(p.heldout.items()):
         log(f"held out: {name}")
         f, y, _, _ = _frames_and_targets(task, {**settings, **dict(overrides)}, setup, p.heldout_episodes,
                                          jax.random.fold_in(k_held, i), 1.0, log)
-        heldout[name] = scores(read(f) * std + mean, y, names)
+        heldout[name] = scores(read(f), y, names)
     n_params = sum(int(np.size(v)) for v in jax.tree.leaves(params))
     card = {"task": task.name, "targets": list(names), "target_obs": p.targets, "image_size": list(p.image_size),
             "task_version": getattr(env_targets.config, "task_version", None),
             "palette": getattr(env_targets.config, "weather", None),
             "net": net_spec(net), "target_mean": mean.tolist(), "target_std": std.tolist(),
+            "near": {n: s for n, s in zip(names, scales) if s},
             "data": {"protocol": p.protocol, "episodes": p.episodes, "perturbed_episodes": p.perturbed_episodes,
                      "perturbed_noise": p.perturbed_noise, "stride": p.stride, "frames": int(len(frames)),
                      "train_frames": int((~is_val).sum()), "val_frames": int(is_val.sum()),
