@@ -31,7 +31,7 @@ GROUPS = {
 }
 
 
-def measure(episodes: int, protocol: str, seed: int = 0) -> list[dict]:
+def measure(episodes: int, protocol: str, encoder_path: str = "task", seed: int = 0) -> list[dict]:
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -43,7 +43,7 @@ def measure(episodes: int, protocol: str, seed: int = 0) -> list[dict]:
 
     setup = Setup.resolve("toytown", "image", tasks.get("toytown").protocol(protocol, "image"))
     env = envs.make("toytown", obs="image", **setup.evaluation)
-    encoder = perception.resolve("toytown", "task")
+    encoder = perception.resolve("toytown", encoder_path)
     perception.check_sweep(encoder, envs.make("toytown", obs="image", **setup.collection))
     read = perception.seeing(encoder, "readout")
     targets = list(encoder.card["targets"])
@@ -74,6 +74,7 @@ def parse(argv=None):
     p = Parser(prog="python -m experiments.perception_drive", description=__doc__.splitlines()[0])
     p.add_argument("--episodes", type=int, default=50, help="held-out episodes per variant (default 50)")
     p.add_argument("--protocol", default="nocrash", choices=("nocrash", "nocrash-nospeed"))
+    p.add_argument("--encoder", default="task", help="the encoder file (default: the shipped one, task)")
     p.add_argument("--out", type=pathlib.Path,
                    default=ROOT / "results" / "exploratory" / "toytown-perception-drive.json")
     args = p.parse_args(argv)
@@ -84,15 +85,22 @@ def parse(argv=None):
     return args
 
 
+def perception_describe(path: str) -> dict:
+    from ape_jax import perception
+
+    return perception.resolve("toytown", path).describe()
+
+
 @interruptible("nothing was written")
 def main(argv=None) -> int:
     args = parse(argv)
     from experiments._provenance import system
 
-    rows = measure(args.episodes, args.protocol)
+    rows = measure(args.episodes, args.protocol, args.encoder)
     given = argv if argv is not None else sys.argv[1:]
     record = {"command": ["python", "-m", "experiments.perception_drive", *given],
               "env": "toytown", "protocol": args.protocol, "episodes": args.episodes, "rows": rows,
+              "encoder": perception_describe(args.encoder),
               "system": system()}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(record, indent=1) + "\n")

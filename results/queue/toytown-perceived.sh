@@ -26,5 +26,12 @@ for protocol in nocrash nocrash-nospeed; do
   tables+=("toytown-perceived-$protocol-default ${camera[*]} --protocol $protocol --methods $METHODS")
 done
 if [ "${TABLES_ONLY:-0}" = 1 ]; then pool "${tables[@]}"; exit $?; fi
+# the gate again with the second encoder (gaps regressed as exp(-x/10), results/perception/toytown.json): BC-SO alone
+# (gate (c) held with the first, results/exploratory/toytown-perceived-gate.json)
+if [ "${GATE2_ONLY:-0}" = 1 ]; then
+  piece exploratory/toytown-perceived-gate-near "${CORE:-0}" "${camera[@]}" --protocol nocrash --methods bc-so \
+    --set budget.eval_episodes=100
+  exit $?
+fi
 if [ "${GATE_ONLY:-0}" = 1 ]; then pool "${gate[@]}"; exit $?; fi
 pool "${gate[@]}" "${tables[@]}"
