@@ -1,7 +1,7 @@
 """Pretrains a task's perception encoder once: `python -m experiments.perception --env toytown`.
 
 The encoder reads what one frame shows (the task's declared targets, ToyTown's one-frame state), trained on frames
-of the training layouts only and never on the expert's actions (`ape_jax.perception.pretrain`, docs/perception.md).
+of the training layouts only and never on the expert's actions (`ape_jax.pipeline.perception`, docs/perception.md).
 It writes its card as JSON (`--out`, default `results/perception/<task>.json`): targets, data, size, cost, the
 held-out `1 − R²` of each target, the encoder file's SHA-256; and the encoder file (`--encoder`; default: beside
 `--out` with the suffix `.npz`, or, without `--out`, `envs/perception/<task>.npz`, the shipped one that
@@ -68,7 +68,7 @@ def main(argv=None) -> int:
     from tqdm.auto import tqdm
 
     from ape_jax.perception import card as card_lib
-    from ape_jax.perception import pretrain as pretrain_lib
+    from ape_jax.pipeline import perception as pretrain_lib
     from experiments._provenance import system
 
     bar = None

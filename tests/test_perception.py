@@ -16,7 +16,7 @@ import envs
 from ape_jax import observations, tasks
 from ape_jax import perception
 from ape_jax.perception import card as card_lib
-from ape_jax.perception import pretrain as pretrain_lib
+from ape_jax.pipeline import perception as pretrain_lib
 from ape_jax.perception.net import PerceptionNet, net_spec
 from ape_jax.pipeline import presets
 from ape_jax.pipeline.presets import SettingsError

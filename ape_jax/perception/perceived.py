@@ -57,28 +57,6 @@ def resolve(env_name: str, perception: str, sha256: str | None = None) -> Encode
     return _LOADED[key]
 
 
-def pinned(recipe: Any, env_name: str, obs: str, protocol: Any, explicit: set[str]) -> Any:
-    """`recipe` (a `presets.Recipe` with `perception` set) seeing frames through the encoder it names: the file checked
-    against the sweep's camera (`check_sweep`: task, image size, task version, palette), its SHA-256 recorded, the
-    pixel encoder's fields at their defaults (a state policy trains on the embeddings). `ValueError` (one line) for
-    anything that does not fit; `explicit`: the fields `--set` gave."""
-    import dataclasses
-
-    import envs
-    from ape_jax.pipeline.setup import Setup
-
-    if obs != "image":
-        raise PerceptionError(f"recipe.perception reads camera frames: --obs image, not --obs {obs}")
-    pixels = [f"recipe.{k}" for k in ("encoder", "encoder_norm", "augment_shift") if k in explicit]
-    if pixels:
-        raise PerceptionError(f"{', '.join(pixels)}: for policies that learn from pixels; recipe.perception "
-                              f"{recipe.perception!r} trains state policies on the encoder's embeddings")
-    encoder = resolve(env_name, recipe.perception, recipe.perception_sha256)
-    check_sweep(encoder, envs.make(env_name, obs="image", **Setup.resolve(env_name, obs, protocol).collection))
-    return dataclasses.replace(recipe, perception_sha256=encoder.sha256, encoder="small", encoder_norm="none",
-                               augment_shift=0)
-
-
 def check_sweep(encoder: Encoder, env: Env) -> None:
     """`card.check_fits` against the frames of `env` (the sweep's camera environment, collection settings)."""
     cfg = getattr(env, "config", None)

@@ -36,9 +36,9 @@ from ape_jax import knobs, methods, models, tasks
 from ape_jax.learner import LearnerConfig, lr_boundaries
 from ape_jax.models import IMAGE_ENCODERS
 from ape_jax.tasks import Protocol
-from ape_jax.pipeline.hints import SettingsError, check as _check, coerce as _coerce, describe as _describe
-from ape_jax.pipeline.hints import format_value as _format, image_size as _image_size, parse as _parse
+from ape_jax.pipeline.hints import SettingsError, check as _check, coerce as _coerce
 from ape_jax.pipeline import method_knobs
+from ape_jax.pipeline import sets
 from ape_jax.pipeline.renames import FORMER_RECIPES, current_protocol, notice_renamed  # noqa: F401 (callers read them here)
 
 from ape_jax.weighting import SOFTMAX_GRID, STEP_GRID, SoftmaxKnobs  # noqa: F401 - the paper's grids, where callers look
@@ -400,7 +400,7 @@ def resolve(env: str, obs: str, protocol: str | None = None, preset: str = "quic
                         preset_iterations=preset_iterations, knobs=records)
     _check_image_recipe(settings.recipe, obs, settings.protocol.image_size)
     if settings.recipe.perception != "none":
-        from ape_jax.perception import pinned
+        from ape_jax.pipeline.perception import pinned
 
         try:
             settings = dataclasses.replace(settings, recipe=pinned(settings.recipe, env, obs, settings.protocol,
@@ -432,54 +432,22 @@ def _check_image_recipe(recipe: Recipe, obs: str, image_size: tuple[int, int] | 
 
 def fields(section: str) -> tuple[str, ...]:
     """The fields `--set` can change in `section` (every field but the record's name and description)."""
-    return tuple(f.name for f in dataclasses.fields(_RECORDS[section]) if f.name not in ("name", "doc", "reference"))
+    return sets.fields(_RECORDS, section)
 
 
 def parse_set(item: str) -> tuple[str, str, Any]:
-    """`"SECTION.FIELD=VALUE"` -> `(section, field, value)`, the value parsed by the field's type.
-
-    Values: numbers as written; `none` for an optional field; lists comma-separated (`0.1,0.2`), the step
-    grid's settings as `THR:W` (`0.1:5,0.2:3`), an image size as `N` (square), `HxW` or `H,W`
-    (`hints.image_size`, as every `--image-size` flag).
-    """
-    key, sep, text = item.partition("=")
-    section, dot, field = key.strip().partition(".")
-    if not sep or not dot:
-        raise SettingsError(f"--set {item!r} is not SECTION.FIELD=VALUE (e.g. recipe.batch_size=64)")
-    if section not in _RECORDS and method_knobs.owns(section):
-        return section, field, method_knobs.parse_set(section, field, text, item)
-    if section == "recipe" and field in method_knobs.LEGACY:  # a method's knob under its old recipe name
-        return section, field, method_knobs.parse_legacy(field, text, item)
-    if section not in _RECORDS:
-        raise SettingsError(f"--set {item!r}: unknown section {section!r}; valid: {', '.join(SECTIONS)} or a method "
-                            f"with settings of its own")
-    if field not in fields(section):
-        raise SettingsError(f"--set {item!r}: unknown field {section}.{field}; valid: "
-                            + ", ".join(f"{section}.{f}" for f in fields(section)))
-    hint = typing.get_type_hints(_RECORDS[section])[field]
-    own = _TEXT_READERS.get((section, field))
-    if own is not None and text.strip().lower() not in ("none", "null"):
-        try:
-            return section, field, own(text.strip())
-        except ValueError as e:
-            raise SettingsError(f"--set {item!r}: {e}, or none (the task's own)") from None
-    try:
-        return section, field, _parse(hint, text.strip())
-    except (TypeError, ValueError) as e:
-        raise SettingsError(f"--set {item!r}: {section}.{field} takes {_describe(hint)}: {e}") from None
+    """`"SECTION.FIELD=VALUE"` -> `(section, field, value)`, the value parsed by the field's type (`sets.parse_set`:
+    numbers as written, `none`, lists comma-separated, the step grid as `THR:W`, an image size as `N`, `HxW` or
+    `H,W`), a method's own knob (`method_knobs`) by its record."""
+    return sets.parse_set(_RECORDS, item)
 
 
 def format_set(section: str, field: str, value: Any) -> str:
     """`"SECTION.FIELD=VALUE"` that `parse_set` reads back as `value` (its inverse)."""
-    return f"{section}.{field}={_format(typing.get_type_hints(_RECORDS[section])[field], value)}"
+    return sets.format_set(_RECORDS, section, field, value)
 
 
 # -- internals ------------------------------------------------------------------------------------------------------
-
-# fields whose text is read by a reader of their own, not by their type: an image size reads as every --image-size
-# flag reads it (a single N is square), which `tuple[int, int]` alone cannot say
-_TEXT_READERS = {("protocol", "image_size"): _image_size}
-
 
 def _section_of(key: str) -> str:
     for section in SECTIONS:

@@ -1,6 +1,12 @@
-"""Pretraining a task's perception encoder: frames from the training layouts, its one-frame targets, one regression.
+"""The perception stage's pipeline part: pretraining a task's encoder, and a sweep's settings through one.
 
-    encoder_params, card = pretrain("toytown", progress=print)
+    encoder_params, card = pretrain("toytown", progress=print)     # `python -m experiments.perception`
+    recipe = pinned(recipe, "toytown", "image", protocol, explicit)  # `presets.resolve`, recipe.perception set
+
+The encoder, its file and the environment that observes through it are the core's (`ape_jax.perception`); what
+needs demonstrations collected or a sweep's setup is here.
+
+Pretraining: frames from the training layouts, their one-frame targets, one regression.
 
 What a task declares (`ape_jax.tasks.Perception`, `Task.perception`) is all this reads; nothing here names a task:
   1. **Frames.** The task's expert drives `episodes` episodes under the declared protocol's collection settings and
@@ -31,7 +37,7 @@ import numpy as np
 import optax
 
 import envs
-from ape_jax import observations, tasks
+from ape_jax import observations, perception, tasks
 from ape_jax.perception.net import PerceptionNet, in_chunks, near, net_spec, reader
 from ape_jax.pipeline import collect as collect_lib
 from ape_jax.pipeline import setup as setup_lib
@@ -189,3 +195,25 @@ def pretrain(task_name: str, steps: int = 16_000, batch: int = 128, lr: float = 
                          "jax": jax.__version__},
             "heldout": heldout}
     return params, card
+
+
+def pinned(recipe: Any, env_name: str, obs: str, protocol: Any, explicit: set[str]) -> Any:
+    """`recipe` (a `presets.Recipe` with `perception` set) seeing frames through the encoder it names: the file checked
+    against the sweep's camera (`check_sweep`: task, image size, task version, palette), its SHA-256 recorded, the
+    pixel encoder's fields at their defaults (a state policy trains on the embeddings). `ValueError` (one line) for
+    anything that does not fit; `explicit`: the fields `--set` gave."""
+    import dataclasses
+
+    from ape_jax.pipeline.setup import Setup
+
+    if obs != "image":
+        raise perception.PerceptionError(f"recipe.perception reads camera frames: --obs image, not --obs {obs}")
+    pixels = [f"recipe.{k}" for k in ("encoder", "encoder_norm", "augment_shift") if k in explicit]
+    if pixels:
+        raise perception.PerceptionError(f"{', '.join(pixels)}: for policies that learn from pixels; recipe.perception "
+                              f"{recipe.perception!r} trains state policies on the encoder's embeddings")
+    encoder = perception.resolve(env_name, recipe.perception, recipe.perception_sha256)
+    camera = envs.make(env_name, obs="image", **Setup.resolve(env_name, obs, protocol).collection)
+    perception.check_sweep(encoder, camera)
+    return dataclasses.replace(recipe, perception_sha256=encoder.sha256, encoder="small", encoder_norm="none",
+                               augment_shift=0)
