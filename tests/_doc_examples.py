@@ -30,6 +30,8 @@ SKIPPED = {
                 "of its kind)",
     "--coordinator": "needs a second machine (tests/test_distributed.py runs two processes on one)",
     "experiments.train_expert": "trains an expert for an hour (tests/test_experts.py trains a tiny one)",
+    "experiments.perception --env": "pretrains an encoder for ~11 minutes and rewrites the shipped one "
+                                    "(tests/test_perception.py pretrains a small one)",
     "experiments.expert_references": "rewrites a shipped expert's card (tests/test_import_expert.py measures one)",
     "compare_runs runs/a runs/b": "placeholders for two sweeps of yours (tests/test_compare_runs.py runs it)",
     "protocol.expert=cs294": "needs FCA's expert, which the import above reads from the user's file",
