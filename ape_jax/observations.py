@@ -38,7 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import envs
-from envs.base import Env, State
+from envs.base import Env, State, Wrapper
 
 FULL = "full"      # `Method.observation` of a method that reads the full state
 CHUNK = 8192       # rows per call when observing the simulator states (one compile, bounded memory)
@@ -160,12 +160,12 @@ def with_previous_action(env: Env, demos: Any) -> tuple[Env, Any]:
     return PreviousAction(env), carrying_previous_action(demos)
 
 
-class PreviousAction(Env):
+class PreviousAction(Wrapper):
     """`env` whose observation is followed by the action it executed one step before (zeros after a reset).
 
     `obs` is `[D + A] float32`: `env`'s observation, then the previous action as `env.step` executed it (the
     policy's action; zeros where it was not finite and the step was refused). Everything else (the simulator,
-    rewards, `done`, metrics, the expert's observation, rendering) is `env`'s.
+    rewards, `done`, metrics, the expert's observation, rendering) is `env`'s (`envs.base.Wrapper`).
     """
 
     def __init__(self, env: Env):
@@ -175,14 +175,8 @@ class PreviousAction(Env):
             raise ValueError(f"protocol.prev_action needs vector observations; {env.name!r} with obs="
                              f"{env.obs_mode!r} gives {list(env.observation_shape)}: a frame has no place for "
                              "the previous action")
-        self.inner = env
-        self.name, self.obs_mode = env.name, env.obs_mode
+        super().__init__(env)
         self._dim = int(env.observation_shape[0])
-
-    def __getattr__(self, name: str):  # what this wrapper does not define is the environment's
-        if name == "inner":
-            raise AttributeError(name)
-        return getattr(self.inner, name)
 
     def reset(self, key: jax.Array) -> State:
         state = self.inner.reset(key)
@@ -195,12 +189,6 @@ class PreviousAction(Env):
         executed = jnp.where(jnp.all(jnp.isfinite(action)), action, 0.0)  # as `Env.step` executes it
         return nxt.replace(obs=jnp.concatenate([nxt.obs, executed.astype(nxt.obs.dtype)]))
 
-    def _reset(self, key: jax.Array) -> State:  # `reset` and `step` above are the wrapper's whole dynamics
-        return self.reset(key)
-
-    def _step(self, state: State, action: jax.Array) -> State:
-        return self.step(state, action)
-
     @property
     def observation_shape(self) -> tuple[int, ...]:
         return (self._dim + self.inner.action_size,)
@@ -208,45 +196,6 @@ class PreviousAction(Env):
     @property
     def observation_dtype(self):
         return self.inner.observation_dtype
-
-    @property
-    def action_size(self) -> int:
-        return self.inner.action_size
-
-    @property
-    def action_bounds(self) -> tuple[jax.Array, jax.Array]:
-        return self.inner.action_bounds
-
-    @property
-    def dt(self) -> float:
-        return self.inner.dt
-
-    @property
-    def episode_length(self) -> int:
-        return self.inner.episode_length
-
-    @property
-    def episode_metric_names(self) -> tuple[str, ...]:
-        return self.inner.episode_metric_names
-
-    @property
-    def action_names(self) -> tuple[str, ...] | None:
-        return self.inner.action_names
-
-    def episode_metrics(self, sims: Any, final: State, valid: jax.Array) -> dict[str, jax.Array]:
-        return self.inner.episode_metrics(sims, final, valid)
-
-    def render(self, state: State) -> jax.Array:
-        return self.inner.render(state)
-
-    def caption(self, sim: Any, metrics: dict[str, float] | None = None) -> dict[str, str]:
-        return self.inner.caption(sim, metrics)
-
-    def expert_observation(self, state: State) -> jax.Array:
-        return self.inner.expert_observation(state)
-
-    def sim_state(self, state: State) -> Any:
-        return self.inner.sim_state(state)
 
     def __repr__(self) -> str:
         return f"<PreviousAction {self.inner!r}>"

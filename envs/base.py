@@ -235,6 +235,66 @@ class ConfiguredEnv(Env):
         return self.config.episode_length
 
 
+class Wrapper(Env):
+    """An environment that changes what `inner` observes and nothing else: the simulator, actions, rewards, `done`,
+    metrics, the expert's observation and rendering are `inner`'s. A subclass defines `reset`, `step` (which call
+    `inner`'s) and `observation_shape`; whatever else it does not define is read from `inner`."""
+
+    def __init__(self, inner: Env):
+        self.inner = inner
+        self.name, self.obs_mode = inner.name, inner.obs_mode
+
+    def __getattr__(self, name: str):  # what the wrapper does not define is the environment's
+        if name == "inner":
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+    def _reset(self, key: jax.Array) -> State:  # a subclass's `reset` and `step` are its whole dynamics
+        return self.reset(key)
+
+    def _step(self, state: State, action: jax.Array) -> State:
+        return self.step(state, action)
+
+    @property
+    def action_size(self) -> int:
+        return self.inner.action_size
+
+    @property
+    def action_bounds(self) -> tuple[jax.Array, jax.Array]:
+        return self.inner.action_bounds
+
+    @property
+    def dt(self) -> float:
+        return self.inner.dt
+
+    @property
+    def episode_length(self) -> int:
+        return self.inner.episode_length
+
+    @property
+    def episode_metric_names(self) -> tuple[str, ...]:
+        return self.inner.episode_metric_names
+
+    @property
+    def action_names(self) -> tuple[str, ...] | None:
+        return self.inner.action_names
+
+    def episode_metrics(self, sims: Any, final: State, valid: jax.Array) -> dict[str, jax.Array]:
+        return self.inner.episode_metrics(sims, final, valid)
+
+    def render(self, state: State) -> jax.Array:
+        return self.inner.render(state)
+
+    def caption(self, sim: Any, metrics: dict[str, float] | None = None) -> dict[str, str]:
+        return self.inner.caption(sim, metrics)
+
+    def expert_observation(self, state: State) -> jax.Array:
+        return self.inner.expert_observation(state)
+
+    def sim_state(self, state: State) -> Any:
+        return self.inner.sim_state(state)
+
+
 def _flags(invalid_action: jax.Array, nonfinite_state: jax.Array) -> dict[str, jax.Array]:
     return {"invalid_action": jnp.asarray(invalid_action, jnp.float32),
             "nonfinite_state": jnp.asarray(nonfinite_state, jnp.float32)}

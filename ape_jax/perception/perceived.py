@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from envs.base import Env, State
+from envs.base import Env, State, Wrapper
 from ape_jax.perception import card as card_lib
 from ape_jax.perception.card import Encoder, PerceptionError
 from ape_jax.perception.net import embedder, in_chunks, reader
@@ -92,21 +92,16 @@ def perceive(env: Env, demos: Any, encoder: Encoder, progress=None, output: str 
     return Perceived(env, encoder, output), demos.replace(obs=embed_frames(encoder, demos.obs, progress, output))
 
 
-class Perceived(Env):
+class Perceived(Wrapper):
     """`env` (a camera environment) whose observation is what a frozen encoder makes of its frame (`seeing`: the
     embedding, `[E] float32`, or the read-out, `[D]`). Everything else (the simulator, rewards, `done`, metrics, the
-    expert's observation, rendering) is `env`'s."""
+    expert's observation, rendering) is `env`'s (`envs.base.Wrapper`)."""
 
     def __init__(self, env: Env, encoder: Encoder, output: str = "embedding"):
-        self.inner, self.encoder, self.output = env, encoder, output
-        self.name, self.obs_mode = env.name, env.obs_mode
+        super().__init__(env)
+        self.encoder, self.output = encoder, output
         self._embed = seeing(encoder, output)
         self._size = encoder.embedding_size if output == "embedding" else len(encoder.card["targets"])
-
-    def __getattr__(self, name: str):  # what this wrapper does not define is the environment's
-        if name in ("inner", "encoder", "output"):
-            raise AttributeError(name)
-        return getattr(self.inner, name)
 
     def _seen(self, state: State) -> State:
         return state.replace(obs=self._embed(state.obs).astype(np.float32))
@@ -120,12 +115,6 @@ class Perceived(Env):
         blank = jnp.zeros(self.inner.observation_shape, self.inner.observation_dtype)
         return self._seen(self.inner.step(state.replace(obs=blank), action))
 
-    def _reset(self, key: jax.Array) -> State:  # `reset` and `step` above are the wrapper's whole dynamics
-        return self.reset(key)
-
-    def _step(self, state: State, action: jax.Array) -> State:
-        return self.step(state, action)
-
     @property
     def observation_shape(self) -> tuple[int, ...]:
         return (self._size,)
@@ -133,45 +122,6 @@ class Perceived(Env):
     @property
     def observation_dtype(self):
         return np.float32
-
-    @property
-    def action_size(self) -> int:
-        return self.inner.action_size
-
-    @property
-    def action_bounds(self):
-        return self.inner.action_bounds
-
-    @property
-    def dt(self) -> float:
-        return self.inner.dt
-
-    @property
-    def episode_length(self) -> int:
-        return self.inner.episode_length
-
-    @property
-    def episode_metric_names(self) -> tuple[str, ...]:
-        return self.inner.episode_metric_names
-
-    @property
-    def action_names(self):
-        return self.inner.action_names
-
-    def episode_metrics(self, sims, final, valid):
-        return self.inner.episode_metrics(sims, final, valid)
-
-    def render(self, state: State) -> jax.Array:
-        return self.inner.render(state)
-
-    def caption(self, sim, metrics=None):
-        return self.inner.caption(sim, metrics)
-
-    def expert_observation(self, state: State) -> jax.Array:
-        return self.inner.expert_observation(state)
-
-    def sim_state(self, state: State):
-        return self.inner.sim_state(state)
 
     def observe_sim(self, sim):
         return self._embed(self.inner.observe_sim(sim))
