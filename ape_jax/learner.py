@@ -100,6 +100,8 @@ class LearnerConfig:
     # The policy's arithmetic (`models.DTYPES`): "bfloat16" computes every layer in bfloat16 with float32
     # parameters, optimiser state and loss (mixed precision); refused on a backend without it (`bf16_problem`)
     dtype: str = "float32"
+    # encoder "perception" (`models.PerceptionPolicy`): the SHA-256 of the pretrained encoder it starts from
+    perception_sha256: str = ""
 
     def __post_init__(self):
         knobs.check("LearnerConfig.", network=self.network, init=self.init, encoder=self.encoder,
@@ -122,6 +124,8 @@ class LearnerConfig:
         if self.loss_weights and (len(self.loss_weights) != self.action_dim or min(self.loss_weights) < 0):
             raise ValueError(f"LearnerConfig.loss_weights must be {self.action_dim} numbers >= 0 (one per action "
                              f"dimension) or empty, got {self.loss_weights}")
+        if (self.encoder == "perception") != bool(self.perception_sha256):
+            raise ValueError("encoder 'perception' and perception_sha256 (the pretrained encoder's) go together")
         least = IMAGE_ENCODERS[self.encoder].min_side if self.images else 1
         if self.images and min(self.obs_shape[:2]) < least:
             raise ValueError(f"encoder {self.encoder!r} takes images of at least {least}×{least} pixels, got "
@@ -154,6 +158,8 @@ class LearnerConfig:
     def model(self) -> nn.Module:
         if self.images:
             norm = {} if self.encoder == "resnet18" else {"norm": self.encoder_norm}
+            if self.encoder == "perception":
+                norm["sha256"] = self.perception_sha256
             return IMAGE_ENCODERS[self.encoder](self.action_dim, dtype=self.dtype, **norm)
         return StatePolicy(self.action_dim, batchnorm=self.network == "bn-mlp", weights_init=self.init,
                            bn_momentum=self.bn_momentum, dtype=self.dtype)

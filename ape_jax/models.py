@@ -19,6 +19,9 @@
   channels, the first of stride 2, ReLU, on 84×84 frames, to the same head; its
   convolutions are matrix products over 3×3 windows (im2col), fit for `lax.scan`.
 
+- `PerceptionPolicy` — a task's pretrained perception encoder (`ape_jax.perception`) fine-tuned
+  end to end, each frame's embedding to the state policy's network.
+
 - `ResNet18Policy` — for images on a GPU: the supplement's MuJoCo-Image
   network, "ResNet-18 with a two-layer 300-unit MLP head" (details and our
   readings in its docstring). Same input as `ImagePolicy`.
@@ -39,6 +42,8 @@ from collections.abc import Sequence
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
+
+from ape_jax.patches import patchify  # noqa: F401 (the patch policy's; imported from here too)
 
 
 def _lrelu(x: jax.Array) -> jax.Array:
@@ -240,23 +245,6 @@ class PatchPolicy(nn.Module):
                                                        embedding_noise)
 
 
-def patchify(x: jax.Array, patch: int) -> jax.Array:
-    """`[..., h, w, C]` -> `[..., ⌈h/p⌉, ⌈w/p⌉, p·p·C]`: non-overlapping `p×p` patches, each flattened.
-
-    A side that `patch` does not divide is zero-padded at its end first (as a `SAME`
-    convolution of stride `p` would). Each patch's values are in `(row, column, channel)`
-    order, so a `Dense` on the last axis is a `p×p` convolution of stride `p`.
-    """
-    *lead, h, w, c = x.shape
-    pad_h, pad_w = -h % patch, -w % patch
-    if pad_h or pad_w:
-        x = jnp.pad(x, [(0, 0)] * len(lead) + [(0, pad_h), (0, pad_w), (0, 0)])
-        h, w = h + pad_h, w + pad_w
-    x = x.reshape(*lead, h // patch, patch, w // patch, patch, c)
-    x = jnp.swapaxes(x, -4, -3)  # [..., h/p, w/p, p, p, C]
-    return x.reshape(*lead, h // patch, w // patch, patch * patch * c)
-
-
 def windows3x3(x: jax.Array, stride: int) -> jax.Array:
     """`[..., h, w, C]` -> `[..., h', w', 9·C]`: every 3×3 window of a `VALID` convolution of `stride`, flattened.
 
@@ -455,6 +443,29 @@ class ResNet18Policy(nn.Module):
                                                                            embedding_noise)
 
 
+class PerceptionPolicy(nn.Module):
+    """`[..., height, width, 3 * H]` frames in [0, 1] -> `[..., A]` action through a task's pretrained perception
+    encoder trained end to end (`recipe.perception_training=finetune`, `ape_jax.perception.tuned`): each frame's
+    embedding, then the state policy's network on the `H` embeddings, as the frozen stage's policies are built."""
+
+    action_dim: int
+    sha256: str = ""       # the encoder file's (`recipe.perception_sha256`)
+    norm: str = "none"     # the pixel encoders' option; the pretrained network has none
+    dtype: str = "float32"
+    loop_friendly: ClassVar[bool] = True  # matrix products only (`PerceptionNet`'s patch stack)
+    min_side: ClassVar[int] = 1  # the file's image size is checked when the settings are resolved
+
+    @nn.compact
+    def __call__(self, frames: jax.Array, return_embedding: bool = False,
+                 embedding_noise: jax.Array | None = None) -> jax.Array | tuple[jax.Array, jax.Array]:
+        from ape_jax.perception.tuned import PretrainedEncoder
+
+        features = PretrainedEncoder(self.sha256, name="perception")(frames)
+        return StatePolicy(self.action_dim, dtype=self.dtype, name="policy")(
+            features, return_embedding, embedding_noise=embedding_noise)
+
+
 # `LearnerConfig.encoder` -> the image policy it builds.
 IMAGE_ENCODERS: dict[str, type[nn.Module]] = {"small": ImagePolicy, "resnet18": ResNet18Policy,
-                                               "patch": PatchPolicy, "drq": DrQPolicy}
+                                               "patch": PatchPolicy, "drq": DrQPolicy,
+                                               "perception": PerceptionPolicy}

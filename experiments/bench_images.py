@@ -57,15 +57,16 @@ def sized(name: str, sizes: list[int]) -> list[int]:
     return [int(size)] if at else sizes
 
 
-def update_flops(encoder: str, size: int, dtype: str = "float32", batch: int = BATCH) -> float | None:
+def update_flops(encoder: str, size: int, dtype: str = "float32", batch: int = BATCH,
+                 perception_sha256: str = "") -> float | None:
     """FLOPs of one model update (forward, backward, Adam) of `encoder` at `size`×`size`, batch `batch`, history
     `H`, as XLA counts them in the lowered program (`cost_analysis`; nothing compiles or runs); None where the
-    backend gives no count."""
+    backend gives no count. `"perception"`: the pretrained encoder of SHA-256 `perception_sha256` (loaded)."""
     from ape_jax.learner import Data, Hparams, LearnerConfig, make_train
 
     encoder, norm = split_encoder(encoder)
     cfg = LearnerConfig(obs_shape=(size, size, 3), action_dim=ACT, history=H, batch_size=batch, unroll=True,
-                        encoder=encoder, encoder_norm=norm, dtype=dtype)
+                        encoder=encoder, encoder_norm=norm, dtype=dtype, perception_sha256=perception_sha256)
     n = 2 * batch
     data = Data(obs=jnp.zeros((n, size, size, 3), jnp.uint8), action=jnp.zeros((n, ACT)),
                 t=jnp.arange(n, dtype=jnp.int32) % 100, ape=jnp.ones(n))

@@ -413,6 +413,8 @@ def _network(recipe, obs: str) -> str:
         return recipe.network
     if recipe.perception != "none":
         name = "the task's" if recipe.perception == "task" else pathlib.Path(recipe.perception).name
+        if recipe.perception_training == "finetune":
+            return f"{name} perception encoder {recipe.perception_sha256[:12]}…, fine-tuned end to end, to an mlp"
         return (f"{recipe.network} on the {recipe.perception_output} of {name} perception encoder "
                 f"{recipe.perception_sha256[:12]}…, frozen")
     extras = [recipe.encoder_norm + " norm"] * (recipe.encoder_norm != "none")

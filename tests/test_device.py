@@ -106,22 +106,26 @@ def test_run_sh_paper_fca_plan_smoke_finishes_both_sweeps_and_packs_them(tmp_pat
 
 
 @pytest.mark.slow
-def test_run_sh_images_plan_smoke_finishes_the_three_tasks_and_packs_them(tmp_path):
-    """`--plan images --smoke`: the MuJoCo-Image grid (drq at 84×84, frames rendered from the state demonstrations'
-    simulator states) on Hopper, Walker2d and HalfCheetah side by side, packed."""
+def test_run_sh_images_plan_smoke_finishes_the_three_tasks_both_ways_and_packs_them(tmp_path):
+    """`--plan images --smoke`: the MuJoCo-Image grid through each task's pretrained encoder, fine-tuned and frozen
+    (frames rendered from the state demonstrations' simulator states), six sweeps side by side, packed."""
     names = _smoke_plan(tmp_path, "images")
     plan = json.loads((tmp_path / "out" / "images" / "plan.json").read_text())
     assert plan["smoke"] and all(s["finished"] for s in plan["sweeps"].values())
     for task in ("hopper", "walker2d", "halfcheetah"):
-        assert f"./images/{task}/results.json" in names
-        results = json.loads((tmp_path / "out" / "images" / task / "results.json").read_text())
-        assert {r["method"] for r in results["runs"]} == {"bc-so", "bc-oh", "ours-step", "ours-softmax", "fca"}
-        assert all(r["status"] == "ok" for r in results["runs"])
-        assert results["settings"]["recipe"]["encoder"] == "drq" and results["protocol"]["frames"] == "states"
-        assert results["config"]["data"]["settings"]["frames"] == "states"
-        data = results["config"]["data"]
-        assert data["path"].endswith(".npz") and f"/{task}-pos-" in data["path"]  # the state dataset's rows
-        assert "frames: " in (tmp_path / "out" / "images" / task / "log.txt").read_text()
+        for variant, encoder in (("finetune", "perception"), ("frozen", "small")):
+            name = f"{task}-{variant}"
+            assert f"./images/{name}/results.json" in names
+            results = json.loads((tmp_path / "out" / "images" / name / "results.json").read_text())
+            assert {r["method"] for r in results["runs"]} == {"bc-so", "bc-oh", "ours-step", "ours-softmax", "fca"}
+            assert all(r["status"] == "ok" for r in results["runs"])
+            recipe = results["settings"]["recipe"]
+            assert recipe["encoder"] == encoder and recipe["perception_training"] == variant
+            assert recipe["perception_sha256"] == results["config"]["perception"]["sha256"]
+            assert results["protocol"]["frames"] == "states"
+            data = results["config"]["data"]
+            assert data["path"].endswith(".npz") and f"/{task}-pos-" in data["path"]  # the state dataset's rows
+            assert "frames: " in (tmp_path / "out" / "images" / name / "log.txt").read_text()
 
 
 @pytest.mark.slow

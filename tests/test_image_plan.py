@@ -1,5 +1,6 @@
 """The MuJoCo-Image plan's parts: frames rendered from state demonstrations (`protocol.frames=states`), the `drq`
-recipe, and `experiments.device.images`' plan, estimate and refusals."""
+recipe, and `experiments.device.images`' plan (the pretrained encoders fine-tuned, the frozen ones beside them),
+estimate and refusals."""
 
 import json
 
@@ -83,19 +84,29 @@ def test_the_drq_recipe_is_drq_at_84x84_with_shifts_whatever_the_image_preset():
 def test_the_plan_fits_the_most_iterations_in_the_limit_and_runs_the_supplements_settings(monkeypatch):
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     p = images.plan(images.TASKS, 540.0, None, None, "bfloat16", False)
-    assert p.models == 3 * 15 and p.seeds == 3 and p.iterations % p.chunk == 0 and p.iterations >= p.chunk
+    assert p.models == 3 * 2 * 15 and p.seeds == 3 and p.iterations % p.chunk == 0 and p.iterations >= p.chunk
     assert p.total_s + images.MARGIN_S <= 540.0
     with pytest.raises(ValueError, match="exceeds the limit of 540 s"):
         images.plan(images.TASKS, 540.0, p.iterations + p.chunk, None, "bfloat16", False)
     # a fast enough device gets the paper's budget, and no more
     assert images.plan(images.TASKS, 10_000.0, None, 1e9, "bfloat16", False).iterations == images.PAPER_ITERATIONS
-    hopper, cheetah = p.argv["hopper"], p.argv["halfcheetah"]
-    for flag in ("protocol.frames=states", "ours-step.grid=0.1:5", "budget.seeds=3", "recipe.dtype=bfloat16",
-                 "budget.width=15", f"budget.iterations={p.iterations}"):
-        assert flag in hopper
+    assert sorted(p.argv) == sorted(f"{t}-{v}" for t in images.TASKS for v in ("finetune", "frozen"))
+    hopper, frozen, cheetah = p.argv["hopper-finetune"], p.argv["hopper-frozen"], p.argv["halfcheetah-finetune"]
+    for flag in ("protocol.frames=states", "recipe.perception=task", "ours-step.grid=0.1:5", "budget.seeds=3",
+                 "recipe.dtype=bfloat16", "budget.width=15", f"budget.iterations={p.iterations}"):
+        assert flag in hopper and flag in frozen   # the baseline at the same budget, in the same run
+    assert "recipe.perception_training=finetune" in hopper and "recipe.perception_training=frozen" in frozen
     assert "ours-softmax.taus=0.2" in hopper and "fca.alphas=0.1" in hopper
     assert "ours-softmax.taus=0.1" in cheetah and "fca.alphas=0.5" in cheetah
-    assert hopper[hopper.index("--recipe") + 1] == "drq" and hopper[hopper.index("--obs") + 1] == "image"
+    assert hopper[hopper.index("--obs") + 1] == "image" and "--recipe" not in hopper
+
+
+def test_the_plan_fine_tunes_the_shipped_encoder_at_its_image_size():
+    spec = images._spec("hopper", "finetune", "float32")
+    assert spec.recipe.encoder == "perception" and spec.policy_obs == "image"
+    assert spec.protocol.image_size == (32, 32) and len(spec.recipe.perception_sha256) == 64
+    frozen = images._spec("hopper", "frozen", "float32")
+    assert frozen.policy_obs == "embedding" and frozen.recipe.perception_sha256 == spec.recipe.perception_sha256
 
 
 @pytest.mark.parametrize("argv,message", [
@@ -129,7 +140,8 @@ def test_the_dry_run_prints_the_plan_and_the_sweeps_it_would_run(capsys):
     assert images.main(["--limit-s", "100000", "--rate", "1e9", "--dry-run", "--tasks", "hopper"]) == 0
     out = capsys.readouterr().out
     assert "300,000 iterations (the paper's budget)" in out
-    assert "hopper: python -m experiments.sweep --env hopper --obs image --recipe drq" in out
+    assert "hopper-finetune: python -m experiments.sweep --env hopper --obs image --preset default" in out
+    assert "recipe.perception_training=finetune" in out and "hopper-frozen: " in out
 
 
 def test_collect_refuses_frames_from_states_and_names_the_state_dataset_to_collect(capsys):

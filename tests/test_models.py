@@ -216,7 +216,7 @@ def test_only_the_loop_friendly_encoder_leaves_the_one_at_a_time_cpu_path():
 
     assert jax.default_backend() == "cpu"
     assert {name: cls.loop_friendly for name, cls in IMAGE_ENCODERS.items()} == {
-        "small": False, "resnet18": False, "patch": True, "drq": True}
+        "small": False, "resnet18": False, "patch": True, "drq": True, "perception": True}
     assert trains_sequentially((32, 32, 3), "small") and trains_sequentially((32, 32, 3), "resnet18")
     assert not trains_sequentially((32, 32, 3), "patch")
     assert not trains_sequentially((5,), "small")  # state policies: always the vmapped grid

@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ape_jax.models import patchify
+from ape_jax.patches import patchify
 
 
 class PerceptionNet(nn.Module):

@@ -57,6 +57,16 @@ def resolve(env_name: str, perception: str, sha256: str | None = None) -> Encode
     return _LOADED[key]
 
 
+def loaded(sha256: str) -> Encoder:
+    """The encoder of SHA-256 `sha256` that this process has resolved (`resolve`): where a policy that fine-tunes it
+    finds its network and starting weights (`ape_jax.perception.tuned`). `PerceptionError` where none has been."""
+    for encoder in _LOADED.values():
+        if encoder.sha256 == sha256:
+            return encoder
+    raise PerceptionError(f"no perception encoder with SHA-256 {sha256[:12] or '(none)'}… is loaded in this process: "
+                          f"resolve the recipe's (recipe.perception) before building its policy")
+
+
 def check_sweep(encoder: Encoder, env: Env) -> None:
     """`card.check_fits` against the frames of `env` (the sweep's camera environment, collection settings)."""
     cfg = getattr(env, "config", None)

@@ -200,20 +200,28 @@ def pretrain(task_name: str, steps: int = 16_000, batch: int = 128, lr: float = 
 def pinned(recipe: Any, env_name: str, obs: str, protocol: Any, explicit: set[str]) -> Any:
     """`recipe` (a `presets.Recipe` with `perception` set) seeing frames through the encoder it names: the file checked
     against the sweep's camera (`check_sweep`: task, image size, task version, palette), its SHA-256 recorded, the
-    pixel encoder's fields at their defaults (a state policy trains on the embeddings). `ValueError` (one line) for
-    anything that does not fit; `explicit`: the fields `--set` gave."""
+    pixel encoder's fields at their defaults (frozen: a state policy trains on the embeddings; `finetune`: the
+    encoder "perception", `models.PerceptionPolicy`). `ValueError` (one line) for anything that does not fit;
+    `explicit`: the fields `--set` gave."""
     import dataclasses
 
     from ape_jax.pipeline.setup import Setup
 
     if obs != "image":
         raise perception.PerceptionError(f"recipe.perception reads camera frames: --obs image, not --obs {obs}")
-    pixels = [f"recipe.{k}" for k in ("encoder", "encoder_norm", "augment_shift") if k in explicit]
+    tuned = recipe.perception_training == "finetune"
+    pixels = [f"recipe.{k}" for k in ("encoder", "encoder_norm", "augment_shift") if k in explicit
+              and not (tuned and k == "encoder" and recipe.encoder == "perception")]  # a replay's own words
     if pixels:
+        seen = ("fine-tunes the encoder (its own image encoder, 'perception')" if tuned else
+                "trains state policies on the encoder's embeddings")
         raise perception.PerceptionError(f"{', '.join(pixels)}: for policies that learn from pixels; recipe.perception "
-                              f"{recipe.perception!r} trains state policies on the encoder's embeddings")
+                                         f"{recipe.perception!r} {seen}")
+    if tuned and recipe.perception_output != "embedding":
+        raise perception.PerceptionError(f"recipe.perception_training=finetune trains the encoder's embedding; "
+                                         f"recipe.perception_output {recipe.perception_output!r} is the frozen stage's")
     encoder = perception.resolve(env_name, recipe.perception, recipe.perception_sha256)
     camera = envs.make(env_name, obs="image", **Setup.resolve(env_name, obs, protocol).collection)
     perception.check_sweep(encoder, camera)
-    return dataclasses.replace(recipe, perception_sha256=encoder.sha256, encoder="small", encoder_norm="none",
-                               augment_shift=0)
+    return dataclasses.replace(recipe, perception_sha256=encoder.sha256, encoder="perception" if tuned else "small",
+                               encoder_norm="none", augment_shift=0)

@@ -224,7 +224,14 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
     expert = None if expert is None else collect.labeller(expert, env, protocol.labels)
     check_fits(demos, env, str(path))
     seen = None
-    if spec.recipe.perception != "none":  # the frames seen through the frozen encoder, embedded once
+    if spec.recipe.perception != "none" and spec.recipe.perception_training == "finetune":
+        from ape_jax import perception  # the encoder loaded for the policies it starts (`perception.tuned`)
+
+        encoder = perception.resolve(spec.env, spec.recipe.perception, spec.recipe.perception_sha256)
+        hooks.log(f"perception: the policies' image encoder starts as {pathlib.Path(encoder.path).name} (SHA-256 "
+                  f"{encoder.sha256[:12]}…) and trains end to end")
+        seen = {**encoder.describe(), "output": "embedding", "training": "finetune"}
+    elif spec.recipe.perception != "none":  # the frames seen through the frozen encoder, embedded once
         from ape_jax import perception
 
         encoder = perception.resolve(spec.env, spec.recipe.perception, spec.recipe.perception_sha256)

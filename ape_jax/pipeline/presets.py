@@ -133,6 +133,9 @@ class Recipe:
         and fingerprints, so two encoders never merge); given, a file with another is refused.
       perception_output: what a policy sees of a frame through the encoder: `"embedding"` (its features) or
         `"readout"` (its estimate of the one-frame targets, in their units).
+      perception_training: `"frozen"` (the encoder's weights fixed, each frame embedded once) or `"finetune"` (the
+        paper's setting: the encoder starts the policy's image encoder, `recipe.encoder` "perception", and trains
+        end to end with it on the frames; for GPUs: every update runs the encoder forward and back).
     """
 
     name: str = "mlp"
@@ -156,6 +159,7 @@ class Recipe:
     perception: str = "none"
     perception_sha256: str | None = None
     perception_output: str = "embedding"
+    perception_training: str = "frozen"
 
     def __post_init__(self):
         object.__setattr__(self, "name", FORMER_RECIPES.get(self.name, self.name))  # a file's former name: today's
@@ -172,6 +176,14 @@ class Recipe:
                f"recipe.perception: none, task, or an encoder file's path, got {self.perception!r}")
         _check(self.perception_output in ("embedding", "readout"),
                f"recipe.perception_output: embedding or readout, got {self.perception_output!r}")
+        _check(self.perception_training in ("frozen", "finetune"),
+               f"recipe.perception_training: frozen or finetune, got {self.perception_training!r}")
+        _check(self.perception_training == "frozen" or self.perception != "none",
+               "recipe.perception_training=finetune trains a pretrained encoder: name it with recipe.perception (task "
+               "or a file)")
+        _check(self.encoder != "perception" or self.perception_training == "finetune",
+               "recipe.encoder 'perception' is a pretrained encoder fine-tuned: set recipe.perception (task or a file) "
+               "and recipe.perception_training=finetune instead")
         sha = self.perception_sha256
         _check(sha is None or (isinstance(sha, str) and len(sha) == 64 and all(c in "0123456789abcdef" for c in sha)),
                f"recipe.perception_sha256: 64 hexadecimal digits (or none), got {sha!r}")
@@ -283,7 +295,8 @@ class Settings:
                              loss=r.loss or task_loss, loss_weights=r.loss_weights or tuple(task_loss_weights),
                              unroll=unroll, encoder=r.encoder if images else "small",
                              encoder_norm=r.encoder_norm if images else "none",
-                             augment_shift=r.augment_shift if images else 0, dtype=r.dtype)
+                             augment_shift=r.augment_shift if images else 0, dtype=r.dtype,
+                             perception_sha256=r.perception_sha256 if images and r.encoder == "perception" else "")
 
     def to_json(self) -> dict[str, dict]:
         """`{"protocol": ..., "budget": ..., "recipe": ...}`, every field (results.json's blocks), and `"knobs"` where

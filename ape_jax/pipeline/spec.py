@@ -126,9 +126,12 @@ class SweepSpec:
 
     @property
     def policy_obs(self) -> str:
-        """What the policies observe: `"embedding"` where the frames are seen through a perception encoder
-        (`recipe.perception`: vectors, as a state is), else the sweep's observation mode."""
-        return "embedding" if self.obs == "image" and self.settings.recipe.perception != "none" else self.obs
+        """What the policies observe: `"embedding"` where the frames are seen through a frozen perception encoder
+        (`recipe.perception`: vectors, as a state is), else the sweep's observation mode (a fine-tuned encoder's
+        policies see frames)."""
+        r = self.settings.recipe
+        return "embedding" if self.obs == "image" and r.perception != "none" and r.perception_training == "frozen" \
+            else self.obs
 
     @property
     def episodes(self) -> int:

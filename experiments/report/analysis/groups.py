@@ -118,10 +118,10 @@ class Key(NamedTuple):
 
 
 def perception_of(r: results_lib.Results) -> str | None:
-    """`Key.perception` of a file: its encoder's SHA-256, first 12 digits; None where the frames were not seen
-    through one."""
+    """`Key.perception` of a file: its encoder's SHA-256 (12 digits), `:readout` or `:finetune`; None: no encoder."""
     recipe = (r.settings or {}).get("recipe") or {}
     sha, output = recipe.get("perception_sha256"), recipe.get("perception_output") or "embedding"
+    output = "finetune" if recipe.get("perception_training") == "finetune" else output
     return (sha[:12] + ("" if output == "embedding" else f":{output}")) if sha else None
 
 
@@ -468,7 +468,8 @@ def group_title(key: Key, protocol: dict, with_protocol: bool, with_obs: bool | 
         parts.append(f"version {key.version}")
     if key.perception is not None:
         sha, _, output = key.perception.partition(":")
-        parts.append(f"through the pretrained encoder {sha[:8]}" + (f"'s {output}" if output else ""))
+        parts.append(f"through the pretrained encoder {sha[:8]}" + (", fine-tuned" if output == "finetune" else
+                                                                          f"'s {output}" if output else ""))
     return tasks.get(key.env).title + (f" ({', '.join(parts)})" if parts else "")
 
 
