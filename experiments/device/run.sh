@@ -6,7 +6,7 @@
 #   experiments/device/run.sh                        # there (the device tool, carry [".whl"]): H200, ~8 min
 #   experiments/device/run.sh --smoke                # here: tiny sizes on the CPU, to check the script
 #   experiments/device/run.sh --plan paper-fca       # there: FCA (TCA and TCA+IB) at the paper's budget (issue 25)
-#   experiments/device/run.sh --plan images          # there: the MuJoCo-Image grid at 84x84 (issue 48), ~9 min
+#   experiments/device/run.sh --plan images          # there: MuJoCo-Image through the encoders, fine-tuned, ~9 min
 #   experiments/device/run.sh --plan fcaexpert       # there: Table 5 with FCA's expert at the paper's 300k (issue 44)
 #
 # Plans: `default` (above); `paper-fca`: FCA and FCA-IB under `--preset paper --recipe fca` on Hopper (8 seeds)
@@ -15,13 +15,16 @@
 # patch encoder) in what is left. Collect their demonstrations here first, so the device trains on the
 # same rows as this machine's runs (`.devdata/`, which the script makes `APE_JAX_CACHE` when it exists;
 # carry it too):  APE_JAX_CACHE=.devdata python -m experiments.collect --env hopper --obs pos  (and halfcheetah)
-# `images`: Hopper, Walker2d and HalfCheetah from 84x84 frames (the drq recipe, bfloat16), BC-SO, BC-OH, ours
-# and FCA, 3 seeds, as many iterations as fit (`python -m experiments.device.images`, which says how it sizes
-# them and refuses a plan that cannot fit), then the image encoders' speed (drq, patch, ResNet-18; float32 and
-# bfloat16) in the last BENCH_S seconds (default 90). Its state demonstrations are collected here first
-# (`--dry-run` prints the commands): APE_JAX_CACHE=.devdata python -m experiments.collect --env hopper --obs pos
-# --protocol brax --episodes 100 (and walker2d, halfcheetah); the frames are rendered there. To fit the device
-# tool's 64 MiB: experiments/device/fetch_wheels.sh --lean, then carry [".whl", ".devdata"] (55 MB).
+# `images`: Hopper, Walker2d and HalfCheetah through each task's pretrained perception encoder (envs/perception/,
+# 32x32), fine-tuned end to end (the paper's setting: recipe.perception_training=finetune) and frozen beside it in
+# the same run at the same iterations; BC-SO, BC-OH, ours and FCA, 3 seeds, bfloat16, as many iterations as fit
+# (`python -m experiments.device.images`, which says how it sizes them and refuses a plan that cannot fit), then
+# the image encoders' speed (drq, patch, ResNet-18; float32 and bfloat16) in the last BENCH_S seconds (default 90).
+# Its state demonstrations are collected here first (`--dry-run` prints the commands): APE_JAX_CACHE=.devdata
+# python -m experiments.collect --env hopper --obs pos --protocol brax --episodes 100 (and walker2d, halfcheetah);
+# the frames are rendered there. To fit the device tool's 64 MiB: experiments/device/fetch_wheels.sh --lean, then
+# carry [".whl", ".devdata"] (55 MB); the encoders are tracked files and travel with the tree. --smoke: 783 s on
+# the 2-core CPU beside two sweeps (2026-12-07).
 # `fcaexpert`: Table 5 with FCA's own expert (raw labels) under `--preset paper --protocol mujoco-state --recipe bn-mlp`, Hopper,
 # 8 seeds, one sweep per program side by side (BC-SO; BC-OH and ours; BC-full; FCA at alpha 0.1 and 2), each
 # program's configurations as one block. Import the expert and collect its rows here first, into .devdata (the
