@@ -116,3 +116,26 @@ def test_a_fine_tuned_encoders_results_never_merge_with_the_frozen_ones_in_the_r
     assert {k.perception for k in merged} == {"a" * 12, "a" * 12 + ":finetune"}
     assert any(g.title.endswith("through the pretrained encoder aaaaaaaa, fine-tuned)") for g in merged.values())
     assert len({groups.file_stem(g) for g in merged.values()}) == 2
+
+
+def test_the_mujoco_image_tables_put_the_encoders_groups_in_a_table_of_their_own():
+    import json
+    import pathlib
+
+    from ape_jax.pipeline import results as results_lib
+    from experiments.report.analysis import groups
+    from experiments.report.sections.state import perceived_groups, state_table
+
+    root = pathlib.Path(__file__).resolve().parents[1]
+    files = [results_lib.Results.from_json(json.loads((root / "results" / "hopper-image-patch-bc.json").read_text()))]
+    for task in ("hopper", "walker2d"):
+        files.append(results_lib.Results.from_json(json.loads(
+            (root / "results" / "exploratory" / f"{task}-image-perceived-gate.json").read_text())))
+    merged = groups.merge(files)
+    perceived = perceived_groups(merged, "brax")
+    assert [m.env for m in perceived] == ["hopper", "walker2d"]
+    assert all(m.protocol["perception"] for m in perceived)
+    scratch, through = state_table(merged, "image", "brax"), state_table(merged, "image", "brax", perceived)
+    assert "Hopper" in scratch and "Hopper" in through
+    assert "Walker2d" in through and "Walker2d" not in scratch   # the gate's Walker2d sits only in its own table
+    assert "(14%)" in through and "(14%)" not in scratch          # Hopper's BC-SO through the encoder: 14.1%

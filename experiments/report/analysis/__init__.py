@@ -3,6 +3,7 @@
 Nothing here formats markdown or draws: `experiments.report.sections` and `experiments.report.figures` do, from
 what these functions return. One module per concern, each re-exported here:
 
+- `encoders`: the `Key` part of frames seen through a pretrained perception encoder (`perception_of`), and its words;
 - `groups`: `load` one results file, `check_references`, `merge` them per `Key(env, obs, protocol, budget)` (an
   expert other than the task's own, or raw labels, a group of its own), the groups in report order and their
   titles;
@@ -38,6 +39,7 @@ from experiments.report.analysis.diagnostics import (DiagnosticsRow, PolicyDiagn
                                                      has_diagnostics, policy_diagnostics, recipe_diagnostics, run_at,
                                                      spread, training_points)
 from experiments.report.analysis.driving import CAMERA, DrivingVerdict, driving_verdicts
+from experiments.report.analysis.encoders import encoder_stem, encoder_words, perception_of
 from experiments.report.analysis.groups import (BRAX, STATE, STATE_TRAIN, FIRST_IMAGE_PRESET, MUJOCO, Group, Key,
                                                 Merged, ReportError, Source, budget_of, check_references, config_key,
                                                 demonstrator, expert_part, expert_words, file_stem,
@@ -84,7 +86,8 @@ __all__ = [
     "WeightShares", "alpha_rows", "ape_mean", "best_of", "mean_difference", "mean_estimate", "difference_rows",
     "difference_unit", "budget_differences", "budget_of", "budget_rows", "choices", "comparisons", "config_key",
     "copycat_groups", "copycat_map", "diagnostics_block", "diagnostics_rows", "diagnostics_thresholds",
-    "display_metric", "expert_ape", "extended_map", "extra_methods", "file_stem", "gap", "group_title",
+    "display_metric", "encoder_stem", "encoder_words", "expert_ape", "extended_map", "extra_methods", "file_stem",
+    "gap", "group_title", "perception_of",
     "groups_of", "has_diagnostics", "headline", "history_difference", "hparams_suffix", "in_state_family", "is_finite",
     "is_number", "is_rate", "known_methods", "label", "load", "longer_runs", "loss_rows", "main_metric", "mean_cell",
     "merge", "method_rows", "metric_value", "ok_runs", "ordered", "other_history", "other_setting",

@@ -30,6 +30,7 @@ from ape_jax import tasks
 from ape_jax.pipeline import results as results_lib
 from ape_jax.pipeline.presets import SettingsError
 from ape_jax.pipeline.setup import current_task_version
+from experiments.report.analysis.encoders import encoder_stem, encoder_words, perception_of
 from experiments.report.analysis.experts import (demonstrator, expert_part, expert_words, raw_labels,
                                                 same_expert)
 
@@ -115,14 +116,6 @@ class Key(NamedTuple):
     budget: int | None = None
     version: int | None = None
     perception: str | None = None
-
-
-def perception_of(r: results_lib.Results) -> str | None:
-    """`Key.perception` of a file: its encoder's SHA-256 (12 digits), `:readout` or `:finetune`; None: no encoder."""
-    recipe = (r.settings or {}).get("recipe") or {}
-    sha, output = recipe.get("perception_sha256"), recipe.get("perception_output") or "embedding"
-    output = "finetune" if recipe.get("perception_training") == "finetune" else output
-    return (sha[:12] + ("" if output == "embedding" else f":{output}")) if sha else None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -467,9 +460,7 @@ def group_title(key: Key, protocol: dict, with_protocol: bool, with_obs: bool | 
     if key.version is not None and key.version != current_task_version(key.env):  # the first tables' camera, ...
         parts.append(f"version {key.version}")
     if key.perception is not None:
-        sha, _, output = key.perception.partition(":")
-        parts.append(f"through the pretrained encoder {sha[:8]}" + (", fine-tuned" if output == "finetune" else
-                                                                          f"'s {output}" if output else ""))
+        parts.append(encoder_words(key.perception))
     return tasks.get(key.env).title + (f" ({', '.join(parts)})" if parts else "")
 
 
@@ -483,9 +474,7 @@ def file_stem(m: Group) -> str:
     parts += [f"{m.budget}it"] if m.budget else []
     version = m.protocol.get("task_version")  # from the second on: the first's names stay as they were
     parts += [f"v{version}"] if version not in (None, 1) else []
-    if m.protocol.get("perception"):
-        sha, _, output = m.protocol["perception"].partition(":")
-        parts += [f"enc{sha[:8]}" + (f"-{output}" if output else "")]
+    parts += [encoder_stem(m.protocol["perception"])] if m.protocol.get("perception") else []
     return "-".join(parts)
 
 

@@ -12,7 +12,8 @@ from ape_jax.pipeline import presets
 from ape_jax.pipeline import results as results_lib
 from experiments.report import figures
 from experiments.report.analysis import (BRAX, Group, Key, best_of, choices, config_key, copycat_groups, demonstrator,
-                                         display_metric, expert_ape, file_stem, first_training, former_preset, gap,
+                                         display_metric, encoder_words, expert_ape, file_stem, first_training,
+                                         former_preset, gap,
                                          is_rate, label, loss_rows, metric_value, protocol_words, raw_labels,
                                          retrained_shift)
 from experiments.report.sections.common import (SETTING_WORDS, Context, Section, expert_text, hparams_text, plus_minus,
@@ -238,7 +239,8 @@ def provenance(r: results_lib.Results) -> str:
 def group_title(m: Group) -> str:
     """A group's heading on its task's page: `"Protocol mujoco-state, split by rows, recipe bn-mlp, 300,000
     iterations"`."""
-    return f"Protocol {protocol_words(m.protocol)}" + (f", {m.budget:,} iterations" if m.budget else "")
+    return (f"Protocol {protocol_words(m.protocol)}" + (f", {m.budget:,} iterations" if m.budget else "")
+            + (f", {encoder_words(m.protocol['perception'])}" if m.protocol.get("perception") else ""))
 
 
 def group_sections(ctx: Context, key: Key) -> list[Section]:

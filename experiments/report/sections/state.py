@@ -7,7 +7,7 @@ from ape_jax import tasks
 from experiments.report.analysis import (BRAX, CEILING, CEILING_LABEL, STATE, Group, Key, Merged, best_of,
                                          difference_unit, extra_methods, groups_of, has_ceiling, headline,
                                          history_share, hparams_suffix, in_state_family, known_methods, label,
-                                         method_rows, paper_step_row, protocols_of, versus_bcoh)
+                                         method_rows, MUJOCO, ordered, paper_step_row, protocols_of, versus_bcoh)
 from experiments.report.paper import PAPER_STEP_LABEL, PAPER_TABLE5
 from experiments.report.sections.common import Context, Section, diff_cell, return_cell, table
 
@@ -27,11 +27,11 @@ def _titles(groups: list[Group]) -> list[str]:
     return [tasks.get(m.env).title for m in groups]
 
 
-def state_table(merged: Merged, obs: str = "pos", protocol: str = BRAX) -> str:
+def state_table(merged: Merged, obs: str = "pos", protocol: str = BRAX, groups: list[Group] | None = None) -> str:
     """Every method per MuJoCo task with observations `obs` ("pos": MuJoCo-State, "image": MuJoCo-Image) under
-    `protocol`: return mean ± sd over seeds (% of expert), the methods besides ours those groups ran, our
-    expert and a random policy; BC-full (the full state's ceiling) last where any of the groups ran it."""
-    groups = groups_of(merged, obs, protocol)
+    `protocol` (or of `groups`, one per task): return mean ± sd over seeds (% of expert), the methods besides ours
+    those groups ran, our expert and a random policy; BC-full (the full state's ceiling) last where any ran it."""
+    groups = groups_of(merged, obs, protocol) if groups is None else groups
     if not groups:
         return ""
     extras = extra_methods({Key(m.env, obs, protocol): m for m in groups})
@@ -60,12 +60,12 @@ def versus_table(merged: Merged, obs: str = "pos", protocol: str = BRAX) -> str:
     return table(["method − BC-OH", *_titles(groups)], rows)
 
 
-def ceiling_table(merged: Merged, obs: str = "pos", protocol: str = BRAX) -> str:
-    """Per task with observations `obs` under `protocol`, the share of the gap between BC-SO and BC-full (BC on the
-    full state, velocities included: the ceiling) that the history recovers, (BC-OH − BC-SO) / (BC-full − BC-SO),
-    with its 95% percentile bootstrap interval (`analysis.history_share`) and the gap in return; "" where no task
-    ran all three."""
-    groups = groups_of(merged, obs, protocol)
+def ceiling_table(merged: Merged, obs: str = "pos", protocol: str = BRAX, groups: list[Group] | None = None) -> str:
+    """Per task with observations `obs` under `protocol` (or of `groups`), the share of the gap between BC-SO and
+    BC-full (BC on the full state, velocities included: the ceiling) that the history recovers, (BC-OH − BC-SO) /
+    (BC-full − BC-SO), with its 95% percentile bootstrap interval (`analysis.history_share`) and the gap in return;
+    "" where no task ran all three."""
+    groups = groups_of(merged, obs, protocol) if groups is None else groups
     shares = [history_share(m) for m in groups]
     if not any(shares):
         return ""
@@ -208,4 +208,22 @@ def image_sections(ctx: Context) -> list[Section]:
                    if former else "From rendered frames. " + CAPTION)
         out.append(Section(title, caption, [t for t in (state_table(ctx.merged, "image", protocol),
                                                         ceiling_table(ctx.merged, "image", protocol)) if t]))
+        if perceived := perceived_groups(ctx.merged, protocol):
+            encoders = ", ".join(f"{tasks.get(m.env).title} {m.protocol['perception'][:8]}" for m in perceived)
+            out.append(Section(f"{title}, through the pretrained encoders",
+                               "The same frames seen through each task's pretrained perception encoder, frozen "
+                               f"(docs/perception.md; {encoders}): every policy trains on the frames' embeddings. "
+                               + CAPTION, [t for t in (state_table(ctx.merged, "image", protocol, perceived),
+                                                       ceiling_table(ctx.merged, "image", protocol, perceived)) if t]))
     return out
+
+
+def perceived_groups(merged: Merged, protocol: str) -> list[Group]:
+    """The MuJoCo image groups of `protocol` at their preset's budget whose frames were seen through a frozen
+    pretrained encoder, one per task (the first in report order), in task order."""
+    found: dict[str, Group] = {}
+    for k, m in ordered(merged):
+        if (k.env in MUJOCO and k.obs == "image" and k.protocol == protocol and k.budget is None
+                and k.perception and ":" not in k.perception):
+            found.setdefault(k.env, m)
+    return [found[e] for e in MUJOCO if e in found]
