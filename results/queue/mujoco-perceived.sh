@@ -17,10 +17,16 @@ budget=(--preset default --seeds 3 --methods bc-so --quiet)
 # Why HalfCheetah misses the gate (DIAG_ONLY=1): the state policy fed the encoder's error, i.e. BC-SO on the
 # encoder's read-out of `pos` (its estimate of the one-frame state, in its units: recipe.perception_output=readout)
 # at the gate's settings, beside the state BC-SO (exploratory/halfcheetah-pos-brax-gate) and the embedding's
+# ENC64=PATH: then the gate at 64x64 through the encoder pretrained on 64x64 frames (`python -m experiments.perception
+# --env halfcheetah --image-size 64 --out results/exploratory/perception/halfcheetah-64.json --encoder PATH`)
 if [ "${DIAG_ONLY:-0}" = 1 ]; then
   piece exploratory/halfcheetah-image-perceived-readout-gate "$CORE" --env halfcheetah --obs image "${budget[@]}" \
-    --set recipe.perception=task --set recipe.perception_output=readout
-  exit $?
+    --set recipe.perception=task --set recipe.perception_output=readout || exit 1
+  if [ -n "${ENC64:-}" ]; then
+    piece exploratory/halfcheetah-image-64-perceived-gate "$CORE" --env halfcheetah --obs image "${budget[@]}" \
+      --set "recipe.perception=$ENC64" --set protocol.image_size=64 || exit 1
+  fi
+  exit 0
 fi
 failed=0
 for task in hopper walker2d halfcheetah; do
