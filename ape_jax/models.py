@@ -446,7 +446,8 @@ class ResNet18Policy(nn.Module):
 class PerceptionPolicy(nn.Module):
     """`[..., height, width, 3 * H]` frames in [0, 1] -> `[..., A]` action through a task's pretrained perception
     encoder trained end to end (`recipe.perception_training=finetune`, `ape_jax.perception.tuned`): each frame's
-    embedding, then the state policy's network on the `H` embeddings, as the frozen stage's policies are built."""
+    embedding, then the state policy's network on the `H` embeddings, as the frozen stage's policies are built.
+    `dtype` is the head's arithmetic; the pretrained encoder computes in float32."""
 
     action_dim: int
     sha256: str = ""       # the encoder file's (`recipe.perception_sha256`)

@@ -224,23 +224,23 @@ def prepare(spec: SweepSpec, hooks: Hooks = Hooks()) -> Prepared:
     expert = None if expert is None else collect.labeller(expert, env, protocol.labels)
     check_fits(demos, env, str(path))
     seen = None
-    if spec.recipe.perception != "none" and spec.recipe.perception_training == "finetune":
-        from ape_jax import perception  # the encoder loaded for the policies it starts (`perception.tuned`)
-
-        encoder = perception.resolve(spec.env, spec.recipe.perception, spec.recipe.perception_sha256)
-        hooks.log(f"perception: the policies' image encoder starts as {pathlib.Path(encoder.path).name} (SHA-256 "
-                  f"{encoder.sha256[:12]}…) and trains end to end")
-        seen = {**encoder.describe(), "output": "embedding", "training": "finetune"}
-    elif spec.recipe.perception != "none":  # the frames seen through the frozen encoder, embedded once
+    if spec.recipe.perception != "none":
         from ape_jax import perception
 
         encoder = perception.resolve(spec.env, spec.recipe.perception, spec.recipe.perception_sha256)
-        with hooks.bar(desc="embed", total=len(demos), unit="frame") as b:
-            output = spec.recipe.perception_output
-            env, demos = perception.perceive(env, demos, encoder, progress=lambda n: b.update(n - b.n), output=output)
-        hooks.log(f"perception: {len(demos):,} frames seen through {pathlib.Path(encoder.path).name} "
-                  f"(SHA-256 {encoder.sha256[:12]}…; its {output}, {env.observation_shape[0]} features a frame)")
-        seen = {**encoder.describe(), "output": output}
+        name = pathlib.Path(encoder.path).name
+        if spec.recipe.perception_training == "finetune":   # it starts the policies' encoder (`perception.tuned`)
+            hooks.log(f"perception: the policies' image encoder starts as {name} (SHA-256 {encoder.sha256[:12]}…) "
+                      f"and trains end to end")
+            seen = {**encoder.describe(), "output": "embedding", "training": "finetune"}
+        else:   # the frames seen through the frozen encoder, embedded once
+            with hooks.bar(desc="embed", total=len(demos), unit="frame") as b:
+                output = spec.recipe.perception_output
+                env, demos = perception.perceive(env, demos, encoder, progress=lambda n: b.update(n - b.n),
+                                                 output=output)
+            hooks.log(f"perception: {len(demos):,} frames seen through {name} (SHA-256 {encoder.sha256[:12]}…; its "
+                      f"{output}, {env.observation_shape[0]} features a frame)")
+            seen = {**encoder.describe(), "output": output}
     if spec.protocol.prev_action:  # the previous action in view, in the rollouts and the demonstrations alike
         env, demos = observations.with_previous_action(env, demos)
     hooks.log(f"demonstrations: {len(demos):,} transitions in {demos.num_episodes} episodes ({source}: {path})")
