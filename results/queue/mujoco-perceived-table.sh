@@ -23,3 +23,9 @@ for task in ${TASKS:-hopper walker2d halfcheetah}; do
   specs+=("$task-image-default-perceived-baselines $common --methods fca,palr,bc-full")
 done
 pool "${specs[@]}"
+status=$?
+# the baselines pieces have no BC-SO of their own: their controlled verdict is judged against their task's bc piece
+for task in ${TASKS:-hopper walker2d halfcheetah}; do
+  judge_by "$task-image-default-perceived-baselines" "$task-image-default-perceived-bc"
+done
+exit "$status"
