@@ -139,3 +139,19 @@ def test_the_mujoco_image_tables_put_the_encoders_groups_in_a_table_of_their_own
     assert "Hopper" in scratch and "Hopper" in through
     assert "Walker2d" in through and "Walker2d" not in scratch   # the gate's Walker2d sits only in its own table
     assert "(14%)" in through and "(14%)" not in scratch          # Hopper's BC-SO through the encoder: 14.1%
+
+
+def test_the_image_sections_stand_with_the_encoders_groups_alone():
+    import json
+    import pathlib
+
+    from ape_jax.pipeline import results as results_lib
+    from experiments.report.analysis import groups
+    from experiments.report.sections.common import Context
+    from experiments.report.sections.state import image_sections
+
+    root = pathlib.Path(__file__).resolve().parents[1]
+    files = [results_lib.Results.from_json(json.loads(
+        (root / "results" / "exploratory" / "hopper-image-perceived-gate.json").read_text()))]
+    ctx = Context(groups.merge(files), None, root)
+    assert [s.title for s in image_sections(ctx)] == ["MuJoCo-Image, through the pretrained encoders"]

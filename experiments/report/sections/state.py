@@ -197,17 +197,19 @@ def state_sections(ctx: Context) -> list[Section]:
 
 
 def image_sections(ctx: Context) -> list[Section]:
-    """MuJoCo-Image per protocol: the state table of the image groups."""
+    """MuJoCo-Image per protocol: the state table of the image groups, then of those seen through the pretrained
+    encoders (`perceived_groups`), where either ran."""
     out = []
     for protocol in protocols_of(ctx.merged, "image"):
-        groups = groups_of(ctx.merged, "image", protocol)
-        former = groups[0].protocol.get("preset")
+        groups = groups_of(ctx.merged, "image", protocol)   # empty where only encoders' groups ran this protocol
+        former = groups[0].protocol.get("preset") if groups else None
         title = (f"MuJoCo-Image, the {former}" if former else
                  "MuJoCo-Image" + ("" if protocol == BRAX else f", protocol {protocol}"))
         caption = ("The first image preset, kept as it ran: the small conv encoder on 32×32 frames, 5,000 iterations."
                    if former else "From rendered frames. " + CAPTION)
-        out.append(Section(title, caption, [t for t in (state_table(ctx.merged, "image", protocol),
-                                                        ceiling_table(ctx.merged, "image", protocol)) if t]))
+        if groups:
+            out.append(Section(title, caption, [t for t in (state_table(ctx.merged, "image", protocol),
+                                                            ceiling_table(ctx.merged, "image", protocol)) if t]))
         if perceived := perceived_groups(ctx.merged, protocol):
             encoders = ", ".join(f"{tasks.get(m.env).title} {m.protocol['perception'][:8]}" for m in perceived)
             out.append(Section(f"{title}, through the pretrained encoders",
